@@ -1,0 +1,199 @@
+"""Configuration of the SUMO highway: road, traffic, driver population, ego, rewards, scenarios.
+
+One dataclass holds every default, with its unit, in one place (paper Table A.1, DESIGN.md "Traffic
+model"). The same schema validates Hydra configs (``conf/env/highway.yaml``) and keyword overrides of
+:class:`~kddrl_trl.envs.SumoHighwayEnv`, so a misspelt key or a malformed value fails before SUMO starts
+with a message naming the key.
+
+Scenarios (``baseline``, ``congested``, ``braking``) are the ``env:`` block of the package's Hydra files
+``conf/scenario/<name>.yaml``: one definition serves ``python -m kddrl_trl.train +scenario=braking`` and
+``SumoHighwayEnv(scenario="braking")``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from typing import Any, Mapping
+
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+KMH = 1.0 / 3.6
+
+
+@dataclass
+class DriverClass:
+    """One type of human driver: IDM parameters (paper Eq. 11-12) and SUMO LC2013 lane-change eagerness.
+
+    Each background vehicle draws its class with probability ``share``, then every IDM parameter from a
+    normal distribution around the class value with relative standard deviation ``spread`` (truncated at
+    ±2 sd). The drawn values are recorded per vehicle (``SumoHighwayEnv.vehicle_params``).
+    """
+
+    name: str = "normal"
+    share: float = 1.0
+    v0: float = 130 * KMH     # desired speed (m/s)
+    T: float = 1.5            # desired time headway (s)
+    s0: float = 5.0           # minimum gap (m)
+    a: float = 5.0            # maximum acceleration (m/s²)
+    b: float = 4.0            # comfortable deceleration (m/s²)
+    lc_speed_gain: float = 1.0  # SUMO lcSpeedGain: eagerness for lane changes that gain speed
+    lc_keep_right: float = 1.0  # SUMO lcKeepRight: eagerness to return to the right lane
+    spread: float = 0.05      # relative sd of the per-vehicle draw around the class values
+
+
+def default_drivers() -> list[DriverClass]:
+    """Three classes around Table A.1 (the 'normal' class *is* Table A.1; shares weight it as the centre)."""
+    return [
+        DriverClass("timid", 0.25, v0=115 * KMH, T=2.0, s0=6.0, a=3.5, b=3.0, lc_speed_gain=0.3,
+                    lc_keep_right=1.5),
+        DriverClass("normal", 0.50, v0=130 * KMH, T=1.5, s0=5.0, a=5.0, b=4.0, lc_speed_gain=1.0,
+                    lc_keep_right=1.0),
+        DriverClass("aggressive", 0.25, v0=145 * KMH, T=1.0, s0=4.0, a=6.5, b=5.0, lc_speed_gain=3.0,
+                    lc_keep_right=0.5),
+    ]
+
+
+@dataclass
+class BrakingEvent:
+    """Scenario 2 (paper §IV.D): a leader in the ego's lane brakes hard to a stop, stands, then resumes."""
+
+    enabled: bool = False
+    min_distance: float = 100.0  # m ahead of the ego (front bumper to front bumper)
+    max_distance: float = 300.0  # m
+    decel: float = 8.0           # m/s², hard braking
+    stand_time: float = 3.0      # s standing still
+    trigger_frames: int = 50     # frames after the episode start within which the event must begin
+
+
+@dataclass
+class HighwayConfig:
+    """Everything that defines the simulated highway. Units in the comments; defaults = paper Table A.1."""
+
+    scenario: str = "baseline"
+    # --- road (Table A.1)
+    num_lanes: int = 3
+    section_length: float = 420.0  # m, the study section; the ego's episode ends when it leaves it
+    entry_length: float = 300.0    # m of road before the section, where traffic settles and the ego is picked
+    exit_length: float = 150.0     # m after the section
+    lane_width: float = 3.2        # m
+    v_min: float = 72 * KMH        # m/s, lower speed limit (reward Eq. 27)
+    v_max: float = 180 * KMH       # m/s, upper speed limit = SUMO lane speed (reward Eq. 27)
+    step_length: float = 0.1       # s per frame
+    lc_duration: float = 2.0       # s per lane-change manoeuvre (ego and background)
+    vehicle_length: float = 5.0    # m, every vehicle
+    # --- traffic
+    flow_vph: float = 2325.0       # veh/h entering each road over all lanes (Table A.1; 3 x 886 = 2658 also valid)
+    flow_scale: float = 1.0        # multiplier on flow_vph (congested = 1.5)
+    drivers: list[DriverClass] = field(default_factory=default_drivers)
+    warmup_s: float = 40.0         # s of simulated traffic before the first episode
+    # --- ego
+    sensing_range: float = 200.0   # m, neighbours further away are absent (mask False)
+    history_len: int = 10          # frames of leader history
+    max_steps: int = 1000          # frames before truncation
+    accel_low: float = -5.0        # m/s² (Eq. 31)
+    accel_high: float = 5.0        # m/s²
+    pick_window: float = 150.0     # m before the section in which the ego is designated
+    ego_lane: int | None = None    # start lane of the ego (None = any)
+    # --- rewards (Eq. 26-29, 32-33)
+    collision_penalty: float = -100.0
+    lane_change_penalty: float = -1.0
+    accel_comfort: float = 4.0     # m/s², |a| above it is penalised quadratically
+    # --- scenario events
+    braking: BrakingEvent = field(default_factory=BrakingEvent)
+
+    @property
+    def flow(self) -> float:
+        """Vehicles per hour actually inserted per road."""
+        return self.flow_vph * self.flow_scale
+
+    @property
+    def road_length(self) -> float:
+        return self.entry_length + self.section_length + self.exit_length
+
+    def validate(self) -> "HighwayConfig":
+        """Range checks; raise ``ValueError`` naming the offending key."""
+        positive = ("section_length", "entry_length", "exit_length", "lane_width", "v_max", "step_length",
+                    "lc_duration", "vehicle_length", "flow_scale", "sensing_range", "pick_window")
+        for key in positive:
+            _check(key, getattr(self, key), getattr(self, key) > 0, "must be > 0")
+        _check("flow_vph", self.flow_vph, self.flow_vph >= 0, "must be >= 0 (vehicles per hour)")
+        _check("num_lanes", self.num_lanes, self.num_lanes >= 1, "must be >= 1")
+        _check("v_min", self.v_min, 0 <= self.v_min < self.v_max, "must satisfy 0 <= v_min < v_max")
+        _check("warmup_s", self.warmup_s, self.warmup_s >= 0, "must be >= 0")
+        _check("history_len", self.history_len, self.history_len >= 1, "must be >= 1")
+        _check("max_steps", self.max_steps, self.max_steps >= 1, "must be >= 1")
+        _check("accel_low", self.accel_low, self.accel_low < 0 < self.accel_high, "need accel_low < 0 < accel_high")
+        _check("pick_window", self.pick_window, self.pick_window <= self.entry_length, "must be <= entry_length")
+        if self.ego_lane is not None:
+            _check("ego_lane", self.ego_lane, 0 <= self.ego_lane < self.num_lanes,
+                   f"must be in [0, {self.num_lanes - 1}] (num_lanes={self.num_lanes})")
+        lc_frames = self.lc_duration / self.step_length
+        _check("lc_duration", self.lc_duration, abs(lc_frames - round(lc_frames)) < 1e-6,
+               f"must be a whole number of steps of {self.step_length} s")
+        if not self.drivers:
+            raise ValueError("drivers: at least one driver class is required")
+        names = [d.name for d in self.drivers]
+        if len(set(names)) != len(names):
+            raise ValueError(f"drivers: class names must be unique, got {names}")
+        for i, d in enumerate(self.drivers):
+            for key in ("share", "v0", "T", "s0", "a", "b"):
+                value = getattr(d, key)
+                _check(f"drivers[{i}].{key}", value, value > 0 and math.isfinite(value), "must be finite and > 0")
+            _check(f"drivers[{i}].spread", d.spread, 0 <= d.spread < 0.5, "must be in [0, 0.5)")
+        br = self.braking
+        _check("braking.min_distance", br.min_distance, 0 < br.min_distance <= br.max_distance,
+               "need 0 < min_distance <= max_distance")
+        _check("braking.decel", br.decel, br.decel > 0, "must be > 0")
+        _check("braking.stand_time", br.stand_time, br.stand_time >= 0, "must be >= 0")
+        _check("braking.trigger_frames", br.trigger_frames, br.trigger_frames >= 1, "must be >= 1")
+        return self
+
+
+def _check(key: str, value: Any, ok: bool, why: str) -> None:
+    if not ok:
+        raise ValueError(f"highway config: '{key}' = {value!r} {why}")
+
+
+def scenario_names() -> list[str]:
+    """Scenarios shipped with the package (files in ``kddrl_trl/conf/scenario``)."""
+    files = resources.files("kddrl_trl.conf").joinpath("scenario").iterdir()
+    return sorted(f.name[:-5] for f in files if f.name.endswith(".yaml"))
+
+
+def scenario_overrides(name: str) -> dict[str, Any]:
+    """The ``env:`` block of ``conf/scenario/<name>.yaml`` as a plain dict."""
+    names = scenario_names()
+    if name not in names:
+        raise ValueError(f"unknown scenario {name!r}; known scenarios: {', '.join(names)}")
+    text = resources.files("kddrl_trl.conf").joinpath("scenario", f"{name}.yaml").read_text()
+    block = OmegaConf.create(text).get("env", {})
+    return OmegaConf.to_container(block, resolve=True)
+
+
+def make_config(scenario: str = "baseline", overrides: Mapping[str, Any] | None = None) -> HighwayConfig:
+    """Build a validated :class:`HighwayConfig` from a scenario name plus keyword overrides.
+
+    Unknown keys and values of the wrong type raise ``ValueError`` naming the key; nothing starts SUMO.
+    ``overrides`` may be a dict, a DictConfig, or contain a ``scenario`` key (which is then used).
+    """
+    overrides = dict(OmegaConf.to_container(OmegaConf.create(dict(overrides or {})), resolve=True))
+    scenario = overrides.pop("scenario", scenario)
+    if not isinstance(scenario, str):
+        raise ValueError(f"highway config: 'scenario' must be a string, got {scenario!r}")
+    schema = OmegaConf.structured(HighwayConfig)
+    try:
+        merged = OmegaConf.merge(schema, scenario_overrides(scenario), overrides)
+    except OmegaConfBaseException as err:  # unknown key, wrong type, ...
+        key = getattr(err, "full_key", None) or "?"
+        raise ValueError(f"highway config: bad override for key '{key}': {err.msg if hasattr(err, 'msg') else err}") from None
+    cfg: HighwayConfig = OmegaConf.to_object(merged)
+    cfg.scenario = scenario
+    return cfg.validate()
+
+
+def config_dict(cfg: HighwayConfig) -> dict[str, Any]:
+    """Plain-dict view (for logging, hashing and recording metadata)."""
+    return dataclasses.asdict(cfg)

@@ -1,0 +1,161 @@
+"""``FakeHighwayEnv``: the specs and reward functions of ``SumoHighwayEnv`` without SUMO.
+
+Deterministic and cheap, for fast unit tests of transforms, collectors and losses. Background vehicles
+drive at constant speed in their lane (spacing set by the configured flow), so every raw key has a
+simple, checkable value; the ego follows the same command semantics as the SUMO env (v' = max(v + a dt, 0),
+a lane change lasts ``lc_duration`` and switches lane half way, commands outside ``action_mask`` keep
+the lane). It is *not* a traffic simulator: use it for plumbing, never for results.
+"""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.envs import EnvBase
+
+from .. import keys as K
+from .config import HighwayConfig, make_config
+from .rewards import car_following_reward, lane_change_reward
+from .specs import lc_command, set_specs
+
+_PER_LANE = 4  # background vehicles per lane
+
+
+class FakeHighwayEnv(EnvBase):
+    """Same constructor, specs and keys as :class:`~kddrl_trl.envs.SumoHighwayEnv`; no SUMO."""
+
+    batch_locked = True
+
+    def __init__(self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, **overrides):
+        if not isinstance(num_roads, int) or isinstance(num_roads, bool) or num_roads < 1:
+            raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
+        self.config: HighwayConfig = make_config(scenario, overrides)
+        super().__init__(device=device, batch_size=torch.Size([num_roads]))
+        self.num_roads = num_roads
+        set_specs(self, self.config, (num_roads,))
+        cfg, b, n = self.config, num_roads, self.config.num_lanes * _PER_LANE
+        self.lc_frames = int(round(cfg.lc_duration / cfg.step_length))
+        self.ego_y, self.ego_v = torch.zeros(b), torch.zeros(b)
+        self.ego_lane, self.lc_left, self.lc_dir = (torch.zeros(b, dtype=torch.long) for _ in range(3))
+        self.frame = torch.zeros(b, dtype=torch.long)
+        self.accel = torch.zeros(b)
+        self.o_y, self.o_v = torch.zeros(b, n), torch.zeros(b, n)
+        self.o_lane = torch.arange(cfg.num_lanes).repeat_interleave(_PER_LANE).expand(b, n).clone()
+        self.episode_count = torch.zeros(b, dtype=torch.long)
+        self._started = torch.zeros(b, dtype=torch.bool)
+        self._set_seed(seed)
+
+    # ----------------------------------------------------------------------------------- dynamics
+    def _place(self, rows: torch.Tensor) -> None:
+        """Deterministic placement of road ``rows`` from (seed, road, episode number)."""
+        cfg = self.config
+        spacing = 3600.0 * 36.0 / max(cfg.flow / cfg.num_lanes, 1.0)  # m between vehicles of one lane
+        for r in rows.tolist():
+            g = torch.Generator().manual_seed(self._seed * 100_003 + r * 1_009 + int(self.episode_count[r]))
+            self.ego_lane[r] = cfg.ego_lane if cfg.ego_lane is not None else int(torch.randint(cfg.num_lanes, (1,), generator=g))
+            self.ego_y[r] = -cfg.pick_window * float(torch.rand(1, generator=g))
+            self.ego_v[r] = 25.0 + 10.0 * float(torch.rand(1, generator=g))
+            k = torch.arange(_PER_LANE).repeat(cfg.num_lanes).float()
+            offset = spacing * (k - 1.0) + spacing * torch.rand(k.shape, generator=g) * 0.5 + 20.0
+            self.o_y[r] = self.ego_y[r] + offset
+            self.o_v[r] = 22.0 + 14.0 * torch.rand(k.shape, generator=g)
+            self.episode_count[r] += 1
+        self.lc_left[rows] = 0
+        self.frame[rows] = 0
+        self.accel[rows] = 0.0
+
+    def _slots(self):
+        """Nearest leader / follower per (left, current, right) lane: indices [B,6] and presence [B,6]."""
+        dy = self.o_y - self.ego_y[:, None]
+        idx, present = [], []
+        for ahead in (True, False):
+            for off in (1, 0, -1):
+                in_lane = self.o_lane == (self.ego_lane + off)[:, None]
+                ok = in_lane & ((dy > 0) if ahead else (dy <= 0)) & (dy.abs() <= self.config.sensing_range)
+                score = torch.where(ok, dy.abs(), torch.full_like(dy, float("inf")))
+                best = score.argmin(-1)
+                idx.append(best)
+                present.append(ok.gather(-1, best[:, None]).squeeze(-1))
+        return torch.stack(idx, -1), torch.stack(present, -1)
+
+    def _observe(self, collision: torch.Tensor) -> dict:
+        cfg, b = self.config, self.num_roads
+        h = cfg.history_len
+        idx, present = self._slots()
+        ny, nv = self.o_y.gather(-1, idx), self.o_v.gather(-1, idx)
+        lanes = self.o_lane.gather(-1, idx)
+        active = self.lc_left > 0
+        vx = torch.where(active, self.lc_dir.float() * cfg.lane_width / cfg.lc_duration, torch.zeros(b))
+        dx = (lanes - self.ego_lane[:, None]).float() * cfg.lane_width
+        zeros = torch.zeros(b, 6)
+        rel = torch.stack([dx, ny - self.ego_y[:, None], zeros - vx[:, None], nv - self.ego_v[:, None]], -1)
+        kin = torch.stack([ny, nv, zeros], -1)
+        pm = present[..., None].float()
+        # vehicle ahead of each leader: nearest in the leader's lane in front of it
+        ly, llane = ny[:, :3], lanes[:, :3]
+        gap = self.o_y[:, None, :] - ly[..., None]
+        ok = (self.o_lane[:, None, :] == llane[..., None]) & (gap > 0) & present[:, :3, None]
+        best = torch.where(ok, gap, torch.full_like(gap, float("inf"))).argmin(-1)
+        has = ok.gather(-1, best[..., None]).squeeze(-1)
+        ahead = torch.stack([self.o_y.gather(-1, best), self.o_v.gather(-1, best), has.float()], -1) * has[..., None]
+        back = torch.arange(h - 1, -1, -1, dtype=torch.float32) * cfg.step_length
+        hist_y = ly[..., None] - nv[:, :3, None] * back
+        history = torch.stack([hist_y, nv[:, :3, None].expand(b, 3, h)], -1) * pm[:, :3, None]
+        mask = torch.ones(b, 3, dtype=torch.bool)
+        mask[:, K.LEFT] = ~active & (self.ego_lane < cfg.num_lanes - 1)
+        mask[:, K.RIGHT] = ~active & (self.ego_lane > 0)
+        return {
+            "ego": {"state": torch.stack([self.ego_y, self.ego_v, vx], -1), "lane": self.ego_lane[:, None].clone(),
+                    "accel": self.accel[:, None].clone()},
+            "neighbors": {"rel": rel * pm, "mask": present, "kin": kin * pm},
+            "leaders": {"ahead": ahead, "history": history},
+            "lc": {"action_mask": mask, "active": active[:, None], "started": self._started[:, None].clone()},
+            "collision": collision[:, None],
+        }
+
+    # ------------------------------------------------------------------------------------ TorchRL
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        if tensordict is not None and "_reset" in tensordict.keys():
+            rows = tensordict.get("_reset").reshape(-1).nonzero().flatten()
+        else:
+            rows = torch.arange(self.num_roads)
+        self._place(rows)
+        self._started[rows] = False
+        out = self._observe(torch.zeros(self.num_roads, dtype=torch.bool))
+        false = torch.zeros(self.num_roads, 1, dtype=torch.bool)
+        out.update(done=false, terminated=false.clone(), truncated=false.clone())
+        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        cfg = self.config
+        cmd = lc_command(tensordict.get(K.LC_ACTION)).reshape(-1).cpu()
+        a = tensordict.get(K.CF_ACTION).reshape(-1).detach().cpu().clamp(cfg.accel_low, cfg.accel_high)
+        a = torch.nan_to_num(a)
+        mask = self._observe(torch.zeros(self.num_roads, dtype=torch.bool))["lc"]["action_mask"]
+        want = (cmd != K.KEEP) & mask.gather(-1, cmd[:, None]).squeeze(-1)
+        self._started = want
+        self.lc_dir = torch.where(want, torch.where(cmd == K.LEFT, 1, -1), self.lc_dir)
+        self.lc_left = torch.where(want, torch.full_like(self.lc_left, self.lc_frames), self.lc_left)
+        v_new = (self.ego_v + a * cfg.step_length).clamp_min(0.0)
+        self.accel = (v_new - self.ego_v) / cfg.step_length
+        self.ego_v = v_new
+        self.ego_y = self.ego_y + v_new * cfg.step_length
+        self.o_y = self.o_y + self.o_v * cfg.step_length
+        self.lc_left = (self.lc_left - 1).clamp_min(0)
+        switch = (self.lc_left == self.lc_frames // 2) & (self.lc_dir != 0) & ~want
+        self.ego_lane = torch.where(switch, self.ego_lane + self.lc_dir, self.ego_lane)
+        self.frame += 1
+        same = self.o_lane == self.ego_lane[:, None]
+        gap = (self.o_y - self.ego_y[:, None]).abs()
+        collision = (same & (gap < cfg.vehicle_length)).any(-1)
+        out = self._observe(collision)
+        col = collision.float()
+        out["lc"]["reward"] = lane_change_reward(self.ego_v, want.float(), col, cfg)[:, None].float()
+        out["cf"] = {"reward": car_following_reward(self.ego_v, self.accel, col, cfg)[:, None].float()}
+        terminated = collision | (self.ego_y > cfg.section_length)
+        truncated = ~terminated & (self.frame >= cfg.max_steps)
+        out.update(terminated=terminated[:, None], truncated=truncated[:, None], done=(terminated | truncated)[:, None])
+        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._seed = 0 if seed is None else int(seed)
+        self.episode_count.zero_()

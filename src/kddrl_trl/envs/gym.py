@@ -1,0 +1,109 @@
+"""Gymnasium view of the highway: one road, Dict spaces, registered as ``kddrl_trl/SumoHighway-v0``.
+
+Example:
+    >>> import gymnasium as gym
+    >>> import kddrl_trl  # registers the id
+    >>> env = gym.make("kddrl_trl/SumoHighway-v0", scenario="braking")
+    >>> obs, info = env.reset(seed=0)
+    >>> obs, reward, terminated, truncated, info = env.step({"lc": 1, "cf": [0.5]})
+
+Observations are the raw keys of ``kddrl_trl.keys`` as nested dicts (booleans as 0/1 ``int8``); the action
+is ``{"lc": 0|1|2 (left, keep, right), "cf": [acceleration m/s²]}``. Gymnasium wants one scalar reward:
+``reward="sum"`` (default) returns r_D3QN + r_TD3, ``"lc"`` or ``"cf"`` one agent's; both are always in
+``info["reward_lc"]`` and ``info["reward_cf"]``. When an episode ends, ``info["episode"]`` holds its metrics.
+"""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .. import keys as K
+from .config import make_config
+from .sim import HighwaySim
+
+ENV_ID = "kddrl_trl/SumoHighway-v0"
+
+
+def _nest(flat: dict) -> dict:
+    out: dict = {}
+    for key, value in flat.items():
+        node = out
+        if isinstance(key, tuple):
+            for part in key[:-1]:
+                node = node.setdefault(part, {})
+            node[key[-1]] = value
+        else:
+            out[key] = value
+    return out
+
+
+class SumoHighwayGymEnv(gym.Env):
+    """One ego on one road of the SUMO highway, as a Gymnasium environment (same simulator as the TorchRL env)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, scenario: str = "baseline", seed: int = 0, reward: str = "sum", **overrides):
+        if reward not in ("sum", "lc", "cf"):
+            raise ValueError(f"reward must be 'sum', 'lc' or 'cf', got {reward!r}")
+        self.config = make_config(scenario, overrides)
+        self.reward_mode = reward
+        self._seed = seed
+        self.sim: HighwaySim | None = None
+        cfg, h = self.config, self.config.history_len
+        box = lambda *shape: spaces.Box(-np.inf, np.inf, shape, np.float32)  # noqa: E731
+        flat = {
+            K.EGO_STATE: box(3), K.EGO_LANE: spaces.Box(0, cfg.num_lanes - 1, (1,), np.int64),
+            K.EGO_ACCEL: spaces.Box(cfg.accel_low, cfg.accel_high, (1,), np.float32),
+            K.NEIGHBORS_REL: box(6, 4), K.NEIGHBORS_MASK: spaces.MultiBinary(6), K.NEIGHBORS_KIN: box(6, 3),
+            K.LEADERS_AHEAD: box(3, 3), K.LEADERS_HISTORY: box(3, h, 2),
+            K.LC_ACTION_MASK: spaces.MultiBinary(3), K.LC_ACTIVE: spaces.MultiBinary(1),
+            K.LC_STARTED: spaces.MultiBinary(1), K.COLLISION: spaces.MultiBinary(1),
+        }
+        self.observation_space = spaces.Dict({k: spaces.Dict(v) if isinstance(v, dict) else v
+                                              for k, v in _nest(flat).items()})
+        self.action_space = spaces.Dict({
+            "lc": spaces.Discrete(3),
+            "cf": spaces.Box(cfg.accel_low, cfg.accel_high, (1,), np.float32),
+        })
+
+    def _obs(self) -> dict:
+        flat = {}
+        for key, arr in self.sim.obs.items():
+            value = arr[0]
+            flat[key] = value.astype(np.int8) if value.dtype == bool else value.copy()
+        return _nest(flat)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if self.sim is None:
+            self.sim = HighwaySim(self.config, 1, seed=self._seed if seed is None else seed)
+        elif seed is not None:
+            self.sim.reseed(seed)
+        self.sim.reset_roads([0])
+        return self._obs(), {"ego": self.sim.ego[0]}
+
+    def step(self, action):
+        if self.sim is None or self.sim.ego[0] is None:
+            raise RuntimeError("call reset() before step() (and after an episode ended)")
+        lc = np.asarray([int(action["lc"])])
+        cf = np.asarray(action["cf"], np.float64).reshape(1)
+        n_before = len(self.sim.episodes)
+        self.sim.step(lc, cf)
+        r_lc, r_cf = float(self.sim.reward_lc[0, 0]), float(self.sim.reward_cf[0, 0])
+        reward = {"sum": r_lc + r_cf, "lc": r_lc, "cf": r_cf}[self.reward_mode]
+        info = {"reward_lc": r_lc, "reward_cf": r_cf}
+        if len(self.sim.episodes) > n_before:
+            info["episode"] = self.sim.episodes[-1]
+        return self._obs(), reward, bool(self.sim.terminated[0, 0]), bool(self.sim.truncated[0, 0]), info
+
+    def close(self):
+        if self.sim is not None:
+            self.sim.close()
+            self.sim = None
+
+
+def register() -> None:
+    """Register ``kddrl_trl/SumoHighway-v0`` with Gymnasium (idempotent; done on ``import kddrl_trl``)."""
+    if ENV_ID not in gym.registry:
+        gym.register(id=ENV_ID, entry_point="kddrl_trl.envs.gym:SumoHighwayGymEnv", max_episode_steps=None)

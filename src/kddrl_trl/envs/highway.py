@@ -1,0 +1,124 @@
+"""``SumoHighwayEnv``: the batched TorchRL environment over libsumo (paper §III.G, §IV.A-D, Table A.1).
+
+K independent copies of the 3-lane study road live in one SUMO simulation (one per process, a libsumo
+rule), so the environment has ``batch_size=[K]`` with one ego per road and TorchRL's per-call overhead is
+paid once per K frames. Partial resets (``"_reset"``) designate a new ego on the selected roads only.
+
+Example:
+    >>> from kddrl_trl.envs import SumoHighwayEnv
+    >>> env = SumoHighwayEnv(scenario="braking", num_roads=8, seed=0)
+    >>> td = env.rollout(50, break_when_any_done=False)
+    >>> td["next", "lc", "reward"].shape
+    torch.Size([8, 50, 1])
+    >>> env.episodes[0]["mean_speed_kmh"]   # per-episode metrics of finished episodes
+    >>> env.close()
+"""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.envs import EnvBase
+
+from .. import keys as K
+from .config import HighwayConfig, make_config
+from .sim import HighwaySim
+from .specs import lc_command, set_specs
+
+
+class SumoHighwayEnv(EnvBase):
+    """The KDDRL highway: K roads x one ego, raw keys of ``kddrl_trl.keys``, two per-agent rewards.
+
+    Args:
+        scenario: ``"baseline"``, ``"congested"`` or ``"braking"`` (``conf/scenario/*.yaml``).
+        num_roads: K >= 1, the batch size.
+        seed: seeds SUMO and the env's own generator; same seed -> identical rollouts.
+        device: torch device of the output tensors (the simulator itself is CPU).
+        **overrides: any field of :class:`~kddrl_trl.envs.config.HighwayConfig` (e.g. ``flow_vph=2658``,
+            ``braking={"stand_time": 5}``); unknown keys or bad values raise ``ValueError`` naming the key
+            before SUMO starts.
+
+    Actions: ``("lc","action")`` one-hot (left, keep, right); ``("cf","action")`` acceleration in
+    [-5, 5] m/s². A lane-change command is executed only where ``("lc","action_mask")`` allows it (no
+    manoeuvre in progress and the target lane exists); otherwise the lane is kept.
+
+    Attributes:
+        episodes: metrics of every finished episode (mean speed, acceleration, lane changes, collision...).
+        stats: counters (episodes, collisions, SUMO errors, braking events, ...).
+        vehicle_params: driver class and drawn IDM parameters of every background vehicle.
+    """
+
+    batch_locked = True
+
+    def __init__(self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, **overrides):
+        if not isinstance(num_roads, int) or isinstance(num_roads, bool) or num_roads < 1:
+            raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
+        self.config: HighwayConfig = make_config(scenario, overrides)
+        super().__init__(device=device, batch_size=torch.Size([num_roads]))
+        self.num_roads = num_roads
+        set_specs(self, self.config, (num_roads,))
+        self.sim = HighwaySim(self.config, num_roads, seed=seed)
+        self._seed = seed
+
+    # ------------------------------------------------------------------------------------- views
+    @property
+    def episodes(self) -> list[dict]:
+        return self.sim.episodes
+
+    @property
+    def stats(self) -> dict:
+        return self.sim.stats
+
+    @property
+    def vehicle_params(self) -> dict:
+        return self.sim.vehicle_params
+
+    # ------------------------------------------------------------------------------------ TorchRL
+    def _output(self, with_reward: bool) -> TensorDictBase:
+        """Copy the simulator's numpy arrays into a fresh nested TensorDict (the arrays are reused next step).
+
+        Built with ``TensorDict._new_unsafe``: shapes are guaranteed by construction, and the checks of the
+        public constructor cost as much as the copies themselves at this size."""
+        sim, batch = self.sim, self.batch_size
+        groups: dict = {}
+        flat = {}
+        for key, arr in sim.obs.items():
+            value = torch.from_numpy(arr.copy())
+            if isinstance(key, tuple):
+                groups.setdefault(key[0], {})[key[1]] = value
+            else:
+                flat[key] = value
+        if with_reward:
+            groups["lc"]["reward"] = torch.from_numpy(sim.reward_lc.copy())
+            groups["cf"] = {"reward": torch.from_numpy(sim.reward_cf.copy())}
+        terminated = torch.from_numpy(sim.terminated.copy())
+        truncated = torch.from_numpy(sim.truncated.copy())
+        flat.update(terminated=terminated, truncated=truncated, done=terminated | truncated)
+        for name, leaves in groups.items():
+            flat[name] = TensorDict._new_unsafe(leaves, batch_size=batch)
+        out = TensorDict._new_unsafe(flat, batch_size=batch)
+        return out if self.device is None or self.device == torch.device("cpu") else out.to(self.device)
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        if tensordict is not None and "_reset" in tensordict.keys():
+            roads = tensordict.get("_reset").reshape(self.num_roads).nonzero().flatten().tolist()
+        else:
+            roads = list(range(self.num_roads))
+        self.sim.reset_roads(roads)
+        return self._output(with_reward=False)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        lc = lc_command(tensordict.get(K.LC_ACTION)).reshape(-1).cpu().numpy()
+        acc = tensordict.get(K.CF_ACTION).reshape(-1).detach().cpu().numpy()
+        self.sim.step(lc, acc)
+        return self._output(with_reward=True)
+
+    def _set_seed(self, seed: int | None) -> None:
+        seed = 0 if seed is None else int(seed)
+        self._seed = seed
+        if hasattr(self, "sim") and not self.sim.closed:
+            self.sim.reseed(seed)
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        if hasattr(self, "sim"):
+            self.sim.close()
+        super().close(raise_if_closed=False)

@@ -1,0 +1,80 @@
+"""TorchRL specs of the raw highway keys (DESIGN.md "Key contract"), shared by the SUMO and the fake env."""
+from __future__ import annotations
+
+import torch
+from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
+
+from .. import keys as K
+from .config import HighwayConfig
+
+
+def observation_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
+    """Raw observation written by the environment, with units in the comments (see keys.py)."""
+    b = tuple(batch)
+    f32 = torch.float32
+    return Composite(
+        ego=Composite(
+            state=Unbounded(shape=(*b, 3), dtype=f32),        # y (m), v_y (m/s), v_x (m/s)
+            lane=Bounded(0, cfg.num_lanes - 1, shape=(*b, 1), dtype=torch.int64),
+            accel=Bounded(cfg.accel_low, cfg.accel_high, shape=(*b, 1), dtype=f32),  # m/s²
+            shape=b),
+        neighbors=Composite(
+            rel=Unbounded(shape=(*b, 6, 4), dtype=f32),       # dx, dy (m), dvx, dvy (m/s)
+            mask=Categorical(2, shape=(*b, 6), dtype=torch.bool),
+            kin=Unbounded(shape=(*b, 6, 3), dtype=f32),       # y (m), v (m/s), a (m/s²)
+            shape=b),
+        leaders=Composite(
+            ahead=Unbounded(shape=(*b, 3, 3), dtype=f32),     # y (m), v (m/s), present (0/1)
+            history=Unbounded(shape=(*b, 3, cfg.history_len, 2), dtype=f32),  # y (m), v (m/s)
+            shape=b),
+        lc=Composite(
+            action_mask=Categorical(2, shape=(*b, 3), dtype=torch.bool),
+            active=Categorical(2, shape=(*b, 1), dtype=torch.bool),
+            started=Categorical(2, shape=(*b, 1), dtype=torch.bool),
+            shape=b),
+        collision=Categorical(2, shape=(*b, 1), dtype=torch.bool),
+        shape=b,
+    )
+
+
+def action_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
+    """(left, keep, right) one-hot lane-change command (Eq. 25) and acceleration in m/s² (Eq. 31)."""
+    b = tuple(batch)
+    return Composite(
+        lc=Composite(action=OneHot(3, shape=(*b, 3), dtype=torch.float32), shape=b),
+        cf=Composite(action=Bounded(cfg.accel_low, cfg.accel_high, shape=(*b, 1), dtype=torch.float32), shape=b),
+        shape=b,
+    )
+
+
+def reward_spec(batch: tuple[int, ...]) -> Composite:
+    """Per-agent rewards: lane change Eq. 26-29, car following Eq. 32-33."""
+    b = tuple(batch)
+    return Composite(
+        lc=Composite(reward=Unbounded(shape=(*b, 1), dtype=torch.float32), shape=b),
+        cf=Composite(reward=Unbounded(shape=(*b, 1), dtype=torch.float32), shape=b),
+        shape=b,
+    )
+
+
+def done_spec(batch: tuple[int, ...]) -> Composite:
+    b = tuple(batch)
+    return Composite(
+        done=Categorical(2, shape=(*b, 1), dtype=torch.bool),
+        terminated=Categorical(2, shape=(*b, 1), dtype=torch.bool),
+        truncated=Categorical(2, shape=(*b, 1), dtype=torch.bool),
+        shape=b,
+    )
+
+
+def set_specs(env, cfg: HighwayConfig, batch: tuple[int, ...]) -> None:
+    env.observation_spec = observation_spec(cfg, batch)
+    env.action_spec = action_spec(cfg, batch)
+    env.reward_spec = reward_spec(batch)
+    env.done_spec = done_spec(batch)
+
+
+def lc_command(action: torch.Tensor) -> torch.Tensor:
+    """Index (0 left, 1 keep, 2 right) of a one-hot lane-change action; an all-zero row means keep."""
+    idx = action.argmax(-1)
+    return torch.where(action.amax(-1) > 0, idx, torch.full_like(idx, K.KEEP))

@@ -1,0 +1,56 @@
+"""Driving metrics of the paper's Tables II-V from per-episode records (``SumoHighwayEnv.episodes``)."""
+from __future__ import annotations
+
+import numpy as np
+
+#: the paper's figures for the rule-based baseline (Table V, baseline scenario), to print beside ours
+PAPER_IDM_MOBIL = {"mean_speed_kmh": 146.6, "mean_speed_kmh_sd": 25.5, "mean_accel": 1.20, "mean_accel_sd": 0.8,
+                   "collision_rate": 0.0}
+
+
+def summarize(episodes: list[dict]) -> dict:
+    """Mean ± sd over episodes of speed (km/h) and acceleration (signed and absolute, m/s²), lane changes
+    (total and per episode), collision rate (fraction of episodes) and outcome counts."""
+    if not episodes:
+        raise ValueError("summarize: no finished episodes to summarize")
+
+    def col(key):
+        return np.asarray([e[key] for e in episodes], dtype=float)
+
+    out = {"episodes": len(episodes)}
+    for key in ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc", "return_cf"):
+        values = col(key)
+        out[key] = float(values.mean())
+        out[f"{key}_sd"] = float(values.std())
+    out["lane_changes_total"] = int(col("lane_changes").sum())
+    out["collision_rate"] = float(col("collision").mean())
+    outcomes: dict[str, int] = {}
+    for e in episodes:
+        outcomes[e["outcome"]] = outcomes.get(e["outcome"], 0) + 1
+    out["outcomes"] = outcomes
+    return out
+
+
+def format_summary(summary: dict, reference: dict | None = None) -> str:
+    """A small text table of ``summary`` (and the paper's values beside it where given)."""
+    rows = [("episodes", f"{summary['episodes']}", "")]
+    ref = reference or {}
+
+    def pm(key):
+        return f"{summary[key]:.2f} ± {summary[key + '_sd']:.2f}"
+
+    def ref_pm(key):
+        return f"{ref[key]:.2f} ± {ref[key + '_sd']:.2f}" if key in ref else ""
+
+    rows += [
+        ("mean speed (km/h)", pm("mean_speed_kmh"), ref_pm("mean_speed_kmh")),
+        ("mean acceleration (m/s²)", pm("mean_accel"), ref_pm("mean_accel")),
+        ("mean |acceleration| (m/s²)", pm("mean_abs_accel"), ""),
+        ("lane changes per episode", pm("lane_changes"), ""),
+        ("lane changes, total", f"{summary['lane_changes_total']}", ""),
+        ("collision rate", f"{100 * summary['collision_rate']:.2f} %",
+         f"{100 * ref['collision_rate']:.2f} %" if "collision_rate" in ref else ""),
+    ]
+    width = max(len(r[0]) for r in rows)
+    head = f"{'metric':<{width}}  {'measured':>18}  {'paper':>16}"
+    return "\n".join([head, "-" * len(head)] + [f"{a:<{width}}  {b:>18}  {c:>16}" for a, b, c in rows])

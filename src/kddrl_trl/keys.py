@@ -1,0 +1,64 @@
+"""Every TensorDict key shared across kddrl_trl modules (``../shared/DESIGN.md``, "Key contract").
+
+Conventions: nested keys, snake_case leaves, SI units (m, m/s, m/s², s), a trailing feature dimension.
+The paper's coordinates are used throughout: ``y`` is *longitudinal* (along the road, metres from the
+start of the 420 m study section), ``x`` is *lateral* (metres from the right road edge, growing to the left).
+
+Neighbour slots are always ordered ``a, b, c, d, e, f`` = (left leader, current leader, right leader,
+left follower, current follower, right follower) — paper Fig. 6. Lane-change actions are always ordered
+(left, keep, right) — paper Eq. 25.
+"""
+from __future__ import annotations
+
+# ----------------------------------------------------------------------------------------- orderings
+LC_ACTIONS = ("left", "keep", "right")
+LEFT, KEEP, RIGHT = 0, 1, 2
+NEIGHBOR_SLOTS = ("a", "b", "c", "d", "e", "f")
+LEADER_SLOTS = ("a", "b", "c")
+#: index of each neighbour slot in ``NEIGHBORS_*`` tensors
+SLOT = {name: i for i, name in enumerate(NEIGHBOR_SLOTS)}
+#: feature order of ``NEIGHBORS_REL``: Δx (lateral), Δy (longitudinal), Δv_x, Δv_y — neighbour minus ego
+REL_FEATURES = ("dx", "dy", "dvx", "dvy")
+#: feature order of ``NEIGHBORS_KIN``: absolute longitudinal position, speed, acceleration
+KIN_FEATURES = ("y", "v", "a")
+#: feature order of ``EGO_STATE``: y, v_y, v_x — paper Eq. 24 (s_AV)
+EGO_FEATURES = ("y", "vy", "vx")
+#: feature order of ``LEADERS_AHEAD``: position, speed, presence (1.0 / 0.0) of the vehicle ahead of a leader
+AHEAD_FEATURES = ("y", "v", "present")
+#: feature order of ``LEADERS_HISTORY``: position, speed
+HISTORY_FEATURES = ("y", "v")
+
+# ------------------------------------------------------------------------------- raw (environment)
+EGO_STATE = ("ego", "state")            # [3]  y, v_y, v_x
+EGO_LANE = ("ego", "lane")              # [1]  int64, 0 = rightmost
+EGO_ACCEL = ("ego", "accel")            # [1]  acceleration executed in the last frame (m/s²)
+NEIGHBORS_REL = ("neighbors", "rel")    # [6, 4]
+NEIGHBORS_MASK = ("neighbors", "mask")  # [6]  bool, neighbour present within sensing range
+NEIGHBORS_KIN = ("neighbors", "kin")    # [6, 3]
+LEADERS_AHEAD = ("leaders", "ahead")    # [3, 3]
+LEADERS_HISTORY = ("leaders", "history")  # [3, H, 2], oldest first, last entry = current frame
+LC_ACTION_MASK = ("lc", "action_mask")  # [3]  bool, which lane-change commands would be executed now
+LC_ACTIVE = ("lc", "active")            # [1]  bool, a lane-change manoeuvre is in progress
+LC_STARTED = ("lc", "started")          # [1]  bool, a lane-change manoeuvre started in this frame
+COLLISION = "collision"                 # [1]  bool, the ego collided in this frame (read under "next")
+
+RAW_OBSERVATION_KEYS = (
+    EGO_STATE, EGO_LANE, EGO_ACCEL, NEIGHBORS_REL, NEIGHBORS_MASK, NEIGHBORS_KIN,
+    LEADERS_AHEAD, LEADERS_HISTORY, LC_ACTION_MASK, LC_ACTIVE, LC_STARTED, COLLISION,
+)
+
+# ------------------------------------------------------------------------------ derived (transforms)
+PRED_PRIOR_TRAJ = ("pred", "prior_traj")  # [3, 20] IDM-rolled prior positions TC of a, b, c
+PRED_TRAJ = ("pred", "traj")              # [3, 20] trajGAN-refined positions TG of a, b, c
+PRED_KEY_GAPS = ("pred", "key_gaps")      # [3, 2]  TG at steps 10 and 20 minus ego position
+PRIOR_P_MOBIL = ("prior", "p_mobil")      # [3]     P_MOBIL over (left, keep, right), Eq. 22
+PRIOR_P_LCGAN = ("prior", "p_lcgan")      # [3]     P_lcGAN over (left, keep, right), Eq. 16
+PRIOR_P_LC = ("prior", "p_lc")            # [d]     fused prior, Eq. 23
+EMBED_S_E = ("embed", "s_e")              # [d]     shared embedding, Eq. 24
+
+# --------------------------------------------------------------------------------- actions, rewards
+LC_ACTION = ("lc", "action")    # [3] one-hot (left, keep, right), held between decisions
+LC_DECIDE = ("lc", "decide")    # [1] bool, the lane-change agent decides on this frame
+CF_ACTION = ("cf", "action")    # [1] acceleration in [-5, 5] m/s²
+LC_REWARD = ("lc", "reward")    # [1] paper Eq. 26-29
+CF_REWARD = ("cf", "reward")    # [1] paper Eq. 32-33
