@@ -17,6 +17,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from . import conf as _conf  # noqa: F401  (registers the typed env schema with Hydra)
 from .baselines.factory import RULE_BASED, make_rule_policy
 from .envs.factory import make_env
 from .eval.metrics import PAPER_IDM_MOBIL, format_summary, summarize

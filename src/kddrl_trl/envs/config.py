@@ -188,7 +188,8 @@ def make_config(scenario: str = "baseline", overrides: Mapping[str, Any] | None 
         merged = OmegaConf.merge(schema, scenario_overrides(scenario), overrides)
     except OmegaConfBaseException as err:  # unknown key, wrong type, ...
         key = getattr(err, "full_key", None) or "?"
-        raise ValueError(f"highway config: bad override for key '{key}': {err.msg if hasattr(err, 'msg') else err}") from None
+        reason = str(getattr(err, "msg", err)).splitlines()[0]
+        raise ValueError(f"highway config: bad value for key '{key}': {reason}") from None
     cfg: HighwayConfig = OmegaConf.to_object(merged)
     cfg.scenario = scenario
     return cfg.validate()

@@ -341,20 +341,26 @@ class HighwaySim:
         self.reward_cf[:] = 0.0
         executed = np.zeros(self.num_roads)
         new_speed = self.speed.copy()
+        lost: dict[int, str] = {}
         for r, vid in enumerate(self.ego):
             if vid is None:
                 continue
             v_new = max(self.speed[r] + accel[r] * self.dt, 0.0)
             executed[r] = (v_new - self.speed[r]) / self.dt
             new_speed[r] = v_new
-            ls.vehicle.setSpeed(vid, v_new)
             cmd = int(lc_cmd[r])
-            if cmd != K.KEEP and self.obs[K.LC_ACTION_MASK][r, cmd]:
-                lane = int(self.obs[K.EGO_LANE][r, 0])
-                ls.vehicle.changeLane(vid, lane + 1 if cmd == K.LEFT else lane - 1, cfg.lc_duration)
-                self.lc_left[r] = self.lc_frames
-                started[r] = True
+            try:
+                ls.vehicle.setSpeed(vid, v_new)
+                if cmd != K.KEEP and self.obs[K.LC_ACTION_MASK][r, cmd]:
+                    lane = int(self.obs[K.EGO_LANE][r, 0])
+                    ls.vehicle.changeLane(vid, lane + 1 if cmd == K.LEFT else lane - 1, cfg.lc_duration)
+                    self.lc_left[r] = self.lc_frames
+                    started[r] = True
+            except ls.TraCIException as err:
+                lost[r] = str(err)
         collided = self._sim_step()
+        for r, why in lost.items():
+            self._lose(r, why)
         self.speed = new_speed
         self.obs[K.EGO_ACCEL][:, 0] = executed
         self._after_step(collided, executed)
@@ -379,14 +385,12 @@ class HighwaySim:
                 try:
                     y = self.longitudinal(vid)
                 except ls.TraCIException as err:
-                    log.warning("road %d: SUMO lost ego %s (%s); episode truncated", r, vid, err)
-                    self.stats["sumo_errors"] += 1
-                    outcome = "lost"
-                else:
-                    if y > cfg.section_length:
-                        outcome = "left_section"
-                    elif self.frame[r] >= cfg.max_steps:
-                        outcome = "max_steps"
+                    self._lose(r, str(err))
+                    continue
+                if y > cfg.section_length:
+                    outcome = "left_section"
+                elif self.frame[r] >= cfg.max_steps:
+                    outcome = "max_steps"
             a, v = float(executed[r]), float(self.speed[r])
             self.reward_lc[r, 0] = lane_change_reward(v, bool(self.obs[K.LC_STARTED][r, 0]), collision, cfg)
             self.reward_cf[r, 0] = car_following_reward(v, a, collision, cfg)
@@ -406,6 +410,16 @@ class HighwaySim:
                 self._end_episode(r, outcome)
             elif cfg.braking.enabled:
                 self._braking_event(r)
+
+    def _lose(self, r: int, why: str) -> None:
+        """SUMO no longer knows road r's ego (removed, teleported, ...): log, count, truncate the episode.
+        The other roads are not affected."""
+        log.warning("road %d: SUMO lost ego %s (%s); episode truncated", r, self.ego[r], why)
+        self.stats["sumo_errors"] += 1
+        self.terminated[r], self.truncated[r] = False, True
+        self.reward_lc[r] = self.reward_cf[r] = 0.0
+        self.obs[K.LC_STARTED][r] = False
+        self._end_episode(r, "lost")
 
     # ---------------------------------------------------------------------------- braking scenario
     def _braking_event(self, r: int) -> None:

@@ -76,26 +76,34 @@ def mobil_utilities(
     kin = torch.where(mask.unsqueeze(-1), kin, torch.zeros_like(kin))  # absent slots: no garbage
     L, p = idm.length, mobil.politeness
     y, v = kin[..., 0], kin[..., 1]
-
-    def s(name: str) -> tuple[Tensor, Tensor, Tensor]:
-        i = SLOT[name]
-        return y[..., i], v[..., i], mask[..., i]
-
-    yb, vb, mb = s("b")
-    ye, ve, me = s("e")
-    a_av_old = idm_acceleration(ego_v, vb, yb - ego_y - L, idm, has_leader=mb)
-    a_cf_old = idm_acceleration(ve, ego_v, ego_y - ye - L, idm)
-    a_cf_new = idm_acceleration(ve, vb, yb - ye - L, idm, has_leader=mb)
+    ego_y, ego_v = torch.broadcast_tensors(ego_y, ego_v)
+    ego_y, ego_v = ego_y.expand(y.shape[:-1]), ego_v.expand(y.shape[:-1])
+    true = torch.ones_like(mask[..., 0])
+    ya, yb, yc, yd, ye, yf = y.unbind(-1)
+    va, vb, vc, vd, ve, vf = v.unbind(-1)
+    ma, mb, mc, md, me, mf = mask.unbind(-1)
+    # every IDM evaluation MOBIL needs, in one batched call: (follower y, v; leader y, v; leader present)
+    pairs = [
+        (ego_y, ego_v, yb, vb, mb),     # 0 a_AV_old: ego behind b
+        (ye, ve, ego_y, ego_v, true),   # 1 a_CF_old: e behind ego
+        (ye, ve, yb, vb, mb),           # 2 a_CF_new: e behind b
+        (ego_y, ego_v, ya, va, ma),     # 3 left:  a_AV_new, ego behind a
+        (yd, vd, ya, va, ma),           # 4 left:  a_TF_old, d behind a
+        (yd, vd, ego_y, ego_v, true),   # 5 left:  a_TF_new, d behind ego
+        (ego_y, ego_v, yc, vc, mc),     # 6 right: a_AV_new, ego behind c
+        (yf, vf, yc, vc, mc),           # 7 right: a_TF_old, f behind c
+        (yf, vf, ego_y, ego_v, true),   # 8 right: a_TF_new, f behind ego
+    ]
+    y_f, v_f, y_l, v_l, m_l = (torch.stack(col, dim=-1) for col in zip(*pairs))
+    gap = y_l - y_f - L
+    acc = idm_acceleration(v_f, v_l, gap, idm, has_leader=m_l)
+    a_av_old, a_cf_old, a_cf_new = acc[..., 0], acc[..., 1], acc[..., 2]
     zero = torch.zeros_like(a_av_old)
     d_cf = torch.where(me, a_cf_new - a_cf_old, zero)
 
-    def direction(lead: str, follow: str, lane_ok: Tensor) -> tuple[Tensor, Tensor]:
-        yl, vl, ml = s(lead)
-        yf, vf, mf = s(follow)
-        gap_l, gap_f = yl - ego_y - L, ego_y - yf - L
-        a_av_new = idm_acceleration(ego_v, vl, gap_l, idm, has_leader=ml)
-        a_tf_old = idm_acceleration(vf, vl, yl - yf - L, idm, has_leader=ml)
-        a_tf_new = idm_acceleration(vf, ego_v, gap_f, idm)
+    def direction(i: int, ml: Tensor, mf: Tensor, lane_ok: Tensor) -> tuple[Tensor, Tensor]:
+        a_av_new, a_tf_old, a_tf_new = acc[..., i], acc[..., i + 1], acc[..., i + 2]
+        gap_l, gap_f = gap[..., i], gap[..., i + 2]
         d_tf = torch.where(mf, a_tf_new - a_tf_old, zero)
         u = (a_av_new - a_av_old) + p * (d_cf + d_tf)
         safe = (
@@ -105,8 +113,8 @@ def mobil_utilities(
         )
         return u, safe
 
-    u_left, safe_left = direction("a", "d", lane < num_lanes - 1)
-    u_right, safe_right = direction("c", "f", lane > 0)
+    u_left, safe_left = direction(3, ma, md, lane < num_lanes - 1)
+    u_right, safe_right = direction(6, mc, mf, lane > 0)
     keep_raw = a_av_old + p * torch.where(me, a_cf_old, zero)
     u_keep = torch.maximum(keep_raw, torch.as_tensor(mobil.threshold, dtype=kin.dtype, device=kin.device))
     u_left, u_keep, u_right = torch.broadcast_tensors(u_left, u_keep, u_right)

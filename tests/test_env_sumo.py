@@ -1,0 +1,290 @@
+"""Real-SUMO tests of the batched highway environment (paper §III.G, §IV.A-D, Table A.1)."""
+from __future__ import annotations
+
+import logging
+from functools import partial
+
+import libsumo
+import numpy as np
+import pytest
+import torch
+from torchrl.envs import Compose, ParallelEnv, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs.utils import check_env_specs, step_mdp
+
+from conftest import command
+from kddrl_trl import keys as K
+from kddrl_trl.baselines import IDMMobilPolicy, RandomDrivingPolicy
+from kddrl_trl.envs import SumoHighwayEnv, make_config
+from kddrl_trl.envs.sim import HighwaySim
+
+pytestmark = pytest.mark.usefixtures("no_sumo_open")
+
+
+def rollout(env, policy, steps):
+    """Step with auto-reset of done roads; return the list of per-step tensordicts (with "next")."""
+    td, out = env.reset(), []
+    for _ in range(steps):
+        td = policy(td)
+        full, td = env.step_and_maybe_reset(td)
+        out.append(full)
+    return out
+
+
+@pytest.mark.parametrize("scenario", ["baseline", "congested", "braking"])
+@pytest.mark.parametrize("num_roads", [1, 8])
+def test_check_env_specs(scenario, num_roads):
+    env = SumoHighwayEnv(scenario, num_roads=num_roads, seed=1)
+    try:
+        check_env_specs(env, seed=None)
+        tenv = TransformedEnv(env, Compose(StepCounter(), RewardSum(in_keys=env.reward_keys)))
+        check_env_specs(tenv, seed=None)
+        td = tenv.rollout(30, IDMMobilPolicy(), break_when_any_done=False)
+        assert td["next", "step_count"].max() >= 1
+        assert torch.isfinite(td["next", "lc", "episode_reward"]).all()
+    finally:
+        env.close()
+
+
+def test_neighbour_slots_are_on_the_right_sides():
+    """a/d are in the lane to the left (Δx ≈ +w), c/f to the right (Δx ≈ -w), b/e in the ego's lane."""
+    env = SumoHighwayEnv("congested", num_roads=8, seed=3)
+    try:
+        steps = rollout(env, IDMMobilPolicy(), 60)
+        w = env.config.lane_width
+        seen = np.zeros(6, int)
+        for full in steps:
+            steady = ~full[K.LC_ACTIVE].squeeze(-1) & (full[K.EGO_STATE][:, 2] == 0)
+            rel, mask = full[K.NEIGHBORS_REL][steady], full[K.NEIGHBORS_MASK][steady]
+            for slot, dx in zip(range(6), (w, 0.0, -w, w, 0.0, -w)):
+                present = mask[:, slot]
+                seen[slot] += int(present.sum())
+                # neighbours that are themselves changing lanes sit up to one lane width off
+                assert ((rel[present, slot, 0] - dx).abs() <= w + 1e-3).all(), slot
+                sign = 1 if slot < 3 else -1
+                assert (sign * rel[present, slot, 1] >= -env.config.vehicle_length).all()
+        assert (seen > 0).all(), seen
+    finally:
+        env.close()
+
+
+def test_driving_into_the_leader_collides():
+    env = SumoHighwayEnv("congested", num_roads=8, seed=0)
+    try:
+        td = env.reset()
+        hits = []
+        for _ in range(400):
+            full, td = env.step_and_maybe_reset(td.update(command(env, K.KEEP, 5.0)))
+            hit = full["next", "collision"].squeeze(-1)
+            if hit.any():
+                hits.append(full[hit])
+        assert hits, "full throttle in congested traffic never hit a leader"
+        for frame in hits:
+            assert frame["next", "terminated"].all() and frame["next", "done"].all()
+            assert (frame["next", "lc", "reward"] <= -99).all() and (frame["next", "cf", "reward"] <= -99).all()
+        collided = [e for e in env.episodes if e["collision"]]
+        assert len(collided) == env.stats["collisions"] == sum(len(h) for h in hits)
+        assert all(e["outcome"] == "collision" for e in collided)
+    finally:
+        env.close()
+
+
+def test_unsafe_lane_change_into_occupied_gap_collides():
+    env = SumoHighwayEnv("baseline", num_roads=1, seed=0, ego_lane=1)
+    try:
+        env.reset()
+        ego = env.sim.ego[0]
+        other = next(v for v in env.sim.road_vehicles(0) if v != ego)
+        y_ego = env.sim.longitudinal(ego)
+        for v in env.sim.road_vehicles(0):  # clear lane 2 around the ego, so only `other` is there
+            if v not in (ego, other) and libsumo.vehicle.getLaneIndex(v) == 2 and abs(env.sim.longitudinal(v) - y_ego) < 60:
+                libsumo.vehicle.remove(v)
+        edge, pos = libsumo.vehicle.getRoadID(ego), libsumo.vehicle.getLanePosition(ego)
+        libsumo.vehicle.moveTo(other, f"{edge}_2", pos)  # put a car right beside the ego, on its left
+        libsumo.vehicle.setSpeed(other, libsumo.vehicle.getSpeed(ego))
+        td = env.step(command(env, K.LEFT, 0.0))
+        collided = bool(td["next", "collision"].item())
+        for _ in range(20):
+            if collided:
+                break
+            td = env.step(step_mdp(td).update(command(env, K.KEEP, 0.0)))
+            collided = bool(td["next", "collision"].item())
+        assert collided and env.stats["collisions"] == 1
+    finally:
+        env.close()
+
+
+def test_lane_change_lasts_20_frames_and_masks_commands():
+    env = SumoHighwayEnv("baseline", num_roads=1, seed=0, flow_vph=0.0, ego_lane=1)  # empty road
+    try:
+        td = env.reset()
+        assert env.stats["insert_steps"] > 0  # an empty road needs an inserted ego
+        assert td[K.LC_ACTION_MASK].tolist() == [[True, True, True]]
+        obs, active, lanes, vx = td, [], [], []
+        for k in range(26):  # LEFT commanded at the first frame and then held: ignored once started
+            if k > 0:
+                expected = [False, True, False] if obs[K.LC_ACTIVE].item() else [False, True, True]
+                assert obs[K.LC_ACTION_MASK][0].tolist() == expected
+            full = env.step(obs.update(command(env, K.LEFT)))
+            assert full["next", "lc", "started"].item() == (k == 0)
+            obs = step_mdp(full)
+            active.append(obs[K.LC_ACTIVE].item())
+            lanes.append(obs[K.EGO_LANE].item())
+            vx.append(obs[K.EGO_STATE][0, 2].item())
+        # the ego moves sideways at 3.2 m / 2 s during exactly 20 frames; the manoeuvre is complete (and a
+        # new command accepted) in the observation after the 20th frame
+        assert vx[:20] == pytest.approx([3.2 / 2.0] * 20) and vx[20:] == [0.0] * 6
+        assert active == [True] * 19 + [False] * 7
+        assert lanes[0] == 1 and lanes[-1] == 2
+        assert env.sim.episode[0].lane_changes == 1  # the held command did not start a second manoeuvre
+    finally:
+        env.close()
+
+
+def test_speed_follows_commanded_acceleration():
+    env = SumoHighwayEnv("baseline", num_roads=1, seed=0, flow_vph=0.0)
+    try:
+        td = env.reset()
+        v = td[K.EGO_STATE][0, 1].item()
+        accels = [2.0, 5.0, 7.5, -1.0, 0.0] + [-5.0] * 120
+        for a in accels:
+            td = env.step(td.update(command(env, K.KEEP, a)))
+            expected = max(v + 0.1 * float(np.clip(a, -5, 5)), 0.0)
+            got = td["next", K.EGO_STATE][0, 1].item()
+            assert got == pytest.approx(expected, abs=1e-4)
+            assert td["next", K.EGO_ACCEL].item() == pytest.approx((expected - v) / 0.1, abs=1e-3)
+            v = got
+            td = step_mdp(td)
+        assert v == 0.0
+    finally:
+        env.close()
+
+
+def test_braking_event_distance_and_durations():
+    env = SumoHighwayEnv("braking", num_roads=8, seed=0)
+    try:
+        rollout(env, IDMMobilPolicy(), 400)
+        eps = env.episodes
+        assert len(eps) >= 8
+        assert env.stats["braking_missed"] == 0
+        for e in eps:
+            assert 100.0 <= e["braking_distance"] <= 300.0
+        resumed = [e for e in eps if "braking_resume_frame" in e]
+        assert resumed, "no braking vehicle stood and resumed within an episode"
+        for e in resumed:
+            assert e["braking_resume_frame"] - e["braking_stop_frame"] == 30  # 3 s standing
+            # from ~30 m/s at 8 m/s² a stop takes about 4 s
+            assert 10 <= e["braking_stop_frame"] - e["braking_start_frame"] <= 80
+    finally:
+        env.close()
+
+
+def test_congested_carries_half_more_vehicles():
+    counts = {}
+    for scenario in ("baseline", "congested"):
+        cfg = make_config(scenario, {"warmup_s": 600.0})
+        sim = HighwaySim(cfg, 4, seed=0)
+        counts[scenario] = len(sim.vehicle_params)
+        sim.close()
+    expected = 4 * 600 / 3600 * 2325
+    assert counts["baseline"] == pytest.approx(expected, rel=0.1)
+    assert counts["congested"] / counts["baseline"] == pytest.approx(1.5, abs=0.12)
+
+
+def test_driver_classes_are_drawn_and_recorded():
+    sim = HighwaySim(make_config("baseline", {"warmup_s": 300.0}), 4, seed=0)
+    try:
+        params = list(sim.vehicle_params.values())
+        shares = {d.name: d.share for d in sim.cfg.drivers}
+        for name, share in shares.items():
+            mine = [p for p in params if p["driver"] == name]
+            assert len(mine) / len(params) == pytest.approx(share, abs=0.07)
+            cls = next(d for d in sim.cfg.drivers if d.name == name)
+            v0 = np.array([p["v0"] for p in mine])
+            assert abs(v0.mean() - cls.v0) < 0.02 * cls.v0 and np.all(np.abs(v0 / cls.v0 - 1) <= 2 * cls.spread + 1e-9)
+            vid = next(v for v, p in sim.vehicle_params.items() if p["driver"] == name and v in libsumo.vehicle.getIDList())
+            assert libsumo.vehicle.getTau(vid) == pytest.approx(sim.vehicle_params[vid]["T"])
+    finally:
+        sim.close()
+
+
+def _observations(seed, road2_random):
+    env = SumoHighwayEnv("baseline", num_roads=3, seed=seed)
+    rule, rand = IDMMobilPolicy(), RandomDrivingPolicy(generator=torch.Generator().manual_seed(5))
+    try:
+        def policy(td):
+            td = rule(td)
+            if road2_random:
+                wild = rand(td[2:3].clone())
+                td[2:3] = wild
+            return td
+
+        steps = rollout(env, policy, 250)
+        return torch.stack([s["next"].exclude("lc", "cf") for s in steps], 1), list(env.episodes)
+    finally:
+        env.close()
+
+
+def test_roads_never_interact_and_seeds_reproduce():
+    calm, calm_eps = _observations(0, road2_random=False)
+    wild, wild_eps = _observations(0, road2_random=True)
+    # roads 0 and 1 are bit-identical whatever road 2 does
+    assert (calm[:2] == wild[:2]).all()
+    assert [e for e in calm_eps if e["road"] < 2] == [e for e in wild_eps if e["road"] < 2]
+    assert not (calm[2] == wild[2]).all()
+    again, _ = _observations(0, road2_random=False)
+    assert (again == calm).all()  # same seed, same rollout
+    other, _ = _observations(1, road2_random=False)
+    assert not (other[K.EGO_STATE] == calm[K.EGO_STATE]).all()  # another seed, another rollout
+
+
+def test_sumo_error_on_one_road_truncates_only_that_road(caplog):
+    env = SumoHighwayEnv("baseline", num_roads=4, seed=0)
+    try:
+        td = env.reset()
+        policy = IDMMobilPolicy()
+        for _ in range(3):
+            _, td = env.step_and_maybe_reset(policy(td))
+        libsumo.vehicle.remove(env.sim.ego[1])
+        with caplog.at_level(logging.WARNING):
+            full, td = env.step_and_maybe_reset(policy(td))
+        assert full["next", "truncated"][1].item() and not full["next", "terminated"][1].item()
+        assert env.stats["sumo_errors"] == 1 and "lost ego" in caplog.text
+        assert env.episodes[-1]["outcome"] == "lost" and env.episodes[-1]["road"] == 1
+        for _ in range(50):  # everything runs on, road 1 with a new ego
+            full, td = env.step_and_maybe_reset(policy(td))
+        assert env.sim.ego[1] is not None and env.stats["sumo_errors"] == 1
+    finally:
+        env.close()
+
+
+def test_close_releases_sumo_and_one_sim_per_process():
+    env = SumoHighwayEnv("baseline", num_roads=2, seed=0)
+    with pytest.raises(RuntimeError, match="one simulation per process"):
+        SumoHighwayEnv("baseline", num_roads=2, seed=0)
+    env.close()
+    env.close()  # idempotent
+    env2 = SumoHighwayEnv("braking", num_roads=2, seed=0)
+    env2.rollout(5, IDMMobilPolicy())
+    env2.close()
+
+
+def test_set_seed_restarts_the_simulation():
+    env = SumoHighwayEnv("baseline", num_roads=2, seed=0)
+    try:
+        env.set_seed(7)
+        a = env.rollout(30, IDMMobilPolicy(), break_when_any_done=False)
+        env.set_seed(7)
+        b = env.rollout(30, IDMMobilPolicy(), break_when_any_done=False)
+        assert (a[K.EGO_STATE] == b[K.EGO_STATE]).all()
+    finally:
+        env.close()
+
+
+def test_parallel_env_runs_one_simulation_per_worker():
+    env = ParallelEnv(2, partial(SumoHighwayEnv, "baseline", num_roads=2, seed=0), mp_start_method="fork")
+    try:
+        check_env_specs(env, seed=None)
+        td = env.rollout(20, IDMMobilPolicy(), break_when_any_done=False)
+        assert td.batch_size == torch.Size([2, 2, 20])
+    finally:
+        env.close()
