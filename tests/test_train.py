@@ -38,3 +38,22 @@ def test_train_rejects_a_bad_override(tmp_path, override):
     cmd = [sys.executable, "-m", "kddrl_trl.train", override, "episodes=1", "progress=false"]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode != 0 and ("flow_vph" in done.stderr or "flow_vhp" in done.stderr), done.stderr
+
+
+def test_summary_statistics_by_hand():
+    from kddrl_trl.eval.metrics import summarize
+
+    eps = [
+        {"mean_speed_kmh": 36.0, "mean_speed": 10.0, "mean_sq_speed": 100.0, "mean_accel": 0.0, "mean_sq_accel": 1.0,
+         "mean_abs_accel": 1.0, "lane_changes": 1, "frames": 10, "return_lc": 1.0, "return_cf": 2.0,
+         "collision": False, "outcome": "left_section"},
+        {"mean_speed_kmh": 72.0, "mean_speed": 20.0, "mean_sq_speed": 400.0, "mean_accel": 0.0, "mean_sq_accel": 1.0,
+         "mean_abs_accel": 1.0, "lane_changes": 0, "frames": 30, "return_lc": 1.0, "return_cf": 2.0,
+         "collision": True, "outcome": "collision"},
+    ]
+    s = summarize(eps)
+    assert s["mean_speed_kmh"] == 54.0 and s["mean_speed_kmh_sd"] == 18.0
+    # frames: 10 at 10 m/s and 30 at 20 m/s -> mean 17.5, sd sqrt(325 - 306.25) = 4.33 m/s
+    assert abs(s["frame_speed_kmh_sd"] - 3.6 * 18.75 ** 0.5) < 1e-9
+    assert s["frame_accel_sd"] == 1.0 and s["collision_rate"] == 0.5 and s["lane_changes_total"] == 1
+    assert s["outcomes"] == {"left_section": 1, "collision": 1}

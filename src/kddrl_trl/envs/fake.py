@@ -10,28 +10,19 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import EnvBase
 
 from .. import keys as K
-from .config import HighwayConfig, make_config
 from .rewards import car_following_reward, lane_change_reward
-from .specs import lc_command, set_specs
+from .specs import HighwayEnvBase, lc_command
 
 _PER_LANE = 4  # background vehicles per lane
 
 
-class FakeHighwayEnv(EnvBase):
+class FakeHighwayEnv(HighwayEnvBase):
     """Same constructor, specs and keys as :class:`~kddrl_trl.envs.SumoHighwayEnv`; no SUMO."""
 
-    batch_locked = True
-
     def __init__(self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, **overrides):
-        if not isinstance(num_roads, int) or isinstance(num_roads, bool) or num_roads < 1:
-            raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
-        self.config: HighwayConfig = make_config(scenario, overrides)
-        super().__init__(device=device, batch_size=torch.Size([num_roads]))
-        self.num_roads = num_roads
-        set_specs(self, self.config, (num_roads,))
+        super().__init__(scenario, num_roads, seed, device, **overrides)
         cfg, b, n = self.config, num_roads, self.config.num_lanes * _PER_LANE
         self.lc_frames = int(round(cfg.lc_duration / cfg.step_length))
         self.ego_y, self.ego_v = torch.zeros(b), torch.zeros(b)

@@ -17,15 +17,13 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import EnvBase
 
 from .. import keys as K
-from .config import HighwayConfig, make_config
 from .sim import HighwaySim
-from .specs import lc_command, set_specs
+from .specs import HighwayEnvBase, lc_command
 
 
-class SumoHighwayEnv(EnvBase):
+class SumoHighwayEnv(HighwayEnvBase):
     """The KDDRL highway: K roads x one ego, raw keys of ``kddrl_trl.keys``, two per-agent rewards.
 
     Args:
@@ -47,15 +45,8 @@ class SumoHighwayEnv(EnvBase):
         vehicle_params: driver class and drawn IDM parameters of every background vehicle.
     """
 
-    batch_locked = True
-
     def __init__(self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, **overrides):
-        if not isinstance(num_roads, int) or isinstance(num_roads, bool) or num_roads < 1:
-            raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
-        self.config: HighwayConfig = make_config(scenario, overrides)
-        super().__init__(device=device, batch_size=torch.Size([num_roads]))
-        self.num_roads = num_roads
-        set_specs(self, self.config, (num_roads,))
+        super().__init__(scenario, num_roads, seed, device, **overrides)
         self.sim = HighwaySim(self.config, num_roads, seed=seed)
         self._seed = seed
 

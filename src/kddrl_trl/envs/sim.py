@@ -56,7 +56,9 @@ class EpisodeStats:
     index: int  # episodes are numbered in the order they start
     frames: int = 0
     speed_sum: float = 0.0
+    speed_sq_sum: float = 0.0
     accel_sum: float = 0.0
+    accel_sq_sum: float = 0.0
     abs_accel_sum: float = 0.0
     lane_changes: int = 0
     return_lc: float = 0.0
@@ -70,6 +72,7 @@ class EpisodeStats:
             "index": self.index, "road": self.road, "ego": self.ego, "driver": self.driver, "frames": self.frames,
             "mean_speed": float(self.speed_sum / n), "mean_speed_kmh": float(3.6 * self.speed_sum / n),
             "mean_accel": float(self.accel_sum / n), "mean_abs_accel": float(self.abs_accel_sum / n),
+            "mean_sq_speed": float(self.speed_sq_sum / n), "mean_sq_accel": float(self.accel_sq_sum / n),
             "lane_changes": self.lane_changes, "collision": outcome == "collision",
             "outcome": outcome, "return_lc": self.return_lc, "return_cf": self.return_cf,
             "braking_distance": self.braking_distance, **self.extra,
@@ -98,12 +101,6 @@ class HighwaySim:
                       "designation_fallbacks": 0}
         self.episodes: list[dict] = []        # finished-episode metrics, in order of completion
         self.vehicle_params: dict[str, dict] = {}  # per background vehicle: driver class and IDM draw
-        self._edge_road = {e: r for r in range(self.num_roads) for e in edge_ids(r)}
-        self._edge_offset = {}
-        for r in range(self.num_roads):
-            e_in, e_main, e_out = edge_ids(r)
-            self._edge_offset.update({e_in: -self.cfg.entry_length, e_main: 0.0, e_out: self.cfg.section_length})
-        self._alloc()
         self._started = False
         self.seed = int(seed)
         self._start(self.seed)
@@ -153,12 +150,10 @@ class HighwaySim:
         self.arrivals = np.zeros(self.num_roads, np.int64)
         self.t = 0
         self.vehicle_params.clear()
-        for r in range(self.num_roads):
-            self.ego[r], self.episode[r] = None, None
-            self.history[r].clear()
+        self.episodes.clear()
+        self._alloc()
         self._released: set[str] = set()
         self.episodes_started = 0
-        self.episodes.clear()
         for _ in range(int(round(self.cfg.warmup_s / self.dt))):
             self._sim_step()
 
@@ -240,8 +235,7 @@ class HighwaySim:
 
     # ----------------------------------------------------------------------------------- episodes
     def reset_roads(self, roads) -> None:
-        """Designate a new ego on each road in ``roads`` (ending a running episode there as truncated)."""
-        ls = _libsumo()
+        """Designate a new ego on each road in ``roads`` (a running episode there ends, unrecorded)."""
         pending = []
         for r in roads:
             if self.ego[r] is not None:
@@ -396,7 +390,9 @@ class HighwaySim:
             self.reward_cf[r, 0] = car_following_reward(v, a, collision, cfg)
             ep.frames += 1
             ep.speed_sum += v
+            ep.speed_sq_sum += v * v
             ep.accel_sum += a
+            ep.accel_sq_sum += a * a
             ep.abs_accel_sum += abs(a)
             ep.lane_changes += int(self.obs[K.LC_STARTED][r, 0])
             ep.return_lc += float(self.reward_lc[r, 0])
@@ -466,7 +462,6 @@ class HighwaySim:
     def _insert_braker(self, r: int, lane: int, y: float) -> None:
         """No vehicle in range within ``trigger_frames``: insert one in the ego's lane at ``y`` (it is found
         as the braking leader on a later frame; counted in ``stats["braking_inserted"]``)."""
-        ls = _libsumo()
         y = min(y, self.cfg.section_length + self.cfg.exit_length - 2 * self.cfg.vehicle_length)
         route, offset = (f"route_r{r}_main", 0.0) if y < self.cfg.section_length else (f"route_r{r}_out", self.cfg.section_length)
         if y < 0:

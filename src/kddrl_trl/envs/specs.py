@@ -1,11 +1,13 @@
-"""TorchRL specs of the raw highway keys (DESIGN.md "Key contract"), shared by the SUMO and the fake env."""
+"""TorchRL specs of the raw highway keys (DESIGN.md "Key contract") and the base class shared by the SUMO
+and the fake env (constructor, config validation, specs)."""
 from __future__ import annotations
 
 import torch
 from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
+from torchrl.envs import EnvBase
 
 from .. import keys as K
-from .config import HighwayConfig
+from .config import HighwayConfig, make_config
 
 
 def observation_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
@@ -78,3 +80,18 @@ def lc_command(action: torch.Tensor) -> torch.Tensor:
     """Index (0 left, 1 keep, 2 right) of a one-hot lane-change action; an all-zero row means keep."""
     idx = action.argmax(-1)
     return torch.where(action.amax(-1) > 0, idx, torch.full_like(idx, K.KEEP))
+
+
+class HighwayEnvBase(EnvBase):
+    """``(scenario, num_roads, seed, device, **overrides)``: validates everything before any simulator
+    starts, builds :attr:`config` and the specs; subclasses add the dynamics."""
+
+    batch_locked = True
+
+    def __init__(self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, **overrides):
+        if not isinstance(num_roads, int) or isinstance(num_roads, bool) or num_roads < 1:
+            raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
+        self.config: HighwayConfig = make_config(scenario, overrides)
+        super().__init__(device=device, batch_size=torch.Size([num_roads]))
+        self.num_roads = num_roads
+        set_specs(self, self.config, (num_roads,))

@@ -9,8 +9,9 @@ PAPER_IDM_MOBIL = {"mean_speed_kmh": 146.6, "mean_speed_kmh_sd": 25.5, "mean_acc
 
 
 def summarize(episodes: list[dict]) -> dict:
-    """Mean ± sd over episodes of speed (km/h) and acceleration (signed and absolute, m/s²), lane changes
-    (total and per episode), collision rate (fraction of episodes) and outcome counts."""
+    """Mean ± sd over episodes of speed (km/h) and acceleration (signed and absolute, m/s²), the sd of speed
+    and acceleration over all frames (``frame_*_sd``), lane changes (total and per episode), collision
+    rate (fraction of episodes) and outcome counts. The paper does not say which sd its tables give."""
     if not episodes:
         raise ValueError("summarize: no finished episodes to summarize")
 
@@ -22,6 +23,14 @@ def summarize(episodes: list[dict]) -> dict:
         values = col(key)
         out[key] = float(values.mean())
         out[f"{key}_sd"] = float(values.std())
+    # frame-level spread (pooled over every frame of every episode), as in the paper's distributions
+    frames = col("frames")
+    for key, mean_key, sq_key, scale in (("speed_kmh", "mean_speed", "mean_sq_speed", 3.6),
+                                         ("accel", "mean_accel", "mean_sq_accel", 1.0)):
+        if sq_key in episodes[0]:
+            mean = np.average(col(mean_key), weights=frames)
+            second = np.average(col(sq_key), weights=frames)
+            out[f"frame_{key}_sd"] = float(scale * np.sqrt(max(second - mean * mean, 0.0)))
     out["lane_changes_total"] = int(col("lane_changes").sum())
     out["collision_rate"] = float(col("collision").mean())
     outcomes: dict[str, int] = {}
@@ -43,8 +52,10 @@ def format_summary(summary: dict, reference: dict | None = None) -> str:
         return f"{ref[key]:.2f} ± {ref[key + '_sd']:.2f}" if key in ref else ""
 
     rows += [
-        ("mean speed (km/h)", pm("mean_speed_kmh"), ref_pm("mean_speed_kmh")),
+        ("mean speed (km/h), sd over episodes", pm("mean_speed_kmh"), ref_pm("mean_speed_kmh")),
+        ("  sd over all frames", f"{summary.get('frame_speed_kmh_sd', float('nan')):.2f}", ""),
         ("mean acceleration (m/s²)", pm("mean_accel"), ref_pm("mean_accel")),
+        ("  sd over all frames", f"{summary.get('frame_accel_sd', float('nan')):.2f}", ""),
         ("mean |acceleration| (m/s²)", pm("mean_abs_accel"), ""),
         ("lane changes per episode", pm("lane_changes"), ""),
         ("lane changes, total", f"{summary['lane_changes_total']}", ""),

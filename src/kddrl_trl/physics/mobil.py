@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from kddrl_trl.keys import KEEP, LEFT, RIGHT, SLOT
+from kddrl_trl.keys import KEEP, LEFT, RIGHT
 from kddrl_trl.physics.idm import IDMParams, idm_acceleration
 
 Num = float | Tensor
