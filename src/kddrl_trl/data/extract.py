@@ -76,7 +76,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -535,6 +535,10 @@ def extract_dataset(
     stride = _positive_int("stride", stride)
     _positive_float("hz", hz)
     fractions = _check_fractions(fractions)
+    history, horizon, window = (_positive_int(n, v) for n, v in
+                                (("history", history), ("horizon", horizon), ("window", window)))
+    sensing_range = _positive_float("sensing_range", sensing_range)
+    _check_idm(idm)
     out_dir = Path(out_dir)
     params = _params_json(seed=seed, stride=stride, hz=float(hz), history=history, horizon=horizon,
                           window=window, sensing_range=float(sensing_range), idm=idm, fractions=fractions,
