@@ -1,20 +1,27 @@
-"""Atomic file writes: a result is either complete on disk or not there at all."""
+"""Atomic file writes: a result is either complete on disk or not there at all.
+
+Everything is written to a temporary file in the target folder, flushed and fsynced, then moved into
+place with ``os.replace`` (atomic on POSIX and Windows); on any error the temporary file is removed.
+"""
 from __future__ import annotations
 
 import json
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, TextIO
 
 
-def write_text_atomic(path: str | Path, text: str) -> Path:
+def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newline: str | None = None) -> Path:
+    """Call ``write(fh)`` on a temporary text file beside ``path``, then move it onto ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
+        with os.fdopen(fd, "w", newline=newline) as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -22,5 +29,9 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     return path
 
 
-def write_json_atomic(path: str | Path, data: Any) -> Path:
-    return write_text_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
+def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+    return write_atomic(path, lambda fh: fh.write(text))
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
+    return write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, default=float) + "\n")

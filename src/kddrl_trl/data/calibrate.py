@@ -18,7 +18,6 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import os
-import tempfile
 import time
 from typing import Any, Hashable, Mapping, Sequence
 
@@ -29,6 +28,7 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from kddrl_trl import keys as K
+from kddrl_trl.io import write_text_atomic
 from kddrl_trl.physics.idm import IDMParams, idm_acceleration
 from kddrl_trl.physics.mobil import MOBILParams, mobil_utilities
 
@@ -748,18 +748,7 @@ def write_calibration(result: Mapping[str, Any], path: str | os.PathLike) -> Non
                  f"(Table A.1: {mobil['table_a1']['balanced_accuracy']:.3f}); decisions {mobil['n_decisions']}")
     lines.append("# load: kddrl_trl.envs.make_config('baseline', OmegaConf.load(path)['env'])")
     text = "\n".join(lines) + "\n" + yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".calibration-", suffix=".yaml.tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_text_atomic(path, text)
 
 
 __all__ = [

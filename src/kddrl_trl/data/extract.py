@@ -74,7 +74,6 @@ import hashlib
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 from typing import Sequence
 
@@ -85,6 +84,7 @@ from tensordict import TensorDict
 from tqdm.auto import tqdm
 
 from kddrl_trl import keys as K
+from kddrl_trl.io import write_atomic
 from kddrl_trl.data.highd import HighDRecording
 from kddrl_trl.data.tracks import TRACKS10_COLUMNS, longitudinal_tracks, tracks_hz, vehicle_num_lanes
 from kddrl_trl.physics.idm import IDMParams, idm_rollout
@@ -472,18 +472,7 @@ def _hash_recordings(recordings: Sequence[HighDRecording]) -> str:
 
 
 def _atomic_write_json(obj, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(obj, fh, indent=2, sort_keys=True)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, lambda fh: fh.write(json.dumps(obj, indent=2, sort_keys=True) + "\n"))
 
 
 def _params_json(**params) -> dict:

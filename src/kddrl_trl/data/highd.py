@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from kddrl_trl.io import write_atomic
 
 __all__ = [
     "TRACKS_COLUMNS",
@@ -319,19 +320,10 @@ def _coerce(df: pd.DataFrame, path: Path, kind: str) -> pd.DataFrame:
 
 
 def _atomic_write_csv(df: pd.DataFrame, path: Path) -> None:
-    """Write ``df`` to a temp file in the target directory, fsync it, then ``os.replace`` it into place."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            # float_format=None writes the shortest repr, which read_csv parses back to the identical float.
-            df.to_csv(fh, index=False, lineterminator="\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``df`` atomically (:func:`kddrl_trl.io.write_atomic`).
+
+    ``float_format=None`` writes the shortest repr, which read_csv parses back to the identical float."""
+    write_atomic(path, lambda fh: df.to_csv(fh, index=False, lineterminator="\n"), newline="")
 
 
 def write_recording(recording: HighDRecording, directory: str | os.PathLike) -> dict[str, Path]:

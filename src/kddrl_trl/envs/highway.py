@@ -15,6 +15,7 @@ Example:
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
@@ -49,6 +50,7 @@ class SumoHighwayEnv(HighwayEnvBase):
         super().__init__(scenario, num_roads, seed, device, **overrides)
         self.sim = HighwaySim(self.config, num_roads, seed=seed)
         self._seed = seed
+        self._bind()
 
     # ------------------------------------------------------------------------------------- views
     @property
@@ -64,29 +66,26 @@ class SumoHighwayEnv(HighwayEnvBase):
         return self.sim.vehicle_params
 
     # ------------------------------------------------------------------------------------ TorchRL
-    def _output(self, with_reward: bool) -> TensorDictBase:
-        """Copy the simulator's numpy arrays into a fresh nested TensorDict (the arrays are reused next step).
-
-        Built with ``TensorDict._new_unsafe``: shapes are guaranteed by construction, and the checks of the
-        public constructor cost as much as the copies themselves at this size."""
+    def _bind(self) -> None:
+        """Wrap the simulator's numpy arrays (no copy) in two nested TensorDicts, for reset and for step
+        outputs. The arrays are overwritten every frame, so outputs are clones of these views: one
+        ``TensorDict.clone`` is several times cheaper than building a TensorDict leaf by leaf."""
         sim, batch = self.sim, self.batch_size
-        groups: dict = {}
-        flat = {}
-        for key, arr in sim.obs.items():
-            value = torch.from_numpy(arr.copy())
-            if isinstance(key, tuple):
-                groups.setdefault(key[0], {})[key[1]] = value
-            else:
-                flat[key] = value
-        if with_reward:
-            groups["lc"]["reward"] = torch.from_numpy(sim.reward_lc.copy())
-            groups["cf"] = {"reward": torch.from_numpy(sim.reward_cf.copy())}
-        terminated = torch.from_numpy(sim.terminated.copy())
-        truncated = torch.from_numpy(sim.truncated.copy())
-        flat.update(terminated=terminated, truncated=truncated, done=terminated | truncated)
-        for name, leaves in groups.items():
-            flat[name] = TensorDict._new_unsafe(leaves, batch_size=batch)
-        out = TensorDict._new_unsafe(flat, batch_size=batch)
+        self._done = np.zeros_like(sim.terminated)
+        leaves = {key: torch.from_numpy(arr) for key, arr in sim.obs.items()}
+        leaves.update({"terminated": torch.from_numpy(sim.terminated), "truncated": torch.from_numpy(sim.truncated),
+                       "done": torch.from_numpy(self._done)})
+        self._reset_view = TensorDict(leaves, batch_size=batch)
+        leaves.update({K.LC_REWARD: torch.from_numpy(sim.reward_lc), K.CF_REWARD: torch.from_numpy(sim.reward_cf)})
+        self._step_view = TensorDict(leaves, batch_size=batch)
+        self._bound = sim.obs  # the arrays of a reseeded simulation are new: rebind then
+
+    def _output(self, with_reward: bool) -> TensorDictBase:
+        """A fresh TensorDict holding a copy of the simulator's current arrays."""
+        if self._bound is not self.sim.obs:
+            self._bind()
+        np.logical_or(self.sim.terminated, self.sim.truncated, out=self._done)
+        out = (self._step_view if with_reward else self._reset_view).clone()
         return out if self.device is None or self.device == torch.device("cpu") else out.to(self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:

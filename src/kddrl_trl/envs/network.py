@@ -14,10 +14,10 @@ import hashlib
 import json
 import os
 import subprocess
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..io import write_text_atomic
 from .config import HighwayConfig
 
 ROAD_SPACING = 50.0  # m between the centre lines of neighbouring roads
@@ -90,13 +90,6 @@ def _routes_xml(cfg: HighwayConfig, num_roads: int) -> str:
     return "\n".join(rows) + "\n"
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-
-
 def build_road_files(cfg: HighwayConfig, num_roads: int) -> RoadFiles:
     """Generate (or reuse from the cache) the network and route files for ``num_roads`` roads."""
     nodes, edges, routes = _nodes_xml(cfg, num_roads), _edges_xml(cfg, num_roads), _routes_xml(cfg, num_roads)
@@ -105,8 +98,8 @@ def build_road_files(cfg: HighwayConfig, num_roads: int) -> RoadFiles:
     folder.mkdir(parents=True, exist_ok=True)
     net, rou = folder / "highway.net.xml", folder / "highway.rou.xml"
     if not net.exists():
-        _write_atomic(folder / "highway.nod.xml", nodes)
-        _write_atomic(folder / "highway.edg.xml", edges)
+        write_text_atomic(folder / "highway.nod.xml", nodes)
+        write_text_atomic(folder / "highway.edg.xml", edges)
         tmp_net = folder / f"highway.{os.getpid()}.net.xml"
         cmd = [sumo_binary("netconvert"), "--node-files", str(folder / "highway.nod.xml"),
                "--edge-files", str(folder / "highway.edg.xml"), "--output-file", str(tmp_net),
@@ -117,7 +110,7 @@ def build_road_files(cfg: HighwayConfig, num_roads: int) -> RoadFiles:
             raise RuntimeError(f"netconvert failed ({' '.join(cmd)}):\n{done.stderr}")
         os.replace(tmp_net, net)
     if not rou.exists():
-        _write_atomic(rou, routes)
+        write_text_atomic(rou, routes)
     return RoadFiles(net=net, routes=rou)
 
 

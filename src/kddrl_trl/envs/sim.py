@@ -236,6 +236,7 @@ class HighwaySim:
     # ----------------------------------------------------------------------------------- episodes
     def reset_roads(self, roads) -> None:
         """Designate a new ego on each road in ``roads`` (a running episode there ends, unrecorded)."""
+        roads = [int(r) for r in roads]
         pending = []
         for r in roads:
             if self.ego[r] is not None:
@@ -255,7 +256,7 @@ class HighwaySim:
             self._after_step(collided, np.zeros(self.num_roads))  # other egos drive on at constant speed
             pending = [r for r in pending if not self._designate(r)]
             tries += 1
-        self._observe()
+        self._observe(roads if tries == 0 else None)  # extra steps moved every road: observe them all
 
     def _designate(self, r: int) -> bool:
         ls = _libsumo()
@@ -491,14 +492,15 @@ class HighwaySim:
         px, py = vmod.getPosition(vid)
         return px - self.cfg.entry_length, py, vmod.getSpeed(vid), vmod.getLateralSpeed(vid), vmod.getAcceleration(vid)
 
-    def _observe(self) -> None:
-        """Fill the raw observation arrays (keys.py) for every road that has an ego."""
+    def _observe(self, roads=None) -> None:
+        """Fill the raw observation arrays (keys.py) of ``roads`` (default: all) that have an ego."""
         ls = _libsumo()
         vmod = ls.vehicle
         cfg, o = self.cfg, self.obs
         rng_ = cfg.sensing_range
         h = cfg.history_len
-        for r, ego in enumerate(self.ego):
+        for r in range(self.num_roads) if roads is None else roads:
+            ego = self.ego[r]
             if ego is None:
                 continue
             y, px_lat, v, vx, _ = self._kin(ego)
