@@ -48,13 +48,28 @@ def recordings_directory(cfg: DictConfig) -> Path:
         return Path(cfg.path)
     if cfg.source != "synthetic":
         raise SystemExit(f"source must be 'synthetic' or 'highd', got {cfg.source!r}")
-    rec_dir = Path(cfg.recordings_dir)
+    return ensure_recordings(cfg.env, cfg.recordings_dir, int(cfg.seed), float(cfg.record.duration_s),
+                             int(cfg.record.num_roads), bool(cfg.progress))
+
+
+def ensure_recordings(env_node, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int,
+                      progress: bool = True) -> Path:
+    """``recordings_dir``, after recording ``num_roads`` x ``duration_s`` of traffic into it if it holds none."""
+    rec_dir = Path(recordings_dir)
     if not (rec_dir.is_dir() and list_recordings(rec_dir)):
-        hw = highway_config(cfg.env)
-        s = record_to_directory(hw, rec_dir, float(cfg.record.duration_s), num_roads=int(cfg.record.num_roads),
-                                seed=int(cfg.seed), progress=bool(cfg.progress))
-        print_summary(s, hw, int(cfg.seed), float(cfg.record.duration_s), int(cfg.record.num_roads))
+        hw = highway_config(env_node)
+        s = record_to_directory(hw, rec_dir, duration_s, num_roads=num_roads, seed=seed, progress=progress)
+        print_summary(s, hw, seed, duration_s, num_roads)
     return rec_dir
+
+
+def synthetic_dataset(env_node, out_dir: str | Path, recordings_dir: str | Path, seed: int = 0,
+                      duration_s: float = 900.0, num_roads: int = 4, stride: int = 1, progress: bool = True) -> dict:
+    """The default naturalistic dataset from our own recordings: record into ``recordings_dir`` if it holds
+    none, then extract (a cache hit when ``out_dir`` already holds this dataset). Returns its meta."""
+    rec_dir = ensure_recordings(env_node, recordings_dir, seed, duration_s, num_roads, progress)
+    recordings = [read_recording(rec_dir, i) for i in list_recordings(rec_dir)]
+    return extract_dataset(recordings, out_dir, seed=seed, stride=stride, progress=progress)
 
 
 def print_dataset(meta: dict, hours: float) -> None:

@@ -1,0 +1,69 @@
+"""Shipped default weights and ``python -m kddrl_trl.pretrain`` as a user types it."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from kddrl_trl import keys as K
+from kddrl_trl.envs import FakeHighwayEnv
+from kddrl_trl.generative import default_checkpoint, load_predictor, read_checkpoint
+from kddrl_trl.physics import idm_rollout
+
+
+def observation(num_envs=4):
+    env = FakeHighwayEnv("congested", num_roads=num_envs, seed=0)
+    td = env.rollout(25, break_when_any_done=False)[:, -1]["next"]
+    ahead, hist = td[K.LEADERS_AHEAD], td[K.LEADERS_HISTORY]
+    td[K.PRED_PRIOR_TRAJ] = idm_rollout(hist[..., -1, 0], hist[..., -1, 1], ahead[..., 0], ahead[..., 1], ahead[..., 2] > 0)
+    td[K.PRED_KEY_GAPS] = td[K.PRED_PRIOR_TRAJ][..., [9, 19]] - td[K.EGO_STATE][..., :1, None]
+    return td
+
+
+@pytest.mark.parametrize("kind", ["trajgan", "lcgan"])
+def test_shipped_weights_load_and_match_their_declared_shapes(kind):
+    path = default_checkpoint(kind)
+    assert path.is_file() and path.stat().st_size < 1_000_000
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    assert payload["kind"] == kind and payload["dataset_hash"]
+    module = load_predictor(kind)
+    td = observation()
+    out = module(td.clone())
+    if kind == "trajgan":
+        traj = out[K.PRED_TRAJ]
+        assert traj.shape == (4, 3, 20) and torch.isfinite(traj).all()
+        absent = ~td[K.NEIGHBORS_MASK][..., :3]
+        assert torch.equal(traj[absent], td[K.PRED_PRIOR_TRAJ][absent])
+        # a refined future stays near the physics prior and moves forward
+        present = ~absent
+        assert (traj[present][:, -1] > traj[present][:, 0]).all()
+    else:
+        p = out[K.PRIOR_P_LCGAN]
+        assert p.shape == (4, 3) and torch.allclose(p.sum(-1), torch.ones(4), atol=1e-5)
+        lane = td[K.EGO_LANE].squeeze(-1)
+        assert (p[lane == 0, K.RIGHT] == 0).all() and (p[lane == 2, K.LEFT] == 0).all()
+    assert read_checkpoint(path)["architecture"]
+
+
+def run(module, args, cwd):
+    return subprocess.run([sys.executable, "-m", module, "progress=false", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=600)
+
+
+def test_pretrain_runs_as_typed_and_exports(tmp_path):
+    prep = run("kddrl_trl.data.prepare", ["record.duration_s=60", "record.num_roads=1", "calibrate=false"], tmp_path)
+    assert prep.returncode == 0, prep.stderr
+    for kind in ("trajgan", "lcgan"):
+        done = run("kddrl_trl.pretrain", [f"gan={kind}", "gan.train.epochs=1", f"export={tmp_path}/{kind}.pt",
+                                          f"hydra.run.dir={tmp_path}/run_{kind}"], tmp_path)
+        assert done.returncode == 0, done.stderr
+        metrics = json.loads((tmp_path / f"run_{kind}" / "metrics.json").read_text())
+        key = "mae_step20" if kind == "trajgan" else "recall_left"
+        assert key in metrics and (tmp_path / f"{kind}.pt").is_file()
+        assert load_predictor(kind, tmp_path / f"{kind}.pt") is not None
+    bad = run("kddrl_trl.pretrain", ["gan=trajgan", "device=cuda"], tmp_path) if not torch.cuda.is_available() else None
+    if bad is not None:
+        assert bad.returncode != 0 and "no CUDA device" in bad.stderr
