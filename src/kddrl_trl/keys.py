@@ -56,6 +56,12 @@ PRIOR_P_LCGAN = ("prior", "p_lcgan")      # [3]     P_lcGAN over (left, keep, ri
 PRIOR_P_LC = ("prior", "p_lc")            # [d]     fused prior, Eq. 23
 EMBED_S_E = ("embed", "s_e")              # [d]     shared embedding, Eq. 24
 
+# ------------------------------------------------------------------------- agent states (modules/)
+# Written by the state builders of ``kddrl_trl.modules.state`` from raw keys (scaled to ~unit range) and,
+# when present, ``EMBED_S_E``. Not stored in replay buffers: recomputed at update time because s_e is trained.
+LC_OBS = ("lc", "obs")    # [33 + d] D3QN state s_D3QN = [s_AV, Δs_i, mask, s_e], Eq. 24 (d = 0 without s_e)
+CF_OBS = ("cf", "obs")    # [37 + d] TD3 state s_TD3 = [s_AV, Δs_i, mask, s_e, a_D3QN, a_TD3^{t-1}], Eq. 30
+
 # --------------------------------------------------------------------------------- actions, rewards
 LC_ACTION = ("lc", "action")    # [3] one-hot (left, keep, right), held between decisions
 LC_DECIDE = ("lc", "decide")    # [1] bool, the lane-change agent decides on this frame

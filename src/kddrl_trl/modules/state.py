@@ -1,0 +1,150 @@
+"""State builders of the two agents: s_D3QN (paper Eq. 24) and s_TD3 (paper Eq. 30), as TensorDict modules.
+
+Both states start with the same block, built from the raw keys of the environment and scaled by the fixed
+factors of :class:`StateScale` (so that raw SI values — positions of hundreds of metres — do not dominate
+the features in [-1, 1] produced by the embedding):
+
+========  =====================================================  ========================================
+features  content                                                scaling
+========  =====================================================  ========================================
+3         s_AV = (y_AV, v_AV,y, v_AV,x) from ``keys.EGO_STATE``  y / position, v_y / speed, v_x / lat. speed
+24        Δs_i = (Δx, Δy, Δv_x, Δv_y) of a..f, flattened slot     Δx / lat. position, Δy / position,
+          by slot from ``keys.NEIGHBORS_REL``; absent slots = 0   Δv_x / lat. speed, Δv_y / speed
+6         presence of a..f from ``keys.NEIGHBORS_MASK``           0 / 1
+d         s_e from ``keys.EMBED_S_E`` (only when ``embed``)       none (tanh output, already in [-1, 1])
+========  =====================================================  ========================================
+
+``cf_state`` (Eq. 30) appends the held lane-change action a_D3QN^t (``keys.LC_ACTION``, one-hot, 3) and
+the acceleration executed in the last frame a_TD3^{t-1} (``keys.EGO_ACCEL`` / accel, 1). Every scaled
+feature is clipped to ±``StateScale.clip``.
+
+The mask is included although Eq. 24 does not list it: an absent neighbour is written as zeros, which would
+otherwise be indistinguishable from a neighbour level with the ego at the same speed.
+
+``detach_s_e=True`` builds the state from a detached ``s_e`` (no gradient reaches the embedding through it);
+see :mod:`kddrl_trl.modules.sharing` for when that is needed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
+from torch import nn
+
+from .. import keys as K
+
+#: size of the common block [s_AV (3), Δs_i (24), mask (6)]
+BASE_DIM = 3 + 6 * 4 + 6
+
+
+@dataclass(frozen=True)
+class StateScale:
+    """Fixed input scales of the agent states (SI units per unit of feature).
+
+    Longitudinal values use the issue's scales (positions 100 m, speeds 50 m/s, accelerations 5 m/s² =
+    the action bound of Eq. 31). Lateral values are small on a 3-lane road (offsets within ±2 lanes of
+    3.2 m, lateral speeds ~1.6 m/s during a 2 s lane change), so they get their own scales — 10 m and
+    5 m/s — instead of being squashed to ~0.03 by the longitudinal ones.
+    """
+
+    position: float = 100.0          # m, longitudinal y_AV and Δy
+    speed: float = 50.0              # m/s, longitudinal v_y and Δv_y
+    lateral_position: float = 10.0   # m, Δx
+    lateral_speed: float = 5.0       # m/s, v_x and Δv_x
+    accel: float = 5.0               # m/s², a_TD3^{t-1}
+    clip: float = 5.0                # every scaled feature is clipped to ±clip
+
+
+def lc_obs_dim(embed_dim: int = 0) -> int:
+    """Size of ``keys.LC_OBS`` (Eq. 24) for an embedding of ``embed_dim`` (0 = no ``s_e``)."""
+    return BASE_DIM + embed_dim
+
+
+def cf_obs_dim(embed_dim: int = 0) -> int:
+    """Size of ``keys.CF_OBS`` (Eq. 30) for an embedding of ``embed_dim`` (0 = no ``s_e``)."""
+    return BASE_DIM + embed_dim + 3 + 1
+
+
+class _StateNet(nn.Module):
+    """Concatenates the scaled state features; the input order is that of the builder's ``in_keys``."""
+
+    def __init__(self, scale: StateScale, embed: bool, detach_s_e: bool, actions: bool):
+        super().__init__()
+        self.scale, self.embed, self.detach_s_e, self.actions = scale, embed, detach_s_e, actions
+        s = scale
+        self.register_buffer("ego_scale", torch.tensor([s.position, s.speed, s.lateral_speed]), persistent=False)
+        # REL_FEATURES order: dx (lateral), dy (longitudinal), dvx (lateral), dvy (longitudinal)
+        self.register_buffer("rel_scale", torch.tensor([s.lateral_position, s.position, s.lateral_speed, s.speed]),
+                             persistent=False)
+
+    def forward(self, ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
+        c = self.scale.clip
+        present = mask.to(rel.dtype)
+        rel = torch.where(mask.bool().unsqueeze(-1), rel / self.rel_scale, torch.zeros((), dtype=rel.dtype))
+        parts = [(ego / self.ego_scale).clamp(-c, c), rel.clamp(-c, c).flatten(-2), present]
+        rest = list(rest)
+        if self.embed:
+            s_e = rest.pop(0)
+            parts.append(s_e.detach() if self.detach_s_e else s_e)
+        if self.actions:
+            lc_action, accel = rest
+            parts.append(lc_action.to(ego.dtype))
+            parts.append((accel.to(ego.dtype) / self.scale.accel).clamp(-c, c))
+        return torch.cat(parts, dim=-1)
+
+
+def lc_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale = StateScale(),
+             out_key: NestedKey = K.LC_OBS) -> TensorDictModule:
+    """D3QN state ``s_D3QN = [s_AV, Δs_i, s_e]`` — paper Eq. 24 — as a TensorDict module.
+
+    Reads ``keys.EGO_STATE`` ``[*B, 3]``, ``keys.NEIGHBORS_REL`` ``[*B, 6, 4]``, ``keys.NEIGHBORS_MASK``
+    ``[*B, 6]`` and, when ``embed``, ``keys.EMBED_S_E`` ``[*B, d]``; writes ``out_key`` ``[*B, 33 + d]``
+    (layout and scaling in the module docstring; ``d = 0`` without ``s_e``).
+
+    Args:
+        embed (bool): include ``s_e``; ``False`` for the pure D3QN+TD3 state. Defaults to ``True``.
+
+    Keyword Args:
+        detach_s_e (bool): use ``s_e.detach()``. Defaults to ``False`` (the D3QN TD loss trains the
+            embedding, see :mod:`kddrl_trl.modules.sharing`).
+        scale (StateScale): input scales. Defaults to ``StateScale()``.
+        out_key (NestedKey): defaults to ``keys.LC_OBS``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from kddrl_trl import keys as K
+        >>> from kddrl_trl.modules import lc_state
+        >>> td = TensorDict({K.EGO_STATE: torch.tensor([200.0, 30.0, 0.0]), K.NEIGHBORS_REL: torch.zeros(6, 4),
+        ...                  K.NEIGHBORS_MASK: torch.zeros(6, dtype=torch.bool)}, [])
+        >>> lc_state(embed=False)(td)[K.LC_OBS][:3]
+        tensor([2.0000, 0.6000, 0.0000])
+    """
+    in_keys = [K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
+    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=False), in_keys=in_keys, out_keys=[out_key])
+
+
+def cf_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale = StateScale(),
+             out_key: NestedKey = K.CF_OBS) -> TensorDictModule:
+    """TD3 state ``s_TD3 = [s_AV, Δs_i, s_e, a_D3QN^t, a_TD3^{t-1}]`` — paper Eq. 30 — as a TensorDict module.
+
+    Reads the inputs of :func:`lc_state` plus ``keys.LC_ACTION`` ``[*B, 3]`` (the held one-hot lane-change
+    action) and ``keys.EGO_ACCEL`` ``[*B, 1]`` (acceleration executed in the last frame, m/s²); writes
+    ``out_key`` ``[*B, 37 + d]``.
+
+    Args:
+        embed (bool): include ``s_e``. Defaults to ``True``.
+
+    Keyword Args:
+        detach_s_e (bool): use ``s_e.detach()``. Defaults to ``False``: the TD3 critic loss trains the
+            embedding; the actor loss must not — pass the batch through
+            :func:`kddrl_trl.modules.sharing.detach_embedding` before ``TD3Loss.actor_loss`` (or build a
+            separate actor state with ``detach_s_e=True``).
+        scale (StateScale): input scales. Defaults to ``StateScale()``.
+        out_key (NestedKey): defaults to ``keys.CF_OBS``.
+    """
+    in_keys = ([K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
+               + [K.LC_ACTION, K.EGO_ACCEL])
+    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=True), in_keys=in_keys, out_keys=[out_key])

@@ -1,0 +1,26 @@
+"""Predictive-state transforms of KDDRL (paper §III.B-C, Algorithm 1 lines 15-20), one concept per file.
+
+=====================  ==================================  ================================================
+transform              writes                               paper
+=====================  ==================================  ================================================
+:class:`IDMPrior`       ``("pred", "prior_traj")`` [3, 20]   IDM prior trajectory TC, Eq. 11-12
+:class:`TrajGANPrediction` ``("pred", "traj")`` [3, 20],     trajGAN TG, Eq. 13; key gaps y_lv^pre, Eq. 24
+                        ``("pred", "key_gaps")`` [3, 2]
+:class:`KeyGapsFromPrior` ``("pred", "key_gaps")`` [3, 2]    Eq. 24 from TC (stacks without trajGAN)
+:class:`MOBILPrior`     ``("prior", "p_mobil")`` [3]         P_MOBIL, Eq. 20-22
+:class:`LCGANPrior`     ``("prior", "p_lcgan")`` [3]         P_lcGAN, Eq. 16
+=====================  ==================================  ================================================
+
+:func:`make_kddrl_transforms` builds the stack (and its ablations). All transforms read only raw keys of
+:mod:`kddrl_trl.keys` and keys of earlier transforms, are stateless per frame, and work on reset, step and
+replay-buffer samples (``forward``) of any batch shape.
+"""
+from .factory import make_kddrl_transforms
+from .idm_prior import IDMPrior
+from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
+from .lcgan import LCGANPrior
+from .mobil_prior import MOBILPrior
+from .trajgan import TrajGANPrediction
+
+__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "TrajGANPrediction",
+           "key_step_gaps", "make_kddrl_transforms"]

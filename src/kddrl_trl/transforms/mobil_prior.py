@@ -1,0 +1,70 @@
+"""``MOBILPrior``: the knowledge-driven lane-change prior P_MOBIL (paper Eq. 20-22, Algorithm 1 lines 19-20)."""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from functools import partial
+
+import torch
+from tensordict import TensorDictBase
+
+from .. import keys as K
+from ..physics import IDMParams, MOBILParams, mobil_prior
+from ._base import PredictiveTransform, finite_or_zero, maybe_compile, probability_spec
+from .idm_prior import as_idm_params
+
+
+def as_mobil_params(mobil: MOBILParams | Mapping | None) -> MOBILParams:
+    """``MOBILParams`` from a ``MOBILParams``, a mapping of its fields (Hydra config) or None (Table A.1)."""
+    if mobil is None:
+        return MOBILParams()
+    if isinstance(mobil, MOBILParams):
+        return mobil
+    return MOBILParams(**{str(k): v for k, v in dict(mobil).items()})
+
+
+def mobil_prior_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
+                         idm: IDMParams, mobil: MOBILParams) -> torch.Tensor:
+    """``P_MOBIL`` ``[*B, 3]`` from raw observation tensors (a simplex, never NaN)."""
+    ego, kin = ego.to(torch.float32), kin.to(torch.float32)
+    mask = mask.bool() & torch.isfinite(kin).all(-1)
+    p = mobil_prior(ego[..., 0], ego[..., 1], kin, mask, lane[..., 0].long(), num_lanes, idm, mobil)
+    return finite_or_zero(p.to(torch.float32)).clamp(0.0, 1.0)
+
+
+class MOBILPrior(PredictiveTransform):
+    """``P_MOBIL`` over (left, keep, right) -> ``keys.PRIOR_P_MOBIL`` ``[*B, 3]`` (paper Eq. 20-22).
+
+    Safety check (Eq. 20, plus ``a_TF_new > -b_safe`` of Eq. 21), utilities ``U_d`` (Eq. 21) and their
+    normalisation (Eq. 22) by :func:`kddrl_trl.physics.mobil_prior`, fed with the ego position and speed
+    (``EGO_STATE[..., 0]``, ``[..., 1]``), its lane (``EGO_LANE``) and the neighbours' absolute kinematics and
+    presence (``NEIGHBORS_KIN``, ``NEIGHBORS_MASK``). An unsafe direction, one below the threshold
+    ``Δa_th`` or one without a lane (``num_lanes``) gets 0; the result is a simplex, never NaN. The prior is a
+    physics statement about the traffic, not about the command interface: it does not read
+    ``LC_ACTION_MASK`` (a lane change in progress does not change it).
+
+    Args:
+        mobil: MOBIL parameters (default Table A.1); :class:`MOBILParams` or a mapping of its fields.
+        idm: IDM parameters of the accelerations MOBIL compares (default Table A.1).
+        num_lanes: lanes of the road (left exists where lane < num_lanes - 1, right where lane > 0).
+        compile: run the prior through ``torch.compile`` (fused kernels; one-off compile per process).
+    """
+
+    def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
+                 num_lanes: int = 3, compile: bool = False):
+        super().__init__(in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK],
+                         out_keys=[K.PRIOR_P_MOBIL])
+        self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
+        self.compile = bool(compile)
+        self._prior = maybe_compile(partial(mobil_prior_from_obs, num_lanes=self.num_lanes, idm=self.idm,
+                                            mobil=self.mobil), compile)
+
+    def compute(self, tensordict: TensorDictBase) -> dict:
+        p = self._prior(tensordict.get(K.EGO_STATE), tensordict.get(K.EGO_LANE), tensordict.get(K.NEIGHBORS_KIN),
+                        tensordict.get(K.NEIGHBORS_MASK))
+        return {K.PRIOR_P_MOBIL: p}
+
+    def out_specs(self, batch, device) -> dict:
+        return {K.PRIOR_P_MOBIL: probability_spec(batch, (3,), device)}
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(num_lanes={self.num_lanes}, mobil={self.mobil}, idm={self.idm})"

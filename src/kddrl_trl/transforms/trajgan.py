@@ -1,0 +1,81 @@
+"""``TrajGANPrediction``: trajGAN-refined leader trajectories TG and their key-step gaps (Eq. 13, Eq. 24)."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from .. import keys as K
+from ._base import PredictiveTransform, finite_or_zero, unbounded_spec
+from ._frozen import freeze, run_frozen
+from .key_gaps import KEY_STEPS, key_step_gaps
+
+
+class TrajGANPrediction(PredictiveTransform):
+    """``TG^T = G(Z^T, TC^T)`` (paper Eq. 13) -> ``keys.PRED_TRAJ`` ``[*B, 3, T]``, and the key-step gaps
+    ``y_lv^pre`` of Eq. 24 -> ``keys.PRED_KEY_GAPS`` ``[*B, 3, 2]`` (Algorithm 1 lines 16-17).
+
+    Wraps the frozen :class:`~kddrl_trl.generative.TrajGANPredictor` (default: the shipped weights, or
+    ``checkpoint``), or any TensorDict module ``predictor`` that reads the raw leader keys plus
+    ``PRED_PRIOR_TRAJ`` (written by :class:`IDMPrior` before it) and writes ``PRED_TRAJ``. The generator runs
+    once per call for all environments x 3 leaders, under ``no_grad`` with ``requires_grad=False`` weights.
+
+    Key gaps = TG at steps 10 and 20 (indices 9 and 19) minus the ego position ``EGO_STATE[..., 0]``; zero for
+    absent leaders (``NEIGHBORS_MASK[..., :3]`` False). Absent leaders' TG is what the predictor gives them
+    (the shipped one: the prior, i.e. zeros); never NaN.
+
+    Noise: ``reduce="sample"`` uses one draw per leader, ``"mean"`` the mean of ``num_samples`` draws. The
+    draws come from the predictor's own ``torch.Generator`` seeded with ``seed``: two transforms built with the
+    same seed give the same outputs for the same sequence of calls. The generator is a stream over calls, not
+    per-environment state, so resets (full or partial) never touch it; :meth:`reseed` restarts it.
+
+    Args:
+        predictor: a TensorDict module with out key ``PRED_TRAJ`` (exclusive with ``checkpoint``).
+        checkpoint: trajGAN checkpoint path (default: the weights shipped with the package).
+        num_samples, reduce, seed: noise options of the default predictor (see above).
+        device: device of the default predictor (inputs are moved there and outputs back).
+        key_steps: 1-based key steps of Eq. 24.
+    """
+
+    def __init__(self, predictor: TensorDictModuleBase | None = None, *, checkpoint: str | Path | None = None,
+                 num_samples: int = 1, reduce: str = "sample", seed: int = 0, device: str | torch.device = "cpu",
+                 key_steps: Sequence[int] = KEY_STEPS):
+        if predictor is not None and checkpoint is not None:
+            raise ValueError("give either a predictor module or a checkpoint path, not both")
+        if predictor is None:
+            from ..generative import load_predictor
+
+            predictor = load_predictor("trajgan", checkpoint, num_samples=num_samples, reduce=reduce,
+                                       seed=seed).to(device)
+        if K.PRED_TRAJ not in [tuple(k) if isinstance(k, (tuple, list)) else k for k in predictor.out_keys]:
+            raise ValueError(f"the trajGAN predictor must write {K.PRED_TRAJ}, it writes {predictor.out_keys}")
+        in_keys = list(dict.fromkeys([*predictor.in_keys, K.EGO_STATE, K.NEIGHBORS_MASK]))
+        super().__init__(in_keys=in_keys, out_keys=[K.PRED_TRAJ, K.PRED_KEY_GAPS])
+        self.predictor = freeze(predictor)
+        self.horizon = int(getattr(predictor, "horizon", 20))
+        self.key_steps = tuple(int(s) for s in key_steps)
+        self.seed = int(getattr(predictor, "seed", seed))
+
+    def reseed(self, seed: int | None = None) -> None:
+        """Restart the predictor's noise stream (with ``seed``, or the constructor's)."""
+        if hasattr(self.predictor, "reset"):
+            self.predictor.reset(seed)
+        elif isinstance(getattr(self.predictor, "generator", None), torch.Generator):
+            self.predictor.generator.manual_seed(self.seed if seed is None else int(seed))
+
+    def compute(self, tensordict: TensorDictBase) -> dict:
+        traj = finite_or_zero(run_frozen(self.predictor, tensordict, K.PRED_TRAJ).to(torch.float32))
+        ego_y = tensordict.get(K.EGO_STATE)[..., 0]
+        present = tensordict.get(K.NEIGHBORS_MASK)[..., :3]
+        return {K.PRED_TRAJ: traj, K.PRED_KEY_GAPS: key_step_gaps(traj, ego_y, present, self.key_steps)}
+
+    def out_specs(self, batch, device) -> dict:
+        return {K.PRED_TRAJ: unbounded_spec(batch, (3, self.horizon), device),
+                K.PRED_KEY_GAPS: unbounded_spec(batch, (3, len(self.key_steps)), device)}
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}(predictor={type(self.predictor).__name__}, horizon={self.horizon}, "
+                f"key_steps={self.key_steps})")
