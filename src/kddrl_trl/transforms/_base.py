@@ -40,6 +40,16 @@ def finite_or_zero(x: Tensor) -> Tensor:
     return torch.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0)
 
 
+def as_params(cls, value):
+    """An instance of the parameter dataclass ``cls`` from an instance, a mapping of its fields (a Hydra
+    config) or None (its defaults: Table A.1)."""
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    return cls(**{str(k): v for k, v in dict(value).items()})
+
+
 def maybe_compile(fn, compile: bool):
     """``torch.compile(fn, dynamic=True)`` when asked (batch shapes may change without recompiling), else ``fn``.
 

@@ -9,16 +9,12 @@ from tensordict import TensorDictBase
 
 from .. import keys as K
 from ..physics import IDMParams, idm_rollout
-from ._base import PredictiveTransform, finite_or_zero, maybe_compile, unbounded_spec
+from ._base import PredictiveTransform, as_params, finite_or_zero, maybe_compile, unbounded_spec
 
 
 def as_idm_params(idm: IDMParams | Mapping | None) -> IDMParams:
     """``IDMParams`` from an ``IDMParams``, a mapping of its fields (Hydra config) or None (Table A.1)."""
-    if idm is None:
-        return IDMParams()
-    if isinstance(idm, IDMParams):
-        return idm
-    return IDMParams(**{str(k): v for k, v in dict(idm).items()})
+    return as_params(IDMParams, idm)
 
 
 def prior_trajectory(kin: torch.Tensor, mask: torch.Tensor, ahead: torch.Tensor, steps: int, dt: float,

@@ -9,17 +9,13 @@ from tensordict import TensorDictBase
 
 from .. import keys as K
 from ..physics import IDMParams, MOBILParams, mobil_prior
-from ._base import PredictiveTransform, finite_or_zero, maybe_compile, probability_spec
+from ._base import PredictiveTransform, as_params, finite_or_zero, maybe_compile, probability_spec
 from .idm_prior import as_idm_params
 
 
 def as_mobil_params(mobil: MOBILParams | Mapping | None) -> MOBILParams:
     """``MOBILParams`` from a ``MOBILParams``, a mapping of its fields (Hydra config) or None (Table A.1)."""
-    if mobil is None:
-        return MOBILParams()
-    if isinstance(mobil, MOBILParams):
-        return mobil
-    return MOBILParams(**{str(k): v for k, v in dict(mobil).items()})
+    return as_params(MOBILParams, mobil)
 
 
 def mobil_prior_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
