@@ -288,3 +288,17 @@ def test_parallel_env_runs_one_simulation_per_worker():
         assert td.batch_size == torch.Size([2, 2, 20])
     finally:
         env.close()
+
+
+def test_final_observation_is_of_the_last_frame():
+    """The frame that ends an episode by leaving the section observes the ego beyond the section."""
+    env = SumoHighwayEnv("baseline", num_roads=8, seed=2)
+    try:
+        steps = torch.stack(rollout(env, IDMMobilPolicy(), 250), 1)
+        left = steps["next", "terminated"].squeeze(-1) & ~steps["next", "collision"].squeeze(-1)
+        assert left.any()
+        assert (steps["next", K.EGO_STATE][left][:, 0] > env.config.section_length).all()
+        # and the frame before was still inside
+        assert (steps[K.EGO_STATE][left][:, 0] <= env.config.section_length).all()
+    finally:
+        env.close()

@@ -251,9 +251,10 @@ class HighwaySim:
                 for r in pending:
                     self._add_human(r, lane=self.cfg.ego_lane, pos=self.cfg.entry_length - self.cfg.pick_window,
                                     prefix="x")
+            self.obs[K.LC_STARTED][self.ego_present] = False  # no command in an extra step
             collided = self._sim_step()
             self.stats["insert_steps"] += 1
-            self._after_step(collided, np.zeros(self.num_roads))  # other egos drive on at constant speed
+            self._finish(self._after_step(collided, np.zeros(self.num_roads)))  # other egos keep their speed
             pending = [r for r in pending if not self._designate(r)]
             tries += 1
         self._observe(roads if tries == 0 else None)  # extra steps moved every road: observe them all
@@ -330,10 +331,13 @@ class HighwaySim:
         cfg = self.cfg
         accel = np.clip(np.nan_to_num(np.asarray(accel, np.float64).reshape(-1), nan=0.0), cfg.accel_low, cfg.accel_high)
         lc_cmd = np.asarray(lc_cmd).reshape(-1)
+        # roads without an ego keep the outputs of the frame that ended their episode (done stays set
+        # until they are reset, as TorchRL expects); every other road gets this frame's
+        active = self.ego_present
         started = self.obs[K.LC_STARTED]
-        started[:] = False
-        self.reward_lc[:] = 0.0
-        self.reward_cf[:] = 0.0
+        started[active] = False
+        self.reward_lc[active] = 0.0
+        self.reward_cf[active] = 0.0
         executed = np.zeros(self.num_roads)
         new_speed = self.speed.copy()
         lost: dict[int, str] = {}
@@ -357,15 +361,23 @@ class HighwaySim:
         for r, why in lost.items():
             self._lose(r, why)
         self.speed = new_speed
-        self.obs[K.EGO_ACCEL][:, 0] = executed
-        self._after_step(collided, executed)
-        self._observe()
+        self.obs[K.EGO_ACCEL][active, 0] = executed[active]
+        self._finish(self._after_step(collided, executed))
 
-    def _after_step(self, collided: set[str], executed: np.ndarray) -> None:
-        """Rewards (Eq. 26-29, 32-33), termination, episode sums, scenario events."""
+    def _finish(self, finished: list[tuple[int, str]]) -> None:
+        """Observe every road (an ending episode's final observation is of this frame; a collided ego is
+        gone, so its road keeps the previous frame's), then close the episodes that ended."""
+        gone = {r for r, outcome in finished if outcome == "collision"}
+        self._observe([r for r in range(self.num_roads) if r not in gone])
+        for r, outcome in finished:
+            self._end_episode(r, outcome)
+
+    def _after_step(self, collided: set[str], executed: np.ndarray) -> list[tuple[int, str]]:
+        """Rewards (Eq. 26-29, 32-33), termination, episode sums, scenario events; returns the (road,
+        outcome) of the episodes that ended in this frame (closed by :meth:`_finish`)."""
         ls = _libsumo()
         cfg = self.cfg
-        self.obs[K.COLLISION][:] = False
+        finished = []
         for r, vid in enumerate(self.ego):
             if vid is None or self.episode[r] is None:
                 continue
@@ -404,9 +416,10 @@ class HighwaySim:
                 self.truncated[r] = not self.terminated[r]
                 if collision:
                     self.stats["collisions"] += 1
-                self._end_episode(r, outcome)
+                finished.append((r, outcome))
             elif cfg.braking.enabled:
                 self._braking_event(r)
+        return finished
 
     def _lose(self, r: int, why: str) -> None:
         """SUMO no longer knows road r's ego (removed, teleported, ...): log, count, truncate the episode.
