@@ -14,6 +14,8 @@ default 1 8 32) this script measures, in one run, the **ego-frames per second**
     ``env.rollout(frames, RandomDrivingPolicy(), break_when_any_done=False)``: the same random action
     distribution as (a), drawn by a small TensorDict module (TorchRL's spec sampler would add its own
     cost, which is not the env's); TorchRL auto-resets the done roads.
+(b') ``env_random_collector_fps`` - the random actions of (b) collected by TorchRL's ``Collector`` in
+    batches of 200 frames x K (how training collects; no stacking at the end). Goal check stays on (b).
 (c) ``env_rule_fps`` - the same env with the IDM+MOBIL rule policy
     (``kddrl_trl.baselines.IDMMobilPolicy``) as the rollout policy.
 
@@ -121,10 +123,34 @@ def measure_env(scenario: str, k: int, seed: int, frames: int, warmup: int, rule
     return frames * k / elapsed, episodes
 
 
+def measure_collector(scenario: str, k: int, seed: int, frames: int, warmup: int) -> tuple[float, int]:
+    """(b') the same random actions collected by TorchRL's ``Collector`` (the training path: batches are
+    written into a preallocated buffer instead of stacked at the end); the first batch is not timed."""
+    from torchrl.collectors import Collector
+
+    env = SumoHighwayEnv(scenario, num_roads=k, seed=seed)
+    try:
+        policy = RandomDrivingPolicy(generator=torch.Generator().manual_seed(seed))
+        batch = k * 200
+        collector = Collector(env, policy, frames_per_batch=batch, total_frames=k * frames + batch)
+        it = iter(collector)
+        next(it)  # warm-up batch (includes the first reset)
+        episodes0 = env.stats["episodes"]
+        t0 = time.perf_counter()
+        n = sum(b.numel() for b in it)
+        elapsed = time.perf_counter() - t0
+        episodes = env.stats["episodes"] - episodes0
+        collector.shutdown()
+    finally:
+        env.close()
+    return n / elapsed, episodes
+
+
 MEASUREMENTS = {
     "sim_limit_fps": lambda s, k, seed, f, w: measure_sim(s, k, seed, f, w),
     "env_random_fps": lambda s, k, seed, f, w: measure_env(s, k, seed, f, w, rule=False),
     "env_rule_fps": lambda s, k, seed, f, w: measure_env(s, k, seed, f, w, rule=True),
+    "env_random_collector_fps": lambda s, k, seed, f, w: measure_collector(s, k, seed, f, w),
 }
 
 
@@ -203,9 +229,11 @@ def write_json(path: Path, payload: dict) -> None:
 
 
 def format_table(rows: list[dict]) -> str:
-    header = ["scenario", "K", "sim_limit_fps", "env_random_fps", "env_rule_fps", "random/sim", "rule/sim", "goal"]
+    header = ["scenario", "K", "sim_limit_fps", "env_random_fps", "env_rule_fps", "collector_random_fps",
+              "random/sim", "rule/sim", "collector/sim", "goal"]
     body = [[r["scenario"], str(r["num_roads"]), f"{r['sim_limit_fps']:.1f}", f"{r['env_random_fps']:.1f}",
-             f"{r['env_rule_fps']:.1f}", f"{r['random_over_sim']:.3f}", f"{r['rule_over_sim']:.3f}", _goal(r)]
+             f"{r['env_rule_fps']:.1f}", f"{r['env_random_collector_fps']:.1f}", f"{r['random_over_sim']:.3f}",
+             f"{r['rule_over_sim']:.3f}", f"{r['collector_over_sim']:.3f}", _goal(r)]
             for r in rows]
     widths = [max(len(h), *(len(b[i]) for b in body)) if body else len(h) for i, h in enumerate(header)]
     left = {0}  # scenario left-aligned, numbers right-aligned
@@ -267,6 +295,7 @@ def main(argv=None) -> int:
                 row[f"{name}_all"] = values
         row["random_over_sim"] = _ratio(row["env_random_fps"], row["sim_limit_fps"])
         row["rule_over_sim"] = _ratio(row["env_rule_fps"], row["sim_limit_fps"])
+        row["collector_over_sim"] = _ratio(row["env_random_collector_fps"], row["sim_limit_fps"])
         row["goal"] = _goal(row)
         if errors:
             row["errors"] = errors

@@ -302,3 +302,10 @@ def test_final_observation_is_of_the_last_frame():
         assert (steps[K.EGO_STATE][left][:, 0] <= env.config.section_length).all()
     finally:
         env.close()
+
+
+def test_a_closed_env_says_so():
+    env = SumoHighwayEnv("baseline", num_roads=1, seed=0)
+    env.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        env.reset()

@@ -88,7 +88,13 @@ class SumoHighwayEnv(HighwayEnvBase):
         out = (self._step_view if with_reward else self._reset_view).clone()
         return out if self.device is None or self.device == torch.device("cpu") else out.to(self.device)
 
+    def _check_open(self) -> None:
+        if self.sim.closed:
+            raise RuntimeError("this SumoHighwayEnv is closed (close() was called, e.g. by a collector's "
+                               "shutdown): create a new one")
+
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        self._check_open()
         if tensordict is not None and "_reset" in tensordict.keys():
             roads = tensordict.get("_reset").reshape(self.num_roads).nonzero().flatten().tolist()
         else:
@@ -97,6 +103,7 @@ class SumoHighwayEnv(HighwayEnvBase):
         return self._output(with_reward=False)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._check_open()
         lc = lc_command(tensordict.get(K.LC_ACTION)).reshape(-1).cpu().numpy()
         acc = tensordict.get(K.CF_ACTION).reshape(-1).detach().cpu().numpy()
         self.sim.step(lc, acc)
