@@ -3,7 +3,7 @@
 For batches of 1, 8 and 32 environments (x 3 leaders) this times, in one run, one call of
 ``TrajGANPredictor`` (one sample, and the mean of K = 8 samples) and of ``LCGANPredictor`` built from
 the weights shipped with the package, on raw observations of ``FakeHighwayEnv`` plus the IDM prior
-(``physics.idm_rollout``) and key gaps, i.e. inputs of the right shapes and ranges. Prints a table
+and key gaps from the transforms ``IDMPrior`` + ``KeyGapsFromPrior``, i.e. inputs of the right shapes and ranges. Prints a table
 (median microseconds per call and per environment) and writes ``benchmarks/results/gan_inference.json``.
 
     python benchmarks/gan_inference.py [--envs 1 8 32] [--calls 300] [--device cpu]
@@ -19,22 +19,17 @@ from pathlib import Path
 
 import torch
 
-from kddrl_trl import keys as K
 from kddrl_trl.envs import FakeHighwayEnv
 from kddrl_trl.generative import load_predictor
 from kddrl_trl.io import write_json_atomic
-from kddrl_trl.physics import idm_rollout
+from kddrl_trl.transforms import IDMPrior, KeyGapsFromPrior
 
 
 def inputs(num_envs: int, device: torch.device):
     """A raw observation batch with the derived keys the predictors read."""
     env = FakeHighwayEnv("congested", num_roads=num_envs, seed=0)
     td = env.rollout(25, break_when_any_done=False)[:, -1]["next"]
-    ahead = td[K.LEADERS_AHEAD]
-    y0, v0 = td[K.LEADERS_HISTORY][..., -1, 0], td[K.LEADERS_HISTORY][..., -1, 1]
-    td[K.PRED_PRIOR_TRAJ] = idm_rollout(y0, v0, ahead[..., 0], ahead[..., 1], ahead[..., 2] > 0)
-    td[K.PRED_KEY_GAPS] = td[K.PRED_PRIOR_TRAJ][..., [9, 19]] - td[K.EGO_STATE][..., :1, None]
-    return td.to(device)
+    return KeyGapsFromPrior()(IDMPrior()(td)).to(device)
 
 
 def time_calls(module, td, calls: int) -> float:

@@ -11,16 +11,13 @@ import torch
 from kddrl_trl import keys as K
 from kddrl_trl.envs import FakeHighwayEnv
 from kddrl_trl.generative import default_checkpoint, load_predictor, read_checkpoint
-from kddrl_trl.physics import idm_rollout
+from kddrl_trl.transforms import IDMPrior, KeyGapsFromPrior
 
 
 def observation(num_envs=4):
     env = FakeHighwayEnv("congested", num_roads=num_envs, seed=0)
     td = env.rollout(25, break_when_any_done=False)[:, -1]["next"]
-    ahead, hist = td[K.LEADERS_AHEAD], td[K.LEADERS_HISTORY]
-    td[K.PRED_PRIOR_TRAJ] = idm_rollout(hist[..., -1, 0], hist[..., -1, 1], ahead[..., 0], ahead[..., 1], ahead[..., 2] > 0)
-    td[K.PRED_KEY_GAPS] = td[K.PRED_PRIOR_TRAJ][..., [9, 19]] - td[K.EGO_STATE][..., :1, None]
-    return td
+    return KeyGapsFromPrior()(IDMPrior()(td))
 
 
 @pytest.mark.parametrize("kind", ["trajgan", "lcgan"])

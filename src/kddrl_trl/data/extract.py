@@ -84,7 +84,7 @@ from tensordict import TensorDict
 from tqdm.auto import tqdm
 
 from kddrl_trl import keys as K
-from kddrl_trl.io import write_atomic
+from kddrl_trl.io import write_json_atomic
 from kddrl_trl.data.highd import HighDRecording
 from kddrl_trl.data.tracks import TRACKS10_COLUMNS, longitudinal_tracks, tracks_hz, vehicle_num_lanes
 from kddrl_trl.physics.idm import IDMParams, idm_rollout
@@ -471,10 +471,6 @@ def _hash_recordings(recordings: Sequence[HighDRecording]) -> str:
     return h.hexdigest()
 
 
-def _atomic_write_json(obj, path: Path) -> None:
-    write_atomic(path, lambda fh: fh.write(json.dumps(obj, indent=2, sort_keys=True) + "\n"))
-
-
 def _params_json(**params) -> dict:
     """Parameters as plain JSON values (IDMParams fields as floats)."""
     out = {}
@@ -588,7 +584,7 @@ def extract_dataset(
         "splits": list(SPLITS),
         "split_keys": {"leaders": ["recording_id", "leader_id"], "lane_changes": ["recording_id", "vehicle_id"]},
     }
-    _atomic_write_json(meta, meta_path)
+    write_json_atomic(meta_path, meta)
     return {**meta, "cached": False}
 
 

@@ -62,6 +62,7 @@ import numpy as np
 import pandas as pd
 
 from ..envs.config import HighwayConfig
+from ..envs.network import ROAD_SPACING
 from ..io import write_text_atomic
 from .highd import (
     TRACKS_COLUMNS,
@@ -306,14 +307,8 @@ def record_traffic(cfg: HighwayConfig, duration_s: float, num_roads: int = 4, se
     for r in range(int(num_roads)):
         rows = data[road_of[data[:, 0].astype(np.int64)] == r] if len(data) else data
         out.append(_build_recording(cfg, r, rows, vid_names, params, duration_s, num_frames, seed,
-                                    y_lat_offset=y_off - (-r * _road_spacing())))
+                                    y_lat_offset=y_off - (-r * ROAD_SPACING)))
     return out
-
-
-def _road_spacing() -> float:
-    from ..envs.network import ROAD_SPACING
-
-    return ROAD_SPACING
 
 
 def _build_recording(cfg: HighwayConfig, road: int, rows: np.ndarray, vid_names: list[str], params: dict,
