@@ -3,8 +3,8 @@
 For K in {1, 8, 32} roads (``--roads``) this times ``env.rollout(frames, policy)`` of ``SumoHighwayEnv``
 bare, inside ``TransformedEnv(env, make_kddrl_transforms())`` (IDM prior -> trajGAN -> MOBIL prior ->
 lcGAN prior, the shipped weights, one generator call per frame for all K envs x 3 leaders), and with
-``make_kddrl_transforms(compile=True)`` (physics priors through ``torch.compile``; the one-off compile
-happens in the untimed warm-up), with the IDM+MOBIL rule policy, and reports ego-frames per second and
+``make_kddrl_transforms(compile=True)`` (physics priors and GAN inference through ``torch.compile``; the
+one-off compile happens in the untimed warm-up), with the IDM+MOBIL rule policy, and reports ego-frames per second and
 the stack's cost ``1 - fps_with / fps_bare``. Goal: cost <= 25 % at K = 32. Prints a table and writes
 ``benchmarks/results/transform_overhead.json``.
 

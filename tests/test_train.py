@@ -20,17 +20,79 @@ def test_scenario_is_appended_not_required():
     assert congested.env.flow_scale == 1.5 and congested.env.flow_vph == 2658
 
 
-def test_train_runs_as_typed_from_any_directory(tmp_path):
-    cmd = [sys.executable, "-m", "kddrl_trl.train", "+scenario=braking", "episodes=4", "env.num_roads=2",
-           "progress=false"]
+def test_rule_based_algo_runs_as_typed_from_any_directory(tmp_path):
+    cmd = [sys.executable, "-m", "kddrl_trl.train", "+scenario=braking", "algo=idm_mobil", "eval_episodes=4",
+           "env.num_roads=2", "progress=false"]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     runs = list((tmp_path / "runs").glob("braking__idm_mobil__0__*"))
     assert len(runs) == 1
     summary = json.loads((runs[0] / "summary.json").read_text())
     assert summary["episodes"] == 4 and summary["scenario"] == "braking"
-    assert (runs[0] / "episodes.csv").read_text().count("\n") == 5
+    assert (runs[0] / "eval_episodes.csv").read_text().count("\n") == 5
     assert "mean speed (km/h)" in done.stdout
+
+
+#: a tiny, fast KDDRL budget: 2 roads, small networks, no compiling, updates from the first batches
+TINY = ["env.num_roads=2", "progress=false", "train.warmup_frames=50", "train.batch_size_cf=32",
+        "train.batch_size_lc=8", "algo.learner.compile=false", "algo.transforms.compile=false",
+        "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]"]
+
+
+def test_kddrl_trains_end_to_end_as_typed(tmp_path):
+    cmd = [sys.executable, "-m", "kddrl_trl.train", "+scenario=braking", "episodes=3", "eval_episodes=2", *TINY]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    (run,) = list((tmp_path / "runs").glob("braking__kddrl__0__*"))
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["algo"] == "kddrl" and summary["episodes"] == 2
+    training = summary["training"]
+    assert training["episodes"] == 3 and training["cf_updates"] > 0 and training["frames"] > 50
+    assert (run / "train_episodes.csv").read_text().count("\n") == 4
+    assert (run / "training_curves.png").read_bytes()[:4] == b"\x89PNG"
+    assert (run / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
+    for name in ("train/return_lc", "train/return_cf", "train/loss_qvalue", "time/frames_per_s", "eval/mean_speed_kmh"):
+        assert (run / "logs" / "scalars" / f"{name}.csv").is_file(), name
+
+
+def _latest_episodes(run) -> int:
+    pointer = run / "checkpoints" / "latest"
+    return int(pointer.read_text().strip()[2:8]) if pointer.is_file() else 0
+
+
+def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
+    import signal
+    import time
+
+    args = ["episodes=8", "eval_episodes=1", "train.checkpoint_every=2", *TINY]
+    proc = subprocess.Popen([sys.executable, "-m", "kddrl_trl.train", *args], cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 400
+    run = None
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            runs = list((tmp_path / "runs").glob("baseline__kddrl__0__*"))
+            if runs and 2 <= _latest_episodes(runs[0]) < 8:
+                run = runs[0]
+                break
+            time.sleep(0.2)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert run is not None, "no checkpoint appeared before the run ended: " + proc.stderr.read()[-2000:]
+    killed_at = _latest_episodes(run)
+    assert not (run / "summary.json").exists()
+
+    done = subprocess.run([sys.executable, "-m", "kddrl_trl.train", *args, "resume=true"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    summary = json.loads((run / "summary.json").read_text())  # written into the resumed run's directory
+    assert summary["training"]["episodes"] == 8 and summary["run_dir"] == str(run)
+    history = (run / "train_episodes.csv").read_text().strip().splitlines()
+    assert len(history) == 1 + 8
+    steps = [int(float(line.split(",")[0])) for line in (run / "logs/scalars/train/return_cf.csv").read_text().split()]
+    assert steps == list(range(8)), steps  # no episode logged twice, none missing
+    assert _latest_episodes(run) == 8 and killed_at >= 2
 
 
 @pytest.mark.parametrize("override", ["env.flow_vph=-5", "env.flow_vph=lots", "env.flow_vhp=5"])

@@ -572,3 +572,21 @@ def test_stack_reusable_on_a_foreign_env():
     present = td[K.NEIGHBORS_MASK][..., :3]
     assert present.all()  # every lane has a leader on the toy road
     assert (td[K.PRED_KEY_GAPS][..., 1] > td[K.PRED_KEY_GAPS][..., 0]).all()  # leaders move forward
+
+
+def test_compiled_stack_matches_eager_stack():
+    """``compile=True`` (physics priors and GAN inference through torch.compile) changes speed, not values."""
+    import shutil
+
+    from kddrl_trl import keys as K
+    from kddrl_trl.envs import FakeHighwayEnv
+    from kddrl_trl.transforms import make_kddrl_transforms
+
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("torch.compile needs a C++ compiler on a CPU machine")
+    env = FakeHighwayEnv(num_roads=5, seed=3)
+    td = env.rollout(12, break_when_any_done=False)["next"].reshape(-1)
+    eager = make_kddrl_transforms(seed=4)(td.clone())
+    compiled = make_kddrl_transforms(seed=4, compile=True)(td.clone())
+    for key in (K.PRED_PRIOR_TRAJ, K.PRED_TRAJ, K.PRED_KEY_GAPS, K.PRIOR_P_MOBIL, K.PRIOR_P_LCGAN):
+        torch.testing.assert_close(compiled[key], eager[key], rtol=1e-4, atol=1e-3, msg=str(key))

@@ -12,16 +12,35 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newline: str | None = None) -> Path:
-    """Call ``write(fh)`` on a temporary text file beside ``path``, then move it onto ``path``."""
+def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newline: str | None = None,
+                 binary: bool = False) -> Path:
+    """Call ``write(fh)`` on a temporary file (text, or bytes with ``binary=True``) beside ``path``, then move
+    it onto ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w", newline=newline) as fh:
+        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline=newline)) as fh:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def torch_save_atomic(path: str | os.PathLike, obj: Any) -> Path:
+    """``torch.save(obj)`` to a temporary file beside ``path``, then moved onto ``path``."""
+    import torch
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

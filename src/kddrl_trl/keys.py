@@ -68,3 +68,12 @@ LC_DECIDE = ("lc", "decide")    # [1] bool, the lane-change agent decides on thi
 CF_ACTION = ("cf", "action")    # [1] acceleration in [-5, 5] m/s²
 LC_REWARD = ("lc", "reward")    # [1] paper Eq. 26-29
 CF_REWARD = ("cf", "reward")    # [1] paper Eq. 32-33
+
+# ------------------------------------------------------------------------- clocks (collectors/)
+LC_HELD = ("lc", "held")                # [3] one-hot lane-change action in force (executed last frame; keep at reset)
+LC_MACRO_FRAMES = ("lc", "macro_frames")  # [1] int64, frames a macro-transition of buffer H spans (under "next")
+
+# -------------------------------------------------------------------------- learner outputs (objectives/)
+LC_ACTION_VALUE = ("lc", "action_value")          # [3] Q(s, ·) of D3QN, Eq. 3
+LC_CHOSEN_VALUE = ("lc", "chosen_action_value")   # [1] Q(s, a) of the taken action
+CF_STATE_ACTION_VALUE = ("cf", "state_action_value")  # [1] TD3 critic value Q_k(s, a), Eq. 7

@@ -1,8 +1,15 @@
 """Main entry point: ``python -m kddrl_trl.train [+scenario=congested|braking] [algo=...] [key=value ...]``.
 
-Wires parts together and holds no algorithm. Today it runs the rule-based ``algo=idm_mobil`` for
-``episodes`` episodes and writes their metrics; the learning systems plug in here (DESIGN.md).
-Outputs go to ``runs/<scenario>__<algo>__<seed>__<time>/``: ``episodes.csv``, ``summary.json``, CSV logs.
+Wires parts together and holds no algorithm:
+
+- learning algos (``algo.kind: hierarchical``: ``kddrl`` by default, ``d3qn_td3``, ``d3qn_td3_lg``,
+  ``kddrl_same_clock``, ``ni``): train for ``episodes`` episodes (:class:`~kddrl_trl.training.Trainer`,
+  checkpoints every ``train.checkpoint_every`` episodes, ``resume=true`` continues), then evaluate
+  ``eval_episodes`` episodes with exploration off on a fresh env;
+- rule-based algos (``algo=idm_mobil``): evaluate ``eval_episodes`` episodes.
+
+Outputs go to ``runs/<scenario>__<algo>__<seed>__<time>/``: ``config.yaml``, ``train_episodes.csv``,
+``training_curves.png``, ``checkpoints/``, ``eval_episodes.csv``, ``summary.json``, TorchRL CSV logs.
 """
 from __future__ import annotations
 
@@ -19,11 +26,11 @@ from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed env schema with Hydra)
 from .baselines.factory import RULE_BASED, make_rule_policy
-from .envs.factory import make_env
+from .envs.factory import highway_config, make_env
 from .eval.metrics import PAPER_IDM_MOBIL, format_summary, summarize
 from .eval.rollout import run_episodes
 from .io import write_json_atomic, write_text_atomic
-from .loggers import make_logger
+from .loggers import make_logger, trim_logs
 
 log = logging.getLogger(__name__)
 
@@ -34,34 +41,83 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-@hydra.main(version_base="1.3", config_path="conf", config_name="config")
-def main(cfg: DictConfig) -> dict:
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
-    if cfg.algo.name not in RULE_BASED:
-        raise SystemExit(f"algo={cfg.algo.name}: only the rule-based algos ({', '.join(RULE_BASED)}) run so far")
-    seed_everything(cfg.seed)
-    env = make_env(cfg.env, seed=cfg.seed)
-    policy = make_rule_policy(cfg.algo, num_lanes=env.config.num_lanes, lane_width=env.config.lane_width)
-    logger = make_logger(cfg.logger, run_dir)
-    write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
-
+def evaluate(env, policy, cfg: DictConfig, logger) -> tuple[list[dict], dict]:
+    """``eval_episodes`` episodes of ``policy`` (counted in start order), logged under ``eval/``; closes env."""
     def on_episode(ep: dict) -> None:
         for key in ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc", "return_cf"):
             logger.log_scalar(f"eval/{key}", ep[key], step=ep["index"])
         logger.log_scalar("eval/collision", float(ep["collision"]), step=ep["index"])
 
     try:
-        episodes = run_episodes(env, policy, cfg.episodes, progress=cfg.progress, on_episode=on_episode)
-        stats = dict(env.stats)
+        episodes = run_episodes(env, policy, cfg.eval_episodes, progress=cfg.progress, on_episode=on_episode)
+        stats = dict(env.base_env.stats if hasattr(env, "base_env") else env.stats)
     finally:
         env.close()
+    return episodes, stats
+
+
+def train_learner(cfg: DictConfig, run_dir: Path, logger) -> tuple[list[dict], object, dict]:
+    """Trains (or resumes) the learner of ``cfg.algo``; returns the training history and the learner."""
+    from .training import Trainer, make_learner, make_training_env, plot_training_curves
+
+    learner = make_learner(cfg.algo)
+    train_cfg = {**OmegaConf.to_container(cfg.train, resolve=True), "episodes": cfg.episodes}
+    trainer = Trainer(None, learner, train_cfg, run_dir, logger, seed=cfg.seed, progress=cfg.progress)
+    done = trainer.load(run_dir) if cfg.resume else 0
+    if done:
+        trim_logs(run_dir, last_step=done - 1)
+    # a resumed run meets new traffic: the env's streams start from seed + episodes already done
+    trainer.env = make_training_env(cfg.env, cfg.algo, seed=cfg.seed + done)
+    try:
+        history = trainer.run()
+    finally:
+        trainer.env.close()
+    write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))
+    plot_training_curves(history, run_dir / "training_curves.png",
+                         title=f"{cfg.algo.name} on {cfg.env.scenario}, seed {cfg.seed}")
+    return history, learner, trainer.counters
+
+
+@hydra.main(version_base="1.3", config_path="conf", config_name="config")
+def main(cfg: DictConfig) -> dict:
+    from .training import find_resume_dir, make_training_env
+
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    kind = cfg.algo.get("kind", "rule" if cfg.algo.name in RULE_BASED else "hierarchical")
+    resume_dir = find_resume_dir(cfg.resume, run_dir.parent, f"{cfg.env.scenario}__{cfg.algo.name}__{cfg.seed}__")
+    if resume_dir is not None:
+        log.info("resuming %s (this invocation's own directory %s stays empty)", resume_dir, run_dir)
+        run_dir = resume_dir
+    seed_everything(cfg.seed)
+    logger = make_logger(cfg.logger, run_dir)
+    if resume_dir is None:
+        write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+
+    summary_extra: dict = {}
+    if kind == "rule":
+        env = make_env(cfg.env, seed=cfg.seed)
+        policy = make_rule_policy(cfg.algo, num_lanes=env.config.num_lanes, lane_width=env.config.lane_width)
+    elif kind == "hierarchical":
+        cfg.resume = resume_dir is not None
+        history, learner, counters = train_learner(cfg, run_dir, logger)
+        tail = history[-100:]
+        summary_extra["training"] = {**counters, "episodes": len(history),
+                                     "last100": {k: float(np.mean([h[k] for h in tail]))
+                                                 for k in ("return_lc", "return_cf", "mean_speed_kmh", "collision")}}
+        env = make_training_env(cfg.env, cfg.algo, seed=cfg.seed)
+        policy = learner.policy(explore=False)
+        policy.eval()
+    else:
+        raise SystemExit(f"algo={cfg.algo.name}: unknown kind {kind!r} (rule | hierarchical)")
+
+    episodes, stats = evaluate(env, policy, cfg, logger)
     summary = summarize(episodes)
     summary.update(scenario=cfg.env.scenario, algo=cfg.algo.name, seed=cfg.seed, env_stats=stats,
-                   flow_vph=env.config.flow, run_dir=str(run_dir))
-    write_text_atomic(run_dir / "episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
+                   flow_vph=highway_config(cfg.env).flow, run_dir=str(run_dir), **summary_extra)
+    write_text_atomic(run_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
     write_json_atomic(run_dir / "summary.json", summary)
     reference = PAPER_IDM_MOBIL if cfg.algo.name == "idm_mobil" and cfg.env.scenario == "baseline" else None
-    print(f"\n{cfg.algo.name} on {cfg.env.scenario} ({env.config.flow:.0f} veh/h), seed {cfg.seed}:")
+    print(f"\n{cfg.algo.name} on {cfg.env.scenario}, seed {cfg.seed}: evaluation, exploration off")
     print(format_summary(summary, reference))
     print(f"results in {run_dir}")
     return summary

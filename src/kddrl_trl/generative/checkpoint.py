@@ -7,12 +7,13 @@ in the file equals the one asked for, and (optionally) the dataset hash, and say
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
 import torch
 from torch import nn
+
+from ..io import torch_save_atomic
 
 FORMAT = "kddrl_trl.generative/1"
 
@@ -34,15 +35,7 @@ def save_checkpoint(path: str | os.PathLike, *, kind: str, architecture: Mapping
         "config": dict(config or {}), "modules": {name: m.state_dict() for name, m in modules.items()},
         "state": dict(state or {}),
     }
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        torch.save(payload, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return torch_save_atomic(path, payload)
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict:

@@ -537,7 +537,8 @@ class LCGANPredictor(TensorDictModuleBase):
         draws: noise draws averaged per call.
     """
 
-    def __init__(self, generator: LCGenerator, num_lanes: int = 3, seed: int = 0, draws: int = 1):
+    def __init__(self, generator: LCGenerator, num_lanes: int = 3, seed: int = 0, draws: int = 1,
+                 compile: bool | str = False):
         super().__init__()
         self.in_keys = [K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.PRED_KEY_GAPS]
         self.out_keys = [K.PRIOR_P_LCGAN]
@@ -548,6 +549,11 @@ class LCGANPredictor(TensorDictModuleBase):
         self.draws = int(draws)
         self.seed = int(seed)
         self.rng = torch.Generator(device=next(generator.parameters()).device).manual_seed(self.seed)
+        from ..compiling import resolve_compile
+
+        self.compiled = resolve_compile(compile)
+        self._probabilities = (torch.compile(self._probabilities_impl, dynamic=True) if self.compiled
+                               else self._probabilities_impl)
 
     @classmethod
     def from_task(cls, task: LCGANTask, **kwargs) -> LCGANPredictor:
@@ -569,6 +575,13 @@ class LCGANPredictor(TensorDictModuleBase):
         load_checkpoint(path, kind=KIND, architecture=arch, modules={"generator": gen}, dataset_hash=dataset_hash)
         return cls(gen.to(device), **kwargs)
 
+    def _probabilities_impl(self, state, lane, rel, mask, gaps, z):
+        """Eq. 16 on ``[N, ...]`` rows with noise ``z`` ``[draws, N, noise_dim]`` (what ``compile`` fuses)."""
+        n = state.shape[0]
+        s_av = torch.stack([state[:, 1], state[:, 2], lane.float()], dim=-1)
+        c, avail = self.net.condition(s_av, rel, mask, gaps, mask[:, :3], self.num_lanes)
+        return self.net(c.expand(z.shape[0], n, c.shape[-1]), z, avail.expand(z.shape[0], n, NUM_ACTIONS)).mean(0)
+
     @torch.no_grad()
     def forward(self, tensordict: TensorDict) -> TensorDict:
         state = tensordict.get(K.EGO_STATE)
@@ -580,9 +593,7 @@ class LCGANPredictor(TensorDictModuleBase):
         rel = tensordict.get(K.NEIGHBORS_REL).reshape(n, 6, 4).float()
         mask = tensordict.get(K.NEIGHBORS_MASK).reshape(n, 6).bool()
         gaps = tensordict.get(K.PRED_KEY_GAPS).reshape(n, 3, 2).float()
-        s_av = torch.stack([state[:, 1], state[:, 2], lane.float()], dim=-1)
-        c, avail = self.net.condition(s_av, rel, mask, gaps, mask[:, :3], self.num_lanes)
         z = torch.randn(self.draws, n, self.net.noise_dim, generator=self.rng, device=self.rng.device).to(dev)
-        p = self.net(c.expand(self.draws, n, c.shape[-1]), z, avail.expand(self.draws, n, NUM_ACTIONS)).mean(0)
+        p = self._probabilities(state, lane, rel, mask, gaps, z)
         tensordict.set(K.PRIOR_P_LCGAN, p.reshape(*batch, NUM_ACTIONS))
         return tensordict

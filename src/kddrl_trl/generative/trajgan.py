@@ -464,14 +464,16 @@ class TrajGANPredictor(TensorDictModuleBase):
     ``num_samples`` draws (only one is drawn), ``"mean"`` the mean of ``num_samples`` draws. An absent
     leader (mask False or non-finite inputs) gets its prior, or zeros where the prior is not finite either;
     the output is never NaN. The noise comes from ``self.generator`` (a CPU ``torch.Generator`` seeded with
-    ``seed``; :meth:`reset` re-seeds it). No gradients.
+    ``seed``; :meth:`reset` re-seeds it), drawn for every leader slot, present or not, so the stream does not
+    depend on who is present. No gradients. ``compile=True`` (or ``"auto"``) runs the dense inference through
+    ``torch.compile`` (one fused kernel per call on a CPU, after a one-off compile).
     """
 
     in_keys = [K.LEADERS_HISTORY, K.LEADERS_AHEAD, K.NEIGHBORS_MASK, K.PRED_PRIOR_TRAJ]  # noqa: RUF012
     out_keys = [K.PRED_TRAJ]  # noqa: RUF012
 
     def __init__(self, generator_net: TrajGenerator, architecture: Mapping[str, Any], num_samples: int = 1,
-                 reduce: str = "sample", seed: int = 0):
+                 reduce: str = "sample", seed: int = 0, compile: bool | str = False):
         super().__init__()
         if reduce not in ("sample", "mean"):
             raise ValueError(f"reduce must be 'sample' or 'mean', got {reduce!r}")
@@ -484,11 +486,33 @@ class TrajGANPredictor(TensorDictModuleBase):
         self.use_history = bool(architecture["use_history"])
         self.num_samples, self.reduce, self.seed = int(num_samples), reduce, int(seed)
         self.generator = torch.Generator().manual_seed(self.seed)
+        from ..compiling import resolve_compile
+
+        self.compiled = resolve_compile(compile)
+        self._refine = torch.compile(self._refine_impl, dynamic=True) if self.compiled else self._refine_impl
 
     def reset(self, seed: int | None = None) -> None:
         """Re-seed the noise generator (with ``seed``, or the constructor's)."""
         self.seed = self.seed if seed is None else int(seed)
         self.generator.manual_seed(self.seed)
+
+    def _refine_impl(self, hist: Tensor, ahead: Tensor, prior: Tensor, mask: Tensor, z: Tensor) -> Tensor:
+        """Dense inference on every row ``[N, ...]`` with noise ``z`` ``[k, N, noise_dim]``: rows that are
+        absent or not finite get their prior (zeros where it is not finite), never NaN. No data-dependent
+        shapes, so ``torch.compile`` fuses it whole."""
+        prior_ok = torch.isfinite(prior).all(-1)
+        present = mask & prior_ok & torch.isfinite(hist).flatten(1).all(-1) & torch.isfinite(ahead).all(-1)
+        zero = torch.zeros((), dtype=prior.dtype, device=prior.device)
+        base = torch.where(prior_ok.unsqueeze(-1), prior, zero)
+        hist = torch.where(present[:, None, None], hist, zero)
+        ahead = torch.where(present[:, None], ahead, zero)
+        p = torch.where(present[:, None], prior, zero)
+        cond = self.net.normalize(condition_features(hist, ahead, p, self.use_history))
+        k, n = z.shape[0], z.shape[1]
+        r = self.net(cond.unsqueeze(0).expand(k, n, -1).reshape(k * n, -1), z.reshape(k * n, -1))
+        s = p.unsqueeze(0) + self.net.to_metres(r).reshape(k, n, -1)
+        s = s.mean(0) if self.reduce == "mean" else s[0]
+        return torch.where(present.unsqueeze(-1), s, base)
 
     @classmethod
     def from_task(cls, task: TrajGANTask, **kwargs) -> TrajGANPredictor:
@@ -528,14 +552,9 @@ class TrajGANPredictor(TensorDictModuleBase):
         ahead = ahead.reshape(-1, 3).to(dev, torch.float32)
         prior = prior.reshape(-1, t).to(dev, torch.float32)
         mask = mask.reshape(-1).to(dev)
-        prior_ok = torch.isfinite(prior).all(-1)
-        present = mask & prior_ok & torch.isfinite(hist).flatten(1).all(-1) & torch.isfinite(ahead).all(-1)
-        out = torch.where(prior_ok.unsqueeze(-1), prior, torch.zeros_like(prior))
-        idx = present.nonzero().squeeze(-1)
-        if idx.numel():
-            k = self.num_samples if self.reduce == "mean" else 1
-            s = _sample(self.net, hist[idx], ahead[idx], prior[idx], k, self.use_history, self.generator)
-            out[idx] = s.mean(1) if self.reduce == "mean" else s[:, 0]
+        k = self.num_samples if self.reduce == "mean" else 1
+        z = torch.randn(k, prior.shape[0], self.net.noise_dim, generator=self.generator).to(dev)
+        out = self._refine(hist, ahead, prior, mask, z)
         out = torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
         tensordict.set(K.PRED_TRAJ, out.reshape(*batch, 3, t).to(tensordict.get(K.PRED_PRIOR_TRAJ).device))
         return tensordict

@@ -9,6 +9,7 @@ from tensordict import TensorDictBase
 
 from .. import keys as K
 from ..physics import IDMParams, idm_rollout
+from ..compiling import resolve_compile
 from ._base import PredictiveTransform, as_params, finite_or_zero, maybe_compile, unbounded_spec
 
 
@@ -61,12 +62,12 @@ class IDMPrior(PredictiveTransform):
     """
 
     def __init__(self, idm: IDMParams | Mapping | None = None, steps: int = 20, dt: float = 0.1,
-                 compile: bool = False):
+                 compile: bool | str = False):
         super().__init__(in_keys=[K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LEADERS_AHEAD], out_keys=[K.PRED_PRIOR_TRAJ])
         self.idm = as_idm_params(idm)
         self.steps, self.dt = int(steps), float(dt)
-        self.compile = bool(compile)
-        self._prior = maybe_compile(partial(prior_trajectory, steps=self.steps, dt=self.dt, idm=self.idm), compile)
+        self.compile = resolve_compile(compile)
+        self._prior = maybe_compile(partial(prior_trajectory, steps=self.steps, dt=self.dt, idm=self.idm), self.compile)
 
     def compute(self, tensordict: TensorDictBase) -> dict:
         traj = self._prior(tensordict.get(K.NEIGHBORS_KIN), tensordict.get(K.NEIGHBORS_MASK),

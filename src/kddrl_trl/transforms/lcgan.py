@@ -32,17 +32,19 @@ class LCGANPrior(PredictiveTransform):
         num_lanes: lanes of the road.
         draws, seed: noise options of the default predictor.
         device: device of the default predictor (inputs are moved there and outputs back).
+        compile: ``torch.compile`` the default predictor's inference (``True`` / ``False`` / ``"auto"``).
     """
 
     def __init__(self, predictor: TensorDictModuleBase | None = None, *, checkpoint: str | Path | None = None,
-                 num_lanes: int = 3, draws: int = 1, seed: int = 0, device: str | torch.device = "cpu"):
+                 num_lanes: int = 3, draws: int = 1, seed: int = 0, device: str | torch.device = "cpu",
+                 compile: bool | str = False):
         if predictor is not None and checkpoint is not None:
             raise ValueError("give either a predictor module or a checkpoint path, not both")
         if predictor is None:
             from ..generative import load_predictor
 
             predictor = load_predictor("lcgan", checkpoint, num_lanes=int(num_lanes), seed=int(seed),
-                                       draws=int(draws), device=device)
+                                       draws=int(draws), device=device, compile=compile)
         if K.PRIOR_P_LCGAN not in [tuple(k) if isinstance(k, (tuple, list)) else k for k in predictor.out_keys]:
             raise ValueError(f"the lcGAN predictor must write {K.PRIOR_P_LCGAN}, it writes {predictor.out_keys}")
         super().__init__(in_keys=list(predictor.in_keys), out_keys=[K.PRIOR_P_LCGAN])

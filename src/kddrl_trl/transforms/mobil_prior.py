@@ -9,6 +9,7 @@ from tensordict import TensorDictBase
 
 from .. import keys as K
 from ..physics import IDMParams, MOBILParams, mobil_prior
+from ..compiling import resolve_compile
 from ._base import PredictiveTransform, as_params, finite_or_zero, maybe_compile, probability_spec
 from .idm_prior import as_idm_params
 
@@ -46,13 +47,13 @@ class MOBILPrior(PredictiveTransform):
     """
 
     def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
-                 num_lanes: int = 3, compile: bool = False):
+                 num_lanes: int = 3, compile: bool | str = False):
         super().__init__(in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK],
                          out_keys=[K.PRIOR_P_MOBIL])
         self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
-        self.compile = bool(compile)
+        self.compile = resolve_compile(compile)
         self._prior = maybe_compile(partial(mobil_prior_from_obs, num_lanes=self.num_lanes, idm=self.idm,
-                                            mobil=self.mobil), compile)
+                                            mobil=self.mobil), self.compile)
 
     def compute(self, tensordict: TensorDictBase) -> dict:
         p = self._prior(tensordict.get(K.EGO_STATE), tensordict.get(K.EGO_LANE), tensordict.get(K.NEIGHBORS_KIN),

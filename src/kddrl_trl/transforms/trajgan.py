@@ -38,18 +38,19 @@ class TrajGANPrediction(PredictiveTransform):
         num_samples, reduce, seed: noise options of the default predictor (see above).
         device: device of the default predictor (inputs are moved there and outputs back).
         key_steps: 1-based key steps of Eq. 24.
+        compile: ``torch.compile`` the default predictor's inference (``True`` / ``False`` / ``"auto"``).
     """
 
     def __init__(self, predictor: TensorDictModuleBase | None = None, *, checkpoint: str | Path | None = None,
                  num_samples: int = 1, reduce: str = "sample", seed: int = 0, device: str | torch.device = "cpu",
-                 key_steps: Sequence[int] = KEY_STEPS):
+                 key_steps: Sequence[int] = KEY_STEPS, compile: bool | str = False):
         if predictor is not None and checkpoint is not None:
             raise ValueError("give either a predictor module or a checkpoint path, not both")
         if predictor is None:
             from ..generative import load_predictor
 
             predictor = load_predictor("trajgan", checkpoint, num_samples=num_samples, reduce=reduce,
-                                       seed=seed).to(device)
+                                       seed=seed, compile=compile).to(device)
         if K.PRED_TRAJ not in [tuple(k) if isinstance(k, (tuple, list)) else k for k in predictor.out_keys]:
             raise ValueError(f"the trajGAN predictor must write {K.PRED_TRAJ}, it writes {predictor.out_keys}")
         in_keys = list(dict.fromkeys([*predictor.in_keys, K.EGO_STATE, K.NEIGHBORS_MASK]))

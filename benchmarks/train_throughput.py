@@ -1,0 +1,297 @@
+"""Training throughput of KDDRL, measured in one run (issue: learning, "Throughput").
+
+(a) ``update``: the learner's cost per collected frame — one TD3 update (critic every update; actor and
+    soft target updates every ``policy_delay``) plus 1/``lc_period`` of a D3QN update (one per decision) —
+    of :class:`kddrl_trl.training.HierarchicalLearner` (TorchRL ``TD3Loss`` / ``DQNLoss`` / ``SoftUpdate``,
+    TensorDict states, shared embedding), eager and compiled, against a **plain-PyTorch reference** with the
+    *same* network modules (deep copies), the same batch tensors and the same arithmetic (double-DQN target
+    with masked argmax, twin critics with clipped target smoothing, delayed actor on detached s_e, Polyak
+    updates of every target incl. the embedding's). ``update_ratio_vs_plain`` = plain time / ours (>= 1.0:
+    TorchRL costs nothing extra). Replay sampling is outside the timed part for both.
+(b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
+    ``conf/algo/kddrl.yaml``, i.e. compiled when a C++ compiler is found) + DecisionClock + both exploring
+    policies through :class:`kddrl_trl.collectors.MultiTimescaleCollector` (writing both replay buffers),
+    against the libsumo limit of ``benchmarks/env_throughput.py`` (a) measured in the same run at the same K.
+    ``collect_ratio_vs_sim`` (goal >= 0.5).
+(c) ``train_1000_episodes_s``: read from a finished run's ``summary.json`` (``--full-run RUN_DIR``), the
+    training wall time of ``python -m kddrl_trl.train`` (1000 episodes, baseline) — goal <= 900 s.
+
+    python benchmarks/train_throughput.py [--roads 8] [--updates 200] [--frames 2000] [--full-run runs/...]
+
+Prints a table and writes ``benchmarks/results/train_throughput.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from omegaconf import OmegaConf
+from torchrl.envs import Compose, TransformedEnv
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
+
+from kddrl_trl import keys as K  # noqa: E402
+from kddrl_trl.collectors import DecisionClock, MultiTimescaleCollector  # noqa: E402
+from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
+from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
+from kddrl_trl.training.learner import adam  # noqa: E402
+from kddrl_trl.transforms import make_kddrl_transforms  # noqa: E402
+
+CONF = Path(__file__).resolve().parents[1] / "src" / "kddrl_trl" / "conf" / "algo" / "kddrl.yaml"
+
+
+def learner_kwargs(compile: bool) -> tuple[dict, int]:
+    """The learner options of ``conf/algo/kddrl.yaml`` (with ``compile`` set) and its ``lc_period``."""
+    cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)
+    return {**cfg["learner"], "compile": compile}, int(cfg["lc_period"])
+
+
+def transform_kwargs() -> dict:
+    """The transform options of ``conf/algo/kddrl.yaml`` (as training builds the stack)."""
+    cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)["transforms"]
+    cfg.pop("enabled", None)
+    return cfg
+
+
+# ------------------------------------------------------------------------------------ plain reference
+class PlainKDDRL:
+    """The same update as ``HierarchicalLearner`` in plain PyTorch on tensors (no TensorDict, no TorchRL)."""
+
+    def __init__(self, learner: HierarchicalLearner):
+        L = learner
+        self.fusion = copy.deepcopy(L.embedding[0].module)          # PriorFusion net (Eq. 23)
+        self.embed = copy.deepcopy(L.embedding[1].module)           # SharedEmbedding net (Eq. 24)
+        self.t_fusion, self.t_embed = copy.deepcopy(self.fusion), copy.deepcopy(self.embed)
+        self.lc_state = copy.deepcopy(L.lc_state.module)
+        self.cf_state = copy.deepcopy(L.cf_state.module)
+        self.q = copy.deepcopy(L.d3qn.actor.module[0].module)        # DuelingQNet
+        self.q_t = copy.deepcopy(self.q)
+        self.actor = copy.deepcopy(L.td3.actor.module)
+        self.actor_t = copy.deepcopy(self.actor)
+        self.critics = [copy.deepcopy(L.td3.critic.module) for _ in range(2)]
+        self.critics_t = [copy.deepcopy(c) for c in self.critics]
+        for m in (self.t_fusion, self.t_embed, self.q_t, self.actor_t, *self.critics_t):
+            m.requires_grad_(False)
+        td3, d3 = L.cf_loss, L.lc_loss
+        self.gamma_cf = float(td3.value_estimator.gamma)
+        self.gamma_lc = float(d3.value_estimator.gamma)
+        self.policy_noise, self.noise_clip = float(td3.policy_noise), float(td3.noise_clip)
+        self.low, self.high = -5.0, 5.0
+        self.delay, self.tau = L.td3.policy_delay, L.embed_tau
+        emb_params = [*self.fusion.parameters(), *self.embed.parameters()]
+        self.opt_embed = adam(emb_params, 3e-4)  # the learner's optimiser settings (fused Adam)
+        self.opt_q = adam(self.q.parameters(), 1e-4)
+        self.opt_actor = adam(self.actor.parameters(), 3e-4)
+        self.opt_critic = adam([p for c in self.critics for p in c.parameters()], 3e-4)
+        self.pairs_cf = [(t, s) for a, b in [(self.actor_t, self.actor), *zip(self.critics_t, self.critics),
+                                             (self.t_fusion, self.fusion), (self.t_embed, self.embed)]
+                         for t, s in zip(a.parameters(), b.parameters())]
+        self.pairs_lc = [(t, s) for a, b in [(self.q_t, self.q), (self.t_fusion, self.fusion), (self.t_embed, self.embed)]
+                         for t, s in zip(a.parameters(), b.parameters())]
+        self.updates = 0
+
+    def _s_e(self, x: dict, target: bool) -> torch.Tensor:
+        fusion, embed = (self.t_fusion, self.t_embed) if target else (self.fusion, self.embed)
+        p_lc = fusion(x["p_lcgan"], x["p_mobil"])
+        return embed(p_lc, x["gaps"])
+
+    def _soft(self, pairs) -> None:
+        with torch.no_grad():
+            torch._foreach_lerp_([t for t, _ in pairs], [s for _, s in pairs], self.tau)
+
+    def update_cf(self, x: dict, nx: dict) -> None:
+        s_e = self._s_e(x, False)
+        obs = self.cf_state(x["ego"], x["rel"], x["mask"], s_e, x["lc_action"], x["accel"])
+        with torch.no_grad():
+            s_e2 = self._s_e(nx, True)
+            obs2 = self.cf_state(nx["ego"], nx["rel"], nx["mask"], s_e2, x["lc_action"], nx["accel"])
+            noise = (torch.randn_like(x["cf_action"]) * self.policy_noise).clamp(-self.noise_clip, self.noise_clip)
+            a2 = (self.actor_t(obs2) + noise).clamp(self.low, self.high)
+            q2 = torch.minimum(self.critics_t[0](obs2, a2), self.critics_t[1](obs2, a2))
+            y = nx["r_cf"] + self.gamma_cf * (~nx["terminated"]).float() * q2
+        loss = sum(F.mse_loss(c(obs, x["cf_action"]), y) for c in self.critics)
+        self.opt_critic.zero_grad(set_to_none=True)
+        self.opt_embed.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt_critic.step()
+        self.opt_embed.step()
+        self.updates += 1
+        if self.updates % self.delay == 0:
+            obs_d = self.cf_state(x["ego"], x["rel"], x["mask"], self._s_e(x, False).detach(), x["lc_action"],
+                                  x["accel"])
+            for p in self.critics[0].parameters():
+                p.requires_grad_(False)
+            actor_loss = -self.critics[0](obs_d, self.actor(obs_d)).mean()
+            self.opt_actor.zero_grad(set_to_none=True)
+            actor_loss.backward()
+            self.opt_actor.step()
+            for p in self.critics[0].parameters():
+                p.requires_grad_(True)
+            self._soft(self.pairs_cf)
+
+    def update_lc(self, x: dict, nx: dict) -> None:
+        obs = self.lc_state(x["ego"], x["rel"], x["mask"], self._s_e(x, False))
+        with torch.no_grad():
+            obs2 = self.lc_state(nx["ego"], nx["rel"], nx["mask"], self._s_e(nx, True))
+            q_online = self.q(obs2).masked_fill(~nx["action_mask"], torch.finfo(torch.float32).min)
+            best = q_online.argmax(-1, keepdim=True)
+            y = nx["r_lc"] + self.gamma_lc * (~nx["terminated"]).float() * self.q_t(obs2).gather(-1, best)
+        q = (self.q(obs) * x["lc_action"]).sum(-1, keepdim=True)
+        loss = F.mse_loss(q, y)
+        self.opt_q.zero_grad(set_to_none=True)
+        self.opt_embed.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt_q.step()
+        self.opt_embed.step()
+        self._soft(self.pairs_lc)
+
+
+def tensors(td) -> tuple[dict, dict]:
+    def one(t):
+        return {"ego": t[K.EGO_STATE], "rel": t[K.NEIGHBORS_REL], "mask": t[K.NEIGHBORS_MASK],
+                "accel": t[K.EGO_ACCEL], "p_lcgan": t[K.PRIOR_P_LCGAN], "p_mobil": t[K.PRIOR_P_MOBIL],
+                "gaps": t[K.PRED_KEY_GAPS], "action_mask": t[K.LC_ACTION_MASK]}
+    x, nx = one(td), one(td["next"])
+    x.update(lc_action=td[K.LC_ACTION].float(), cf_action=td[K.CF_ACTION])
+    nx.update(r_cf=td["next", K.CF_REWARD], r_lc=td["next", K.LC_REWARD], terminated=td["next", "terminated"])
+    return x, nx
+
+
+def sample_batches(n_frames: int, seed: int, keys: list):
+    """Frames and macro-transitions with every key the learner reads (from the fake env: only shapes and
+    plausible values matter for timing)."""
+    env = TransformedEnv(FakeHighwayEnv(num_roads=8, seed=seed), Compose(make_kddrl_transforms(seed=seed),
+                                                                          DecisionClock(20)))
+    learner = HierarchicalLearner(**learner_kwargs(False)[0])
+    rb_cf, rb_lc = make_buffer(10 * n_frames, 256, seed), make_buffer(10 * n_frames, 64, seed)
+    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=50, frame_buffer=rb_cf,
+                                           macro_buffer=rb_lc, frame_keys=keys)
+    for _ in mtc:
+        if len(rb_cf) >= n_frames and len(rb_lc) >= 64:
+            break
+    mtc.shutdown()
+    return rb_cf, rb_lc
+
+
+def time_updates(update_cf, update_lc, cf_batches, lc_batches, lc_period: int) -> tuple[float, float, float]:
+    """Seconds per TD3 update, per D3QN update, and per frame (TD3 + D3QN / lc_period)."""
+    n = len(cf_batches)
+    for b in cf_batches[:10]:
+        update_cf(b)
+    for b in lc_batches[:5]:
+        update_lc(b)
+    t0 = time.perf_counter()
+    for b in cf_batches:
+        update_cf(b)
+    t_cf = (time.perf_counter() - t0) / n
+    t0 = time.perf_counter()
+    for b in lc_batches:
+        update_lc(b)
+    t_lc = (time.perf_counter() - t0) / len(lc_batches)
+    return t_cf, t_lc, t_cf + t_lc / lc_period
+
+
+def measure_update(updates: int, seed: int, repeats: int) -> dict:
+    torch.manual_seed(seed)
+    kw, lc_period = learner_kwargs(False)
+    probe = HierarchicalLearner(**kw)
+    rb_cf, rb_lc = sample_batches(4000, seed, probe.buffer_keys())
+    cf_batches = [rb_cf.sample() for _ in range(updates)]
+    lc_batches = [rb_lc.sample() for _ in range(max(updates // 4, 20))]
+    rows = {}
+    for name in ("plain", "eager", "compiled"):
+        learner = HierarchicalLearner(**learner_kwargs(name == "compiled")[0])
+        if name == "plain":
+            ref = PlainKDDRL(learner)
+            cf_t = [tensors(b) for b in cf_batches]
+            lc_t = [tensors(b) for b in lc_batches]
+            fns = (lambda b: ref.update_cf(*b), lambda b: ref.update_lc(*b), cf_t, lc_t)
+        else:
+            fns = (learner.update_cf, learner.update_lc, cf_batches, lc_batches)
+        t0 = time.perf_counter()
+        runs = [time_updates(*fns, lc_period) for _ in range(repeats)]
+        rows[name] = {"td3_update_s": statistics.median(r[0] for r in runs),
+                      "d3qn_update_s": statistics.median(r[1] for r in runs),
+                      "per_frame_s": statistics.median(r[2] for r in runs),
+                      "wall_s_incl_compile": time.perf_counter() - t0}
+        print(f"  update {name}: {1 / rows[name]['td3_update_s']:.0f} TD3 updates/s, "
+              f"{1 / rows[name]['d3qn_update_s']:.0f} D3QN updates/s", flush=True)
+    return {"lc_period": lc_period, "batch_size_cf": int(cf_batches[0].numel()),
+            "batch_size_lc": int(lc_batches[0].numel()), **rows}
+
+
+def measure_collect(k: int, frames: int, seed: int) -> dict:
+    sim_fps, _ = measure_sim("baseline", k, seed, frames // k, 20)
+    kw, lc_period = learner_kwargs(False)
+    learner = HierarchicalLearner(**kw)
+    env = TransformedEnv(SumoHighwayEnv("baseline", num_roads=k, seed=seed),
+                         Compose(make_kddrl_transforms(seed=seed, **transform_kwargs()), DecisionClock(lc_period)))
+    rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
+    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=20, frame_buffer=rb_cf,
+                                           macro_buffer=rb_lc, frame_keys=learner.buffer_keys())
+    try:
+        it = iter(mtc)
+        for _ in range(3):  # warm-up batches (and the one-off compile of the stack), untimed
+            next(it)
+        t0, n = time.perf_counter(), 0
+        while n < frames:
+            n += next(it).frames.numel()
+        fps = n / (time.perf_counter() - t0)
+    finally:
+        mtc.shutdown(close_env=False)
+        env.close()
+    return {"num_roads": k, "sim_limit_fps": sim_fps, "collect_fps": fps, "collect_ratio_vs_sim": fps / sim_fps}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--roads", type=int, nargs="+", default=[8, 32])
+    p.add_argument("--updates", type=int, default=200, help="TD3 updates timed per repeat")
+    p.add_argument("--frames", type=int, default=4000, help="ego-frames timed for collection")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--full-run", type=Path, default=None, help="run dir of a finished 1000-episode training")
+    p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "train_throughput.json")
+    args = p.parse_args(argv)
+
+    update = measure_update(args.updates, args.seed, args.repeats)
+    collect = [measure_collect(k, args.frames, args.seed) for k in args.roads]
+    result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "update": update,
+              "collect": collect,
+              "update_ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"],
+              "update_ratio_vs_plain_eager": update["plain"]["per_frame_s"] / update["eager"]["per_frame_s"],
+              "collect_ratio_vs_sim": min(c["collect_ratio_vs_sim"] for c in collect)}
+    if args.full_run is not None:
+        summary = json.loads((args.full_run / "summary.json").read_text())
+        result["train_1000_episodes_s"] = summary["training"]["elapsed_s"]
+        result["full_run"] = {"dir": str(args.full_run), "episodes": summary["training"]["episodes"],
+                              "frames": summary["training"]["frames"]}
+
+    print(f"\n{'learner (per collected frame)':<34}{'TD3 upd/s':>10}{'D3QN upd/s':>11}{'frame cost ms':>14}"
+          f"{'ratio vs plain':>15}")
+    for name in ("plain", "eager", "compiled"):
+        r = update[name]
+        print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}{1e3 * r['per_frame_s']:>14.2f}"
+              f"{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")
+    print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}{'ratio':>8}")
+    for c in collect:
+        print(f"{'':<38}{c['num_roads']:>3}{c['sim_limit_fps']:>15.0f}{c['collect_fps']:>13.0f}"
+              f"{c['collect_ratio_vs_sim']:>8.2f}")
+    if "train_1000_episodes_s" in result:
+        print(f"\nfull training run: {result['train_1000_episodes_s']:.0f} s for {result['full_run']['episodes']} "
+              f"episodes ({result['full_run']['frames']} frames)")
+    write_json(args.out, result)
+    print(f"\nwritten {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,132 @@
+"""``MacroTransitionWriter``: frame trajectories -> macro-transitions of buffer H (DESIGN.md "Clocks";
+paper Algorithm 1 lines 25-26, 35)."""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
+
+from .. import keys as K
+
+#: keys never copied into a macro-transition (per-frame bookkeeping of collectors and envs)
+DROP_KEYS: tuple[NestedKey, ...] = ("collector",)
+
+
+class MacroTransitionWriter:
+    """Turns batches of frames ``[B, T]`` (B environments, T consecutive frames each, as TorchRL collectors
+    return them) into the lane-change agent's macro-transitions, carrying unfinished ones across batches.
+
+    A macro-transition starts on a frame with ``decide_key`` True and holds
+
+    - the root of that frame (state s^t at the decision and the action taken, ``keys.LC_ACTION``),
+    - ``("next", reward_key)``: the **undiscounted sum** of the per-frame lane-change rewards from the decision
+      frame to the last frame of the interval (Algorithm 1 line 35, "cumulative r_D3QN"),
+    - ``"next"``: the observation after that last frame — the state at the next decision, or the terminal /
+      truncated frame (an episode that ends mid-interval closes the macro-step), with its done flags,
+    - ``("next", frames_key)``: the number of frames it spans.
+
+    The interval of a decision ends on the frame whose ``("next", decide_key)`` is True (the next frame is a
+    decision frame) or whose ``("next", done_key)`` is True. Both are written by
+    :class:`~kddrl_trl.collectors.DecisionClock` and the env, so nothing here is specific to an environment
+    or to ``lc_period``. Frames before the first decision of a row (a collection that starts mid-interval)
+    cannot form a transition and are counted in :attr:`dropped_frames`.
+
+    The row order of successive batches must be the same (true for ``Collector`` and ``MultiSyncCollector``).
+    :meth:`state_dict` / :meth:`load_state_dict` keep the unfinished transitions; :meth:`reset` drops them
+    (e.g. when the environments restart).
+    """
+
+    def __init__(self, *, decide_key: NestedKey = K.LC_DECIDE, reward_key: NestedKey = K.LC_REWARD,
+                 done_key: NestedKey = "done", frames_key: NestedKey = K.LC_MACRO_FRAMES,
+                 exclude: tuple[NestedKey, ...] = DROP_KEYS):
+        self.decide_key, self.reward_key, self.done_key, self.frames_key = decide_key, reward_key, done_key, frames_key
+        self.exclude = tuple(exclude)
+        self.reset()
+
+    def reset(self) -> None:
+        self._start: TensorDictBase | None = None   # [B] root of each row's open decision frame
+        self._reward: torch.Tensor | None = None    # [B] reward summed so far in the open interval
+        self._frames: torch.Tensor | None = None    # [B] frames so far in the open interval
+        self._open: torch.Tensor | None = None      # [B] bool, an interval is open
+        self.dropped_frames = 0
+
+    def state_dict(self) -> dict:
+        return {"start": self._start, "reward": self._reward, "frames": self._frames, "open": self._open,
+                "dropped_frames": self.dropped_frames}
+
+    def load_state_dict(self, state: dict) -> None:
+        self._start, self._reward, self._frames = state["start"], state["reward"], state["frames"]
+        self._open, self.dropped_frames = state["open"], int(state["dropped_frames"])
+
+    def _flag(self, td: TensorDictBase, key, name: str) -> torch.Tensor:
+        value = td.get(key, None)
+        if value is None:
+            raise KeyError(f"MacroTransitionWriter: the batch has no {name} key {key!r} (is the DecisionClock "
+                           "transform on the env?)")
+        return value.reshape(*td.batch_size, -1).any(-1)
+
+    def __call__(self, frames: TensorDictBase) -> TensorDictBase | None:
+        """Macro-transitions closed in ``frames`` ``[B, T]`` (a TensorDict ``[N]``), or None if none closed."""
+        if frames.batch_dims != 2:
+            raise ValueError(f"expected frames of batch shape [B, T], got {tuple(frames.batch_size)}")
+        frames = frames.exclude(*self.exclude)
+        b, t = frames.batch_size
+        decide = self._flag(frames, self.decide_key, "decision")
+        end = self._flag(frames, ("next", self.decide_key), "next-decision") | self._flag(
+            frames, ("next", self.done_key), "done")
+        reward = frames.get(("next", self.reward_key)).reshape(b, t, -1).sum(-1).to(torch.float32)
+        if self._open is None or self._open.shape[0] != b:
+            if self._open is not None:
+                raise ValueError(f"the batch has {b} rows, earlier batches had {self._open.shape[0]}")
+            self._open = torch.zeros(b, dtype=torch.bool)
+            self._reward = torch.zeros(b)
+            self._frames = torch.zeros(b, dtype=torch.long)
+
+        time = torch.arange(t).expand(b, t)
+        last_decision = torch.where(decide, time, torch.full_like(time, -1)).cummax(dim=1).values  # [B, T]
+        csum = reward.cumsum(1)
+        ccount = (time + 1)
+        before = torch.where(last_decision > 0, csum.gather(1, (last_decision - 1).clamp(min=0)),
+                             torch.zeros_like(csum))
+        count_before = torch.where(last_decision > 0, last_decision, torch.zeros_like(last_decision))
+        in_batch = last_decision >= 0
+        carried = ~in_batch & self._open.unsqueeze(1)
+        seg_reward = torch.where(in_batch, csum - before, self._reward.unsqueeze(1) + csum)
+        seg_frames = torch.where(in_batch, ccount - count_before, self._frames.unsqueeze(1) + ccount)
+        valid = in_batch | carried
+        self.dropped_frames += int((~valid).sum())
+
+        closes = end & valid                                                      # [B, T]
+        out = None
+        rows, cols = closes.nonzero(as_tuple=True)
+        if rows.numel():
+            nxt = frames["next"][rows, cols]
+            starts_here = in_batch[rows, cols]
+            parts = []
+            if bool(starts_here.any()):
+                r, c = rows[starts_here], cols[starts_here]
+                parts.append((starts_here.nonzero().squeeze(-1), frames[r, last_decision[r, c]].exclude("next")))
+            if bool((~starts_here).any()):
+                r = rows[~starts_here]
+                parts.append(((~starts_here).nonzero().squeeze(-1), self._start[r]))
+            order = torch.cat([p[0] for p in parts])
+            root = torch.cat([p[1] for p in parts])[order.argsort()] if len(parts) > 1 else parts[0][1]
+            nxt.set(self.reward_key, seg_reward[rows, cols].unsqueeze(-1).to(nxt.get(self.reward_key).dtype))
+            nxt.set(self.frames_key, seg_frames[rows, cols].unsqueeze(-1))
+            root.set("next", nxt)
+            out = root
+
+        # carry the interval open at the end of the batch (if any) to the next batch
+        last = t - 1
+        open_now = valid[:, last] & ~end[:, last]
+        new_start = open_now & in_batch[:, last]
+        if bool(new_start.any()):
+            r = new_start.nonzero().squeeze(-1)
+            src = frames[r, last_decision[r, last]].exclude("next")
+            if self._start is None:
+                self._start = src[:1].expand(b).clone().zero_()
+            self._start[r] = src
+        self._reward = torch.where(open_now, seg_reward[:, last], torch.zeros_like(self._reward))
+        self._frames = torch.where(open_now, seg_frames[:, last], torch.zeros_like(self._frames))
+        self._open = open_now
+        return out

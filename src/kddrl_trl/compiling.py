@@ -1,0 +1,23 @@
+"""When to ``torch.compile``: one rule for the transforms and the learner."""
+from __future__ import annotations
+
+import logging
+import shutil
+
+log = logging.getLogger(__name__)
+
+
+def resolve_compile(compile: bool | str) -> bool:
+    """A ``compile`` option -> bool. ``"auto"`` compiles when a C++ compiler is on the PATH (the CPU backend of
+    ``torch.compile`` needs one) and logs which way it went; anything else must be a bool."""
+    if isinstance(compile, str):
+        if compile.lower() in ("true", "false"):
+            return compile.lower() == "true"
+        if compile.lower() != "auto":
+            raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
+        found = next((c for c in ("c++", "g++", "clang++") if shutil.which(c)), None)
+        log.info("compile=auto: %s", f"{found} found, compiling" if found else "no C++ compiler on the PATH, eager")
+        return found is not None
+    if not isinstance(compile, bool):
+        raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
+    return compile

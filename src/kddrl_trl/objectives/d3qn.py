@@ -1,0 +1,50 @@
+"""D3QN for the lane-change agent (paper §II.E.1, Eq. 1-5): TorchRL ``QValueActor`` + ``DQNLoss(double_dqn)``
++ ``SoftUpdate`` + ``EGreedyModule``."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from tensordict.nn import TensorDictModule
+from torchrl.data import OneHot
+from torchrl.modules import EGreedyModule, QValueActor
+from torchrl.objectives import DQNLoss, SoftUpdate
+
+from .. import keys as K
+from ..modules.heads import DuelingQNet
+
+
+@dataclass
+class D3QNParts:
+    actor: QValueActor          # greedy argmax Q over the valid actions (keys.LC_ACTION_MASK)
+    explore: EGreedyModule      # ε-greedy among the valid actions (Algorithm 1 line 24)
+    loss: DQNLoss               # Eq. 4 (double DQN target); owns the target copy θ'
+    target_updater: SoftUpdate  # Eq. 5
+
+
+def make_d3qn(obs_dim: int, *, num_actions: int = 3, hidden: Sequence[int] = (256, 256), dueling: bool = True,
+              double: bool = True, gamma: float = 0.99, tau: float = 0.005, loss_function: str = "l2",
+              eps_init: float = 1.0, eps_end: float = 0.05, eps_decisions: int = 5000,
+              obs_key=K.LC_OBS, mask_key=K.LC_ACTION_MASK) -> D3QNParts:
+    """The lane-change agent on ``obs_key`` (``keys.LC_OBS``, Eq. 24).
+
+    ``dueling=False, double=True`` is the DDQN of Ni et al. Invalid commands (``mask_key`` False: no lane
+    there, or a manoeuvre in progress) are never chosen, greedily or at random; in the double-DQN target the
+    argmax over next actions is masked with the next state's mask, which the Q actor reads under ``"next"``.
+    ε decays linearly from ``eps_init`` to ``eps_end`` over ``eps_decisions`` decisions (call
+    ``explore.step(n)`` with the number of decisions taken).
+    """
+    spec = OneHot(num_actions, dtype=torch.float32)
+    net = DuelingQNet(obs_dim, num_actions, hidden, dueling=dueling)
+    actor = QValueActor(TensorDictModule(net, in_keys=[obs_key], out_keys=[K.LC_ACTION_VALUE]),
+                        in_keys=[obs_key], spec=spec, action_space="one_hot", action_key=K.LC_ACTION,
+                        action_value_key=K.LC_ACTION_VALUE, chosen_action_value_key=K.LC_CHOSEN_VALUE,
+                        action_mask_key=mask_key)
+    explore = EGreedyModule(spec, eps_init=eps_init, eps_end=eps_end, annealing_num_steps=int(eps_decisions),
+                            action_key=K.LC_ACTION, action_mask_key=mask_key)
+    loss = DQNLoss(actor, double_dqn=double, delay_value=True, loss_function=loss_function, action_space=spec)
+    loss.set_keys(action=K.LC_ACTION, action_value=K.LC_ACTION_VALUE, value=K.LC_CHOSEN_VALUE,
+                  reward=K.LC_REWARD, done="done", terminated="terminated")
+    loss.make_value_estimator(gamma=gamma)
+    return D3QNParts(actor, explore, loss, SoftUpdate(loss, tau=tau))

@@ -1,0 +1,48 @@
+"""TD3 for the car-following agent (paper §II.E.2, Eq. 6-10): TorchRL ``TD3Loss`` + ``SoftUpdate`` +
+``AdditiveGaussianModule`` exploration, actions bounded to [-5, 5] m/s² (Eq. 31)."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from tensordict.nn import TensorDictModule
+from torchrl.data import Bounded, Composite
+from torchrl.modules import AdditiveGaussianModule
+from torchrl.objectives import SoftUpdate, TD3Loss
+
+from .. import keys as K
+from ..modules.heads import BoundedActor, StateActionCritic
+
+
+@dataclass
+class TD3Parts:
+    actor: TensorDictModule          # mu(s; φ), Eq. 8
+    explore: AdditiveGaussianModule  # a = mu(s) + N(0, σ), clipped to the bounds (Algorithm 1 line 32)
+    critic: TensorDictModule         # Q_k(s, a; φ_k), Eq. 7 (TD3Loss makes the twin copies and targets)
+    loss: TD3Loss                    # Eq. 6-8
+    target_updater: SoftUpdate       # Eq. 9-10
+    policy_delay: int                # actor and targets updated every ``policy_delay`` critic updates
+
+
+def make_td3(obs_dim: int, *, low: float = -5.0, high: float = 5.0, hidden: Sequence[int] = (256, 256),
+             gamma: float = 0.99, tau: float = 0.005, policy_noise: float = 1.0, noise_clip: float = 2.5,
+             policy_delay: int = 2, exploration_sigma: float = 0.5, loss_function: str = "l2",
+             obs_key=K.CF_OBS) -> TD3Parts:
+    """The car-following agent on ``obs_key`` (``keys.CF_OBS``, Eq. 30).
+
+    Noise scales are in m/s² (Fujimoto et al.'s defaults 0.1 / 0.2 / 0.5 of the action bound 5 m/s²):
+    ``exploration_sigma`` for acting, ``policy_noise`` clipped to ``±noise_clip`` for target smoothing (Eq. 6).
+    """
+    spec = Composite(cf=Composite(action=Bounded(low, high, shape=(1,), dtype=torch.float32)))
+    actor = TensorDictModule(BoundedActor(obs_dim, 1, hidden, low, high), in_keys=[obs_key], out_keys=[K.CF_ACTION])
+    critic = TensorDictModule(StateActionCritic(obs_dim, 1, hidden, action_scale=max(abs(low), abs(high))),
+                              in_keys=[obs_key, K.CF_ACTION], out_keys=[K.CF_STATE_ACTION_VALUE])
+    explore = AdditiveGaussianModule(spec, sigma_init=exploration_sigma, sigma_end=exploration_sigma,
+                                     action_key=K.CF_ACTION)
+    loss = TD3Loss(actor, critic, bounds=(low, high), num_qvalue_nets=2,
+                   policy_noise=policy_noise, noise_clip=noise_clip, loss_function=loss_function)
+    loss.set_keys(action=K.CF_ACTION, state_action_value=K.CF_STATE_ACTION_VALUE, reward=K.CF_REWARD,
+                  done="done", terminated="terminated")
+    loss.make_value_estimator(gamma=gamma)
+    return TD3Parts(actor, explore, critic, loss, SoftUpdate(loss, tau=tau), int(policy_delay))

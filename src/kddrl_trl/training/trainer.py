@@ -1,0 +1,178 @@
+"""``Trainer``: Algorithm 1 of the paper as a collection / update loop over TorchRL parts.
+
+Per collection batch of ``frames_per_env`` frames from each of the B environments (one TorchRL
+``Collector`` iteration, :class:`~kddrl_trl.collectors.MultiTimescaleCollector`):
+
+1. every frame goes to buffer L, every closed macro-transition to buffer H (lines 25, 37);
+2. one TD3 update per collected frame (lines 38-43) once ``warmup_frames`` frames are in; one D3QN update
+   per decision taken (lines 27-29) once buffer H holds ``batch_size_lc`` macro-transitions. The counts per
+   frame / per decision are the paper's; they are run after each batch instead of between two frames, so
+   the acting policy lags by at most ``frames_per_env`` frames (the usual collector trade-off);
+3. finished episodes are logged (``train/`` and ``time/``), the progress bar moves, and every
+   ``checkpoint_every`` episodes a checkpoint is written (:mod:`kddrl_trl.training.checkpoint`).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+
+from ..collectors import MultiTimescaleCollector
+from ..eval.tracker import EpisodeTracker
+from .checkpoint import latest_checkpoint, load_training_checkpoint, save_training_checkpoint
+from .learner import HierarchicalLearner
+
+log = logging.getLogger(__name__)
+
+#: per-episode fields logged under ``train/``
+EPISODE_FIELDS = ("return_lc", "return_cf", "mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes",
+                  "frames", "collision")
+
+
+def make_buffer(capacity: int, batch_size: int, seed: int) -> TensorDictReplayBuffer:
+    """A uniform TorchRL replay buffer in memory (``LazyTensorStorage``)."""
+    gen = torch.Generator().manual_seed(int(seed))
+    return TensorDictReplayBuffer(storage=LazyTensorStorage(int(capacity)), batch_size=int(batch_size),
+                                  generator=gen)
+
+
+class Trainer:
+    """Trains a :class:`HierarchicalLearner` on ``env`` (a batched TorchRL env carrying the predictive-state
+    transforms and a :class:`~kddrl_trl.collectors.DecisionClock`) for ``cfg.episodes`` episodes.
+
+    ``cfg`` (the ``train`` config node): episodes, frames_per_env, warmup_frames, batch_size_cf,
+    batch_size_lc, buffer_cf, buffer_lc, updates_per_frame, updates_per_decision, checkpoint_every,
+    keep_buffers. ``logger`` has ``log_scalar(name, value, step)``. ``resume_from``: a run directory whose
+    latest checkpoint is loaded before training continues.
+    """
+
+    def __init__(self, env, learner: HierarchicalLearner, cfg: Mapping[str, Any], run_dir: str | Path, logger,
+                 seed: int = 0, progress: bool = True):
+        self.env, self.learner, self.cfg = env, learner, dict(cfg)
+        self.run_dir, self.logger, self.progress = Path(run_dir), logger, progress
+        c = self.cfg
+        for key in ("episodes", "frames_per_env", "batch_size_cf", "batch_size_lc", "buffer_cf", "buffer_lc",
+                    "checkpoint_every"):
+            if int(c[key]) < 1:
+                raise ValueError(f"train.{key} must be >= 1, got {c[key]!r}")
+        self.buffer_cf = make_buffer(c["buffer_cf"], c["batch_size_cf"], seed)
+        self.buffer_lc = make_buffer(c["buffer_lc"], c["batch_size_lc"], seed + 1)
+        self.tracker = EpisodeTracker()
+        self.history: list[dict] = []
+        self.counters = {"frames": 0, "decisions": 0, "cf_updates": 0, "lc_updates": 0, "elapsed_s": 0.0}
+        self.collector: MultiTimescaleCollector | None = None
+
+    # ------------------------------------------------------------------------------ checkpoints
+    def state(self) -> dict:
+        # the environments restart on resume, so unfinished macro-transitions are not kept
+        state = {"learner": self.learner.full_state_dict(), "counters": dict(self.counters),
+                 "history": list(self.history)}
+        if self.cfg.get("keep_buffers", True):
+            state["buffer_cf"] = self.buffer_cf.state_dict()
+            state["buffer_lc"] = self.buffer_lc.state_dict()
+        return state
+
+    def load(self, run_dir: str | Path) -> int:
+        """Restore the latest checkpoint of ``run_dir``; returns the number of episodes it had finished."""
+        path = latest_checkpoint(run_dir)
+        if path is None:
+            raise FileNotFoundError(f"no checkpoint in {run_dir}")
+        payload = load_training_checkpoint(path)
+        self.learner.load_full_state_dict(payload["learner"])
+        self.counters.update(payload["counters"])
+        self.history = list(payload["history"])
+        if "buffer_cf" in payload:
+            self.buffer_cf.load_state_dict(payload["buffer_cf"])
+            self.buffer_lc.load_state_dict(payload["buffer_lc"])
+        self.tracker.finished = len(self.history)
+        log.info("resumed %s: %d episodes, %d frames, buffers %d / %d", path, len(self.history),
+                 self.counters["frames"], len(self.buffer_cf), len(self.buffer_lc))
+        return len(self.history)
+
+    def checkpoint(self) -> Path:
+        return save_training_checkpoint(self.run_dir, len(self.history), self.state())
+
+    # ------------------------------------------------------------------------------------ loop
+    def _updates(self, frames: int, decisions: int, losses: dict[str, list[float]]) -> None:
+        c, learner = self.cfg, self.learner
+        if self.counters["frames"] >= int(c["warmup_frames"]) and len(self.buffer_cf) >= int(c["batch_size_cf"]):
+            for _ in range(frames * int(c["updates_per_frame"])):
+                for k, v in learner.update_cf(self.buffer_cf.sample()).items():
+                    losses[k].append(v)
+                self.counters["cf_updates"] += 1
+        if len(self.buffer_lc) >= int(c["batch_size_lc"]):
+            for _ in range(decisions * int(c["updates_per_decision"])):
+                for k, v in learner.update_lc(self.buffer_lc.sample()).items():
+                    losses[k].append(v)
+                self.counters["lc_updates"] += 1
+
+    def _log_episode(self, ep: dict, losses: dict[str, list[float]], started: float) -> None:
+        step = ep["index"]
+        for key in EPISODE_FIELDS:
+            self.logger.log_scalar(f"train/{key}", float(ep[key]), step=step)
+        self.logger.log_scalar("train/epsilon", float(self.learner.lc_explore.eps), step=step)
+        for key, values in losses.items():
+            if values:
+                self.logger.log_scalar(f"train/{key}", float(np.mean(values)), step=step)
+        elapsed = self.counters["elapsed_s"] + time.perf_counter() - started
+        self.logger.log_scalar("time/elapsed_s", elapsed, step=step)
+        self.logger.log_scalar("time/frames", self.counters["frames"], step=step)
+        self.logger.log_scalar("time/frames_per_s", self.counters["frames"] / max(elapsed, 1e-9), step=step)
+        self.logger.log_scalar("time/cf_updates", self.counters["cf_updates"], step=step)
+
+    def run(self) -> list[dict]:
+        """Train until ``cfg.episodes`` episodes have finished (counting those of a resumed run); return the
+        training-episode history."""
+        from tqdm.auto import tqdm
+
+        c, learner = self.cfg, self.learner
+        target = int(c["episodes"])
+        self.collector = MultiTimescaleCollector.from_env(
+            self.env, learner.policy(explore=True), frames_per_env=int(c["frames_per_env"]),
+            frame_buffer=self.buffer_cf, macro_buffer=self.buffer_lc, frame_keys=learner.buffer_keys())
+        next_ckpt = (len(self.history) // int(c["checkpoint_every"]) + 1) * int(c["checkpoint_every"])
+        recent: deque = deque(maxlen=50)
+        recent.extend(self.history[-50:])
+        bar = tqdm(total=target, initial=min(len(self.history), target), desc="train", unit="ep",
+                   disable=not self.progress)
+        started = time.perf_counter()
+        losses: dict[str, list[float]] = {"loss_qvalue": [], "loss_actor": [], "loss_lc": []}
+        try:
+            for batch in self.collector:
+                frames = batch.frames.numel()
+                decisions = int(batch.frames.get(self.collector.writer.decide_key).sum())
+                self.counters["frames"] += frames
+                self.counters["decisions"] += decisions
+                learner.explore_step(decisions, frames)
+                self._updates(frames, decisions, losses)
+                for ep in self.tracker(batch.frames):
+                    if len(self.history) >= target:
+                        break
+                    self.history.append(ep)
+                    recent.append(ep)
+                    self._log_episode(ep, losses, started)
+                    losses = {k: [] for k in losses}
+                    bar.update(1)
+                    bar.set_postfix(R_lc=f"{np.mean([e['return_lc'] for e in recent]):.1f}",
+                                    R_cf=f"{np.mean([e['return_cf'] for e in recent]):.1f}",
+                                    kmh=f"{np.mean([e['mean_speed_kmh'] for e in recent]):.1f}",
+                                    coll=f"{100 * np.mean([e['collision'] for e in recent]):.0f}%")
+                if len(self.history) >= next_ckpt or len(self.history) >= target:
+                    self.counters["elapsed_s"] += time.perf_counter() - started
+                    started = time.perf_counter()
+                    self.checkpoint()
+                    next_ckpt = (len(self.history) // int(c["checkpoint_every"]) + 1) * int(c["checkpoint_every"])
+                if len(self.history) >= target:
+                    break
+        finally:
+            bar.close()
+            self.counters["elapsed_s"] += time.perf_counter() - started
+            self.collector.shutdown(close_env=False)
+        return self.history
