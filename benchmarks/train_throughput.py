@@ -54,6 +54,12 @@ def learner_kwargs(compile: bool) -> tuple[dict, int]:
     return {**cfg["learner"], "compile": compile}, int(cfg["lc_period"])
 
 
+def batch_sizes() -> tuple[int, int]:
+    """The minibatch sizes of training (``train.batch_size_cf`` / ``train.batch_size_lc`` of conf/config.yaml)."""
+    train = OmegaConf.load(CONF.parents[1] / "config.yaml")["train"]
+    return int(train["batch_size_cf"]), int(train["batch_size_lc"])
+
+
 def transform_kwargs() -> dict:
     """The transform options of ``conf/algo/kddrl.yaml`` (as training builds the stack)."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)["transforms"]
@@ -171,11 +177,11 @@ def sample_batches(n_frames: int, seed: int, keys: list):
     env = TransformedEnv(FakeHighwayEnv(num_roads=8, seed=seed), Compose(make_kddrl_transforms(seed=seed),
                                                                           DecisionClock(20)))
     learner = HierarchicalLearner(**learner_kwargs(False)[0])
-    rb_cf, rb_lc = make_buffer(10 * n_frames, 256, seed), make_buffer(10 * n_frames, 64, seed)
+    rb_cf, rb_lc = make_buffer(10 * n_frames, batch_sizes()[0], seed), make_buffer(10 * n_frames, batch_sizes()[1], seed)
     mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=50, frame_buffer=rb_cf,
                                            macro_buffer=rb_lc, frame_keys=keys)
     for _ in mtc:
-        if len(rb_cf) >= n_frames and len(rb_lc) >= 64:
+        if len(rb_cf) >= n_frames and len(rb_lc) >= batch_sizes()[1]:
             break
     mtc.shutdown()
     return rb_cf, rb_lc

@@ -12,6 +12,13 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 
+def _ordinary_permissions(tmp: str) -> None:
+    """``mkstemp`` creates 0600 files; give results the permissions any new file would get (umask)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+
+
 def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newline: str | None = None,
                  binary: bool = False) -> Path:
     """Call ``write(fh)`` on a temporary file (text, or bytes with ``binary=True``) beside ``path``, then move
@@ -20,6 +27,7 @@ def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newlin
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        _ordinary_permissions(tmp)
         with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline=newline)) as fh:
             write(fh)
             fh.flush()
@@ -40,6 +48,7 @@ def torch_save_atomic(path: str | os.PathLike, obj: Any) -> Path:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
+        _ordinary_permissions(tmp)
         torch.save(obj, tmp)
         os.replace(tmp, path)
     except BaseException:
