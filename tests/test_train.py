@@ -119,3 +119,35 @@ def test_summary_statistics_by_hand():
     assert abs(s["frame_speed_kmh_sd"] - 3.6 * 18.75 ** 0.5) < 1e-9
     assert s["frame_accel_sd"] == 1.0 and s["collision_rate"] == 0.5 and s["lane_changes_total"] == 1
     assert s["outcomes"] == {"left_section": 1, "collision": 1}
+
+
+@pytest.mark.parametrize("algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni"])
+def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_path):
+    """Each comparison system is a configuration of the same pipeline: compose it, build env + learner, train
+    a few episodes on the fake env (fast; the SUMO path is covered by the subprocess tests)."""
+    from kddrl_trl.loggers import make_logger
+    from kddrl_trl.training import Trainer, make_learner, make_training_env
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[f"algo={algo}", "env.num_roads=2",
+                                                         "algo.learner.compile=false",
+                                                         "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]"])
+    assert cfg.algo.name == algo and cfg.algo.kind == "hierarchical"
+    if cfg.algo.transforms.get("compile") is not None:
+        cfg.algo.transforms.compile = False
+    env = make_training_env(cfg.env, cfg.algo, seed=0, fake=True)
+    learner = make_learner(cfg.algo)
+    assert (learner.embedding is None) == (algo in ("d3qn_td3", "ni"))
+    assert learner.d3qn.actor.module[0].module.dueling == (algo != "ni")
+    train = {**dict(cfg.train), "episodes": 3, "warmup_frames": 20, "batch_size_cf": 16, "batch_size_lc": 4,
+             "frames_per_env": 10}
+    trainer = Trainer(env, learner, train, tmp_path, make_logger({"csv": True, "tensorboard": False}, tmp_path),
+                      progress=False)
+    history = trainer.run()
+    env.close()
+    assert len(history) == 3 and trainer.counters["cf_updates"] > 0
+    period = cfg.algo.lc_period
+    # every episode decides on its first frame and then every lc_period frames: ceil(n / period) per stretch
+    assert trainer.counters["frames"] / period <= trainer.counters["decisions"] <= trainer.counters["frames"]
+    if period == 1:
+        assert trainer.counters["decisions"] == trainer.counters["frames"]
