@@ -54,6 +54,22 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
     for name in ("train/return_lc", "train/return_cf", "train/loss_qvalue", "time/frames_per_s", "eval/mean_speed_kmh"):
         assert (run / "logs" / "scalars" / f"{name}.csv").is_file(), name
 
+    # the trained policy, evaluated on another scenario from its checkpoint (paper §IV.D)
+    cmd = [sys.executable, "-m", "kddrl_trl.evaluate", f"run={run}", "+scenario=congested", "eval_episodes=2",
+           "env.num_roads=2", "progress=false"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    (ev,) = list(run.glob("eval__congested__0__*"))
+    summary = json.loads((ev / "summary.json").read_text())
+    assert summary["episodes"] == 2 and summary["trained_on"] == "braking" and summary["scenario"] == "congested"
+    assert summary["checkpoint"].endswith("ep000003.pt")
+
+
+def test_evaluate_refuses_a_directory_without_a_trained_run(tmp_path):
+    cmd = [sys.executable, "-m", "kddrl_trl.evaluate", f"run={tmp_path / 'nothing'}", "progress=false"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0 and "no config.yaml" in done.stderr
+
 
 def _latest_episodes(run) -> int:
     pointer = run / "checkpoints" / "latest"
@@ -151,3 +167,21 @@ def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_
     assert trainer.counters["frames"] / period <= trainer.counters["decisions"] <= trainer.counters["frames"]
     if period == 1:
         assert trainer.counters["decisions"] == trainer.counters["frames"]
+
+
+def test_a_diverging_loss_stops_training_with_a_clear_error(tmp_path):
+    from kddrl_trl.loggers import make_logger
+    from kddrl_trl.training import Trainer, make_learner, make_training_env
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["env.num_roads=2", "algo.learner.compile=false",
+                                                         "algo.transforms.compile=false"])
+    env = make_training_env(cfg.env, cfg.algo, seed=0, fake=True)
+    learner = make_learner(cfg.algo)
+    learner.update_cf = lambda batch: {"loss_qvalue": float("nan")}
+    train = {**dict(cfg.train), "episodes": 3, "warmup_frames": 10, "batch_size_cf": 8, "frames_per_env": 10}
+    trainer = Trainer(env, learner, train, tmp_path, make_logger({"csv": True, "tensorboard": False}, tmp_path),
+                      progress=False)
+    with pytest.raises(FloatingPointError, match="loss_qvalue = nan.*diverged"):
+        trainer.run()
+    env.close()

@@ -14,6 +14,7 @@ Per collection batch of ``frames_per_env`` frames from each of the B environment
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -100,17 +101,25 @@ class Trainer:
         return save_training_checkpoint(self.run_dir, len(self.history), self.state())
 
     # ------------------------------------------------------------------------------------ loop
+    def _record(self, out: dict[str, float], losses: dict[str, list[float]]) -> None:
+        for k, v in out.items():
+            if not math.isfinite(v):
+                raise FloatingPointError(
+                    f"{k} = {v} after {self.counters['cf_updates']} TD3 / {self.counters['lc_updates']} D3QN updates "
+                    f"({len(self.history)} episodes): training diverged. The last checkpoint in "
+                    f"{self.run_dir / 'checkpoints'} is from before; lower the learning rates (algo.learner.*) and "
+                    "resume=true, or start again")
+            losses[k].append(v)
+
     def _updates(self, frames: int, decisions: int, losses: dict[str, list[float]]) -> None:
         c, learner = self.cfg, self.learner
         if self.counters["frames"] >= int(c["warmup_frames"]) and len(self.buffer_cf) >= int(c["batch_size_cf"]):
             for _ in range(frames * int(c["updates_per_frame"])):
-                for k, v in learner.update_cf(self.buffer_cf.sample()).items():
-                    losses[k].append(v)
+                self._record(learner.update_cf(self.buffer_cf.sample()), losses)
                 self.counters["cf_updates"] += 1
         if len(self.buffer_lc) >= int(c["batch_size_lc"]):
             for _ in range(decisions * int(c["updates_per_decision"])):
-                for k, v in learner.update_lc(self.buffer_lc.sample()).items():
-                    losses[k].append(v)
+                self._record(learner.update_lc(self.buffer_lc.sample()), losses)
                 self.counters["lc_updates"] += 1
 
     def _log_episode(self, ep: dict, losses: dict[str, list[float]], started: float) -> None:
