@@ -157,9 +157,9 @@ def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_
     assert learner.d3qn.actor.module[0].module.dueling == (algo != "ni")
     train = {**dict(cfg.train), "episodes": 3, "warmup_frames": 20, "batch_size_cf": 16, "batch_size_lc": 4,
              "frames_per_env": 10}
-    trainer = Trainer(env, learner, train, tmp_path, make_logger({"csv": True, "tensorboard": False}, tmp_path),
+    trainer = Trainer(learner, train, tmp_path, make_logger({"csv": True, "tensorboard": False}, tmp_path),
                       progress=False)
-    history = trainer.run()
+    history = trainer.run(env)
     env.close()
     assert len(history) == 3 and trainer.counters["cf_updates"] > 0
     period = cfg.algo.lc_period
@@ -180,8 +180,8 @@ def test_a_diverging_loss_stops_training_with_a_clear_error(tmp_path):
     learner = make_learner(cfg.algo)
     learner.update_cf = lambda batch: {"loss_qvalue": float("nan")}
     train = {**dict(cfg.train), "episodes": 3, "warmup_frames": 10, "batch_size_cf": 8, "frames_per_env": 10}
-    trainer = Trainer(env, learner, train, tmp_path, make_logger({"csv": True, "tensorboard": False}, tmp_path),
+    trainer = Trainer(learner, train, tmp_path, make_logger({"csv": True, "tensorboard": False}, tmp_path),
                       progress=False)
     with pytest.raises(FloatingPointError, match="loss_qvalue = nan.*diverged"):
-        trainer.run()
+        trainer.run(env)
     env.close()

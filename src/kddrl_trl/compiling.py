@@ -21,3 +21,13 @@ def resolve_compile(compile: bool | str) -> bool:
     if not isinstance(compile, bool):
         raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
     return compile
+
+
+def maybe_compile(fn, compile: bool | str, dynamic: bool = True):
+    """``torch.compile(fn, dynamic=dynamic)`` when :func:`resolve_compile` says so, else ``fn``.
+
+    ``dynamic=True`` (the default) lets batch shapes change without recompiling. Compiling fuses many tiny
+    tensor ops into a few kernels; on a CPU it needs a C++ compiler and costs a one-off compile per process."""
+    import torch
+
+    return torch.compile(fn, dynamic=dynamic) if resolve_compile(compile) else fn

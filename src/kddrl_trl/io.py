@@ -40,21 +40,10 @@ def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newlin
 
 
 def torch_save_atomic(path: str | os.PathLike, obj: Any) -> Path:
-    """``torch.save(obj)`` to a temporary file beside ``path``, then moved onto ``path``."""
+    """``torch.save(obj)`` atomically (see :func:`write_atomic`)."""
     import torch
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        _ordinary_permissions(tmp)
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_atomic(path, lambda fh: torch.save(obj, fh), binary=True)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:

@@ -28,7 +28,7 @@ from . import conf as _conf  # noqa: F401  (registers the typed env schema with 
 from .baselines.factory import RULE_BASED, make_rule_policy
 from .envs.factory import highway_config, make_env
 from .eval.metrics import PAPER_IDM_MOBIL, format_summary, summarize
-from .eval.rollout import run_episodes
+from .eval.rollout import run_episodes, unwrap_env
 from .io import write_json_atomic, write_text_atomic
 from .loggers import make_logger, trim_logs
 
@@ -50,28 +50,29 @@ def evaluate(env, policy, cfg: DictConfig, logger) -> tuple[list[dict], dict]:
 
     try:
         episodes = run_episodes(env, policy, cfg.eval_episodes, progress=cfg.progress, on_episode=on_episode)
-        stats = dict(env.base_env.stats if hasattr(env, "base_env") else env.stats)
+        stats = dict(unwrap_env(env).stats)
     finally:
         env.close()
     return episodes, stats
 
 
-def train_learner(cfg: DictConfig, run_dir: Path, logger) -> tuple[list[dict], object, dict]:
-    """Trains (or resumes) the learner of ``cfg.algo``; returns the training history and the learner."""
+def train_learner(cfg: DictConfig, run_dir: Path, logger, resume: bool) -> tuple[list[dict], object, dict]:
+    """Trains the learner of ``cfg.algo`` (continuing ``run_dir``'s latest checkpoint when ``resume``); returns
+    the training history, the learner and the trainer's counters."""
     from .training import Trainer, make_learner, make_training_env, plot_training_curves
 
     learner = make_learner(cfg.algo)
     train_cfg = {**OmegaConf.to_container(cfg.train, resolve=True), "episodes": cfg.episodes}
-    trainer = Trainer(None, learner, train_cfg, run_dir, logger, seed=cfg.seed, progress=cfg.progress)
-    done = trainer.load(run_dir) if cfg.resume else 0
+    trainer = Trainer(learner, train_cfg, run_dir, logger, seed=cfg.seed, progress=cfg.progress)
+    done = trainer.load(run_dir) if resume else 0
     if done:
         trim_logs(run_dir, last_step=done - 1)
     # a resumed run meets new traffic: the env's streams start from seed + episodes already done
-    trainer.env = make_training_env(cfg.env, cfg.algo, seed=cfg.seed + done)
+    env = make_training_env(cfg.env, cfg.algo, seed=cfg.seed + done)
     try:
-        history = trainer.run()
+        history = trainer.run(env)
     finally:
-        trainer.env.close()
+        env.close()
     write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))
     plot_training_curves(history, run_dir / "training_curves.png",
                          title=f"{cfg.algo.name} on {cfg.env.scenario}, seed {cfg.seed}")
@@ -98,8 +99,7 @@ def main(cfg: DictConfig) -> dict:
         env = make_env(cfg.env, seed=cfg.seed)
         policy = make_rule_policy(cfg.algo, num_lanes=env.config.num_lanes, lane_width=env.config.lane_width)
     elif kind == "hierarchical":
-        cfg.resume = resume_dir is not None
-        history, learner, counters = train_learner(cfg, run_dir, logger)
+        history, learner, counters = train_learner(cfg, run_dir, logger, resume=resume_dir is not None)
         tail = history[-100:]
         summary_extra["training"] = {**counters, "episodes": len(history),
                                      "last100": {k: float(np.mean([h[k] for h in tail]))

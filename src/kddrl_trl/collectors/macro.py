@@ -84,15 +84,13 @@ class MacroTransitionWriter:
 
         time = torch.arange(t).expand(b, t)
         last_decision = torch.where(decide, time, torch.full_like(time, -1)).cummax(dim=1).values  # [B, T]
-        csum = reward.cumsum(1)
-        ccount = (time + 1)
+        csum = reward.cumsum(1)  # reward of frames 0..t of the batch
         before = torch.where(last_decision > 0, csum.gather(1, (last_decision - 1).clamp(min=0)),
-                             torch.zeros_like(csum))
-        count_before = torch.where(last_decision > 0, last_decision, torch.zeros_like(last_decision))
+                             torch.zeros_like(csum))  # reward of the frames before the interval's decision
         in_batch = last_decision >= 0
         carried = ~in_batch & self._open.unsqueeze(1)
         seg_reward = torch.where(in_batch, csum - before, self._reward.unsqueeze(1) + csum)
-        seg_frames = torch.where(in_batch, ccount - count_before, self._frames.unsqueeze(1) + ccount)
+        seg_frames = torch.where(in_batch, time - last_decision, self._frames.unsqueeze(1) + time) + 1
         valid = in_batch | carried
         self.dropped_frames += int((~valid).sum())
 
@@ -101,16 +99,10 @@ class MacroTransitionWriter:
         rows, cols = closes.nonzero(as_tuple=True)
         if rows.numel():
             nxt = frames["next"][rows, cols]
-            starts_here = in_batch[rows, cols]
-            parts = []
-            if bool(starts_here.any()):
-                r, c = rows[starts_here], cols[starts_here]
-                parts.append((starts_here.nonzero().squeeze(-1), frames[r, last_decision[r, c]].exclude("next")))
-            if bool((~starts_here).any()):
-                r = rows[~starts_here]
-                parts.append(((~starts_here).nonzero().squeeze(-1), self._start[r]))
-            order = torch.cat([p[0] for p in parts])
-            root = torch.cat([p[1] for p in parts])[order.argsort()] if len(parts) > 1 else parts[0][1]
+            root = frames[rows, last_decision[rows, cols].clamp(min=0)].exclude("next")
+            from_earlier = ~in_batch[rows, cols]  # decided in an earlier batch: the carried start state
+            if bool(from_earlier.any()):
+                root[from_earlier] = self._start[rows[from_earlier]]
             nxt.set(self.reward_key, seg_reward[rows, cols].unsqueeze(-1).to(nxt.get(self.reward_key).dtype))
             nxt.set(self.frames_key, seg_frames[rows, cols].unsqueeze(-1))
             root.set("next", nxt)

@@ -7,7 +7,8 @@ import torch
 from tqdm.auto import tqdm
 
 
-def _base(env):
+def unwrap_env(env):
+    """The innermost env of ``env`` (through ``TransformedEnv`` s), e.g. the ``SumoHighwayEnv``."""
     while hasattr(env, "base_env"):
         env = env.base_env
     return env
@@ -24,7 +25,7 @@ def run_episodes(env, policy: Callable, num_episodes: int, progress: bool = True
     """
     if num_episodes < 1:
         raise ValueError(f"num_episodes must be >= 1, got {num_episodes}")
-    base = _base(env)
+    base = unwrap_env(env)
     seen = len(base.episodes)
     wanted: dict[int, dict] = {}
     td = env.reset()  # every road starts a new episode; those cut short by this reset are not recorded

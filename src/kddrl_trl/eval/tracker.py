@@ -5,19 +5,21 @@ import torch
 from tensordict import TensorDictBase
 
 from .. import keys as K
+from ..envs.sim import EpisodeStats
 
 
 class EpisodeTracker:
     """Accumulates, per environment of a batch, the metrics :func:`~kddrl_trl.eval.metrics.summarize` reads
-    (the same fields as ``SumoHighwayEnv.episodes``) from frame batches ``[B, T]`` of a collector, and
+    (the same fields as ``SumoHighwayEnv.episodes``, through the same :class:`EpisodeStats`) from frame batches ``[B, T]`` of a collector, and
     returns the episodes that finished in each batch, in the order they finished.
 
     Read under ``"next"`` of each frame: ``EGO_STATE`` speed, ``EGO_ACCEL``, ``LC_STARTED`` (lane changes),
     ``COLLISION``, the two rewards and the done flags. Only needs the raw keys, not SUMO.
     """
 
-    FIELDS = ("frames", "speed", "speed_sq", "accel", "accel_sq", "abs_accel", "lane_changes", "return_lc",
-              "return_cf")
+    #: running sums per road, named as the fields of :class:`~kddrl_trl.envs.sim.EpisodeStats`
+    FIELDS = ("frames", "speed_sum", "speed_sq_sum", "accel_sum", "accel_sq_sum", "abs_accel_sum", "lane_changes",
+              "return_lc", "return_cf")
 
     def __init__(self):
         self.sums: dict[str, torch.Tensor] | None = None
@@ -39,8 +41,8 @@ class EpisodeTracker:
             self.collided = torch.zeros(b, dtype=torch.bool)
         speed = frames.get(("next", *K.EGO_STATE))[..., 1].to(torch.float32)
         accel = self._get(frames, K.EGO_ACCEL)
-        per_frame = {"frames": torch.ones(b, t), "speed": speed, "speed_sq": speed * speed, "accel": accel,
-                     "accel_sq": accel * accel, "abs_accel": accel.abs(),
+        per_frame = {"frames": torch.ones(b, t), "speed_sum": speed, "speed_sq_sum": speed * speed,
+                     "accel_sum": accel, "accel_sq_sum": accel * accel, "abs_accel_sum": accel.abs(),
                      "lane_changes": self._get(frames, K.LC_STARTED), "return_lc": self._get(frames, K.LC_REWARD),
                      "return_cf": self._get(frames, K.CF_REWARD)}
         collision = self._get(frames, K.COLLISION) > 0
@@ -56,15 +58,11 @@ class EpisodeTracker:
         return out
 
     def _episode(self, r: int, terminated: bool) -> dict:
-        s = {f: float(v[r]) for f, v in self.sums.items()}
-        n = max(s["frames"], 1.0)
+        sums = {f: float(v[r]) for f, v in self.sums.items()}
+        sums["frames"], sums["lane_changes"] = int(sums["frames"]), int(sums["lane_changes"])
+        stats = EpisodeStats(road=r, ego="", driver="", index=self.finished, **sums)  # ego / driver: unknown here
         collision = bool(self.collided[r])
-        ep = {"frames": int(s["frames"]), "mean_speed": s["speed"] / n, "mean_speed_kmh": 3.6 * s["speed"] / n,
-              "mean_sq_speed": s["speed_sq"] / n, "mean_accel": s["accel"] / n, "mean_sq_accel": s["accel_sq"] / n,
-              "mean_abs_accel": s["abs_accel"] / n, "lane_changes": int(s["lane_changes"]),
-              "return_lc": s["return_lc"], "return_cf": s["return_cf"], "collision": collision,
-              "outcome": "collision" if collision else ("terminated" if terminated else "truncated"),
-              "index": self.finished, "road": r}
+        ep = stats.finish("collision" if collision else ("terminated" if terminated else "truncated"))
         for v in self.sums.values():
             v[r] = 0.0
         self.collided[r] = False

@@ -549,11 +549,9 @@ class LCGANPredictor(TensorDictModuleBase):
         self.draws = int(draws)
         self.seed = int(seed)
         self.rng = torch.Generator(device=next(generator.parameters()).device).manual_seed(self.seed)
-        from ..compiling import resolve_compile
+        from ..compiling import maybe_compile
 
-        self.compiled = resolve_compile(compile)
-        self._probabilities = (torch.compile(self._probabilities_impl, dynamic=True) if self.compiled
-                               else self._probabilities_impl)
+        self._probabilities = maybe_compile(self._probabilities_impl, compile)
 
     @classmethod
     def from_task(cls, task: LCGANTask, **kwargs) -> LCGANPredictor:

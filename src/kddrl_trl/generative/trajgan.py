@@ -486,10 +486,9 @@ class TrajGANPredictor(TensorDictModuleBase):
         self.use_history = bool(architecture["use_history"])
         self.num_samples, self.reduce, self.seed = int(num_samples), reduce, int(seed)
         self.generator = torch.Generator().manual_seed(self.seed)
-        from ..compiling import resolve_compile
+        from ..compiling import maybe_compile
 
-        self.compiled = resolve_compile(compile)
-        self._refine = torch.compile(self._refine_impl, dynamic=True) if self.compiled else self._refine_impl
+        self._refine = maybe_compile(self._refine_impl, compile)
 
     def reset(self, seed: int | None = None) -> None:
         """Re-seed the noise generator (with ``seed``, or the constructor's)."""

@@ -17,8 +17,8 @@ from tensordict.nn import TensorDictSequential
 from torch import nn
 
 from .. import keys as K
-from ..compiling import resolve_compile
 from ..collectors import MultiRatePolicy
+from ..compiling import maybe_compile, resolve_compile
 from ..modules import (
     build_agent_states,
     cf_obs_dim,
@@ -94,10 +94,9 @@ class HierarchicalLearner(nn.Module):
         self.opt_embed = adam(emb, float(embed_lr)) if emb else None
         self.register_buffer("counters", torch.zeros(3, dtype=torch.long))  # lc updates, cf updates, actor updates
         self.compiled = resolve_compile(compile)
-        wrap = (lambda f: torch.compile(f, dynamic=False)) if self.compiled else (lambda f: f)
-        self._cf_value_loss, self._cf_actor_loss, self._lc_loss = (wrap(self._cf_value_loss_impl),
-                                                                   wrap(self._cf_actor_loss_impl),
-                                                                   wrap(self._lc_loss_impl))
+        self._cf_value_loss, self._cf_actor_loss, self._lc_loss = (
+            maybe_compile(f, self.compiled, dynamic=False)
+            for f in (self._cf_value_loss_impl, self._cf_actor_loss_impl, self._lc_loss_impl))
 
     # --------------------------------------------------------------------------------- acting
     def policy(self, explore: bool = True) -> MultiRatePolicy:

@@ -45,18 +45,18 @@ def make_buffer(capacity: int, batch_size: int, seed: int) -> TensorDictReplayBu
 
 
 class Trainer:
-    """Trains a :class:`HierarchicalLearner` on ``env`` (a batched TorchRL env carrying the predictive-state
-    transforms and a :class:`~kddrl_trl.collectors.DecisionClock`) for ``cfg.episodes`` episodes.
+    """Trains a :class:`HierarchicalLearner` for ``cfg.episodes`` episodes (:meth:`run`, on a batched TorchRL env
+    carrying the predictive-state transforms and a :class:`~kddrl_trl.collectors.DecisionClock`).
 
     ``cfg`` (the ``train`` config node): episodes, frames_per_env, warmup_frames, batch_size_cf,
     batch_size_lc, buffer_cf, buffer_lc, updates_per_frame, updates_per_decision, checkpoint_every,
-    keep_buffers. ``logger`` has ``log_scalar(name, value, step)``. ``resume_from``: a run directory whose
-    latest checkpoint is loaded before training continues.
+    keep_buffers. ``logger`` has ``log_scalar(name, value, step)``. :meth:`load` restores a run directory's
+    latest checkpoint before :meth:`run` continues it.
     """
 
-    def __init__(self, env, learner: HierarchicalLearner, cfg: Mapping[str, Any], run_dir: str | Path, logger,
+    def __init__(self, learner: HierarchicalLearner, cfg: Mapping[str, Any], run_dir: str | Path, logger,
                  seed: int = 0, progress: bool = True):
-        self.env, self.learner, self.cfg = env, learner, dict(cfg)
+        self.learner, self.cfg = learner, dict(cfg)
         self.run_dir, self.logger, self.progress = Path(run_dir), logger, progress
         c = self.cfg
         for key in ("episodes", "frames_per_env", "batch_size_cf", "batch_size_lc", "buffer_cf", "buffer_lc",
@@ -136,15 +136,15 @@ class Trainer:
         self.logger.log_scalar("time/frames_per_s", self.counters["frames"] / max(elapsed, 1e-9), step=step)
         self.logger.log_scalar("time/cf_updates", self.counters["cf_updates"], step=step)
 
-    def run(self) -> list[dict]:
-        """Train until ``cfg.episodes`` episodes have finished (counting those of a resumed run); return the
-        training-episode history."""
+    def run(self, env) -> list[dict]:
+        """Train on ``env`` until ``cfg.episodes`` episodes have finished (counting those of a resumed run);
+        return the training-episode history. ``env`` stays open."""
         from tqdm.auto import tqdm
 
         c, learner = self.cfg, self.learner
         target = int(c["episodes"])
         self.collector = MultiTimescaleCollector.from_env(
-            self.env, learner.policy(explore=True), frames_per_env=int(c["frames_per_env"]),
+            env, learner.policy(explore=True), frames_per_env=int(c["frames_per_env"]),
             frame_buffer=self.buffer_cf, macro_buffer=self.buffer_lc, frame_keys=learner.buffer_keys())
         next_ckpt = (len(self.history) // int(c["checkpoint_every"]) + 1) * int(c["checkpoint_every"])
         recent: deque = deque(maxlen=50)

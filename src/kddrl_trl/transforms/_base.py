@@ -50,17 +50,6 @@ def as_params(cls, value):
     return cls(**{str(k): v for k, v in dict(value).items()})
 
 
-def maybe_compile(fn, compile: bool | str):
-    """``torch.compile(fn, dynamic=True)`` when asked (batch shapes may change without recompiling), else ``fn``;
-    ``compile="auto"``: when a C++ compiler is found (:func:`kddrl_trl.compiling.resolve_compile`).
-
-    Compiling turns the many tiny per-frame tensor ops of the physics priors into fused kernels; it needs a
-    C++ compiler on a CPU machine and costs a one-off compile of ~20 s per process."""
-    from ..compiling import resolve_compile
-
-    return torch.compile(fn, dynamic=True) if resolve_compile(compile) else fn
-
-
 class PredictiveTransform(Transform):
     """Base of the KDDRL observation transforms: reads ``in_keys``, writes ``out_keys`` of one frame.
 

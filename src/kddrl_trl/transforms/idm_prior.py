@@ -8,9 +8,9 @@ import torch
 from tensordict import TensorDictBase
 
 from .. import keys as K
+from ..compiling import maybe_compile, resolve_compile
 from ..physics import IDMParams, idm_rollout
-from ..compiling import resolve_compile
-from ._base import PredictiveTransform, as_params, finite_or_zero, maybe_compile, unbounded_spec
+from ._base import PredictiveTransform, as_params, finite_or_zero, unbounded_spec
 
 
 def as_idm_params(idm: IDMParams | Mapping | None) -> IDMParams:

@@ -8,9 +8,9 @@ import torch
 from tensordict import TensorDictBase
 
 from .. import keys as K
+from ..compiling import maybe_compile, resolve_compile
 from ..physics import IDMParams, MOBILParams, mobil_prior
-from ..compiling import resolve_compile
-from ._base import PredictiveTransform, as_params, finite_or_zero, maybe_compile, probability_spec
+from ._base import PredictiveTransform, as_params, finite_or_zero, probability_spec
 from .idm_prior import as_idm_params
 
 
