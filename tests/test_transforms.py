@@ -590,3 +590,60 @@ def test_compiled_stack_matches_eager_stack():
     compiled = make_kddrl_transforms(seed=4, compile=True)(td.clone())
     for key in (K.PRED_PRIOR_TRAJ, K.PRED_TRAJ, K.PRED_KEY_GAPS, K.PRIOR_P_MOBIL, K.PRIOR_P_LCGAN):
         torch.testing.assert_close(compiled[key], eager[key], rtol=1e-4, atol=1e-3, msg=str(key))
+    # each member compiled on its own (a member used outside the stack) gives the same values too
+    member = make_kddrl_transforms(seed=4, compile=True)[1]
+    one = member(IDMPrior()(td.clone()))
+    torch.testing.assert_close(one[K.PRED_TRAJ], eager[K.PRED_TRAJ], rtol=1e-4, atol=1e-3)
+
+
+# ------------------------------------------------------------------------------ the fused stack
+@pytest.mark.parametrize("trajgan,priors", [(True, True), (False, True), (True, False), (False, False)])
+def test_fused_stack_equals_members_one_by_one(trajgan, priors):
+    """``PredictiveStack`` (one function per frame) gives exactly what its members give when chained by a
+    plain ``Compose``: same values, same noise streams over successive calls, reset and step alike."""
+    from kddrl_trl.transforms import PredictiveStack
+
+    env = FakeHighwayEnv(num_roads=4, seed=5)
+    frames = env.rollout(6, accelerate, break_when_any_done=False)["next"]
+    fused = make_kddrl_transforms(trajgan, priors, seed=9)
+    chained = Compose(*make_kddrl_transforms(trajgan, priors, seed=9).transforms)
+    assert isinstance(fused, PredictiveStack) and not isinstance(chained, PredictiveStack)
+    for t in range(frames.shape[1]):  # successive calls: the generators' streams advance alike
+        a, b = fused(frames[:, t].clone()), chained(frames[:, t].clone())
+        for key in fused.transforms[-1].out_keys + fused.transforms[0].out_keys:
+            assert torch.equal(a[key], b[key]), (t, key)
+        assert set(a.keys(include_nested=True)) == set(b.keys(include_nested=True))
+    # in an env, with partial resets
+    run_f = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=2), make_kddrl_transforms(trajgan, priors, seed=1))
+    run_c = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=2),
+                           Compose(*make_kddrl_transforms(trajgan, priors, seed=1).transforms))
+    ra = run_f.rollout(40, accelerate, break_when_any_done=False)
+    rb = run_c.rollout(40, accelerate, break_when_any_done=False)
+    assert ra["next", "done"].any() and not ra["next", "done"].all()
+    assert (ra == rb).all()
+
+
+def test_fused_stack_falls_back_to_members():
+    """A stack holding a user's transform runs the members one by one; a user's predictor module is run
+    eagerly inside the fused function; a missing raw key is named."""
+    from torchrl.envs.transforms import RenameTransform
+
+    from kddrl_trl.transforms import PredictiveStack
+
+    obs = FakeHighwayEnv(num_roads=3, seed=1).reset()
+    stack = make_kddrl_transforms(seed=0)
+    stack.append(RenameTransform([K.PRIOR_P_MOBIL], [("prior", "mobil_copy")], create_copy=True))
+    out = stack(obs.clone())
+    torch.testing.assert_close(out["prior", "mobil_copy"], out[K.PRIOR_P_MOBIL])
+    assert_derived(out)
+
+    user = PredictiveStack(IDMPrior(), TrajGANPrediction(AffineTraj()), MOBILPrior(), LCGANPrior(SoftmaxGaps()),
+                           compile=False)
+    assert not user[1].pure and user[0].pure
+    ref = Compose(IDMPrior(), TrajGANPrediction(AffineTraj()), MOBILPrior(), LCGANPrior(SoftmaxGaps()))(obs.clone())
+    got = user(obs.clone())
+    for key in DERIVED:
+        assert torch.equal(got[key], ref[key]), key
+
+    with pytest.raises(KeyError, match="leaders"):
+        make_kddrl_transforms()(obs.exclude(K.LEADERS_HISTORY))

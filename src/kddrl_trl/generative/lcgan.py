@@ -54,7 +54,6 @@ Model selection: :meth:`LCGANTask.validation_loss` is ``1 - balanced accuracy`` 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -551,7 +550,7 @@ class LCGANPredictor(TensorDictModuleBase):
         self.rng = torch.Generator(device=next(generator.parameters()).device).manual_seed(self.seed)
         from ..compiling import maybe_compile
 
-        self._probabilities = maybe_compile(self._probabilities_impl, compile)
+        self._predict = maybe_compile(self.predict, compile)
 
     @classmethod
     def from_task(cls, task: LCGANTask, **kwargs) -> LCGANPredictor:
@@ -580,18 +579,27 @@ class LCGANPredictor(TensorDictModuleBase):
         c, avail = self.net.condition(s_av, rel, mask, gaps, mask[:, :3], self.num_lanes)
         return self.net(c.expand(z.shape[0], n, c.shape[-1]), z, avail.expand(z.shape[0], n, NUM_ACTIONS)).mean(0)
 
+    def noise(self, rows: int) -> Tensor:
+        """The noise of one call on ``rows`` environments: ``[draws, rows, noise_dim]`` from ``self.rng``."""
+        return torch.randn(self.draws, int(rows), self.net.noise_dim, generator=self.rng, device=self.rng.device)
+
+    def predict(self, state: Tensor, lane: Tensor, rel: Tensor, mask: Tensor, gaps: Tensor, z: Tensor) -> Tensor:
+        """Eq. 16 as a pure tensor function on ``[*B, ...]`` observations (see the class doc for the shapes)
+        with ``z`` = :meth:`noise` of ``prod(B)`` rows -> ``P_lcGAN`` ``[*B, 3]``. No data-dependent shapes, so
+        ``torch.compile`` fuses it (alone, or inside the fused transform stack)."""
+        batch = state.shape[:-1]
+        dev = state.device
+        n = batch.numel()
+        p = self._probabilities_impl(state.reshape(n, 3).float(), lane.reshape(n).to(dev),
+                                     rel.reshape(n, 6, 4).float(), mask.reshape(n, 6).bool(),
+                                     gaps.reshape(n, 3, 2).float(), z.to(dev))
+        return p.reshape(*batch, NUM_ACTIONS)
+
     @torch.no_grad()
     def forward(self, tensordict: TensorDict) -> TensorDict:
         state = tensordict.get(K.EGO_STATE)
-        batch = state.shape[:-1]
-        n = math.prod(batch)
-        dev = state.device
-        state = state.reshape(n, 3).float()
-        lane = tensordict.get(K.EGO_LANE).reshape(n).to(dev)
-        rel = tensordict.get(K.NEIGHBORS_REL).reshape(n, 6, 4).float()
-        mask = tensordict.get(K.NEIGHBORS_MASK).reshape(n, 6).bool()
-        gaps = tensordict.get(K.PRED_KEY_GAPS).reshape(n, 3, 2).float()
-        z = torch.randn(self.draws, n, self.net.noise_dim, generator=self.rng, device=self.rng.device).to(dev)
-        p = self._probabilities(state, lane, rel, mask, gaps, z)
-        tensordict.set(K.PRIOR_P_LCGAN, p.reshape(*batch, NUM_ACTIONS))
+        z = self.noise(state.shape[:-1].numel())
+        tensordict.set(K.PRIOR_P_LCGAN, self._predict(state, tensordict.get(K.EGO_LANE),
+                                                      tensordict.get(K.NEIGHBORS_REL),
+                                                      tensordict.get(K.NEIGHBORS_MASK), tensordict.get(K.PRED_KEY_GAPS), z))
         return tensordict

@@ -488,7 +488,7 @@ class TrajGANPredictor(TensorDictModuleBase):
         self.generator = torch.Generator().manual_seed(self.seed)
         from ..compiling import maybe_compile
 
-        self._refine = maybe_compile(self._refine_impl, compile)
+        self._predict = maybe_compile(self.predict, compile)
 
     def reset(self, seed: int | None = None) -> None:
         """Re-seed the noise generator (with ``seed``, or the constructor's)."""
@@ -535,25 +535,37 @@ class TrajGANPredictor(TensorDictModuleBase):
         load_checkpoint(path, kind=KIND, architecture=arch, modules={"generator": net}, dataset_hash=dataset_hash)
         return cls(net, arch, **kwargs)
 
-    @torch.no_grad()
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        hist = tensordict.get(K.LEADERS_HISTORY)
-        ahead = tensordict.get(K.LEADERS_AHEAD)
-        mask = tensordict.get(K.NEIGHBORS_MASK)[..., :3].bool()
-        prior = tensordict.get(K.PRED_PRIOR_TRAJ)
+    def noise(self, rows: int) -> Tensor:
+        """The noise of one call on ``rows`` leader rows (``[k, rows, noise_dim]``, k = ``num_samples`` for
+        ``reduce="mean"``, else 1), drawn from ``self.generator`` on the CPU and moved to the net's device."""
+        k = self.num_samples if self.reduce == "mean" else 1
+        return torch.randn(k, int(rows), self.net.noise_dim, generator=self.generator).to(self.net.res_std.device)
+
+    def predict(self, hist: Tensor, ahead: Tensor, mask: Tensor, prior: Tensor, z: Tensor) -> Tensor:
+        """Eq. 13 as a pure tensor function: ``TG = prior + G(Z, C(hist, ahead, prior))`` for leaders a, b, c.
+
+        Args: ``hist`` ``[*B, 3, H, 2]``, ``ahead`` ``[*B, 3, 3]``, ``mask`` ``[*B, 3]`` (leader present),
+        ``prior`` ``[*B, 3, T]``, ``z`` = :meth:`noise` of ``prod(B) * 3`` rows. Returns ``[*B, 3, T]`` float32
+        absolute positions (m) on the device of ``prior``, never NaN. No data-dependent shapes, so
+        ``torch.compile`` fuses it (alone, or inside the fused transform stack)."""
         batch = hist.shape[:-3]
         h, t = hist.shape[-2], prior.shape[-1]
         if t != self.horizon or (self.use_history and h != self.history_len):
             raise ValueError(f"trajGAN was trained with history {self.history_len} / horizon {self.horizon}, "
                              f"got history {h} / horizon {t}")
-        dev = self.net.res_std.device
-        hist = hist.reshape(-1, h, 2).to(dev, torch.float32)
-        ahead = ahead.reshape(-1, 3).to(dev, torch.float32)
-        prior = prior.reshape(-1, t).to(dev, torch.float32)
-        mask = mask.reshape(-1).to(dev)
-        k = self.num_samples if self.reduce == "mean" else 1
-        z = torch.randn(k, prior.shape[0], self.net.noise_dim, generator=self.generator).to(dev)
-        out = self._refine(hist, ahead, prior, mask, z)
+        dev, out_dev = self.net.res_std.device, prior.device
+        out = self._refine_impl(hist.reshape(-1, h, 2).to(dev, torch.float32),
+                                ahead.reshape(-1, 3).to(dev, torch.float32),
+                                prior.reshape(-1, t).to(dev, torch.float32),
+                                mask.reshape(-1).to(dev, torch.bool), z)
         out = torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
-        tensordict.set(K.PRED_TRAJ, out.reshape(*batch, 3, t).to(tensordict.get(K.PRED_PRIOR_TRAJ).device))
+        return out.reshape(*batch, 3, t).to(out_dev)
+
+    @torch.no_grad()
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        hist = tensordict.get(K.LEADERS_HISTORY)
+        z = self.noise(hist.shape[:-3].numel() * 3)
+        tensordict.set(K.PRED_TRAJ, self._predict(hist, tensordict.get(K.LEADERS_AHEAD),
+                                                  tensordict.get(K.NEIGHBORS_MASK)[..., :3].bool(),
+                                                  tensordict.get(K.PRED_PRIOR_TRAJ), z))
         return tensordict

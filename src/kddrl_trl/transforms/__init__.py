@@ -11,16 +11,19 @@ transform              writes                               paper
 :class:`LCGANPrior`     ``("prior", "p_lcgan")`` [3]         P_lcGAN, Eq. 16
 =====================  ==================================  ================================================
 
-:func:`make_kddrl_transforms` builds the stack (and its ablations). All transforms read only raw keys of
-:mod:`kddrl_trl.keys` and keys of earlier transforms, are stateless per frame, and work on reset, step and
-replay-buffer samples (``forward``) of any batch shape.
+:func:`make_kddrl_transforms` builds the stack (and its ablations) as a :class:`PredictiveStack`: a ``Compose``
+that runs its members' maths as one (optionally compiled) function per frame. All transforms read only raw
+keys of :mod:`kddrl_trl.keys` and keys of earlier transforms, are stateless per frame, and work on reset, step
+and replay-buffer samples (``forward``) of any batch shape.
 """
 from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
 from .lcgan import LCGANPrior
 from .mobil_prior import MOBILPrior
+from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
-__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "TrajGANPrediction",
+__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "PredictiveStack",
+           "TrajGANPrediction",
            "key_step_gaps", "make_kddrl_transforms"]

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import Tensor
@@ -40,3 +40,11 @@ def run_frozen(module: TensorDictModuleBase, tensordict: TensorDictBase, out_key
     with torch.no_grad():
         out = module(sub).get(out_key)
     return out.to(src_device) if moved else out
+
+
+def as_tensordict(values, batch_size) -> TensorDictBase:
+    """A TensorDict of ``batch_size`` holding ``values`` (``{nested key: tensor}``), for a user's module."""
+    td = TensorDict(batch_size=batch_size)
+    for key, value in values.items():
+        td.set(key, value)
+    return td

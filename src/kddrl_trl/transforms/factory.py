@@ -5,13 +5,12 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import torch
-from torchrl.envs.transforms import Compose
-
 from ..physics import IDMParams, MOBILParams
 from .idm_prior import IDMPrior, as_idm_params
 from .key_gaps import KeyGapsFromPrior
 from .lcgan import LCGANPrior
 from .mobil_prior import MOBILPrior, as_mobil_params
+from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
 REDUCTIONS = ("sample", "mean")
@@ -31,7 +30,7 @@ def make_kddrl_transforms(
     num_lanes: int = 3,
     device: str | torch.device = "cpu",
     compile: bool | str = False,
-) -> Compose:
+) -> PredictiveStack:
     """The KDDRL predictive-state transforms, in the order of Algorithm 1 (paper §III.B-C).
 
     ============================  ===========================================================================
@@ -60,9 +59,10 @@ def make_kddrl_transforms(
         idm, mobil: physics parameters (default Table A.1); dataclasses or mappings of their fields.
         num_lanes: lanes of the road (MOBIL and lcGAN lane availability).
         device: device of the generative networks.
-        compile: ``torch.compile`` the physics priors (IDM rollout, MOBIL) and the GAN inference: fused
-            kernels, several times cheaper per frame on a CPU, after a one-off compile of ~20-40 s per process
-            and batch rank; ``"auto"``: when a C++ compiler is found. Off by default.
+        compile: ``torch.compile`` the whole stack (physics priors and GAN inference) as ONE function per
+            frame: fused kernels, several times cheaper per frame on a CPU, after a one-off compile of ~30-60 s
+            per process and batch rank; ``"auto"``: when a C++ compiler is found. Off by default. Each member
+            called on its own compiles its own part.
 
     A Hydra / plain-dict config maps onto the keyword arguments: ``make_kddrl_transforms(**cfg)``.
 
@@ -90,4 +90,4 @@ def make_kddrl_transforms(
         draws = int(num_samples) if reduce == "mean" else 1
         stack.append(LCGANPrior(checkpoint=lcgan_checkpoint, num_lanes=num_lanes, draws=draws, seed=seed,
                                 device=device, compile=compile))
-    return Compose(*stack)
+    return PredictiveStack(*stack, compile=compile)

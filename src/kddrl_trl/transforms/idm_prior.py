@@ -2,13 +2,10 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from functools import partial
 
 import torch
-from tensordict import TensorDictBase
 
 from .. import keys as K
-from ..compiling import maybe_compile, resolve_compile
 from ..physics import IDMParams, idm_rollout
 from ._base import PredictiveTransform, as_params, finite_or_zero, unbounded_spec
 
@@ -63,15 +60,14 @@ class IDMPrior(PredictiveTransform):
 
     def __init__(self, idm: IDMParams | Mapping | None = None, steps: int = 20, dt: float = 0.1,
                  compile: bool | str = False):
-        super().__init__(in_keys=[K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LEADERS_AHEAD], out_keys=[K.PRED_PRIOR_TRAJ])
         self.idm = as_idm_params(idm)
         self.steps, self.dt = int(steps), float(dt)
-        self.compile = resolve_compile(compile)
-        self._prior = maybe_compile(partial(prior_trajectory, steps=self.steps, dt=self.dt, idm=self.idm), self.compile)
+        super().__init__(in_keys=[K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LEADERS_AHEAD], out_keys=[K.PRED_PRIOR_TRAJ],
+                         compile=compile)
 
-    def compute(self, tensordict: TensorDictBase) -> dict:
-        traj = self._prior(tensordict.get(K.NEIGHBORS_KIN), tensordict.get(K.NEIGHBORS_MASK),
-                           tensordict.get(K.LEADERS_AHEAD))
+    def frame(self, values, noise=None) -> dict:
+        traj = prior_trajectory(values[K.NEIGHBORS_KIN], values[K.NEIGHBORS_MASK], values[K.LEADERS_AHEAD],
+                                steps=self.steps, dt=self.dt, idm=self.idm)
         return {K.PRED_PRIOR_TRAJ: traj}
 
     def out_specs(self, batch, device) -> dict:

@@ -4,7 +4,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from tensordict import TensorDictBase
 from torch import Tensor
 
 from .. import keys as K
@@ -48,11 +47,10 @@ class KeyGapsFromPrior(PredictiveTransform):
         super().__init__(in_keys=[K.PRED_PRIOR_TRAJ, K.EGO_STATE, K.NEIGHBORS_MASK], out_keys=[K.PRED_KEY_GAPS])
         self.key_steps = tuple(int(s) for s in key_steps)
 
-    def compute(self, tensordict: TensorDictBase) -> dict:
-        traj = tensordict.get(K.PRED_PRIOR_TRAJ)
-        ego_y = tensordict.get(K.EGO_STATE)[..., 0]
-        present = tensordict.get(K.NEIGHBORS_MASK)[..., :3]
-        return {K.PRED_KEY_GAPS: key_step_gaps(traj, ego_y, present, self.key_steps)}
+    def frame(self, values, noise=None) -> dict:
+        gaps = key_step_gaps(values[K.PRED_PRIOR_TRAJ], values[K.EGO_STATE][..., 0], values[K.NEIGHBORS_MASK][..., :3],
+                             self.key_steps)
+        return {K.PRED_KEY_GAPS: gaps}
 
     def out_specs(self, batch, device) -> dict:
         return {K.PRED_KEY_GAPS: unbounded_spec(batch, (3, len(self.key_steps)), device)}

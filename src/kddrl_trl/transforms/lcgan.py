@@ -4,12 +4,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
-from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from .. import keys as K
 from ._base import PredictiveTransform, finite_or_zero, probability_spec
-from ._frozen import freeze, run_frozen
+from ._frozen import as_tensordict, freeze, run_frozen
 
 
 class LCGANPrior(PredictiveTransform):
@@ -40,16 +39,17 @@ class LCGANPrior(PredictiveTransform):
                  compile: bool | str = False):
         if predictor is not None and checkpoint is not None:
             raise ValueError("give either a predictor module or a checkpoint path, not both")
-        if predictor is None:
-            from ..generative import load_predictor
+        from ..generative import LCGANPredictor, load_predictor
 
+        if predictor is None:
             predictor = load_predictor("lcgan", checkpoint, num_lanes=int(num_lanes), seed=int(seed),
-                                       draws=int(draws), device=device, compile=compile)
+                                       draws=int(draws), device=device)
         if K.PRIOR_P_LCGAN not in [tuple(k) if isinstance(k, (tuple, list)) else k for k in predictor.out_keys]:
             raise ValueError(f"the lcGAN predictor must write {K.PRIOR_P_LCGAN}, it writes {predictor.out_keys}")
-        super().__init__(in_keys=list(predictor.in_keys), out_keys=[K.PRIOR_P_LCGAN])
-        self.predictor = freeze(predictor)
         self.seed = int(getattr(predictor, "seed", seed))
+        super().__init__(in_keys=list(predictor.in_keys), out_keys=[K.PRIOR_P_LCGAN], compile=compile,
+                         pure=isinstance(predictor, LCGANPredictor))
+        self.predictor = freeze(predictor)
 
     def reseed(self, seed: int | None = None) -> None:
         """Restart the predictor's noise stream (with ``seed``, or the constructor's)."""
@@ -59,9 +59,17 @@ class LCGANPrior(PredictiveTransform):
         elif isinstance(getattr(self.predictor, "rng", None), torch.Generator):
             self.predictor.rng.manual_seed(seed)
 
-    def compute(self, tensordict: TensorDictBase) -> dict:
-        p = run_frozen(self.predictor, tensordict, K.PRIOR_P_LCGAN).to(torch.float32)
-        return {K.PRIOR_P_LCGAN: finite_or_zero(p).clamp(0.0, 1.0)}
+    def noise(self, batch: torch.Size) -> torch.Tensor | None:
+        """The shipped predictor's noise for ``batch`` (a user's module draws its own)."""
+        return self.predictor.noise(batch.numel()) if self.pure else None
+
+    def frame(self, values, noise=None) -> dict:
+        if self.pure:
+            p = self.predictor.predict(values[K.EGO_STATE], values[K.EGO_LANE], values[K.NEIGHBORS_REL],
+                                       values[K.NEIGHBORS_MASK], values[K.PRED_KEY_GAPS], noise)
+        else:
+            p = run_frozen(self.predictor, as_tensordict(values, values[K.EGO_STATE].shape[:-1]), K.PRIOR_P_LCGAN)
+        return {K.PRIOR_P_LCGAN: finite_or_zero(p.to(torch.float32)).clamp(0.0, 1.0)}
 
     def out_specs(self, batch, device) -> dict:
         return {K.PRIOR_P_LCGAN: probability_spec(batch, (3,), device)}

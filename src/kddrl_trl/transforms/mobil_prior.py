@@ -2,13 +2,10 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from functools import partial
 
 import torch
-from tensordict import TensorDictBase
 
 from .. import keys as K
-from ..compiling import maybe_compile, resolve_compile
 from ..physics import IDMParams, MOBILParams, mobil_prior
 from ._base import PredictiveTransform, as_params, finite_or_zero, probability_spec
 from .idm_prior import as_idm_params
@@ -48,16 +45,13 @@ class MOBILPrior(PredictiveTransform):
 
     def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
                  num_lanes: int = 3, compile: bool | str = False):
-        super().__init__(in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK],
-                         out_keys=[K.PRIOR_P_MOBIL])
         self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
-        self.compile = resolve_compile(compile)
-        self._prior = maybe_compile(partial(mobil_prior_from_obs, num_lanes=self.num_lanes, idm=self.idm,
-                                            mobil=self.mobil), self.compile)
+        super().__init__(in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK],
+                         out_keys=[K.PRIOR_P_MOBIL], compile=compile)
 
-    def compute(self, tensordict: TensorDictBase) -> dict:
-        p = self._prior(tensordict.get(K.EGO_STATE), tensordict.get(K.EGO_LANE), tensordict.get(K.NEIGHBORS_KIN),
-                        tensordict.get(K.NEIGHBORS_MASK))
+    def frame(self, values, noise=None) -> dict:
+        p = mobil_prior_from_obs(values[K.EGO_STATE], values[K.EGO_LANE], values[K.NEIGHBORS_KIN],
+                                 values[K.NEIGHBORS_MASK], num_lanes=self.num_lanes, idm=self.idm, mobil=self.mobil)
         return {K.PRIOR_P_MOBIL: p}
 
     def out_specs(self, batch, device) -> dict:

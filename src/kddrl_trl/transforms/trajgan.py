@@ -5,12 +5,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import torch
-from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from .. import keys as K
 from ._base import PredictiveTransform, finite_or_zero, unbounded_spec
-from ._frozen import freeze, run_frozen
+from ._frozen import as_tensordict, freeze, run_frozen
 from .key_gaps import KEY_STEPS, key_step_gaps
 
 
@@ -46,19 +45,20 @@ class TrajGANPrediction(PredictiveTransform):
                  key_steps: Sequence[int] = KEY_STEPS, compile: bool | str = False):
         if predictor is not None and checkpoint is not None:
             raise ValueError("give either a predictor module or a checkpoint path, not both")
-        if predictor is None:
-            from ..generative import load_predictor
+        from ..generative import TrajGANPredictor, load_predictor
 
+        if predictor is None:
             predictor = load_predictor("trajgan", checkpoint, num_samples=num_samples, reduce=reduce,
-                                       seed=seed, compile=compile).to(device)
+                                       seed=seed).to(device)
         if K.PRED_TRAJ not in [tuple(k) if isinstance(k, (tuple, list)) else k for k in predictor.out_keys]:
             raise ValueError(f"the trajGAN predictor must write {K.PRED_TRAJ}, it writes {predictor.out_keys}")
         in_keys = list(dict.fromkeys([*predictor.in_keys, K.EGO_STATE, K.NEIGHBORS_MASK]))
-        super().__init__(in_keys=in_keys, out_keys=[K.PRED_TRAJ, K.PRED_KEY_GAPS])
-        self.predictor = freeze(predictor)
         self.horizon = int(getattr(predictor, "horizon", 20))
         self.key_steps = tuple(int(s) for s in key_steps)
         self.seed = int(getattr(predictor, "seed", seed))
+        super().__init__(in_keys=in_keys, out_keys=[K.PRED_TRAJ, K.PRED_KEY_GAPS], compile=compile,
+                         pure=isinstance(predictor, TrajGANPredictor))
+        self.predictor = freeze(predictor)
 
     def reseed(self, seed: int | None = None) -> None:
         """Restart the predictor's noise stream (with ``seed``, or the constructor's)."""
@@ -67,11 +67,20 @@ class TrajGANPrediction(PredictiveTransform):
         elif isinstance(getattr(self.predictor, "generator", None), torch.Generator):
             self.predictor.generator.manual_seed(self.seed if seed is None else int(seed))
 
-    def compute(self, tensordict: TensorDictBase) -> dict:
-        traj = finite_or_zero(run_frozen(self.predictor, tensordict, K.PRED_TRAJ).to(torch.float32))
-        ego_y = tensordict.get(K.EGO_STATE)[..., 0]
-        present = tensordict.get(K.NEIGHBORS_MASK)[..., :3]
-        return {K.PRED_TRAJ: traj, K.PRED_KEY_GAPS: key_step_gaps(traj, ego_y, present, self.key_steps)}
+    def noise(self, batch: torch.Size) -> torch.Tensor | None:
+        """The shipped predictor's noise for ``batch`` x 3 leaders (a user's module draws its own)."""
+        return self.predictor.noise(batch.numel() * 3) if self.pure else None
+
+    def frame(self, values, noise=None) -> dict:
+        present = values[K.NEIGHBORS_MASK][..., :3].bool()
+        if self.pure:
+            traj = self.predictor.predict(values[K.LEADERS_HISTORY], values[K.LEADERS_AHEAD], present,
+                                          values[K.PRED_PRIOR_TRAJ], noise)
+        else:
+            traj = run_frozen(self.predictor, as_tensordict(values, present.shape[:-1]), K.PRED_TRAJ)
+        traj = finite_or_zero(traj.to(torch.float32))
+        return {K.PRED_TRAJ: traj,
+                K.PRED_KEY_GAPS: key_step_gaps(traj, values[K.EGO_STATE][..., 0], present, self.key_steps)}
 
     def out_specs(self, batch, device) -> dict:
         return {K.PRED_TRAJ: unbounded_spec(batch, (3, self.horizon), device),
