@@ -1,16 +1,23 @@
 """Cost of the KDDRL predictive-state stack on the SUMO highway env, measured in one run.
 
 For K in {1, 8, 32} roads (``--roads``) ONE ``SumoHighwayEnv`` is driven by the IDM+MOBIL rule policy in
-three ways that take turns every ``--segment`` frames on the same simulation: bare, inside
-``TransformedEnv(env, make_kddrl_transforms())`` (IDM prior -> trajGAN -> MOBIL prior -> lcGAN prior, the
-shipped weights, run as one fused function per frame for all K envs), inside
-``make_kddrl_transforms(compile=True)`` (the same, through ``torch.compile``; the one-off compile happens in the
-untimed warm-up) and, for reference, with the same compiled members chained by a plain ``Compose`` (each member
-its own compiled call: the stack before fusion). Taking turns on one simulation pairs the three arms in time and traffic, so the drifts of
-this noisy machine hit all alike. Every arm steps with TorchRL's ``step_and_maybe_reset`` (partial resets
-included, as in a collector). Reports ego-frames per second and the stack's cost ``1 - fps_with / fps_bare``
-(time summed over all segments; the median of the per-turn ratios beside it). Goal: cost <= 25 % at K = 32.
-Prints a table and writes ``benchmarks/results/transform_overhead.json``.
+several ways ("arms") that take turns every ``--segment`` frames on the same simulation:
+
+* ``none``: the bare env;
+* ``eager``: inside ``TransformedEnv(env, make_kddrl_transforms())`` (IDM prior -> trajGAN -> MOBIL prior ->
+  lcGAN prior, the shipped weights, run as one fused function per frame for all K envs);
+* ``compiled``: ``make_kddrl_transforms(compile=True)``, the training default where a C++ compiler exists:
+  the env's calls go through the AOTInductor package of the fused function (compiled once, cached);
+* ``compiled_jit``: the same with ``aot=False`` (the fused function through ``torch.compile`` only);
+* ``compiled_unfused``: the same compiled members chained by a plain ``Compose`` (each member its own
+  ``torch.compile`` call: the stack before fusion).
+
+One-off compilation happens in an untimed warm-up. Taking turns on one simulation pairs the arms in time and
+traffic, so the drifts of this noisy machine hit all alike. Every arm steps with TorchRL's
+``step_and_maybe_reset`` (partial resets included, as in a collector). Reports ego-frames per second and each
+arm's cost ``1 - fps_arm / fps_none`` (time summed over all turns; the median of the per-turn ratios beside
+it). Goal: cost of the default compiled stack <= 25 % at K = 32. Prints a table and writes
+``benchmarks/results/transform_overhead.json``.
 
     python benchmarks/transform_overhead.py [--roads 1 8 32] [--frames 1500] [--segment 50]
 """
@@ -32,9 +39,18 @@ from kddrl_trl.io import write_json_atomic
 from kddrl_trl import keys as K
 from kddrl_trl.transforms import make_kddrl_transforms
 
-ARMS = ("none", "eager", "compiled", "compiled_unfused")
+ARMS = ("none", "eager", "compiled", "compiled_jit", "compiled_unfused")
 #: what the stack writes (dropped before a bare turn)
 OUT_KEYS = (K.PRED_PRIOR_TRAJ, K.PRED_TRAJ, K.PRED_KEY_GAPS, K.PRIOR_P_MOBIL, K.PRIOR_P_LCGAN)
+
+
+def make_arm(name: str, seed: int):
+    """The transform stack of arm ``name`` (None: bare env)."""
+    if name == "none":
+        return None
+    if name == "compiled_unfused":
+        return Compose(*make_kddrl_transforms(seed=seed, compile=True, aot=False).transforms)
+    return make_kddrl_transforms(seed=seed, compile=name != "eager", aot=name == "compiled")
 
 
 def run_segment(run, stack, policy, td, frames: int):
@@ -54,14 +70,11 @@ def measure(k: int, frames: int, segment: int, seed: int) -> dict[str, list[floa
     """Seconds per turn of each arm: ``frames // segment`` turns of ``segment`` frames on one simulation."""
     env = SumoHighwayEnv("baseline", num_roads=k, seed=seed)
     try:
-        stacks = {"none": None, "eager": make_kddrl_transforms(seed=seed),
-                  "compiled": make_kddrl_transforms(seed=seed, compile=True),
-                  # the same members chained by a plain Compose, each compiled on its own (no fusion)
-                  "compiled_unfused": Compose(*make_kddrl_transforms(seed=seed, compile=True).transforms)}
+        stacks = {n: make_arm(n, seed) for n in ARMS}
         runs = {n: env if s is None else TransformedEnv(env, s) for n, s in stacks.items()}
         policy = IDMMobilPolicy()
         td = env.reset()
-        for name in ARMS:  # warm-up (and the one-off compile), untimed
+        for name in ARMS:  # warm-up (and the one-off compilations), untimed
             _, td = run_segment(runs[name], stacks[name], policy, td, 20)
         times = {n: [] for n in ARMS}
         for _ in range(max(1, frames // segment)):
@@ -87,30 +100,18 @@ def main(argv=None) -> int:
         times = measure(k, args.frames, args.segment, args.seed)
         n = len(times["none"]) * args.segment * k
         fps = {a: n / sum(times[a]) for a in ARMS}
-        turn_cost = {a: statistics.median(1.0 - t0 / t for t0, t in zip(times["none"], times[a])) for a in ARMS[1:]}
-        rows.append({"num_roads": k, "env_fps": fps["none"], "env_stack_fps": fps["eager"],
-                     "env_stack_compiled_fps": fps["compiled"], "cost": 1.0 - fps["eager"] / fps["none"],
-                     "cost_compiled": 1.0 - fps["compiled"] / fps["none"], "median_turn_cost": turn_cost["eager"],
-                     "median_turn_cost_compiled": turn_cost["compiled"],
-                     "env_stack_compiled_unfused_fps": fps["compiled_unfused"],
-                     "cost_compiled_unfused": 1.0 - fps["compiled_unfused"] / fps["none"],
-                     "median_turn_cost_compiled_unfused": turn_cost["compiled_unfused"], "seconds_per_turn": times})
-        print(f"K={k}: bare {fps['none']:,.0f}  stack {fps['eager']:,.0f}  compiled stack {fps['compiled']:,.0f}  "
-              f"compiled members, unfused {fps['compiled_unfused']:,.0f} ego-frames/s", flush=True)
+        cost = {a: 1.0 - fps[a] / fps["none"] for a in ARMS}
+        turn = {a: statistics.median(1.0 - t0 / t for t0, t in zip(times["none"], times[a])) for a in ARMS}
+        rows.append({"num_roads": k, "fps": fps, "cost": cost, "median_turn_cost": turn, "seconds_per_turn": times})
+        print(f"K={k}: " + "  ".join(f"{a} {fps[a]:,.0f}" for a in ARMS) + " ego-frames/s", flush=True)
     print(f"\nKDDRL transform stack on SumoHighwayEnv (baseline, IDM+MOBIL policy), {args.frames} frames per arm "
-          f"in turns of {args.segment}; cost = 1 - fps ratio (median over turns in brackets)")
-    print(f"{'K':>3s} {'env fps':>10s} {'+stack fps':>11s} {'cost':>16s} {'+compiled fps':>14s} {'cost':>16s}"
-          f" {'+unfused fps':>13s} {'cost':>16s}  goal (<= 25 % at K=32)")
+          f"in turns of {args.segment}: ego-frames/s, cost = 1 - fps / fps(none) (median over turns in brackets)")
+    print(f"{'K':>3s} {'none fps':>9s} " + " ".join(f"{a:>25s}" for a in ARMS[1:]) + "  goal (compiled <= 25 % at K=32)")
     for r in rows:
-        goal = "-"
-        if r["num_roads"] >= 32:
-            goal = (f"eager {'PASS' if r['cost'] <= 0.25 else 'FAIL'}, "
-                    f"compiled {'PASS' if r['cost_compiled'] <= 0.25 else 'FAIL'}")
-        print(f"{r['num_roads']:3d} {r['env_fps']:10,.0f} {r['env_stack_fps']:11,.0f} "
-              f"{100 * r['cost']:6.1f}% ({100 * r['median_turn_cost']:5.1f}%) {r['env_stack_compiled_fps']:14,.0f} "
-              f"{100 * r['cost_compiled']:6.1f}% ({100 * r['median_turn_cost_compiled']:5.1f}%) "
-              f"{r['env_stack_compiled_unfused_fps']:13,.0f} {100 * r['cost_compiled_unfused']:6.1f}% "
-              f"({100 * r['median_turn_cost_compiled_unfused']:5.1f}%)  {goal}")
+        cells = " ".join(f"{r['fps'][a]:>7,.0f} {100 * r['cost'][a]:6.1f}% ({100 * r['median_turn_cost'][a]:5.1f}%)"
+                         for a in ARMS[1:])
+        goal = ("PASS" if r["cost"]["compiled"] <= 0.25 else "FAIL") if r["num_roads"] >= 32 else "-"
+        print(f"{r['num_roads']:3d} {r['fps']['none']:9,.0f} {cells}  {goal}")
     write_json_atomic(args.out, {"machine": {"platform": platform.platform(), "python": sys.version.split()[0],
                                              "torch": torch.__version__}, "args": vars(args), "rows": rows})
     print(f"results written to {args.out}")

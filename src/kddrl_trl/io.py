@@ -12,6 +12,13 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 
+def cache_dir() -> Path:
+    """The package's cache folder: ``$KDDRL_TRL_CACHE``, default ``~/.cache/kddrl_trl`` (created)."""
+    root = Path(os.environ.get("KDDRL_TRL_CACHE", Path.home() / ".cache" / "kddrl_trl"))
+    root.mkdir(parents=True, exist_ok=True)
+    return root
+
+
 def _ordinary_permissions(tmp: str) -> None:
     """``mkstemp`` creates 0600 files; give results the permissions any new file would get (umask)."""
     umask = os.umask(0)

@@ -17,7 +17,7 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..io import write_text_atomic
+from ..io import cache_dir, write_text_atomic
 from .config import HighwayConfig
 
 ROAD_SPACING = 50.0  # m between the centre lines of neighbouring roads
@@ -27,12 +27,6 @@ ROAD_SPACING = 50.0  # m between the centre lines of neighbouring roads
 class RoadFiles:
     net: Path
     routes: Path
-
-
-def cache_dir() -> Path:
-    root = Path(os.environ.get("KDDRL_TRL_CACHE", Path.home() / ".cache" / "kddrl_trl"))
-    root.mkdir(parents=True, exist_ok=True)
-    return root
 
 
 def sumo_binary(name: str) -> str:

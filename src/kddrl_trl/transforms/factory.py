@@ -30,6 +30,7 @@ def make_kddrl_transforms(
     num_lanes: int = 3,
     device: str | torch.device = "cpu",
     compile: bool | str = False,
+    aot: bool | None = None,
 ) -> PredictiveStack:
     """The KDDRL predictive-state transforms, in the order of Algorithm 1 (paper §III.B-C).
 
@@ -63,6 +64,8 @@ def make_kddrl_transforms(
             frame: fused kernels, several times cheaper per frame on a CPU, after a one-off compile of ~30-60 s
             per process and batch rank; ``"auto"``: when a C++ compiler is found. Off by default. Each member
             called on its own compiles its own part.
+        aot: the environment's calls through a cached AOTInductor package (default: as ``compile``; see
+            :class:`PredictiveStack`).
 
     A Hydra / plain-dict config maps onto the keyword arguments: ``make_kddrl_transforms(**cfg)``.
 
@@ -90,4 +93,4 @@ def make_kddrl_transforms(
         draws = int(num_samples) if reduce == "mean" else 1
         stack.append(LCGANPrior(checkpoint=lcgan_checkpoint, num_lanes=num_lanes, draws=draws, seed=seed,
                                 device=device, compile=compile))
-    return PredictiveStack(*stack, compile=compile)
+    return PredictiveStack(*stack, compile=compile, aot=aot)
