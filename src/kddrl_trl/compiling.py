@@ -3,8 +3,17 @@ from __future__ import annotations
 
 import logging
 import shutil
+from functools import lru_cache
 
 log = logging.getLogger(__name__)
+
+
+@lru_cache(maxsize=1)
+def _compiler_found() -> bool:
+    """Whether a C++ compiler is on the PATH (looked up, and logged, once per process)."""
+    found = next((c for c in ("c++", "g++", "clang++") if shutil.which(c)), None)
+    log.info("compile=auto: %s", f"{found} found, compiling" if found else "no C++ compiler on the PATH, eager")
+    return found is not None
 
 
 def resolve_compile(compile: bool | str) -> bool:
@@ -15,9 +24,7 @@ def resolve_compile(compile: bool | str) -> bool:
             return compile.lower() == "true"
         if compile.lower() != "auto":
             raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
-        found = next((c for c in ("c++", "g++", "clang++") if shutil.which(c)), None)
-        log.info("compile=auto: %s", f"{found} found, compiling" if found else "no C++ compiler on the PATH, eager")
-        return found is not None
+        return _compiler_found()
     if not isinstance(compile, bool):
         raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
     return compile
