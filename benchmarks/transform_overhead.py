@@ -106,7 +106,8 @@ def main(argv=None) -> int:
         print(f"K={k}: " + "  ".join(f"{a} {fps[a]:,.0f}" for a in ARMS) + " ego-frames/s", flush=True)
     print(f"\nKDDRL transform stack on SumoHighwayEnv (baseline, IDM+MOBIL policy), {args.frames} frames per arm "
           f"in turns of {args.segment}: ego-frames/s, cost = 1 - fps / fps(none) (median over turns in brackets)")
-    print(f"{'K':>3s} {'none fps':>9s} " + " ".join(f"{a:>25s}" for a in ARMS[1:]) + "  goal (compiled <= 25 % at K=32)")
+    print(f"{'K':>3s} {'none fps':>9s} " + " ".join(f"{a:>25s}" for a in ARMS[1:])
+          + "  goal (compiled <= 25 % at K=32)")
     for r in rows:
         cells = " ".join(f"{r['fps'][a]:>7,.0f} {100 * r['cost'][a]:6.1f}% ({100 * r['median_turn_cost'][a]:5.1f}%)"
                          for a in ARMS[1:])

@@ -599,7 +599,7 @@ class LCGANPredictor(TensorDictModuleBase):
     def forward(self, tensordict: TensorDict) -> TensorDict:
         state = tensordict.get(K.EGO_STATE)
         z = self.noise(state.shape[:-1].numel())
-        tensordict.set(K.PRIOR_P_LCGAN, self._predict(state, tensordict.get(K.EGO_LANE),
-                                                      tensordict.get(K.NEIGHBORS_REL),
-                                                      tensordict.get(K.NEIGHBORS_MASK), tensordict.get(K.PRED_KEY_GAPS), z))
+        p = self._predict(state, tensordict.get(K.EGO_LANE), tensordict.get(K.NEIGHBORS_REL),
+                          tensordict.get(K.NEIGHBORS_MASK), tensordict.get(K.PRED_KEY_GAPS), z)
+        tensordict.set(K.PRIOR_P_LCGAN, p)
         return tensordict

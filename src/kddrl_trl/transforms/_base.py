@@ -80,7 +80,8 @@ class PredictiveTransform(Transform):
         self._frame = maybe_compile(self.frame, self.compile and self.pure)
 
     # ----------------------------------------------------------------------------- to implement
-    def frame(self, values: Mapping[NestedKey, Tensor], noise: Tensor | None) -> dict[NestedKey, Tensor]:  # pragma: no cover
+    def frame(self, values: Mapping[NestedKey, Tensor],
+              noise: Tensor | None) -> dict[NestedKey, Tensor]:  # pragma: no cover
         """The outputs of one frame from ``values`` (holding at least ``in_keys``); no side effects."""
         raise NotImplementedError
 

@@ -19,8 +19,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import logging
-import os
-import tempfile
 import warnings
 from collections.abc import Callable, Sequence
 from contextlib import contextmanager
@@ -31,7 +29,7 @@ import torch
 from tensordict.utils import NestedKey
 from torch import Tensor
 
-from ..io import cache_dir
+from ..io import cache_dir, write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -134,16 +132,9 @@ class AOTFrames:
                  [tuple(t.shape) for t in examples], self.path)
         with torch.no_grad(), _quiet():
             program = torch.export.export(module, tuple(examples), strict=False)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.stem}.", suffix=".pt2")
-        os.close(fd)
-        try:
-            with _quiet():
-                torch._inductor.aoti_compile_and_package(program, package_path=tmp)
-            os.replace(tmp, self.path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with _quiet():
+            write_atomic(self.path, lambda fh: torch._inductor.aoti_compile_and_package(program, package_path=fh),
+                         binary=True)
 
     def __call__(self, values: dict[NestedKey, Tensor], noises: Sequence[Tensor | None]) -> dict[NestedKey, Tensor]:
         outs = self._runner(*(values[k] for k in self.keys), *(noises[i] for i in self.noise_slots))

@@ -111,7 +111,7 @@ class PredictiveStack(Compose):
                *((None if z is None else (z.shape, z.dtype, z.device)) for z in noises))
         if sig not in self._aot:
             self._aot[sig] = None
-            if all(v.device.type == "cpu" for v in values.values()):
+            if all(t.device.type == "cpu" for t in (*values.values(), *(p for m in members for p in m.parameters()))):
                 try:
                     self._aot[sig] = AOTFrames(self._frames, members, values, noises)
                 except Exception as err:  # noqa: BLE001 - any export / compiler failure: keep the compiled path
