@@ -141,9 +141,9 @@ def test_check_env_specs_batched_fake(batched):
 
 
 @pytest.mark.usefixtures("no_sumo_open")
-@pytest.mark.parametrize("num_samples", [1, 8])
-def test_check_env_specs_sumo(num_samples):
-    env = TransformedEnv(SumoHighwayEnv("baseline", num_roads=num_samples, seed=1), make_kddrl_transforms())
+@pytest.mark.parametrize("num_roads", [1, 8])
+def test_check_env_specs_sumo(num_roads):
+    env = TransformedEnv(SumoHighwayEnv("baseline", num_roads=num_roads, seed=1), make_kddrl_transforms())
     try:
         check_env_specs(env, seed=None)
         td = env.rollout(10, accelerate, break_when_any_done=False)
@@ -650,10 +650,12 @@ def test_fused_stack_falls_back_to_members():
 
 
 # ------------------------------------------------------------------------ AOT-compiled env calls
+@pytest.mark.usefixtures("no_sumo_open")
 def test_aot_env_calls_match_eager_and_reuse_the_cache(tmp_path, monkeypatch):
     """``compile=True``: the env's step / reset calls run through an AOTInductor package that gives the eager
     values (to float rounding) across partial resets; a second stack with the same settings and weights
-    loads the package from the cache instead of compiling; outputs of one call survive the next."""
+    loads the package from the cache instead of compiling (also on the real SUMO env of the same batch
+    shape); outputs of one call survive the next."""
     import shutil
 
     if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
@@ -674,6 +676,21 @@ def test_aot_env_calls_match_eager_and_reuse_the_cache(tmp_path, monkeypatch):
         torch.testing.assert_close(got[key], ref[key], rtol=1e-4, atol=1e-3, msg=str(key))
         torch.testing.assert_close(got["next", key], ref["next", key], rtol=1e-4, atol=1e-3, msg=str(key))
     frames = next(iter(stack._aot.values()))
+    # the real SUMO env with the same batch shape: the same package, from the cache; the physics priors as
+    # the eager transforms give them on the env's raw observations, the GAN outputs finite and well formed
+    sumo_stack = make_kddrl_transforms(seed=1, compile=True)
+    sumo = TransformedEnv(SumoHighwayEnv("baseline", num_roads=3, seed=1), sumo_stack)
+    try:
+        check_env_specs(sumo, seed=None)
+        roll = sumo.rollout(30, accelerate, break_when_any_done=False)
+    finally:
+        sumo.close()
+    assert [f.source for f in sumo_stack._aot.values()] == ["cache"]
+    assert_derived(roll)
+    assert_derived(roll["next"])
+    physics = Compose(IDMPrior(), MOBILPrior())(strip(roll)["next"].clone())
+    for key in (K.PRED_PRIOR_TRAJ, K.PRIOR_P_MOBIL):
+        torch.testing.assert_close(roll["next", key], physics[key], rtol=1e-4, atol=1e-3, msg=str(key))
     out = stack._step(None, got[:, 0]["next"].clone())
     first = {k: out.get(k).clone() for k in DERIVED}
     stack._step(None, got[:, 1]["next"].clone())
