@@ -730,3 +730,18 @@ def test_aot_failure_falls_back(monkeypatch, caplog):
         5, accelerate, break_when_any_done=False)
     for key in DERIVED:
         assert torch.equal(got[key], ref[key]), key
+
+
+def test_compiled_stack_pickles():
+    """A compiled stack (e.g. handed to spawned workers) pickles; its compiled parts are rebuilt and it runs
+    (the noise streams travel with it)."""
+    import pickle
+
+    obs = FakeHighwayEnv(num_roads=2, seed=6).reset()
+    stack = make_kddrl_transforms(seed=2, compile=True, aot=False)
+    copy = pickle.loads(pickle.dumps(stack))
+    assert isinstance(copy, type(stack)) and [type(t) for t in copy] == [type(t) for t in stack]
+    eager = pickle.loads(pickle.dumps(make_kddrl_transforms(seed=2)))
+    out, ref = copy(obs.clone()), eager(obs.clone())
+    for key in DERIVED:
+        torch.testing.assert_close(out[key], ref[key], rtol=1e-4, atol=1e-3, msg=str(key))

@@ -52,6 +52,18 @@ def as_params(cls, value):
     return cls(**{str(k): v for k, v in dict(value).items()})
 
 
+def call_on_root_and_next(call, tensordict: TensorDictBase, in_keys: Sequence[NestedKey]) -> TensorDictBase:
+    """``call`` on ``tensordict`` and, when it has a ``"next"`` holding every key of ``in_keys``, on ``"next"``
+    too (a replay-buffer sample of transitions, any batch shape)."""
+    call(tensordict)
+    nxt = tensordict.get("next", None)
+    if isinstance(nxt, TensorDictBase):
+        keys = nxt.keys(include_nested=True)
+        if all(k in keys for k in in_keys):
+            call(nxt)
+    return tensordict
+
+
 class PredictiveTransform(Transform):
     """Base of the KDDRL observation transforms: reads ``in_keys``, writes ``out_keys`` of one frame.
 
@@ -77,6 +89,13 @@ class PredictiveTransform(Transform):
         #: for a transform wrapping a user's TensorDict module: never compiled)
         self.pure = bool(pure)
         self.compile = resolve_compile(compile)
+        self._frame = maybe_compile(self.frame, self.compile and self.pure)
+
+    def __getstate__(self):  # a compiled function does not pickle: rebuilt on unpickling
+        return {k: v for k, v in super().__getstate__().items() if k != "_frame"}
+
+    def __setstate__(self, state):
+        super().__setstate__(state)
         self._frame = maybe_compile(self.frame, self.compile and self.pure)
 
     # ----------------------------------------------------------------------------- to implement
@@ -122,13 +141,7 @@ class PredictiveTransform(Transform):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Replay-buffer use: transform the root and, if it holds the raw keys, ``"next"`` (any batch shape)."""
-        self._call(tensordict)
-        nxt = tensordict.get("next", None)
-        if isinstance(nxt, TensorDictBase):
-            keys = nxt.keys(include_nested=True)
-            if all(k in keys for k in self.in_keys):
-                self._call(nxt)
-        return tensordict
+        return call_on_root_and_next(self._call, tensordict, self.in_keys)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         batch, device = observation_spec.shape, observation_spec.device

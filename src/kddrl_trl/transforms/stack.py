@@ -26,7 +26,7 @@ from tensordict import TensorDictBase
 from torchrl.envs.transforms import Compose, Transform
 
 from ..compiling import maybe_compile, resolve_compile
-from ._base import PredictiveTransform
+from ._base import PredictiveTransform, call_on_root_and_next
 from .aot import AOTFrames
 
 log = logging.getLogger(__name__)
@@ -56,8 +56,7 @@ class PredictiveStack(Compose):
     def __init__(self, *transforms: Transform, compile: bool | str = False, aot: bool | None = None):
         super().__init__(*transforms)
         self.compile = resolve_compile(compile)
-        pure = all(getattr(t, "pure", False) for t in transforms)
-        self._fused = maybe_compile(self._frames, self.compile and pure)
+        self._fused = maybe_compile(self._frames, self.compile and self._all_pure(transforms))
         #: env calls (step / reset) through an AOTInductor package for the env's batch shape (see ``aot.py``)
         self.aot = self.compile if aot is None else bool(aot)
         self._aot: dict = {}  # input signature -> AOTFrames (or None where AOT compilation failed)
@@ -67,6 +66,10 @@ class PredictiveStack(Compose):
         """The members, when all of them can be fused (else None: run them one by one)."""
         members = list(self.transforms)
         return members if all(isinstance(t, PredictiveTransform) for t in members) else None
+
+    @staticmethod
+    def _all_pure(transforms) -> bool:
+        return all(getattr(t, "pure", False) for t in transforms)
 
     @staticmethod
     def _raw_keys(members) -> list:
@@ -129,19 +132,17 @@ class PredictiveStack(Compose):
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         return self._run(tensordict_reset, env_call=True)
 
-    def __getstate__(self):
-        state = super().__getstate__() if hasattr(super(), "__getstate__") else self.__dict__.copy()
-        return {**state, "_aot": {}}  # loaded packages do not pickle; they are reloaded from the cache
+    def __getstate__(self):  # compiled functions and loaded packages do not pickle: rebuilt / reloaded (cache)
+        return {**{k: v for k, v in super().__getstate__().items() if k != "_fused"}, "_aot": {}}
+
+    def __setstate__(self, state):
+        super().__setstate__(state)
+        self._fused = maybe_compile(self._frames, self.compile and self._all_pure(self.transforms))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Replay-buffer use, as :meth:`PredictiveTransform.forward`: the root and, when it holds the raw keys,
         ``"next"``."""
-        if self._members() is None:
+        members = self._members()
+        if members is None:
             return super().forward(tensordict)
-        self._call(tensordict)
-        nxt = tensordict.get("next", None)
-        if isinstance(nxt, TensorDictBase):
-            keys = nxt.keys(include_nested=True)
-            if all(k in keys for k in self._raw_keys(self._members())):
-                self._call(nxt)
-        return tensordict
+        return call_on_root_and_next(self._call, tensordict, self._raw_keys(members))
