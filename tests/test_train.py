@@ -69,6 +69,7 @@ def test_evaluate_refuses_a_directory_without_a_trained_run(tmp_path):
     cmd = [sys.executable, "-m", "kddrl_trl.evaluate", f"run={tmp_path / 'nothing'}", "progress=false"]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode != 0 and "no config.yaml" in done.stderr
+    assert not (tmp_path / "nothing").exists()  # refused before Hydra made an output folder in it
 
 
 def _latest_episodes(run) -> int:
@@ -103,6 +104,7 @@ def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     summary = json.loads((run / "summary.json").read_text())  # written into the resumed run's directory
+    assert list((tmp_path / "runs").iterdir()) == [run]  # the resumed invocation made no folder of its own
     assert summary["training"]["episodes"] == 8 and summary["run_dir"] == str(run)
     history = (run / "train_episodes.csv").read_text().strip().splitlines()
     assert len(history) == 1 + 8

@@ -85,9 +85,10 @@ def main(cfg: DictConfig) -> dict:
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     kind = cfg.algo.get("kind", "rule" if cfg.algo.name in RULE_BASED else "hierarchical")
+    # hydra.run.dir already is the folder to resume (conf/resolvers.py); found again here by the same rule
     resume_dir = find_resume_dir(cfg.resume, run_dir.parent, f"{cfg.env.scenario}__{cfg.algo.name}__{cfg.seed}__")
     if resume_dir is not None:
-        log.info("resuming %s (this invocation's own directory %s stays empty)", resume_dir, run_dir)
+        log.info("resuming %s", resume_dir)
         run_dir = resume_dir
     seed_everything(cfg.seed)
     logger = make_logger(cfg.logger, run_dir)
