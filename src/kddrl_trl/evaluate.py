@@ -14,6 +14,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed env schema with Hydra)
+from .conf.resolvers import trained_run
 from .envs.factory import highway_config
 from .eval.metrics import format_summary, summarize
 from .io import write_json_atomic, write_text_atomic
@@ -24,10 +25,7 @@ def load_trained_learner(run: Path):
     """(training config, learner with the latest checkpoint's weights) of a training run directory."""
     from .training import latest_checkpoint, load_training_checkpoint, make_learner
 
-    config = run / "config.yaml"
-    if not config.is_file():
-        raise FileNotFoundError(f"run={run}: no config.yaml there (is it a directory made by kddrl_trl.train?)")
-    train_cfg = OmegaConf.load(config)
+    train_cfg = OmegaConf.load(Path(trained_run(run)) / "config.yaml")
     kind = train_cfg.algo.get("kind", "rule")
     if kind != "hierarchical":
         raise ValueError(f"run={run} is algo={train_cfg.algo.name} ({kind}): nothing was trained; evaluate it with "

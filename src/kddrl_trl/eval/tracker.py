@@ -10,8 +10,8 @@ from ..envs.sim import EpisodeStats
 
 class EpisodeTracker:
     """Accumulates, per environment of a batch, the metrics :func:`~kddrl_trl.eval.metrics.summarize` reads
-    (the same fields as ``SumoHighwayEnv.episodes``, through the same :class:`EpisodeStats`) from frame batches ``[B, T]`` of a collector, and
-    returns the episodes that finished in each batch, in the order they finished.
+    (the same fields as ``SumoHighwayEnv.episodes``, through the same :class:`EpisodeStats`) from frame batches
+    ``[B, T]`` of a collector, and returns the episodes that finished in each batch, in the order they finished.
 
     Read under ``"next"`` of each frame: ``EGO_STATE`` speed, ``EGO_ACCEL``, ``LC_STARTED`` (lane changes),
     ``COLLISION``, the two rewards and the done flags. Only needs the raw keys, not SUMO.

@@ -201,6 +201,14 @@ def _generator_from_architecture(arch: Mapping[str, Any]) -> TrajGenerator:
                          [int(h) for h in arch["g_hidden"]])
 
 
+def _refine(gen: TrajGenerator, cond: Tensor, prior: Tensor, z: Tensor) -> Tensor:
+    """Eq. 13 on ``m`` rows: ``prior + G(z, cond)`` for each of the ``k`` noise draws ``z`` ``[k, m, noise_dim]``
+    (``cond`` normalised ``[m, cond_dim]``, ``prior`` ``[m, T]``) -> ``[k, m, T]`` absolute positions."""
+    k, m = z.shape[0], z.shape[1]
+    r = gen(cond.unsqueeze(0).expand(k, m, -1).reshape(k * m, -1), z.reshape(k * m, -1))
+    return prior.unsqueeze(0) + gen.to_metres(r).reshape(k, m, -1)
+
+
 @torch.no_grad()
 def _sample(gen: TrajGenerator, history: Tensor, ahead: Tensor, prior: Tensor, k: int, use_history: bool,
             generator: torch.Generator | None, chunk: int = 0) -> Tensor:
@@ -214,10 +222,7 @@ def _sample(gen: TrajGenerator, history: Tensor, ahead: Tensor, prior: Tensor, k
     step = chunk if chunk > 0 else max(n, 1)
     for s in range(0, n, step):
         sl = slice(s, s + step)
-        c = cond[sl]
-        m = c.shape[0]
-        r = gen(c.unsqueeze(0).expand(k, m, -1).reshape(k * m, -1), z[:, sl].reshape(k * m, -1))
-        out[sl] = (prior[sl].unsqueeze(0) + gen.to_metres(r).reshape(k, m, -1)).transpose(0, 1)
+        out[sl] = _refine(gen, cond[sl], prior[sl], z[:, sl]).transpose(0, 1)
     return out
 
 
@@ -506,10 +511,7 @@ class TrajGANPredictor(TensorDictModuleBase):
         hist = torch.where(present[:, None, None], hist, zero)
         ahead = torch.where(present[:, None], ahead, zero)
         p = torch.where(present[:, None], prior, zero)
-        cond = self.net.normalize(condition_features(hist, ahead, p, self.use_history))
-        k, n = z.shape[0], z.shape[1]
-        r = self.net(cond.unsqueeze(0).expand(k, n, -1).reshape(k * n, -1), z.reshape(k * n, -1))
-        s = p.unsqueeze(0) + self.net.to_metres(r).reshape(k, n, -1)
+        s = _refine(self.net, self.net.normalize(condition_features(hist, ahead, p, self.use_history)), p, z)
         s = s.mean(0) if self.reduce == "mean" else s[0]
         return torch.where(present.unsqueeze(-1), s, base)
 

@@ -34,10 +34,8 @@ class DuelingQNet(nn.Module):
             self.q = mlp(in_features, num_actions, hidden)
             return
         torso = hidden[:-1]
-        self.torso = mlp(in_features, torso[-1], torso[:-1]) if torso else nn.Identity()
+        self.torso = nn.Sequential(mlp(in_features, torso[-1], torso[:-1]), nn.ReLU()) if torso else nn.Identity()
         width = torso[-1] if torso else in_features
-        if torso:
-            self.torso = nn.Sequential(self.torso, nn.ReLU())
         self.value = mlp(width, 1, hidden[-1:])
         self.advantage = mlp(width, num_actions, hidden[-1:])
 

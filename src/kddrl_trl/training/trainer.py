@@ -100,6 +100,11 @@ class Trainer:
     def checkpoint(self) -> Path:
         return save_training_checkpoint(self.run_dir, len(self.history), self.state())
 
+    def _next_checkpoint(self) -> int:
+        """Episode count at which the next checkpoint is due (the next multiple of ``checkpoint_every``)."""
+        every = int(self.cfg["checkpoint_every"])
+        return (len(self.history) // every + 1) * every
+
     # ------------------------------------------------------------------------------------ loop
     def _record(self, out: dict[str, float], losses: dict[str, list[float]]) -> None:
         for k, v in out.items():
@@ -146,7 +151,7 @@ class Trainer:
         self.collector = MultiTimescaleCollector.from_env(
             env, learner.policy(explore=True), frames_per_env=int(c["frames_per_env"]),
             frame_buffer=self.buffer_cf, macro_buffer=self.buffer_lc, frame_keys=learner.buffer_keys())
-        next_ckpt = (len(self.history) // int(c["checkpoint_every"]) + 1) * int(c["checkpoint_every"])
+        next_ckpt = self._next_checkpoint()
         recent: deque = deque(maxlen=50)
         recent.extend(self.history[-50:])
         bar = tqdm(total=target, initial=min(len(self.history), target), desc="train", unit="ep",
@@ -177,7 +182,7 @@ class Trainer:
                     self.counters["elapsed_s"] += time.perf_counter() - started
                     started = time.perf_counter()
                     self.checkpoint()
-                    next_ckpt = (len(self.history) // int(c["checkpoint_every"]) + 1) * int(c["checkpoint_every"])
+                    next_ckpt = self._next_checkpoint()
                 if len(self.history) >= target:
                     break
         finally:

@@ -107,7 +107,7 @@ class AOTFrames:
                  noises: Sequence[Tensor | None]):
         self.keys = list(values)
         self.noise_slots = [i for i, z in enumerate(noises) if z is not None]
-        self.out_keys = list(frames(list(members), dict(values), list(noises)))  # order of the outputs
+        self.out_keys = list(dict.fromkeys(k for t in members for k in t.out_keys))  # order of the outputs
         examples = [*values.values(), *(noises[i] for i in self.noise_slots)]
         self.path = self._path(members, examples)
         if self.path.exists():

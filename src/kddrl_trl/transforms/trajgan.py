@@ -37,7 +37,9 @@ class TrajGANPrediction(PredictiveTransform):
         num_samples, reduce, seed: noise options of the default predictor (see above).
         device: device of the default predictor (inputs are moved there and outputs back).
         key_steps: 1-based key steps of Eq. 24.
-        compile: ``torch.compile`` the default predictor's inference (``True`` / ``False`` / ``"auto"``).
+        compile: ``torch.compile`` this transform's :meth:`frame` when it is called on its own (``True`` /
+            ``False`` / ``"auto"``; a user's predictor module is never compiled). In a
+            :class:`~kddrl_trl.transforms.PredictiveStack` the stack's own ``compile`` applies.
     """
 
     def __init__(self, predictor: TensorDictModuleBase | None = None, *, checkpoint: str | Path | None = None,
