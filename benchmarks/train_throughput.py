@@ -3,16 +3,20 @@
 (a) ``update``: the learner's cost per collected frame — one TD3 update (critic every update; actor and
     soft target updates every ``policy_delay``) plus 1/``lc_period`` of a D3QN update (one per decision) —
     of :class:`kddrl_trl.training.HierarchicalLearner` (TorchRL ``TD3Loss`` / ``DQNLoss`` / ``SoftUpdate``,
-    TensorDict states, shared embedding), eager and compiled, against a **plain-PyTorch reference** with the
-    *same* network modules (deep copies), the same batch tensors and the same arithmetic (double-DQN target
-    with masked argmax, twin critics with clipped target smoothing, delayed actor on detached s_e, Polyak
-    updates of every target incl. the embedding's). ``update_ratio_vs_plain`` = plain time / ours (>= 1.0:
-    TorchRL costs nothing extra). Replay sampling is outside the timed part for both.
+    TensorDict states, shared embedding), eager and compiled (``compile=True``: the learner's one compile
+    site, :meth:`HierarchicalLearner.loss`), against a **plain-PyTorch reference** with the *same* network
+    modules (deep copies), the same batch tensors and the same arithmetic (double-DQN target with masked
+    argmax, twin critics with clipped target smoothing, delayed actor on detached s_e, Polyak updates of
+    every target incl. the embedding's). ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs
+    nothing extra). Replay sampling is outside the timed part for both.
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
-    ``conf/algo/kddrl.yaml``, i.e. compiled when a C++ compiler is found) + DecisionClock + both exploring
-    policies through :class:`kddrl_trl.collectors.MultiTimescaleCollector` (writing both replay buffers),
-    against the libsumo limit of ``benchmarks/env_throughput.py`` (a) measured in the same run at the same K.
-    ``collect_ratio_vs_sim`` (goal >= 0.5).
+    ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is
+    found) + DecisionClock + both exploring policies through
+    :class:`kddrl_trl.collectors.MultiTimescaleCollector` (writing both replay buffers), against the libsumo
+    limit of ``benchmarks/env_throughput.py`` (a) measured in the same run at the same K.
+    ``collect_ratio_vs_sim`` (goal >= 0.5). With (a), per K: ``learner_compile_gain`` = the share of the
+    training wall time (collection + updates per ego-frame, eager learner) that compiling the learner saves
+    (a compile site is kept only where it earns >= 5 %).
 (c) ``train_1000_episodes_s``: read from a finished run's ``summary.json`` (``--full-run RUN_DIR``), the
     training wall time of ``python -m kddrl_trl.train`` (1000 episodes, baseline) — goal <= 900 s.
 
@@ -48,7 +52,7 @@ from kddrl_trl.transforms import make_kddrl_transforms  # noqa: E402
 CONF = Path(__file__).resolve().parents[1] / "src" / "kddrl_trl" / "conf" / "algo" / "kddrl.yaml"
 
 
-def learner_kwargs(compile: bool) -> tuple[dict, int]:
+def learner_kwargs(compile: bool | str) -> tuple[dict, int]:
     """The learner options of ``conf/algo/kddrl.yaml`` (with ``compile`` set) and its ``lc_period``."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)
     return {**cfg["learner"], "compile": compile}, int(cfg["lc_period"])
@@ -61,10 +65,11 @@ def batch_sizes() -> tuple[int, int]:
 
 
 def transform_kwargs() -> dict:
-    """The transform options of ``conf/algo/kddrl.yaml`` (as training builds the stack)."""
+    """The transform options of ``conf/algo/kddrl.yaml`` with the ``compile`` of conf/config.yaml (as training
+    builds the stack)."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)["transforms"]
     cfg.pop("enabled", None)
-    return cfg
+    return {**cfg, "compile": OmegaConf.load(CONF.parents[1] / "config.yaml")["compile"]}
 
 
 # ------------------------------------------------------------------------------------ plain reference
@@ -206,28 +211,35 @@ def time_updates(update_cf, update_lc, cf_batches, lc_batches, lc_period: int) -
 
 
 def measure_update(updates: int, seed: int, repeats: int) -> dict:
+    """The three arms (plain reference, eager learner, compiled learner) on the same batches, taking turns
+    ``repeats`` times (the drifts of a shared machine hit all alike); medians over the turns."""
     torch.manual_seed(seed)
     kw, lc_period = learner_kwargs(False)
     probe = HierarchicalLearner(**kw)
     rb_cf, rb_lc = sample_batches(4000, seed, probe.buffer_keys())
     cf_batches = [rb_cf.sample() for _ in range(updates)]
     lc_batches = [rb_lc.sample() for _ in range(max(updates // 4, 20))]
-    rows = {}
+    arms = {}
     for name in ("plain", "eager", "compiled"):
         learner = HierarchicalLearner(**learner_kwargs(name == "compiled")[0])
         if name == "plain":
             ref = PlainKDDRL(learner)
-            cf_t = [tensors(b) for b in cf_batches]
-            lc_t = [tensors(b) for b in lc_batches]
-            fns = (lambda b: ref.update_cf(*b), lambda b: ref.update_lc(*b), cf_t, lc_t)
+            arms[name] = (lambda b: ref.update_cf(*b), lambda b: ref.update_lc(*b),
+                          [tensors(b) for b in cf_batches], [tensors(b) for b in lc_batches])
         else:
-            fns = (learner.update_cf, learner.update_lc, cf_batches, lc_batches)
-        t0 = time.perf_counter()
-        runs = [time_updates(*fns, lc_period) for _ in range(repeats)]
-        rows[name] = {"td3_update_s": statistics.median(r[0] for r in runs),
-                      "d3qn_update_s": statistics.median(r[1] for r in runs),
-                      "per_frame_s": statistics.median(r[2] for r in runs),
-                      "wall_s_incl_compile": time.perf_counter() - t0}
+            arms[name] = (learner.update_cf, learner.update_lc, cf_batches, lc_batches)
+    runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
+    for _ in range(repeats):
+        for name, fns in arms.items():
+            t0 = time.perf_counter()
+            runs[name].append(time_updates(*fns, lc_period))
+            wall[name] += time.perf_counter() - t0
+    rows = {}
+    for name in arms:
+        rows[name] = {"td3_update_s": statistics.median(r[0] for r in runs[name]),
+                      "d3qn_update_s": statistics.median(r[1] for r in runs[name]),
+                      "per_frame_s": statistics.median(r[2] for r in runs[name]),
+                      "wall_s_incl_compile": wall[name]}
         print(f"  update {name}: {1 / rows[name]['td3_update_s']:.0f} TD3 updates/s, "
               f"{1 / rows[name]['d3qn_update_s']:.0f} D3QN updates/s", flush=True)
     return {"lc_period": lc_period, "batch_size_cf": int(cf_batches[0].numel()),
@@ -257,6 +269,13 @@ def measure_collect(k: int, frames: int, seed: int) -> dict:
     return {"num_roads": k, "sim_limit_fps": sim_fps, "collect_fps": fps, "collect_ratio_vs_sim": fps / sim_fps}
 
 
+def learner_compile_gain(update: dict, collect_fps: float) -> float:
+    """Share of the training wall time per ego-frame (collection + the eager learner's updates) that the
+    compiled learner saves."""
+    eager, compiled = update["eager"]["per_frame_s"], update["compiled"]["per_frame_s"]
+    return (eager - compiled) / (1.0 / collect_fps + eager)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--roads", type=int, nargs="+", default=[8, 32])
@@ -270,6 +289,8 @@ def main(argv=None) -> int:
 
     update = measure_update(args.updates, args.seed, args.repeats)
     collect = [measure_collect(k, args.frames, args.seed) for k in args.roads]
+    for c in collect:
+        c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "update": update,
               "collect": collect,
               "update_ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"],
@@ -287,10 +308,11 @@ def main(argv=None) -> int:
         r = update[name]
         print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}{1e3 * r['per_frame_s']:>14.2f}"
               f"{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")
-    print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}{'ratio':>8}")
+    print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}{'ratio':>8}"
+          f"{'compiled learner saves':>24}")
     for c in collect:
         print(f"{'':<38}{c['num_roads']:>3}{c['sim_limit_fps']:>15.0f}{c['collect_fps']:>13.0f}"
-              f"{c['collect_ratio_vs_sim']:>8.2f}")
+              f"{c['collect_ratio_vs_sim']:>8.2f}{100 * c['learner_compile_gain']:>17.1f}% of wall")
     if "train_1000_episodes_s" in result:
         print(f"\nfull training run: {result['train_1000_episodes_s']:.0f} s for {result['full_run']['episodes']} "
               f"episodes ({result['full_run']['frames']} frames)")

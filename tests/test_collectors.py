@@ -231,14 +231,22 @@ def test_collector_fills_both_buffers_with_consistent_macro_steps():
         assert n == period or m["next", "done"].item()
 
 
-def test_sumo_training_env_specs():
-    pytest.importorskip("libsumo")
+def compose_job(*overrides: str):
+    """The typed ``train.py`` job of the package's config with ``overrides``."""
+    from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
-    from kddrl_trl.training import make_training_env
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))
 
-    algo = OmegaConf.create({"lc_period": 20, "transforms": {"enabled": True, "compile": False}})
-    env = make_training_env({"num_roads": 2, "scenario": "baseline"}, algo, seed=0)
+
+def test_sumo_training_env_specs():
+    pytest.importorskip("libsumo")
+    from kddrl_trl.factories import make_env
+
+    job = compose_job("env.num_roads=2")
+    assert job.algo.lc_period == 20 and job.algo.transforms.enabled
+    env = make_env(job.env, job.algo, seed=0, compile=False)
     try:
         check_env_specs(env)
         td = env.reset()

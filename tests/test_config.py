@@ -46,3 +46,11 @@ def test_scenarios_and_overrides():
     cfg = make_config("congested", {"flow_vph": 2658.0, "braking": {"stand_time": 5.0}})
     assert cfg.flow == pytest.approx(1.5 * 2658) and cfg.braking.stand_time == 5.0 and cfg.scenario == "congested"
     assert make_config(overrides={"scenario": "braking"}).scenario == "braking"
+
+
+def test_a_ready_config_is_not_given_its_scenario_preset_again():
+    cfg = make_config("braking")
+    cfg.braking.enabled, cfg.braking.stand_time = False, 9.0  # e.g. set on the composed Hydra env node
+    again = make_config(cfg, {"flow_vph": 2000.0})
+    assert again.scenario == "braking" and not again.braking.enabled and again.braking.stand_time == 9.0
+    assert again.flow_vph == 2000.0

@@ -16,6 +16,7 @@ from kddrl_trl import keys as K
 from kddrl_trl.baselines import IDMMobilPolicy, RandomDrivingPolicy
 from kddrl_trl.envs import SumoHighwayEnv, make_config
 from kddrl_trl.envs.sim import HighwaySim
+from kddrl_trl.eval import EpisodeTracker
 
 pytestmark = pytest.mark.usefixtures("no_sumo_open")
 
@@ -71,9 +72,10 @@ def test_driving_into_the_leader_collides():
     env = SumoHighwayEnv("congested", num_roads=8, seed=0)
     try:
         td = env.reset()
-        hits = []
+        hits, frames = [], []
         for _ in range(400):
             full, td = env.step_and_maybe_reset(td.update(command(env, K.KEEP, 5.0)))
+            frames.append(full)
             hit = full["next", "collision"].squeeze(-1)
             if hit.any():
                 hits.append(full[hit])
@@ -81,9 +83,12 @@ def test_driving_into_the_leader_collides():
         for frame in hits:
             assert frame["next", "terminated"].all() and frame["next", "done"].all()
             assert (frame["next", "lc", "reward"] <= -99).all() and (frame["next", "cf", "reward"] <= -99).all()
-        collided = [e for e in env.episodes if e["collision"]]
+            assert (frame["next", K.OUTCOME] == K.COLLIDED).all()
+            assert (frame["next", K.COLLISION_KIND] == K.REAR_END).all()  # no lane change: into the leader
+        collided = [e for e in EpisodeTracker()(torch.stack(frames, 1)) if e["collision"]]
         assert len(collided) == env.stats["collisions"] == sum(len(h) for h in hits)
-        assert all(e["outcome"] == "collision" for e in collided)
+        assert all(e["outcome"] == "collision" and e["collision_kind"] == "rear_end" for e in collided)
+        assert all(e["collision_with"] == "b" for e in collided)  # the current leader
     finally:
         env.close()
 
@@ -109,6 +114,8 @@ def test_unsafe_lane_change_into_occupied_gap_collides():
             td = env.step(step_mdp(td).update(command(env, K.KEEP, 0.0)))
             collided = bool(td["next", "collision"].item())
         assert collided and env.stats["collisions"] == 1
+        assert td["next", K.COLLISION_KIND].item() == K.SIDE_CONTACT
+        assert K.NEIGHBOR_SLOTS[td["next", K.COLLISION_SLOT].item()] in ("a", "d")  # the car on the left
     finally:
         env.close()
 
@@ -119,13 +126,14 @@ def test_lane_change_lasts_20_frames_and_masks_commands():
         td = env.reset()
         assert env.stats["insert_steps"] > 0  # an empty road needs an inserted ego
         assert td[K.LC_ACTION_MASK].tolist() == [[True, True, True]]
-        obs, active, lanes, vx = td, [], [], []
+        obs, active, lanes, vx, started = td, [], [], [], 0
         for k in range(26):  # LEFT commanded at the first frame and then held: ignored once started
             if k > 0:
                 expected = [False, True, False] if obs[K.LC_ACTIVE].item() else [False, True, True]
                 assert obs[K.LC_ACTION_MASK][0].tolist() == expected
             full = env.step(obs.update(command(env, K.LEFT)))
             assert full["next", "lc", "started"].item() == (k == 0)
+            started += int(full["next", "lc", "started"].item())
             obs = step_mdp(full)
             active.append(obs[K.LC_ACTIVE].item())
             lanes.append(obs[K.EGO_LANE].item())
@@ -135,7 +143,7 @@ def test_lane_change_lasts_20_frames_and_masks_commands():
         assert vx[:20] == pytest.approx([3.2 / 2.0] * 20) and vx[20:] == [0.0] * 6
         assert active == [True] * 19 + [False] * 7
         assert lanes[0] == 1 and lanes[-1] == 2
-        assert env.sim.episode[0].lane_changes == 1  # the held command did not start a second manoeuvre
+        assert started == 1  # the held command did not start a second manoeuvre
     finally:
         env.close()
 
@@ -162,8 +170,7 @@ def test_speed_follows_commanded_acceleration():
 def test_braking_event_distance_and_durations():
     env = SumoHighwayEnv("braking", num_roads=8, seed=0)
     try:
-        rollout(env, IDMMobilPolicy(), 400)
-        eps = env.episodes
+        eps = EpisodeTracker()(torch.stack(rollout(env, IDMMobilPolicy(), 400), 1))
         assert len(eps) >= 8
         assert env.stats["braking_missed"] == 0
         for e in eps:
@@ -218,8 +225,8 @@ def _observations(seed, road2_random):
                 td[2:3] = wild
             return td
 
-        steps = rollout(env, policy, 250)
-        return torch.stack([s["next"].exclude("lc", "cf") for s in steps], 1), list(env.episodes)
+        steps = torch.stack(rollout(env, policy, 250), 1)
+        return steps["next"].exclude("lc", "cf"), EpisodeTracker()(steps)
     finally:
         env.close()
 
@@ -229,7 +236,11 @@ def test_roads_never_interact_and_seeds_reproduce():
     wild, wild_eps = _observations(0, road2_random=True)
     # roads 0 and 1 are bit-identical whatever road 2 does
     assert (calm[:2] == wild[:2]).all()
-    assert [e for e in calm_eps if e["road"] < 2] == [e for e in wild_eps if e["road"] < 2]
+    # (``start`` numbers episodes in start order, as the old ``index`` did; ``index`` counts finishes on all roads)
+    def mine(eps):
+        return [{k: v for k, v in e.items() if k != "index"} for e in eps if e["road"] < 2]
+
+    assert mine(calm_eps) == mine(wild_eps)
     assert not (calm[2] == wild[2]).all()
     again, _ = _observations(0, road2_random=False)
     assert (again == calm).all()  # same seed, same rollout
@@ -242,14 +253,18 @@ def test_sumo_error_on_one_road_truncates_only_that_road(caplog):
     try:
         td = env.reset()
         policy = IDMMobilPolicy()
+        frames = []
         for _ in range(3):
-            _, td = env.step_and_maybe_reset(policy(td))
+            full, td = env.step_and_maybe_reset(policy(td))
+            frames.append(full)
         libsumo.vehicle.remove(env.sim.ego[1])
         with caplog.at_level(logging.WARNING):
             full, td = env.step_and_maybe_reset(policy(td))
+        frames.append(full)
         assert full["next", "truncated"][1].item() and not full["next", "terminated"][1].item()
         assert env.stats["sumo_errors"] == 1 and "lost ego" in caplog.text
-        assert env.episodes[-1]["outcome"] == "lost" and env.episodes[-1]["road"] == 1
+        episodes = EpisodeTracker()(torch.stack(frames, 1))
+        assert episodes[-1]["outcome"] == "lost" and episodes[-1]["road"] == 1
         for _ in range(50):  # everything runs on, road 1 with a new ego
             full, td = env.step_and_maybe_reset(policy(td))
         assert env.sim.ego[1] is not None and env.stats["sumo_errors"] == 1

@@ -45,6 +45,15 @@ def test_shipped_weights_load_and_match_their_declared_shapes(kind):
     assert read_checkpoint(path)["architecture"]
 
 
+def test_rl_runtime_does_not_import_the_data_layer():
+    """The transforms, the generative models and the modules load without ``kddrl_trl.data`` (and pandas)."""
+    code = ("import sys; import kddrl_trl.transforms, kddrl_trl.generative, kddrl_trl.modules; "
+            "print(sorted(m for m in sys.modules if m.startswith('kddrl_trl.data') or m.split('.')[0] == 'pandas'))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]", done.stdout
+
+
 def run(module, args, cwd):
     return subprocess.run([sys.executable, "-m", module, "progress=false", *args], cwd=cwd, capture_output=True,
                           text=True, timeout=600)

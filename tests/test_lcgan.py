@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDict
 
 from kddrl_trl import keys as K
+from kddrl_trl.gan_inputs import lane_change_condition
 from kddrl_trl.generative.checkpoint import CheckpointError, load_checkpoint
 from kddrl_trl.generative.lcgan import (
     LCGANConfig,
@@ -242,10 +243,22 @@ def test_predictor_matches_task_on_samples(data):
         K.PRED_KEY_GAPS: s["key_gaps"]}, batch_size=[n])
     pred = LCGANPredictor.from_task(task, draws=1)
     c_task, a_task = task._condition(s)
-    mask_obs = obs[K.NEIGHBORS_MASK]
-    c_pred, a_pred = pred.net.condition(torch.stack([obs[K.EGO_STATE][:, 1], obs[K.EGO_STATE][:, 2],
-                                                     obs[K.EGO_LANE][:, 0].float()], -1),
-                                        obs[K.NEIGHBORS_REL], mask_obs, obs[K.PRED_KEY_GAPS], mask_obs[:, :3], 3)
+    fields = lane_change_condition(obs[K.EGO_STATE][:, 1], obs[K.EGO_STATE][:, 2], obs[K.EGO_LANE][:, 0],
+                                   obs[K.NEIGHBORS_REL], obs[K.NEIGHBORS_MASK], obs[K.PRED_KEY_GAPS])
+    c_pred, a_pred = pred.net.condition(**fields, num_lanes=3)
     assert torch.allclose(c_task, c_pred) and torch.equal(a_task, a_pred)
     p = pred(obs)[K.PRIOR_P_LCGAN]
     assert torch.allclose(p.sum(-1), torch.ones(n), atol=1e-6)
+
+
+def test_condition_marks_unknown_key_gaps_absent():
+    """One condition for the training samples and RL time: a leader's key gaps count where the leader is present
+    and both gaps are finite (a track ending before step 20 gives NaN gaps at extraction)."""
+    mask = torch.tensor([[True, True, False, True, False, False]])
+    gaps = torch.tensor([[[10.0, 20.0], [float("nan"), 5.0], [1.0, 2.0]]])
+    rel = torch.where(mask.unsqueeze(-1), 1.0, float("nan")).expand(1, 6, 4)  # garbage where absent
+    f = lane_change_condition(torch.tensor([25.0]), torch.tensor([0.5]), torch.tensor([1]), rel, mask, gaps)
+    assert f["key_gaps_mask"].tolist() == [[True, False, False]] and torch.equal(f["mask"], mask)
+    assert f["key_gaps"].tolist() == [[[10.0, 20.0], [0.0, 0.0], [0.0, 0.0]]]
+    assert torch.equal(f["rel"], mask.unsqueeze(-1).float().expand(1, 6, 4))
+    assert f["s_av"].tolist() == [[25.0, 0.5, 1.0]]

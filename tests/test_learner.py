@@ -105,11 +105,11 @@ def test_d3qn_update_moves_q_and_embedding_not_td3(batches):
 def test_actor_loss_never_reaches_the_embedding(batches):
     frames, _ = batches
     learner = HierarchicalLearner(**SMALL)
-    learner._cf_actor_loss_impl(frames).backward()
+    learner.loss("cf_actor", frames).backward()
     assert all(p.grad is None for p in learner.embedding.parameters())
     assert any(p.grad is not None for p in learner.cf_loss.actor_network_params.values(True, True))
     learner.zero_grad()
-    learner._cf_value_loss_impl(frames).backward()
+    learner.loss("cf_value", frames).backward()
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in learner.embedding.parameters())
     assert all(p.grad is None for p in learner.target_embedding.parameters())
 

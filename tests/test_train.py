@@ -35,8 +35,7 @@ def test_rule_based_algo_runs_as_typed_from_any_directory(tmp_path):
 
 #: a tiny, fast KDDRL budget: 2 roads, small networks, no compiling, updates from the first batches
 TINY = ["env.num_roads=2", "progress=false", "train.warmup_frames=50", "train.batch_size_cf=32",
-        "train.batch_size_lc=8", "algo.learner.compile=false", "algo.transforms.compile=false",
-        "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]"]
+        "train.batch_size_lc=8", "compile=false", "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]"]
 
 
 def test_kddrl_trains_end_to_end_as_typed(tmp_path):
@@ -139,32 +138,47 @@ def test_summary_statistics_by_hand():
     assert s["outcomes"] == {"left_section": 1, "collision": 1}
 
 
+def compose_job(*overrides: str):
+    """The typed ``train.py`` job (:class:`kddrl_trl.conf.schema.TrainJob`) of the package's config."""
+    from omegaconf import OmegaConf
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))
+
+
+def fake_trainer(job, tmp_path, **train):
+    """(env, learner, trainer, collector) of ``job`` on the fake env, with ``train`` overrides, as train.py wires
+    them."""
+    from dataclasses import replace
+
+    from kddrl_trl.conf.schema import LoggerConfig
+    from kddrl_trl.factories import make_buffers, make_collector, make_env, make_learner, make_logger
+    from kddrl_trl.training import Trainer
+
+    env = make_env(job.env, job.algo, seed=0, compile=False, fake=True)
+    learner = make_learner(job.algo, compile=False)
+    train_cfg = replace(job.train, **train)
+    buffers = make_buffers(train_cfg, seed=0)
+    trainer = Trainer(learner, buffers, train_cfg, tmp_path, make_logger(LoggerConfig(csv=True, tensorboard=False),
+                                                                         tmp_path), episodes=3, progress=False)
+    return env, learner, trainer, make_collector(env, learner, buffers, train_cfg)
+
+
 @pytest.mark.parametrize("algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni"])
 def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_path):
     """Each comparison system is a configuration of the same pipeline: compose it, build env + learner, train
     a few episodes on the fake env (fast; the SUMO path is covered by the subprocess tests)."""
-    from kddrl_trl.loggers import make_logger
-    from kddrl_trl.training import Trainer, make_learner, make_training_env
-
-    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[f"algo={algo}", "env.num_roads=2",
-                                                         "algo.learner.compile=false",
-                                                         "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]"])
-    assert cfg.algo.name == algo and cfg.algo.kind == "hierarchical"
-    if cfg.algo.transforms.get("compile") is not None:
-        cfg.algo.transforms.compile = False
-    env = make_training_env(cfg.env, cfg.algo, seed=0, fake=True)
-    learner = make_learner(cfg.algo)
+    job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]",
+                      "algo.learner.td3.hidden=[16]")
+    assert job.algo.name == algo and job.algo.kind == "hierarchical"
+    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
+                                                    batch_size_lc=4, frames_per_env=10)
     assert (learner.embedding is None) == (algo in ("d3qn_td3", "ni"))
     assert learner.d3qn.actor.module[0].module.dueling == (algo != "ni")
-    train = {**dict(cfg.train), "episodes": 3, "warmup_frames": 20, "batch_size_cf": 16, "batch_size_lc": 4,
-             "frames_per_env": 10}
-    trainer = Trainer(learner, train, tmp_path, make_logger({"csv": True, "tensorboard": False}, tmp_path),
-                      progress=False)
-    history = trainer.run(env)
+    history = trainer.run(collector)
     env.close()
     assert len(history) == 3 and trainer.counters["cf_updates"] > 0
-    period = cfg.algo.lc_period
+    period = job.algo.lc_period
     # every episode decides on its first frame and then every lc_period frames: ceil(n / period) per stretch
     assert trainer.counters["frames"] / period <= trainer.counters["decisions"] <= trainer.counters["frames"]
     if period == 1:
@@ -172,18 +186,65 @@ def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_
 
 
 def test_a_diverging_loss_stops_training_with_a_clear_error(tmp_path):
-    from kddrl_trl.loggers import make_logger
-    from kddrl_trl.training import Trainer, make_learner, make_training_env
-
-    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["env.num_roads=2", "algo.learner.compile=false",
-                                                         "algo.transforms.compile=false"])
-    env = make_training_env(cfg.env, cfg.algo, seed=0, fake=True)
-    learner = make_learner(cfg.algo)
+    job = compose_job("env.num_roads=2", "compile=false")
+    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=10, batch_size_cf=8,
+                                                    frames_per_env=10)
     learner.update_cf = lambda batch: {"loss_qvalue": float("nan")}
-    train = {**dict(cfg.train), "episodes": 3, "warmup_frames": 10, "batch_size_cf": 8, "frames_per_env": 10}
-    trainer = Trainer(learner, train, tmp_path, make_logger({"csv": True, "tensorboard": False}, tmp_path),
-                      progress=False)
     with pytest.raises(FloatingPointError, match="loss_qvalue = nan.*diverged"):
-        trainer.run(env)
+        trainer.run(collector)
     env.close()
+
+
+@pytest.mark.parametrize("override, key", [
+    ("train.batch_size_cf=abc", "train.batch_size_cf"),
+    ("train.batch_sise_cf=1", "train.batch_sise_cf"),
+    ("algo.learner.d3qn.lrr=1", "algo.learner.d3qn.lrr"),
+    ("algo.learner.td3.policy_delay=2.5", "algo.learner.td3.policy_delay"),
+    ("algo.lc_period=often", "algo.lc_period"),
+    ("algo.idm.T=slow", "algo.idm.T"),
+])
+def test_a_typo_or_wrong_type_in_algo_or_train_is_refused_naming_the_key(override, key):
+    from hydra.errors import ConfigCompositionException
+
+    algo = ["algo=idm_mobil"] if key.startswith("algo.idm") else []
+    with pytest.raises(ConfigCompositionException) as err:
+        compose_job(*algo, override)
+    message = f"{err.value}\n{err.value.__cause__}"
+    assert key in message, message
+
+
+@pytest.mark.parametrize("override, match", [
+    ("train.batch_size_cf=0", "train.batch_size_cf must be >= 1, got 0"),
+    ("train.checkpoint_every=-1", "train.checkpoint_every must be >= 1"),
+    ("train.warmup_frames=-5", "train.warmup_frames must be >= 0"),
+    ("episodes=0", "episodes must be >= 1"),
+    ("algo.lc_period=0", "algo.lc_period must be >= 1"),
+    ("compile=sometimes", "compile must be true, false or auto"),
+])
+def test_out_of_range_values_are_refused_by_the_schema(override, match):
+    with pytest.raises(ValueError, match=match):
+        compose_job(override)
+
+
+def test_a_bad_algo_or_train_value_is_refused_before_any_simulator_starts(tmp_path):
+    for override in ("train.batch_size_cf=abc", "algo.learner.d3qn.lrr=1", "train.batch_size_cf=0"):
+        cmd = [sys.executable, "-m", "kddrl_trl.train", override, "episodes=1", "progress=false"]
+        done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert done.returncode != 0 and override.split("=")[0] in done.stderr, done.stderr
+        assert "SUMO" not in done.stdout + done.stderr and not list(tmp_path.glob("runs/*/checkpoints"))
+
+
+def test_evaluate_does_not_import_the_training_entry_point():
+    code = "import sys, kddrl_trl.evaluate; print('kddrl_trl.train' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "False", done.stderr
+
+
+def test_scenarios_are_the_same_presets_through_hydra_and_python():
+    from dataclasses import asdict
+
+    from kddrl_trl.envs import make_config, scenario_names
+
+    for name in scenario_names():
+        job = compose_job(f"+scenario={name}")
+        assert asdict(job.env.highway()) == asdict(make_config(name))

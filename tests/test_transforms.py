@@ -590,7 +590,7 @@ def test_compiled_stack_matches_eager_stack():
     compiled = make_kddrl_transforms(seed=4, compile=True)(td.clone())
     for key in (K.PRED_PRIOR_TRAJ, K.PRED_TRAJ, K.PRED_KEY_GAPS, K.PRIOR_P_MOBIL, K.PRIOR_P_LCGAN):
         torch.testing.assert_close(compiled[key], eager[key], rtol=1e-4, atol=1e-3, msg=str(key))
-    # each member compiled on its own (a member used outside the stack) gives the same values too
+    # a member used on its own, outside the stack (eager: only the stack compiles), gives the same values too
     member = make_kddrl_transforms(seed=4, compile=True)[1]
     one = member(IDMPrior()(td.clone()))
     torch.testing.assert_close(one[K.PRED_TRAJ], eager[K.PRED_TRAJ], rtol=1e-4, atol=1e-3)
@@ -649,96 +649,13 @@ def test_fused_stack_falls_back_to_members():
         make_kddrl_transforms()(obs.exclude(K.LEADERS_HISTORY))
 
 
-# ------------------------------------------------------------------------ AOT-compiled env calls
-@pytest.mark.usefixtures("no_sumo_open")
-def test_aot_env_calls_match_eager_and_reuse_the_cache(tmp_path, monkeypatch):
-    """``compile=True``: the env's step / reset calls run through an AOTInductor package that gives the eager
-    values (to float rounding) across partial resets; a second stack with the same settings and weights
-    loads the package from the cache instead of compiling (also on the real SUMO env of the same batch
-    shape); outputs of one call survive the next."""
-    import shutil
-
-    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
-        pytest.skip("AOTInductor needs a C++ compiler on a CPU machine")
-    monkeypatch.setenv("KDDRL_TRL_CACHE", str(tmp_path))
-    sources = []
-    for _ in range(2):
-        stack = make_kddrl_transforms(seed=1, compile=True)
-        env = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=2), stack)
-        got = env.rollout(40, accelerate, break_when_any_done=False)
-        sources.append(sorted({f.source for f in stack._aot.values()}))
-    assert sources == [["compiled"], ["cache"]]
-    assert len(list((tmp_path / "aot").glob("*.pt2"))) == 1
-    ref = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=2), make_kddrl_transforms(seed=1)).rollout(
-        40, accelerate, break_when_any_done=False)
-    assert ref["next", "done"].any() and not ref["next", "done"].all()
-    for key in DERIVED:
-        torch.testing.assert_close(got[key], ref[key], rtol=1e-4, atol=1e-3, msg=str(key))
-        torch.testing.assert_close(got["next", key], ref["next", key], rtol=1e-4, atol=1e-3, msg=str(key))
-    frames = next(iter(stack._aot.values()))
-    # the real SUMO env with the same batch shape: the same package, from the cache; the physics priors as
-    # the eager transforms give them on the env's raw observations, the GAN outputs finite and well formed
-    sumo_stack = make_kddrl_transforms(seed=1, compile=True)
-    sumo = TransformedEnv(SumoHighwayEnv("baseline", num_roads=3, seed=1), sumo_stack)
-    try:
-        check_env_specs(sumo, seed=None)
-        roll = sumo.rollout(30, accelerate, break_when_any_done=False)
-    finally:
-        sumo.close()
-    assert [f.source for f in sumo_stack._aot.values()] == ["cache"]
-    assert_derived(roll)
-    assert_derived(roll["next"])
-    physics = Compose(IDMPrior(), MOBILPrior())(strip(roll)["next"].clone())
-    for key in (K.PRED_PRIOR_TRAJ, K.PRIOR_P_MOBIL):
-        torch.testing.assert_close(roll["next", key], physics[key], rtol=1e-4, atol=1e-3, msg=str(key))
-    out = stack._step(None, got[:, 0]["next"].clone())
-    first = {k: out.get(k).clone() for k in DERIVED}
-    stack._step(None, got[:, 1]["next"].clone())
-    for k, v in first.items():
-        assert torch.equal(out.get(k), v), k
-    assert frames.path.exists()
-
-
-def test_aot_fingerprint_tracks_what_is_baked_in():
-    """The cache name changes with a setting or a weight, not with the noise seed."""
-    from kddrl_trl.transforms.aot import module_fingerprint
-
-    assert module_fingerprint(IDMPrior()) == module_fingerprint(IDMPrior())
-    assert module_fingerprint(IDMPrior()) != module_fingerprint(IDMPrior(IDMParams(T=1.2)))
-    assert module_fingerprint(MOBILPrior(num_lanes=3)) != module_fingerprint(MOBILPrior(num_lanes=4))
-    a, b = LCGANPrior(seed=0), LCGANPrior(seed=7)
-    assert module_fingerprint(a) == module_fingerprint(b)
-    with torch.no_grad():
-        next(b.predictor.parameters()).add_(1e-3)
-    assert module_fingerprint(a) != module_fingerprint(b)
-
-
-def test_aot_failure_falls_back(monkeypatch, caplog):
-    """A failing AOT compilation is logged once and the fused function runs instead (same values)."""
-    from kddrl_trl.transforms import PredictiveStack, stack as stack_module
-
-    def broken(*args, **kwargs):
-        raise RuntimeError("no compiler here")
-
-    monkeypatch.setattr(stack_module, "AOTFrames", broken)
-    stack = PredictiveStack(*make_kddrl_transforms(seed=3).transforms, compile=False, aot=True)
-    env = TransformedEnv(FakeHighwayEnv(num_roads=2, seed=4), stack)
-    with caplog.at_level("WARNING"):
-        got = env.rollout(5, accelerate, break_when_any_done=False)
-    assert sum("AOT compilation" in r.message for r in caplog.records) == 1
-    ref = TransformedEnv(FakeHighwayEnv(num_roads=2, seed=4), make_kddrl_transforms(seed=3)).rollout(
-        5, accelerate, break_when_any_done=False)
-    for key in DERIVED:
-        assert torch.equal(got[key], ref[key]), key
-
-
 def test_compiled_stack_pickles():
-    """A compiled stack (e.g. handed to spawned workers) pickles; its compiled parts are rebuilt and it runs
-    (the noise streams travel with it)."""
+    """A compiled stack (e.g. handed to spawned workers) pickles (it stores nothing compiled: the compiled
+    function lives in the process) and runs (the noise streams travel with it)."""
     import pickle
 
     obs = FakeHighwayEnv(num_roads=2, seed=6).reset()
-    stack = make_kddrl_transforms(seed=2, compile=True, aot=False)
+    stack = make_kddrl_transforms(seed=2, compile=True)
     copy = pickle.loads(pickle.dumps(stack))
     assert isinstance(copy, type(stack)) and [type(t) for t in copy] == [type(t) for t in stack]
     eager = pickle.loads(pickle.dumps(make_kddrl_transforms(seed=2)))

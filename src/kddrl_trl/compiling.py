@@ -1,4 +1,8 @@
-"""When to ``torch.compile``: one rule for the transforms and the learner."""
+"""When to ``torch.compile``: one rule for the two compile sites (the fused transform stack and the learner).
+
+The sites themselves are :func:`kddrl_trl.transforms.stack.compiled_frames` (the fused predictive-state stack)
+and :meth:`kddrl_trl.training.HierarchicalLearner.loss` (the learner's update); each states its measured gain.
+"""
 from __future__ import annotations
 
 import logging
@@ -28,13 +32,3 @@ def resolve_compile(compile: bool | str) -> bool:
     if not isinstance(compile, bool):
         raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
     return compile
-
-
-def maybe_compile(fn, compile: bool | str, dynamic: bool = True):
-    """``torch.compile(fn, dynamic=dynamic)`` when :func:`resolve_compile` says so, else ``fn``.
-
-    ``dynamic=True`` (the default) lets batch shapes change without recompiling. Compiling fuses many tiny
-    tensor ops into a few kernels; on a CPU it needs a C++ compiler and costs a one-off compile per process."""
-    import torch
-
-    return torch.compile(fn, dynamic=dynamic) if resolve_compile(compile) else fn

@@ -42,9 +42,34 @@ LC_ACTIVE = ("lc", "active")            # [1]  bool, a lane-change manoeuvre is 
 LC_STARTED = ("lc", "started")          # [1]  bool, a lane-change manoeuvre started in this frame
 COLLISION = "collision"                 # [1]  bool, the ego collided in this frame (read under "next")
 
+# ---------------------------------------------------------------- episode events (environment, under "next")
+# Per-frame facts the episode metrics (``kddrl_trl.eval.EpisodeTracker``) need beyond the observation above.
+# Codes are int64 indices into the tuples below; on a road whose episode ended and was not reset yet they
+# keep the values of the ending frame.
+#: how the episode ended in this frame: ``collision`` and ``left_section`` (past the study section) terminate,
+#: ``max_steps`` and ``lost`` (SUMO lost the ego) truncate
+OUTCOMES = ("running", "collision", "left_section", "max_steps", "lost")
+RUNNING, COLLIDED, LEFT_SECTION, MAX_STEPS, LOST = range(len(OUTCOMES))
+#: what kind of contact a collision was: the ego ran into a vehicle ahead, a vehicle behind ran into the ego,
+#: or any contact while the ego's lane change is in progress
+COLLISION_KINDS = ("none", "rear_end", "hit_from_behind", "side")
+NO_CONTACT, REAR_END, HIT_FROM_BEHIND, SIDE_CONTACT = range(len(COLLISION_KINDS))
+#: phases of the scenario-2 braking event on the ego's road (``none`` before it starts and in other scenarios);
+#: ``vanished``: the braking vehicle left the simulation before it resumed
+BRAKING_PHASES = ("none", "braking", "standing", "resumed", "vanished")
+BRAKE_NONE, BRAKE_BRAKING, BRAKE_STANDING, BRAKE_RESUMED, BRAKE_VANISHED = range(len(BRAKING_PHASES))
+
+OUTCOME = ("episode", "outcome")                # [1]  int64, code in OUTCOMES (running while the episode goes on)
+COLLISION_KIND = ("episode", "collision_kind")  # [1]  int64, code in COLLISION_KINDS of this frame's collision
+COLLISION_SLOT = ("episode", "collision_slot")  # [1]  int64, NEIGHBOR_SLOTS index of the other vehicle in the last
+#                                                      observation before the collision; -1 none / not a neighbour
+BRAKING_PHASE = ("braking", "phase")            # [1]  int64, code in BRAKING_PHASES
+BRAKING_DISTANCE = ("braking", "distance")      # [1]  gap (m) to the braking leader when it started; 0 before
+
 RAW_OBSERVATION_KEYS = (
     EGO_STATE, EGO_LANE, EGO_ACCEL, NEIGHBORS_REL, NEIGHBORS_MASK, NEIGHBORS_KIN,
     LEADERS_AHEAD, LEADERS_HISTORY, LC_ACTION_MASK, LC_ACTIVE, LC_STARTED, COLLISION,
+    OUTCOME, COLLISION_KIND, COLLISION_SLOT, BRAKING_PHASE, BRAKING_DISTANCE,
 )
 
 # ------------------------------------------------------------------------------ derived (transforms)

@@ -1,14 +1,8 @@
-"""TorchRL loggers for a run directory: CSV always, TensorBoard when installed (``tensorboard: auto``) or asked."""
+"""Several TorchRL loggers as one (built by :func:`kddrl_trl.factories.make_logger`), and the trimming of a
+resumed run's logs."""
 from __future__ import annotations
 
-import importlib.util
-import logging
 from pathlib import Path
-from typing import Any, Mapping
-
-from torchrl.record.loggers import CSVLogger
-
-log = logging.getLogger(__name__)
 
 
 class MultiLogger:
@@ -20,28 +14,6 @@ class MultiLogger:
     def log_scalar(self, name: str, value: float, step: int | None = None) -> None:
         for logger in self.loggers:
             logger.log_scalar(name, float(value), step=step)
-
-    def log_hparams(self, cfg) -> None:
-        for logger in self.loggers:
-            logger.log_hparams(cfg)
-
-
-def make_logger(logger_cfg: Mapping[str, Any], run_dir: Path, exp_name: str = "logs") -> MultiLogger:
-    loggers = []
-    if logger_cfg.get("csv", True):
-        loggers.append(CSVLogger(exp_name=exp_name, log_dir=str(run_dir)))
-    tb = logger_cfg.get("tensorboard", "auto")
-    installed = importlib.util.find_spec("tensorboard") is not None
-    if str(tb).lower() == "auto":
-        tb = installed
-    if tb:
-        if not installed:
-            log.warning("logger.tensorboard=true but tensorboard is not installed: CSV only")
-        else:
-            from torchrl.record.loggers import TensorboardLogger
-
-            loggers.append(TensorboardLogger(exp_name=exp_name, log_dir=str(run_dir)))
-    return MultiLogger(loggers)
 
 
 def trim_logs(run_dir: Path, last_step: int, exp_name: str = "logs") -> None:

@@ -32,8 +32,7 @@ class MacroTransitionWriter:
     cannot form a transition and are counted in :attr:`dropped_frames`.
 
     The row order of successive batches must be the same (true for ``Collector`` and ``MultiSyncCollector``).
-    :meth:`state_dict` / :meth:`load_state_dict` keep the unfinished transitions; :meth:`reset` drops them
-    (e.g. when the environments restart).
+    :meth:`reset` drops the unfinished transitions (e.g. when the environments restart).
     """
 
     def __init__(self, *, decide_key: NestedKey = K.LC_DECIDE, reward_key: NestedKey = K.LC_REWARD,
@@ -49,14 +48,6 @@ class MacroTransitionWriter:
         self._frames: torch.Tensor | None = None    # [B] frames so far in the open interval
         self._open: torch.Tensor | None = None      # [B] bool, an interval is open
         self.dropped_frames = 0
-
-    def state_dict(self) -> dict:
-        return {"start": self._start, "reward": self._reward, "frames": self._frames, "open": self._open,
-                "dropped_frames": self.dropped_frames}
-
-    def load_state_dict(self, state: dict) -> None:
-        self._start, self._reward, self._frames = state["start"], state["reward"], state["frames"]
-        self._open, self.dropped_frames = state["open"], int(state["dropped_frames"])
 
     def _flag(self, td: TensorDictBase, key, name: str) -> torch.Tensor:
         value = td.get(key, None)

@@ -1,24 +1,33 @@
 """Hydra configs of kddrl_trl, shipped inside the package (found from an installed package too).
 
-Importing this module registers the typed schema of the ``env`` group in Hydra's ConfigStore, so every
-:class:`~kddrl_trl.envs.config.HighwayConfig` field can be overridden on the command line
-(``env.flow_vph=2658``) and a misspelt key or a wrong type fails at composition, naming the key. It also
-registers the resolvers of :mod:`kddrl_trl.conf.resolvers` (run folders chosen before Hydra creates them).
-"""
-from dataclasses import dataclass
+Importing this module registers in Hydra's ConfigStore:
 
+* the typed schemas of :mod:`kddrl_trl.conf.schema` (``env/highway_schema``, ``algo/hierarchical_schema``,
+  ``algo/rule_schema``, ``logger/logger_schema``, ``train_job``, ``evaluate_job``), so a misspelt key or a
+  wrong type fails at composition, naming the key;
+* the ``scenario`` group: one option per preset of :data:`kddrl_trl.envs.config.SCENARIOS` (the same
+  presets ``SumoHighwayEnv(scenario=...)`` applies), an ``env:`` block in the global package, appended with
+  ``+scenario=<name>``;
+* the resolvers of :mod:`kddrl_trl.conf.resolvers` (run folders chosen before Hydra creates them).
+"""
 from hydra.core.config_store import ConfigStore
 
-from ..envs.config import HighwayConfig
+from ..envs.config import SCENARIOS
 from . import resolvers
+from .schema import EnvNode, EvaluateJob, HierarchicalAlgo, LoggerConfig, RuleAlgo, TrainJob
 
 
-@dataclass
-class EnvNode(HighwayConfig):
-    """The ``env`` node: the highway config plus the number of roads simulated side by side."""
+def register() -> None:
+    store = ConfigStore.instance()
+    store.store(group="env", name="highway_schema", node=EnvNode)
+    store.store(group="algo", name="hierarchical_schema", node=HierarchicalAlgo)
+    store.store(group="algo", name="rule_schema", node=RuleAlgo)
+    store.store(group="logger", name="logger_schema", node=LoggerConfig)
+    store.store(name="train_job", node=TrainJob)
+    store.store(name="evaluate_job", node=EvaluateJob)
+    for name, preset in SCENARIOS.items():
+        store.store(group="scenario", name=name, node={"env": {"scenario": name, **preset}}, package="_global_")
+    resolvers.register()
 
-    num_roads: int = 8
 
-
-ConfigStore.instance().store(group="env", name="highway_schema", node=EnvNode)
-resolvers.register()
+register()

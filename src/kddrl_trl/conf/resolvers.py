@@ -2,7 +2,7 @@
 
 Hydra makes ``hydra.run.dir`` before the entry point runs, so an entry point that only then learns the folder
 is another one (a resumed run) or that its input does not exist (a missing run to evaluate) leaves an empty
-folder behind. These resolvers decide while the config is composed:
+folder behind. These resolvers decide while the config is composed, once (:mod:`kddrl_trl.runs` holds the rules):
 
 * ``${kddrl_train_dir:${resume},runs,<prefix>,<stamp>}``: the run folder to resume (``resume=true``: the
   newest ``runs/<prefix>*`` with a checkpoint; ``resume=<dir>``: that one), else ``runs/<prefix><stamp>``;
@@ -15,24 +15,17 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
+from ..runs import find_resume_dir, trained_run
+
 
 def train_dir(resume, runs_root: str, prefix: str, stamp: str) -> str:
     """Output folder of ``kddrl_trl.train``: the resumed run's folder, or a new ``<runs_root>/<prefix><stamp>``."""
-    from ..training.checkpoint import find_resume_dir
-
     found = find_resume_dir(resume, runs_root, prefix)
     return str(found) if found is not None else str(Path(runs_root) / f"{prefix}{stamp}")
 
 
-def trained_run(run) -> str:
-    """``run``, if it is a folder made by ``kddrl_trl.train`` (it holds ``config.yaml``)."""
-    if not (Path(str(run)) / "config.yaml").is_file():
-        raise FileNotFoundError(f"run={run}: no config.yaml there (is it a directory made by kddrl_trl.train?)")
-    return str(run)
-
-
 def register() -> None:
     """Register the resolvers (idempotent; cached so a config resolves them once)."""
-    for name, fn in (("kddrl_train_dir", train_dir), ("kddrl_trained_run", trained_run)):
+    for name, fn in (("kddrl_train_dir", train_dir), ("kddrl_trained_run", lambda run: str(trained_run(run)))):
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, fn, use_cache=True)

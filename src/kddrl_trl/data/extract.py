@@ -58,7 +58,8 @@ driver            [N]              int64    index of the ego's driver_type in ``
 ================  ===============  =======  ==========================================================
 
 The condition vector C of Eq. 16 is left unassembled (``s_av``, ``rel``/``mask``, ``key_gaps``/
-``key_gaps_mask``) so the lcGAN decides how to concatenate and normalise.
+``key_gaps_mask``) so the lcGAN decides how to concatenate and normalise; these fields come from
+:func:`kddrl_trl.gan_inputs.lane_change_condition`, the function the RL-time predictor builds them with.
 
 On disk (:func:`extract_dataset`): ``out_dir/<kind>/<split>/`` is ``TensorDict.memmap`` output for
 ``kind`` in (``leaders``, ``lane_changes``) and ``split`` in (``train``, ``val``, ``test``), read back with
@@ -84,9 +85,10 @@ from tensordict import TensorDict
 from tqdm.auto import tqdm
 
 from kddrl_trl import keys as K
-from kddrl_trl.io import write_json_atomic
 from kddrl_trl.data.highd import HighDRecording
 from kddrl_trl.data.tracks import TRACKS10_COLUMNS, longitudinal_tracks, tracks_hz, vehicle_num_lanes
+from kddrl_trl.gan_inputs import DRIVER_TYPES, KEY_STEPS, lane_change_condition
+from kddrl_trl.io import write_json_atomic
 from kddrl_trl.physics.idm import IDMParams, idm_rollout
 
 __all__ = [
@@ -103,10 +105,6 @@ __all__ = [
     "load_dataset",
 ]
 
-#: driver_type vocabulary; ``leader_driver`` / ``driver`` index into it ("" in tracks10 -> "unknown")
-DRIVER_TYPES = ("unknown", "timid", "normal", "aggressive")
-#: prediction steps whose positions become the key gaps (paper §III.B: 10th and 20th step)
-KEY_STEPS = (10, 20)
 SPLITS = ("train", "val", "test")
 KINDS = ("leaders", "lane_changes")
 SCHEMA_VERSION = 1
@@ -367,32 +365,24 @@ def lane_change_samples(
 
     rel = np.zeros((n, 6, 4))
     mask = np.zeros((n, 6), dtype=bool)
-    key_gaps = np.zeros((n, 3, 2))
-    key_mask = np.zeros((n, 3), dtype=bool)
+    key_gaps = np.full((n, 3, 2), np.nan)  # NaN: the leader's track ends before the key step
     ey = c["y"][egos]
     for s in range(6):
         rows = ix.side_neighbor(egos, s % 3, leader=s < 3)
         r = np.maximum(rows, 0)
-        ok = (rows >= 0) & (np.abs(c["y"][r] - ey) <= sensing_range)
-        feats = np.stack([c["x_lat"][r] - c["x_lat"][egos], c["y"][r] - ey,
-                          c["vx_lat"][r] - c["vx_lat"][egos], c["v"][r] - c["v"][egos]], -1)
-        rel[:, s] = np.where(ok[:, None], feats.reshape(n, 4), 0.0)
-        mask[:, s] = ok
+        mask[:, s] = (rows >= 0) & (np.abs(c["y"][r] - ey) <= sensing_range)
+        rel[:, s] = np.stack([c["x_lat"][r] - c["x_lat"][egos], c["y"][r] - ey,
+                              c["vx_lat"][r] - c["vx_lat"][egos], c["v"][r] - c["v"][egos]], -1).reshape(n, 4)
         if s < 3:
-            reach = ok & ix.covers(rows, 0, max(KEY_STEPS))
+            reach = ix.covers(rows, 0, max(KEY_STEPS))
             for j, step in enumerate(KEY_STEPS):
-                fut = np.where(reach, r + step, 0)
-                key_gaps[:, s, j] = np.where(reach, c["y"][fut] - ey, 0.0)
-            key_mask[:, s] = reach
-    s_av = np.stack([c["v"][egos], c["vx_lat"][egos], c["lane"][egos].astype(np.float64)], -1).reshape(n, 3)
+                key_gaps[reach, s, j] = c["y"][r[reach] + step] - ey[reach]
+    condition = lane_change_condition(_f32(c["v"][egos]), _f32(c["vx_lat"][egos]), _i64(c["lane"][egos]),
+                                      _f32(rel), torch.as_tensor(mask), _f32(key_gaps))
     return TensorDict(
         {
             "label": _i64(label),
-            "s_av": _f32(s_av),
-            "rel": _f32(rel),
-            "mask": torch.as_tensor(mask),
-            "key_gaps": _f32(key_gaps),
-            "key_gaps_mask": torch.as_tensor(key_mask),
+            **condition,
             "num_lanes": _i64(_num_lanes_per_row(ix, tracks, egos, num_lanes)),
             "recording_id": _i64(ix.rec[egos]),
             "vehicle_id": _i64(ix.vid[egos]),

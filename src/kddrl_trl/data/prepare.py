@@ -14,11 +14,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed env schema with Hydra)
+from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 
 import hydra
 import pandas as pd
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
 from kddrl_trl.data.calibrate import calibrate, write_calibration
@@ -29,8 +29,7 @@ from kddrl_trl.data.recorder import (
     PAPER_LANE_CHANGER_SHARE, PAPER_VEHICLES_PER_HOUR, read_driver_params, record_to_directory,
 )
 from kddrl_trl.data.tracks import longitudinal_tracks
-from kddrl_trl.envs.config import default_drivers
-from kddrl_trl.envs.factory import highway_config
+from kddrl_trl.envs.config import HighwayConfig, default_drivers
 from kddrl_trl.io import write_json_atomic
 
 #: paper §IV.F: lane-change windows of 2 s extracted from HighD
@@ -48,26 +47,27 @@ def recordings_directory(cfg: DictConfig) -> Path:
         return Path(cfg.path)
     if cfg.source != "synthetic":
         raise SystemExit(f"source must be 'synthetic' or 'highd', got {cfg.source!r}")
-    return ensure_recordings(cfg.env, cfg.recordings_dir, int(cfg.seed), float(cfg.record.duration_s),
+    return ensure_recordings(OmegaConf.to_object(cfg.env).highway(), cfg.recordings_dir, int(cfg.seed), float(cfg.record.duration_s),
                              int(cfg.record.num_roads), bool(cfg.progress))
 
 
-def ensure_recordings(env_node, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int,
+def ensure_recordings(hw: HighwayConfig, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int,
                       progress: bool = True) -> Path:
-    """``recordings_dir``, after recording ``num_roads`` x ``duration_s`` of traffic into it if it holds none."""
+    """``recordings_dir``, after recording ``num_roads`` x ``duration_s`` of ``hw`` traffic into it if it holds
+    none."""
     rec_dir = Path(recordings_dir)
     if not (rec_dir.is_dir() and list_recordings(rec_dir)):
-        hw = highway_config(env_node)
         s = record_to_directory(hw, rec_dir, duration_s, num_roads=num_roads, seed=seed, progress=progress)
         print_summary(s, hw, seed, duration_s, num_roads)
     return rec_dir
 
 
-def synthetic_dataset(env_node, out_dir: str | Path, recordings_dir: str | Path, seed: int = 0,
+def synthetic_dataset(hw: HighwayConfig, out_dir: str | Path, recordings_dir: str | Path, seed: int = 0,
                       duration_s: float = 900.0, num_roads: int = 4, stride: int = 1, progress: bool = True) -> dict:
-    """The default naturalistic dataset from our own recordings: record into ``recordings_dir`` if it holds
-    none, then extract (a cache hit when ``out_dir`` already holds this dataset). Returns its meta."""
-    rec_dir = ensure_recordings(env_node, recordings_dir, seed, duration_s, num_roads, progress)
+    """The default naturalistic dataset from our own recordings of ``hw`` traffic: record into
+    ``recordings_dir`` if it holds none, then extract (a cache hit when ``out_dir`` already holds this dataset).
+    Returns its meta."""
+    rec_dir = ensure_recordings(hw, recordings_dir, seed, duration_s, num_roads, progress)
     recordings = [read_recording(rec_dir, i) for i in list_recordings(rec_dir)]
     return extract_dataset(recordings, out_dir, seed=seed, stride=stride, progress=progress)
 

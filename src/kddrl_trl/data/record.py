@@ -11,13 +11,13 @@ from __future__ import annotations  # noqa: I001  (kddrl_trl.conf must be import
 
 from pathlib import Path
 
-from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed env schema with Hydra; must come first)
+from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra; first)
 
 import hydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from kddrl_trl.data.recorder import PAPER_LANE_CHANGER_SHARE, PAPER_VEHICLES_PER_HOUR, record_to_directory
-from kddrl_trl.envs.factory import highway_config
+
 
 def print_summary(s: dict, hw, seed: int, duration_s: float, num_roads: int) -> None:
     """The recording's vehicle count, lane-changer share and driver types beside the paper's figures."""
@@ -43,7 +43,7 @@ def print_summary(s: dict, hw, seed: int, duration_s: float, num_roads: int) -> 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="record")
 def main(cfg: DictConfig) -> dict:
-    hw = highway_config(cfg.env)
+    hw = OmegaConf.to_object(cfg.env).highway()
     s = record_to_directory(hw, Path(cfg.out_dir), float(cfg.duration_s), num_roads=int(cfg.num_roads),
                             seed=int(cfg.seed), progress=bool(cfg.progress))
     print_summary(s, hw, int(cfg.seed), float(cfg.duration_s), int(cfg.num_roads))

@@ -5,16 +5,15 @@ model"). The same schema validates Hydra configs (``conf/env/highway.yaml``) and
 :class:`~kddrl_trl.envs.SumoHighwayEnv`, so a misspelt key or a malformed value fails before SUMO starts
 with a message naming the key.
 
-Scenarios (``baseline``, ``congested``, ``braking``) are the ``env:`` block of the package's Hydra files
-``conf/scenario/<name>.yaml``: one definition serves ``python -m kddrl_trl.train +scenario=braking`` and
-``SumoHighwayEnv(scenario="braking")``.
+Scenarios (``baseline``, ``congested``, ``braking``) are the presets of :data:`SCENARIOS`, defined once here:
+``SumoHighwayEnv(scenario="braking")`` / ``make_config("braking")`` apply them, and ``kddrl_trl.conf``
+registers each as the Hydra option ``+scenario=<name>`` (an ``env:`` block in the global package), which
+Hydra applies while composing; a config built from the composed ``env`` node is not given its preset again.
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
-from importlib import resources
 from typing import Any, Mapping
 
 from omegaconf import OmegaConf
@@ -162,44 +161,48 @@ def _check(key: str, value: Any, ok: bool, why: str) -> None:
         raise ValueError(f"highway config: '{key}' = {value!r} {why}")
 
 
+#: the scenario presets: HighwayConfig fields each scenario sets (every other field keeps its default)
+SCENARIOS: dict[str, dict[str, Any]] = {
+    # baseline traffic (paper §IV.C, Table A.1): 2325 veh/h over 3 lanes, heterogeneous IDM drivers
+    "baseline": {},
+    # scenario 1 (paper §IV.D): traffic flow +50 % over the baseline
+    "congested": {"flow_scale": 1.5},
+    # scenario 2 (paper §IV.D): in every episode a leader 100-300 m ahead of the ego in its lane brakes hard
+    # to a stop, stands 3 s, then resumes
+    "braking": {"braking": {"enabled": True, "min_distance": 100.0, "max_distance": 300.0, "stand_time": 3.0}},
+}
+
+
 def scenario_names() -> list[str]:
-    """Scenarios shipped with the package (files in ``kddrl_trl/conf/scenario``)."""
-    files = resources.files("kddrl_trl.conf").joinpath("scenario").iterdir()
-    return sorted(f.name[:-5] for f in files if f.name.endswith(".yaml"))
+    """The scenarios of :data:`SCENARIOS`."""
+    return sorted(SCENARIOS)
 
 
-def scenario_overrides(name: str) -> dict[str, Any]:
-    """The ``env:`` block of ``conf/scenario/<name>.yaml`` as a plain dict."""
-    names = scenario_names()
-    if name not in names:
-        raise ValueError(f"unknown scenario {name!r}; known scenarios: {', '.join(names)}")
-    text = resources.files("kddrl_trl.conf").joinpath("scenario", f"{name}.yaml").read_text()
-    block = OmegaConf.create(text).get("env", {})
-    return OmegaConf.to_container(block, resolve=True)
+def make_config(scenario: str | HighwayConfig = "baseline", overrides: Mapping[str, Any] | None = None) -> HighwayConfig:
+    """Build a validated :class:`HighwayConfig`: a scenario's preset (or a ready config) plus keyword overrides.
 
-
-def make_config(scenario: str = "baseline", overrides: Mapping[str, Any] | None = None) -> HighwayConfig:
-    """Build a validated :class:`HighwayConfig` from a scenario name plus keyword overrides.
-
-    Unknown keys and values of the wrong type raise ``ValueError`` naming the key; nothing starts SUMO.
-    ``overrides`` may be a dict, a DictConfig, or contain a ``scenario`` key (which is then used).
+    ``scenario`` is a name of :data:`SCENARIOS` (its preset applies under the overrides), or a
+    :class:`HighwayConfig` used as it is (e.g. one built from the composed Hydra ``env`` node, whose
+    ``+scenario=`` Hydra already applied: no preset is applied again). Unknown keys and values of the wrong type
+    raise ``ValueError`` naming the key; nothing starts SUMO. ``overrides`` may be a dict, a DictConfig, or
+    contain a ``scenario`` key (which is then used).
     """
     overrides = dict(OmegaConf.to_container(OmegaConf.create(dict(overrides or {})), resolve=True))
     scenario = overrides.pop("scenario", scenario)
-    if not isinstance(scenario, str):
+    if isinstance(scenario, HighwayConfig):
+        base, name = OmegaConf.structured(scenario), scenario.scenario
+    elif isinstance(scenario, str):
+        if scenario not in SCENARIOS:
+            raise ValueError(f"unknown scenario {scenario!r}; known scenarios: {', '.join(scenario_names())}")
+        base, name = SCENARIOS[scenario], scenario
+    else:
         raise ValueError(f"highway config: 'scenario' must be a string, got {scenario!r}")
-    schema = OmegaConf.structured(HighwayConfig)
     try:
-        merged = OmegaConf.merge(schema, scenario_overrides(scenario), overrides)
+        merged = OmegaConf.merge(OmegaConf.structured(HighwayConfig), base, overrides)
     except OmegaConfBaseException as err:  # unknown key, wrong type, ...
         key = getattr(err, "full_key", None) or "?"
         reason = str(getattr(err, "msg", err)).splitlines()[0]
         raise ValueError(f"highway config: bad value for key '{key}': {reason}") from None
     cfg: HighwayConfig = OmegaConf.to_object(merged)
-    cfg.scenario = scenario
+    cfg.scenario = name
     return cfg.validate()
-
-
-def config_dict(cfg: HighwayConfig) -> dict[str, Any]:
-    """Plain-dict view (for logging, hashing and recording metadata)."""
-    return dataclasses.asdict(cfg)

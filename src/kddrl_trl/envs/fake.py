@@ -4,7 +4,9 @@ Deterministic and cheap, for fast unit tests of transforms, collectors and losse
 drive at constant speed in their lane (spacing set by the configured flow), so every raw key has a
 simple, checkable value; the ego follows the same command semantics as the SUMO env (v' = max(v + a dt, 0),
 a lane change lasts ``lc_duration`` and switches lane half way, commands outside ``action_mask`` keep
-the lane). It is *not* a traffic simulator: use it for plumbing, never for results.
+the lane). It writes the same episode events (``keys.OUTCOME``, ``COLLISION_KIND``, ``COLLISION_SLOT``; the
+braking phase stays ``none``), so evaluation and the episode metrics run on it unchanged. It is *not* a
+traffic simulator: use it for plumbing, never for results.
 """
 from __future__ import annotations
 
@@ -68,7 +70,14 @@ class FakeHighwayEnv(HighwayEnvBase):
                 present.append(ok.gather(-1, best[:, None]).squeeze(-1))
         return torch.stack(idx, -1), torch.stack(present, -1)
 
-    def _observe(self, collision: torch.Tensor) -> dict:
+    def _action_mask(self, active: torch.Tensor) -> torch.Tensor:
+        mask = torch.ones(self.num_roads, 3, dtype=torch.bool)
+        mask[:, K.LEFT] = ~active & (self.ego_lane < self.config.num_lanes - 1)
+        mask[:, K.RIGHT] = ~active & (self.ego_lane > 0)
+        return mask
+
+    def _observe(self) -> dict:
+        """The raw observation keys (``keys.py``) of the current state."""
         cfg, b = self.config, self.num_roads
         h = cfg.history_len
         idx, present = self._slots()
@@ -91,17 +100,26 @@ class FakeHighwayEnv(HighwayEnvBase):
         back = torch.arange(h - 1, -1, -1, dtype=torch.float32) * cfg.step_length
         hist_y = ly[..., None] - nv[:, :3, None] * back
         history = torch.stack([hist_y, nv[:, :3, None].expand(b, 3, h)], -1) * pm[:, :3, None]
-        mask = torch.ones(b, 3, dtype=torch.bool)
-        mask[:, K.LEFT] = ~active & (self.ego_lane < cfg.num_lanes - 1)
-        mask[:, K.RIGHT] = ~active & (self.ego_lane > 0)
         return {
-            "ego": {"state": torch.stack([self.ego_y, self.ego_v, vx], -1), "lane": self.ego_lane[:, None].clone(),
-                    "accel": self.accel[:, None].clone()},
-            "neighbors": {"rel": rel * pm, "mask": present, "kin": kin * pm},
-            "leaders": {"ahead": ahead, "history": history},
-            "lc": {"action_mask": mask, "active": active[:, None], "started": self._started[:, None].clone()},
-            "collision": collision[:, None],
+            K.EGO_STATE: torch.stack([self.ego_y, self.ego_v, vx], -1), K.EGO_LANE: self.ego_lane[:, None].clone(),
+            K.EGO_ACCEL: self.accel[:, None].clone(),
+            K.NEIGHBORS_REL: rel * pm, K.NEIGHBORS_MASK: present, K.NEIGHBORS_KIN: kin * pm,
+            K.LEADERS_AHEAD: ahead, K.LEADERS_HISTORY: history,
+            K.LC_ACTION_MASK: self._action_mask(active), K.LC_ACTIVE: active[:, None],
+            K.LC_STARTED: self._started[:, None].clone(),
         }
+
+    def _output(self, obs: dict, collision: torch.Tensor, outcome: torch.Tensor, kind: torch.Tensor,
+                slot: torch.Tensor) -> TensorDictBase:
+        """Observation, episode events ([B] each; no braking event in the fake) and done flags as a TensorDict."""
+        col = lambda x: x[:, None]  # noqa: E731
+        terminated = (outcome == K.COLLIDED) | (outcome == K.LEFT_SECTION)
+        truncated = outcome == K.MAX_STEPS
+        zero = torch.zeros(self.num_roads, 1)
+        events = {K.COLLISION: col(collision), K.OUTCOME: col(outcome), K.COLLISION_KIND: col(kind),
+                  K.COLLISION_SLOT: col(slot), K.BRAKING_PHASE: zero.long(), K.BRAKING_DISTANCE: zero,
+                  "terminated": col(terminated), "truncated": col(truncated), "done": col(terminated | truncated)}
+        return TensorDict({**obs, **events}, batch_size=self.batch_size, device=self.device)
 
     # ------------------------------------------------------------------------------------ TorchRL
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
@@ -111,17 +129,32 @@ class FakeHighwayEnv(HighwayEnvBase):
             rows = torch.arange(self.num_roads)
         self._place(rows)
         self._started[rows] = False
-        out = self._observe(torch.zeros(self.num_roads, dtype=torch.bool))
-        false = torch.zeros(self.num_roads, 1, dtype=torch.bool)
-        out.update(done=false, terminated=false.clone(), truncated=false.clone())
-        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+        none = torch.zeros(self.num_roads, dtype=torch.long)
+        return self._output(self._observe(), none.bool(), none, none, none - 1)
+
+    def _contact(self, changing: torch.Tensor, seen) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(collision, kind, slot) [B] of the ego overlapping a vehicle of its lane; ``changing``: a manoeuvre is
+        in progress; ``seen``: :meth:`_slots` of the last observation, where the slot is looked up (-1 if the
+        vehicle was not a neighbour)."""
+        same = self.o_lane == self.ego_lane[:, None]
+        dy = self.o_y - self.ego_y[:, None]
+        gap = torch.where(same, dy.abs(), torch.full_like(dy, float("inf")))
+        other = gap.argmin(-1)
+        collision = gap.gather(-1, other[:, None]).squeeze(-1) < self.config.vehicle_length
+        ahead = dy.gather(-1, other[:, None]).squeeze(-1) > 0
+        kind = torch.where(changing, K.SIDE_CONTACT, torch.where(ahead, K.REAR_END, K.HIT_FROM_BEHIND))
+        idx, present = seen
+        match = present & (idx == other[:, None])
+        slot = torch.where(match.any(-1), match.long().argmax(-1), -1)
+        return collision, torch.where(collision, kind, K.NO_CONTACT), torch.where(collision, slot, -1)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         cfg = self.config
         cmd = lc_command(tensordict.get(K.LC_ACTION)).reshape(-1).cpu()
         a = tensordict.get(K.CF_ACTION).reshape(-1).detach().cpu().clamp(cfg.accel_low, cfg.accel_high)
         a = torch.nan_to_num(a)
-        mask = self._observe(torch.zeros(self.num_roads, dtype=torch.bool))["lc"]["action_mask"]
+        seen = self._slots()  # the neighbours of the last observation
+        mask = self._action_mask(self.lc_left > 0)
         want = (cmd != K.KEEP) & mask.gather(-1, cmd[:, None]).squeeze(-1)
         self._started = want
         self.lc_dir = torch.where(want, torch.where(cmd == K.LEFT, 1, -1), self.lc_dir)
@@ -131,21 +164,20 @@ class FakeHighwayEnv(HighwayEnvBase):
         self.ego_v = v_new
         self.ego_y = self.ego_y + v_new * cfg.step_length
         self.o_y = self.o_y + self.o_v * cfg.step_length
+        changing = self.lc_left > 0
         self.lc_left = (self.lc_left - 1).clamp_min(0)
         switch = (self.lc_left == self.lc_frames // 2) & (self.lc_dir != 0) & ~want
         self.ego_lane = torch.where(switch, self.ego_lane + self.lc_dir, self.ego_lane)
         self.frame += 1
-        same = self.o_lane == self.ego_lane[:, None]
-        gap = (self.o_y - self.ego_y[:, None]).abs()
-        collision = (same & (gap < cfg.vehicle_length)).any(-1)
-        out = self._observe(collision)
+        collision, kind, slot = self._contact(changing, seen)
+        outcome = torch.where(collision, K.COLLIDED, torch.where(
+            self.ego_y > cfg.section_length, K.LEFT_SECTION, torch.where(self.frame >= cfg.max_steps, K.MAX_STEPS,
+                                                                          K.RUNNING)))
+        out = self._output(self._observe(), collision, outcome, kind, slot)
         col = collision.float()
-        out["lc"]["reward"] = lane_change_reward(self.ego_v, want.float(), col, cfg)[:, None].float()
-        out["cf"] = {"reward": car_following_reward(self.ego_v, self.accel, col, cfg)[:, None].float()}
-        terminated = collision | (self.ego_y > cfg.section_length)
-        truncated = ~terminated & (self.frame >= cfg.max_steps)
-        out.update(terminated=terminated[:, None], truncated=truncated[:, None], done=(terminated | truncated)[:, None])
-        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+        out.set(K.LC_REWARD, lane_change_reward(self.ego_v, want.float(), col, cfg)[:, None].float())
+        out.set(K.CF_REWARD, car_following_reward(self.ego_v, self.accel, col, cfg)[:, None].float())
+        return out
 
     def _set_seed(self, seed: int | None) -> None:
         self._seed = 0 if seed is None else int(seed)

@@ -10,17 +10,22 @@ Example:
 Observations are the raw keys of ``kddrl_trl.keys`` as nested dicts (booleans as 0/1 ``int8``); the action
 is ``{"lc": 0|1|2 (left, keep, right), "cf": [acceleration m/s²]}``. Gymnasium wants one scalar reward:
 ``reward="sum"`` (default) returns r_D3QN + r_TD3, ``"lc"`` or ``"cf"`` one agent's; both are always in
-``info["reward_lc"]`` and ``info["reward_cf"]``. When an episode ends, ``info["episode"]`` holds its metrics.
+``info["reward_lc"]`` and ``info["reward_cf"]``. When an episode ends, ``info["episode"]`` holds its metrics
+(:class:`~kddrl_trl.eval.EpisodeTracker`, as in training and evaluation).
 """
 from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
+import torch
 from gymnasium import spaces
+from tensordict import TensorDict
+from torchrl.data import Bounded, Composite
 
-from .. import keys as K
+from ..eval.tracker import EpisodeTracker
 from .config import make_config
 from .sim import HighwaySim
+from .specs import observation_spec
 
 ENV_ID = "kddrl_trl/SumoHighway-v0"
 
@@ -38,6 +43,18 @@ def _nest(flat: dict) -> dict:
     return out
 
 
+def _space(spec) -> spaces.Space:
+    """The Gymnasium space of a TorchRL spec of one road: nested ``Dict``, ``MultiBinary`` for booleans, ``Box``."""
+    if isinstance(spec, Composite):
+        return spaces.Dict({name: _space(sub) for name, sub in spec.items()})
+    if spec.dtype == torch.bool:
+        return spaces.MultiBinary(tuple(spec.shape))
+    dtype = torch.empty(0, dtype=spec.dtype).numpy().dtype
+    if isinstance(spec, Bounded):
+        return spaces.Box(spec.space.low.numpy(), spec.space.high.numpy(), tuple(spec.shape), dtype)
+    return spaces.Box(-np.inf, np.inf, tuple(spec.shape), dtype)
+
+
 class SumoHighwayGymEnv(gym.Env):
     """One ego on one road of the SUMO highway, as a Gymnasium environment (same simulator as the TorchRL env)."""
 
@@ -50,21 +67,11 @@ class SumoHighwayGymEnv(gym.Env):
         self.reward_mode = reward
         self._seed = seed
         self.sim: HighwaySim | None = None
-        cfg, h = self.config, self.config.history_len
-        box = lambda *shape: spaces.Box(-np.inf, np.inf, shape, np.float32)  # noqa: E731
-        flat = {
-            K.EGO_STATE: box(3), K.EGO_LANE: spaces.Box(0, cfg.num_lanes - 1, (1,), np.int64),
-            K.EGO_ACCEL: spaces.Box(cfg.accel_low, cfg.accel_high, (1,), np.float32),
-            K.NEIGHBORS_REL: box(6, 4), K.NEIGHBORS_MASK: spaces.MultiBinary(6), K.NEIGHBORS_KIN: box(6, 3),
-            K.LEADERS_AHEAD: box(3, 3), K.LEADERS_HISTORY: box(3, h, 2),
-            K.LC_ACTION_MASK: spaces.MultiBinary(3), K.LC_ACTIVE: spaces.MultiBinary(1),
-            K.LC_STARTED: spaces.MultiBinary(1), K.COLLISION: spaces.MultiBinary(1),
-        }
-        self.observation_space = spaces.Dict({k: spaces.Dict(v) if isinstance(v, dict) else v
-                                              for k, v in _nest(flat).items()})
+        self.tracker = EpisodeTracker()
+        self.observation_space = _space(observation_spec(self.config, ()))
         self.action_space = spaces.Dict({
             "lc": spaces.Discrete(3),
-            "cf": spaces.Box(cfg.accel_low, cfg.accel_high, (1,), np.float32),
+            "cf": spaces.Box(self.config.accel_low, self.config.accel_high, (1,), np.float32),
         })
 
     def _obs(self) -> dict:
@@ -81,6 +88,8 @@ class SumoHighwayGymEnv(gym.Env):
         elif seed is not None:
             self.sim.reseed(seed)
         self.sim.reset_roads([0])
+        finished, self.tracker = self.tracker.finished, EpisodeTracker()  # a running episode is dropped
+        self.tracker.finished = finished
         return self._obs(), {"ego": self.sim.ego[0]}
 
     def step(self, action):
@@ -88,13 +97,14 @@ class SumoHighwayGymEnv(gym.Env):
             raise RuntimeError("call reset() before step() (and after an episode ended)")
         lc = np.asarray([int(action["lc"])])
         cf = np.asarray(action["cf"], np.float64).reshape(1)
-        n_before = len(self.sim.episodes)
         self.sim.step(lc, cf)
         r_lc, r_cf = float(self.sim.reward_lc[0, 0]), float(self.sim.reward_cf[0, 0])
         reward = {"sum": r_lc + r_cf, "lc": r_lc, "cf": r_cf}[self.reward_mode]
         info = {"reward_lc": r_lc, "reward_cf": r_cf}
-        if len(self.sim.episodes) > n_before:
-            info["episode"] = self.sim.episodes[-1]
+        frame = TensorDict({key: torch.from_numpy(arr) for key, arr in self.sim.outputs().items()}, batch_size=[1])
+        frame["done"] = frame["terminated"] | frame["truncated"]
+        for episode in self.tracker(TensorDict({"next": frame}, batch_size=[1]).unsqueeze(-1)):
+            info["episode"] = episode
         return self._obs(), reward, bool(self.sim.terminated[0, 0]), bool(self.sim.truncated[0, 0]), info
 
     def close(self):

@@ -10,7 +10,11 @@ Example:
     >>> td = env.rollout(50, break_when_any_done=False)
     >>> td["next", "lc", "reward"].shape
     torch.Size([8, 50, 1])
-    >>> env.episodes[0]["mean_speed_kmh"]   # per-episode metrics of finished episodes
+    >>> from kddrl_trl.baselines import IDMMobilPolicy
+    >>> from kddrl_trl.eval import evaluate_policy
+    >>> episodes = evaluate_policy(env, IDMMobilPolicy(), episodes=8, seed=0)  # per-episode metrics
+    >>> episodes[0]["outcome"]
+    'left_section'
     >>> env.close()
 """
 from __future__ import annotations
@@ -40,8 +44,11 @@ class SumoHighwayEnv(HighwayEnvBase):
     [-5, 5] m/s². A lane-change command is executed only where ``("lc","action_mask")`` allows it (no
     manoeuvre in progress and the target lane exists); otherwise the lane is kept.
 
+    Besides the observation, every frame carries the episode events of ``kddrl_trl.keys`` (outcome, collision
+    kind and slot, braking phase and distance), from which :class:`~kddrl_trl.eval.EpisodeTracker` computes the
+    per-episode metrics.
+
     Attributes:
-        episodes: metrics of every finished episode (mean speed, acceleration, lane changes, collision...).
         stats: counters (episodes, collisions, SUMO errors, braking events, ...).
         vehicle_params: driver class and drawn IDM parameters of every background vehicle.
     """
@@ -53,10 +60,6 @@ class SumoHighwayEnv(HighwayEnvBase):
         self._bind()
 
     # ------------------------------------------------------------------------------------- views
-    @property
-    def episodes(self) -> list[dict]:
-        return self.sim.episodes
-
     @property
     def stats(self) -> dict:
         return self.sim.stats
@@ -72,12 +75,12 @@ class SumoHighwayEnv(HighwayEnvBase):
         ``TensorDict.clone`` is several times cheaper than building a TensorDict leaf by leaf."""
         sim, batch = self.sim, self.batch_size
         self._done = np.zeros_like(sim.terminated)
-        leaves = {key: torch.from_numpy(arr) for key, arr in sim.obs.items()}
-        leaves.update({"terminated": torch.from_numpy(sim.terminated), "truncated": torch.from_numpy(sim.truncated),
-                       "done": torch.from_numpy(self._done)})
-        self._reset_view = TensorDict(leaves, batch_size=batch)
-        leaves.update({K.LC_REWARD: torch.from_numpy(sim.reward_lc), K.CF_REWARD: torch.from_numpy(sim.reward_cf)})
-        self._step_view = TensorDict(leaves, batch_size=batch)
+
+        def view(with_reward: bool) -> TensorDict:
+            leaves = {key: torch.from_numpy(arr) for key, arr in sim.outputs(with_reward).items()}
+            return TensorDict({**leaves, "done": torch.from_numpy(self._done)}, batch_size=batch)
+
+        self._reset_view, self._step_view = view(False), view(True)
         self._bound = sim.obs  # the arrays of a reseeded simulation are new: rebind then
 
     def _output(self, with_reward: bool) -> TensorDictBase:

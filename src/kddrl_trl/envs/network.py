@@ -21,6 +21,8 @@ from ..io import cache_dir, write_text_atomic
 from .config import HighwayConfig
 
 ROAD_SPACING = 50.0  # m between the centre lines of neighbouring roads
+#: SUMO's default speed and lane-change modes, given back to a vehicle released from external control
+SPEED_MODE_DEFAULT, LC_MODE_DEFAULT = 31, 1621
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,15 @@ def observation_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
             started=Categorical(2, shape=(*b, 1), dtype=torch.bool),
             shape=b),
         collision=Categorical(2, shape=(*b, 1), dtype=torch.bool),
+        episode=Composite(                                    # codes of keys.OUTCOMES, COLLISION_KINDS, SLOT
+            outcome=Bounded(0, len(K.OUTCOMES) - 1, shape=(*b, 1), dtype=torch.int64),
+            collision_kind=Bounded(0, len(K.COLLISION_KINDS) - 1, shape=(*b, 1), dtype=torch.int64),
+            collision_slot=Bounded(-1, len(K.NEIGHBOR_SLOTS) - 1, shape=(*b, 1), dtype=torch.int64),
+            shape=b),
+        braking=Composite(
+            phase=Bounded(0, len(K.BRAKING_PHASES) - 1, shape=(*b, 1), dtype=torch.int64),  # keys.BRAKING_PHASES
+            distance=Unbounded(shape=(*b, 1), dtype=f32),     # m
+            shape=b),
         shape=b,
     )
 

@@ -1,5 +1,7 @@
-"""Evaluation: running a policy for a number of episodes and the driving metrics of paper Tables II-V."""
+"""Evaluation: per-episode metrics from collected frames, running a policy for a number of episodes, and the
+driving metrics of paper Tables II-V."""
 from .metrics import summarize
-from .rollout import run_episodes
+from .rollout import evaluate_policy, unwrap_env
+from .tracker import EpisodeTracker
 
-__all__ = ["run_episodes", "summarize"]
+__all__ = ["EpisodeTracker", "evaluate_policy", "summarize", "unwrap_env"]

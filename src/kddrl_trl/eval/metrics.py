@@ -1,4 +1,4 @@
-"""Driving metrics of the paper's Tables II-V from per-episode records (``SumoHighwayEnv.episodes``)."""
+"""Driving metrics of the paper's Tables II-V from per-episode records (:class:`~kddrl_trl.eval.EpisodeTracker`)."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,10 +1,12 @@
-"""Run a policy on a batched highway env until a number of whole episodes have finished."""
+"""``evaluate_policy``: run a policy on a batched highway env until a number of whole episodes have finished."""
 from __future__ import annotations
 
 from typing import Callable
 
 import torch
 from tqdm.auto import tqdm
+
+from .tracker import IN_KEYS, EpisodeTracker
 
 
 def unwrap_env(env):
@@ -15,33 +17,39 @@ def unwrap_env(env):
 
 
 @torch.no_grad()
-def run_episodes(env, policy: Callable, num_episodes: int, progress: bool = True,
-                 on_episode: Callable[[dict], None] | None = None) -> list[dict]:
-    """Step ``env`` (a ``SumoHighwayEnv``, possibly inside a ``TransformedEnv``) with ``policy`` until the
-    first ``num_episodes`` episodes *to start* have all finished; return their metrics in start order.
+def evaluate_policy(env, policy: Callable, episodes: int, seed: int, progress: bool = True,
+                    on_episode: Callable[[dict], None] | None = None) -> list[dict]:
+    """Seed ``env`` with ``seed``, reset it and step it with ``policy`` until the first ``episodes`` episodes *to
+    start* have all finished; return their :class:`~kddrl_trl.eval.EpisodeTracker` metrics in start order
+    (``ep["start"]`` = 0, 1, ...). ``on_episode`` is called with each of them as it finishes.
 
-    Counting by start order (not by completion) keeps the sample unbiased: with K roads running at once,
-    the first episodes to finish are the short ones.
+    ``env``: any env writing the raw keys and episode events of ``kddrl_trl.keys`` (``SumoHighwayEnv``,
+    ``FakeHighwayEnv``, bare or inside a ``TransformedEnv``, of any batch size); done rows are reset as TorchRL's
+    ``step_and_maybe_reset`` does. Counting by start order (not by completion) keeps the sample unbiased: with
+    K roads running at once, the first episodes to finish are the short ones.
     """
-    if num_episodes < 1:
-        raise ValueError(f"num_episodes must be >= 1, got {num_episodes}")
-    base = unwrap_env(env)
-    seen = len(base.episodes)
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"evaluate_policy: episodes must be an integer >= 1, got {episodes!r}")
+    env.set_seed(int(seed))
+    td = env.reset()
+    tracker = EpisodeTracker()
     wanted: dict[int, dict] = {}
-    td = env.reset()  # every road starts a new episode; those cut short by this reset are not recorded
-    first = base.sim.episodes_started - base.num_roads
-    bar = tqdm(total=num_episodes, desc="episodes", disable=not progress, unit="ep")
-    while len(wanted) < num_episodes:
-        td = policy(td)
-        _, td = env.step_and_maybe_reset(td)
-        for ep in base.episodes[seen:]:
-            if first <= ep["index"] < first + num_episodes:
-                wanted[ep["index"]] = ep
-                bar.update(1)
-                if on_episode is not None:
-                    on_episode(ep)
-                bar.set_postfix(speed_kmh=f"{sum(e['mean_speed_kmh'] for e in wanted.values()) / len(wanted):.1f}",
-                                collisions=sum(e["collision"] for e in wanted.values()))
-        seen = len(base.episodes)
+    pending = []  # frames since the last done: the tracker runs once per frame that ends an episode
+    bar = tqdm(total=episodes, desc="episodes", disable=not progress, unit="ep")
+    while len(wanted) < episodes:
+        full, td = env.step_and_maybe_reset(policy(td))
+        pending.append(full.select(*IN_KEYS).reshape(-1))
+        if not pending[-1].get(("next", "done")).any():
+            continue
+        frames, pending = torch.stack(pending, 1), []
+        for ep in tracker(frames):
+            if ep["start"] >= episodes:
+                continue
+            wanted[ep["start"]] = ep
+            bar.update(1)
+            if on_episode is not None:
+                on_episode(ep)
+            bar.set_postfix(speed_kmh=f"{sum(e['mean_speed_kmh'] for e in wanted.values()) / len(wanted):.1f}",
+                            collisions=sum(e["collision"] for e in wanted.values()))
     bar.close()
-    return [wanted[i] for i in sorted(wanted)]
+    return [wanted[i] for i in range(episodes)]

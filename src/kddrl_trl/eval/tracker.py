@@ -1,70 +1,139 @@
-"""``EpisodeTracker``: per-episode driving metrics from collected frames, for any env writing the raw keys."""
+"""``EpisodeTracker``: the per-episode driving metrics of paper Tables II-V from collected frames.
+
+The one episode-metrics path: training (:class:`~kddrl_trl.training.Trainer`), evaluation
+(:func:`~kddrl_trl.eval.evaluate_policy`) and the Gymnasium env feed it the TensorDicts the env wrote, so every
+env writing the raw keys and episode events of ``kddrl_trl.keys`` (``SumoHighwayEnv``, ``FakeHighwayEnv``) gets
+the same metrics.
+"""
 from __future__ import annotations
+
+import math
 
 import torch
 from tensordict import TensorDictBase
 
 from .. import keys as K
-from ..envs.sim import EpisodeStats
+
+#: running sums per row, in column order
+SUMS = ("frames", "speed", "speed_sq", "accel", "accel_sq", "abs_accel", "lane_changes", "return_lc", "return_cf")
+#: episode field written at the first frame of each braking phase (the braking distance with the first one)
+PHASE_FIELDS = {K.BRAKE_BRAKING: "braking_start_frame", K.BRAKE_STANDING: "braking_stop_frame",
+                K.BRAKE_RESUMED: "braking_resume_frame"}
+#: label of an episode whose done flag the env did not set (a transform or a collector truncated it)
+TRUNCATED_OUTSIDE = "truncated"
+#: the entries of a frame the tracker reads, all under "next"
+IN_KEYS = tuple(("next", *(key if isinstance(key, tuple) else (key,))) for key in (
+    K.EGO_STATE, K.EGO_ACCEL, K.LC_STARTED, K.LC_REWARD, K.CF_REWARD, "done", K.OUTCOME, K.COLLISION_KIND,
+    K.COLLISION_SLOT, K.BRAKING_PHASE, K.BRAKING_DISTANCE))
 
 
 class EpisodeTracker:
-    """Accumulates, per environment of a batch, the metrics :func:`~kddrl_trl.eval.metrics.summarize` reads
-    (the same fields as ``SumoHighwayEnv.episodes``, through the same :class:`EpisodeStats`) from frame batches
-    ``[B, T]`` of a collector, and returns the episodes that finished in each batch, in the order they finished.
+    """Per-episode metrics from frame batches ``[B, T]`` (B rows, e.g. the roads of a batched env, T consecutive
+    frames each, as TorchRL collectors give them); returns the episodes that finished in each batch, in the
+    order they finished.
 
-    Read under ``"next"`` of each frame: ``EGO_STATE`` speed, ``EGO_ACCEL``, ``LC_STARTED`` (lane changes),
-    ``COLLISION``, the two rewards and the done flags. Only needs the raw keys, not SUMO.
+    Reads :data:`IN_KEYS` (under ``"next"`` of each frame): ``EGO_STATE`` (speed), ``EGO_ACCEL``,
+    ``LC_STARTED``, the two rewards, ``done`` and the episode events ``OUTCOME``, ``COLLISION_KIND``,
+    ``COLLISION_SLOT``, ``BRAKING_PHASE``, ``BRAKING_DISTANCE``. The row order of successive batches must be the
+    same, and a row's episode goes on across batches until a frame has ``done`` set.
+
+    Each episode is a dict of:
+
+    - ``index`` (numbered in the order they finish, from :attr:`finished`), ``start`` (numbered in the order they
+      start: all B rows at the first batch, then the rows reset after a done frame, row order within a frame),
+      ``road`` (the row);
+    - ``frames``; ``mean_speed`` (m/s), ``mean_speed_kmh``, ``mean_accel``, ``mean_abs_accel`` (m/s²),
+      ``mean_sq_speed``, ``mean_sq_accel`` (for frame-level spreads); ``lane_changes`` (manoeuvres started);
+      ``return_lc``, ``return_cf`` (undiscounted sums of the two rewards, Eq. 26 and 32);
+    - ``outcome`` (a ``keys.OUTCOMES`` label, or ``"truncated"`` when the done flag came from outside the env),
+      ``collision`` (outcome is a collision), ``collision_kind`` (``keys.COLLISION_KINDS`` label),
+      ``collision_with`` (the other vehicle's neighbour slot ``"a"``-``"f"``, ``""`` if none or unknown);
+    - ``braking_distance`` (m, NaN without a braking event) and, once reached, ``braking_start_frame``,
+      ``braking_stop_frame``, ``braking_resume_frame`` (the episode's frame count at which each phase began).
     """
 
-    #: running sums per road, named as the fields of :class:`~kddrl_trl.envs.sim.EpisodeStats`
-    FIELDS = ("frames", "speed_sum", "speed_sq_sum", "accel_sum", "accel_sq_sum", "abs_accel_sum", "lane_changes",
-              "return_lc", "return_cf")
-
     def __init__(self):
-        self.sums: dict[str, torch.Tensor] | None = None
-        self.collided: torch.Tensor | None = None
-        self.finished = 0
+        self.finished = 0  # episodes returned so far (a resumed training run sets it)
+        self.started = 0
+        self._carry: torch.Tensor | None = None  # [B, len(SUMS)] sums of the open episodes before this batch
+        self._start: torch.Tensor | None = None  # [B] start number of each row's open episode
+        self._phase: torch.Tensor | None = None  # [B] braking phase of each row's last frame
+        self._events: list[dict] = []            # per row: braking fields of the open episode
 
-    def _get(self, frames: TensorDictBase, key, default=0.0) -> torch.Tensor:
-        value = frames.get(("next", *(key if isinstance(key, tuple) else (key,))), None)
+    @staticmethod
+    def _column(nxt: TensorDictBase, key, index: int = 0) -> torch.Tensor:
+        value = nxt.get(key, None)
         if value is None:
-            return torch.full(frames.batch_size, float(default))
-        return value.reshape(*frames.batch_size, -1)[..., 0].to(torch.float32)
+            raise KeyError(f"EpisodeTracker: the frames have no ('next', {key!r}) entry; the env must write the raw "
+                           "keys and episode events of kddrl_trl/keys.py (SumoHighwayEnv, FakeHighwayEnv)")
+        return value.reshape(*nxt.batch_size, -1)[..., index].cpu()
 
     def __call__(self, frames: TensorDictBase) -> list[dict]:
         if frames.batch_dims != 2:
-            raise ValueError(f"expected frames of batch shape [B, T], got {tuple(frames.batch_size)}")
+            raise ValueError(f"EpisodeTracker: expected frames of batch shape [B, T], got {tuple(frames.batch_size)}")
         b, t = frames.batch_size
-        if self.sums is None:
-            self.sums = {f: torch.zeros(b, dtype=torch.float64) for f in self.FIELDS}
-            self.collided = torch.zeros(b, dtype=torch.bool)
-        speed = frames.get(("next", *K.EGO_STATE))[..., 1].to(torch.float32)
-        accel = self._get(frames, K.EGO_ACCEL)
-        per_frame = {"frames": torch.ones(b, t), "speed_sum": speed, "speed_sq_sum": speed * speed,
-                     "accel_sum": accel, "accel_sq_sum": accel * accel, "abs_accel_sum": accel.abs(),
-                     "lane_changes": self._get(frames, K.LC_STARTED), "return_lc": self._get(frames, K.LC_REWARD),
-                     "return_cf": self._get(frames, K.CF_REWARD)}
-        collision = self._get(frames, K.COLLISION) > 0
-        done = self._get(frames, "done") > 0
-        terminated = self._get(frames, "terminated") > 0
+        nxt = frames.get("next")
+        col = self._column
+        speed, accel = col(nxt, K.EGO_STATE, 1).double(), col(nxt, K.EGO_ACCEL).double()
+        values = torch.stack([torch.ones(b, t, dtype=torch.float64), speed, speed * speed, accel, accel * accel,
+                              accel.abs(), col(nxt, K.LC_STARTED).double(), col(nxt, K.LC_REWARD).double(),
+                              col(nxt, K.CF_REWARD).double()], -1)
+        done, phase = col(nxt, "done").bool(), col(nxt, K.BRAKING_PHASE).long()
+        codes = torch.stack([col(nxt, K.OUTCOME), col(nxt, K.COLLISION_KIND), col(nxt, K.COLLISION_SLOT)], -1).long()
+        distance = col(nxt, K.BRAKING_DISTANCE).double()
+        if self._carry is None:
+            self._carry = torch.zeros(b, len(SUMS), dtype=torch.float64)
+            self._start = torch.arange(b) + self.finished
+            self._phase = torch.zeros(b, dtype=torch.long)
+            self._events = [{} for _ in range(b)]
+            self.started = self.finished + b
+        elif self._carry.shape[0] != b:
+            raise ValueError(f"EpisodeTracker: the batch has {b} rows, earlier batches had {self._carry.shape[0]}")
+        # a braking phase change within an episode (a new episode starts from phase "none")
+        before = torch.cat([self._phase[:, None], phase[:, :-1]], 1)
+        before[:, 1:][done[:, :-1]] = K.BRAKE_NONE
+        changed = phase != before
+        csum = values.cumsum(1)
+        base = -self._carry  # per row: the cumulative sum just before the open episode's first frame
         out = []
-        for j in range(t):
-            for f, v in per_frame.items():
-                self.sums[f] += v[:, j].double()
-            self.collided |= collision[:, j]
-            for r in done[:, j].nonzero().squeeze(-1).tolist():
-                out.append(self._episode(r, bool(terminated[r, j])))
+        steps, rows = (changed | done).T.nonzero(as_tuple=True)  # in frame order, row order within a frame
+        for j, r in zip(steps.tolist(), rows.tolist()):
+            sums = csum[r, j] - base[r]
+            if changed[r, j]:
+                self._braking_event(r, int(phase[r, j]), int(sums[0]), float(distance[r, j]))
+            if done[r, j]:
+                out.append(self._episode(r, sums, codes[r, j].tolist()))
+                base[r] = csum[r, j]
+        self._carry = csum[:, -1] - base
+        self._phase = torch.where(done[:, -1], K.BRAKE_NONE, phase[:, -1])
         return out
 
-    def _episode(self, r: int, terminated: bool) -> dict:
-        sums = {f: float(v[r]) for f, v in self.sums.items()}
-        sums["frames"], sums["lane_changes"] = int(sums["frames"]), int(sums["lane_changes"])
-        stats = EpisodeStats(road=r, ego="", driver="", index=self.finished, **sums)  # ego / driver: unknown here
-        collision = bool(self.collided[r])
-        ep = stats.finish("collision" if collision else ("terminated" if terminated else "truncated"))
-        for v in self.sums.values():
-            v[r] = 0.0
-        self.collided[r] = False
+    def _braking_event(self, r: int, phase: int, frame: int, distance: float) -> None:
+        if phase == K.BRAKE_NONE:
+            return
+        events = self._events[r]
+        events.setdefault("braking_distance", distance)
+        if phase in PHASE_FIELDS:
+            events.setdefault(PHASE_FIELDS[phase], frame)
+
+    def _episode(self, r: int, sums: torch.Tensor, codes: list[int]) -> dict:
+        total = dict(zip(SUMS, sums.tolist()))
+        n = max(total["frames"], 1.0)
+        outcome, kind, slot = codes
+        label = K.OUTCOMES[outcome] if outcome != K.RUNNING else TRUNCATED_OUTSIDE
+        events = self._events[r]
+        ep = {
+            "index": self.finished, "start": int(self._start[r]), "road": r, "frames": int(total["frames"]),
+            "mean_speed": total["speed"] / n, "mean_speed_kmh": 3.6 * total["speed"] / n,
+            "mean_accel": total["accel"] / n, "mean_abs_accel": total["abs_accel"] / n,
+            "mean_sq_speed": total["speed_sq"] / n, "mean_sq_accel": total["accel_sq"] / n,
+            "lane_changes": int(total["lane_changes"]), "collision": outcome == K.COLLIDED, "outcome": label,
+            "collision_kind": K.COLLISION_KINDS[kind], "collision_with": K.NEIGHBOR_SLOTS[slot] if slot >= 0 else "",
+            "return_lc": total["return_lc"], "return_cf": total["return_cf"],
+            "braking_distance": events.pop("braking_distance", math.nan), **events,
+        }
         self.finished += 1
+        self._start[r] = self.started
+        self.started += 1
+        self._events[r] = {}
         return ep

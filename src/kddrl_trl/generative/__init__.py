@@ -1,6 +1,9 @@
 """Generative predictors of KDDRL (paper §III.B-C): trajGAN and lcGAN, their training and inference.
 
-No RL code is imported here. Default weights ship with the package (:func:`default_checkpoint`), made by
+One subpackage per model (``trajgan/``, ``lcgan/``: model / training task / figures / predictor), the
+generic training loop (``pretraining.py``), checkpoints (``checkpoint.py``) and the base of both RL-time
+predictors (``predictor.py``). No RL code and no ``kddrl_trl.data`` (pandas) is imported here. Default weights
+ship with the package (:func:`default_checkpoint`), made by
 ``python -m kddrl_trl.pretrain gan=<kind> export=src/kddrl_trl/generative/weights/<kind>.pt``.
 """
 from __future__ import annotations
@@ -10,6 +13,7 @@ from pathlib import Path
 
 from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint, save_checkpoint
 from .lcgan import LCGANPredictor, LCGANTask
+from .predictor import GANPredictor
 from .report import format_metrics
 from .trajgan import TrajGANPredictor, TrajGANTask
 
@@ -29,6 +33,6 @@ def load_predictor(kind: str, path: str | Path | None = None, **kwargs):
     return PREDICTORS[kind].from_checkpoint(path or default_checkpoint(kind), **kwargs)
 
 
-__all__ = ["CheckpointError", "LCGANPredictor", "LCGANTask", "PREDICTORS", "TASKS", "TrajGANPredictor",
+__all__ = ["CheckpointError", "GANPredictor", "LCGANPredictor", "LCGANTask", "PREDICTORS", "TASKS", "TrajGANPredictor",
            "TrajGANTask", "default_checkpoint", "format_metrics", "load_checkpoint", "load_predictor",
            "read_checkpoint", "save_checkpoint"]

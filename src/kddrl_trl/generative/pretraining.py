@@ -21,7 +21,7 @@ from torch import nn
 from tqdm.auto import tqdm
 
 from ..io import write_json_atomic
-from .checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
+from .checkpoint import load_checkpoint, save_checkpoint
 
 log = logging.getLogger(__name__)
 
@@ -142,10 +142,3 @@ def run_pretraining(task: GANTask, train: TensorDict, val: TensorDict, test: Ten
                    epochs_run=len(history), train_seconds=sum(r["seconds"] for r in history))
     write_json_atomic(run_dir / "metrics.json", metrics)
     return metrics
-
-
-def checkpoint_summary(path: str | Path) -> dict:
-    """Kind, architecture, dataset hash and epoch of a checkpoint, without loading it into a model."""
-    payload = read_checkpoint(path)
-    return {"kind": payload["kind"], "architecture": payload["architecture"],
-            "dataset_hash": payload["dataset_hash"], "epoch": payload["state"].get("epoch")}

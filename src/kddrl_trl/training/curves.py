@@ -7,18 +7,6 @@ from pathlib import Path
 import numpy as np
 
 
-def _smooth(x: np.ndarray, window: int) -> np.ndarray:
-    if len(x) < 2:
-        return x
-    w = max(1, min(window, len(x)))
-    c = np.cumsum(np.insert(x.astype(float), 0, 0.0))
-    out = np.empty(len(x))
-    for i in range(len(x)):  # trailing mean over the last w episodes (fewer at the start)
-        lo = max(0, i + 1 - w)
-        out[i] = (c[i + 1] - c[lo]) / (i + 1 - lo)
-    return out
-
-
 def plot_training_curves(history: list[dict], path: str | Path, window: int = 50, title: str = "") -> Path:
     """Four panels: lane-change return, car-following return, mean speed, collision rate (trailing mean over
     ``window`` episodes, raw values faint). Written atomically to ``path``."""
@@ -26,6 +14,7 @@ def plot_training_curves(history: list[dict], path: str | Path, window: int = 50
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import pandas as pd
 
     from ..io import write_atomic
 
@@ -39,7 +28,7 @@ def plot_training_curves(history: list[dict], path: str | Path, window: int = 50
         y = np.asarray([float(h[key]) for h in history])
         if key != "collision":
             ax.plot(ep, y, color="tab:blue", alpha=0.2, lw=0.8)
-        ax.plot(ep, _smooth(y, window), color="tab:red", lw=1.6)
+        ax.plot(ep, pd.Series(y).rolling(window, min_periods=1).mean(), color="tab:red", lw=1.6)
         ax.set_title(label, fontsize=10)
         ax.grid(alpha=0.3)
     for ax in axes[1]:

@@ -17,9 +17,8 @@ import logging
 import math
 import time
 from collections import deque
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -27,8 +26,12 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
 from ..collectors import MultiTimescaleCollector
 from ..eval.tracker import EpisodeTracker
-from .checkpoint import latest_checkpoint, load_training_checkpoint, save_training_checkpoint
+from ..runs import latest_checkpoint
+from .checkpoint import load_training_checkpoint, save_training_checkpoint
 from .learner import HierarchicalLearner
+
+if TYPE_CHECKING:
+    from ..conf.schema import TrainConfig
 
 log = logging.getLogger(__name__)
 
@@ -45,26 +48,21 @@ def make_buffer(capacity: int, batch_size: int, seed: int) -> TensorDictReplayBu
 
 
 class Trainer:
-    """Trains a :class:`HierarchicalLearner` for ``cfg.episodes`` episodes (:meth:`run`, on a batched TorchRL env
-    carrying the predictive-state transforms and a :class:`~kddrl_trl.collectors.DecisionClock`).
+    """Trains a :class:`HierarchicalLearner` for ``episodes`` episodes (:meth:`run`, on a
+    :class:`~kddrl_trl.collectors.MultiTimescaleCollector` whose env carries the predictive-state transforms and
+    a :class:`~kddrl_trl.collectors.DecisionClock`, and which fills ``buffers``).
 
-    ``cfg`` (the ``train`` config node): episodes, frames_per_env, warmup_frames, batch_size_cf,
-    batch_size_lc, buffer_cf, buffer_lc, updates_per_frame, updates_per_decision, checkpoint_every,
-    keep_buffers. ``logger`` has ``log_scalar(name, value, step)``. :meth:`load` restores a run directory's
-    latest checkpoint before :meth:`run` continues it.
+    ``buffers``: (buffer L of frames, buffer H of macro-transitions). ``cfg``: the typed ``train`` node
+    (:class:`~kddrl_trl.conf.schema.TrainConfig`, ranges checked there). ``logger`` has
+    ``log_scalar(name, value, step)``. :meth:`load` restores a run directory's latest checkpoint before
+    :meth:`run` continues it. All parts come from :mod:`kddrl_trl.factories`.
     """
 
-    def __init__(self, learner: HierarchicalLearner, cfg: Mapping[str, Any], run_dir: str | Path, logger,
-                 seed: int = 0, progress: bool = True):
-        self.learner, self.cfg = learner, dict(cfg)
+    def __init__(self, learner: HierarchicalLearner, buffers: tuple[TensorDictReplayBuffer, TensorDictReplayBuffer],
+                 cfg: TrainConfig, run_dir: str | Path, logger, *, episodes: int, progress: bool = True):
+        self.learner, self.cfg, self.episodes = learner, cfg, int(episodes)
+        self.buffer_cf, self.buffer_lc = buffers
         self.run_dir, self.logger, self.progress = Path(run_dir), logger, progress
-        c = self.cfg
-        for key in ("episodes", "frames_per_env", "batch_size_cf", "batch_size_lc", "buffer_cf", "buffer_lc",
-                    "checkpoint_every"):
-            if int(c[key]) < 1:
-                raise ValueError(f"train.{key} must be >= 1, got {c[key]!r}")
-        self.buffer_cf = make_buffer(c["buffer_cf"], c["batch_size_cf"], seed)
-        self.buffer_lc = make_buffer(c["buffer_lc"], c["batch_size_lc"], seed + 1)
         self.tracker = EpisodeTracker()
         self.history: list[dict] = []
         self.counters = {"frames": 0, "decisions": 0, "cf_updates": 0, "lc_updates": 0, "elapsed_s": 0.0}
@@ -75,7 +73,7 @@ class Trainer:
         # the environments restart on resume, so unfinished macro-transitions are not kept
         state = {"learner": self.learner.full_state_dict(), "counters": dict(self.counters),
                  "history": list(self.history)}
-        if self.cfg.get("keep_buffers", True):
+        if self.cfg.keep_buffers:
             state["buffer_cf"] = self.buffer_cf.state_dict()
             state["buffer_lc"] = self.buffer_lc.state_dict()
         return state
@@ -102,7 +100,7 @@ class Trainer:
 
     def _next_checkpoint(self) -> int:
         """Episode count at which the next checkpoint is due (the next multiple of ``checkpoint_every``)."""
-        every = int(self.cfg["checkpoint_every"])
+        every = self.cfg.checkpoint_every
         return (len(self.history) // every + 1) * every
 
     # ------------------------------------------------------------------------------------ loop
@@ -118,12 +116,12 @@ class Trainer:
 
     def _updates(self, frames: int, decisions: int, losses: dict[str, list[float]]) -> None:
         c, learner = self.cfg, self.learner
-        if self.counters["frames"] >= int(c["warmup_frames"]) and len(self.buffer_cf) >= int(c["batch_size_cf"]):
-            for _ in range(frames * int(c["updates_per_frame"])):
+        if self.counters["frames"] >= c.warmup_frames and len(self.buffer_cf) >= c.batch_size_cf:
+            for _ in range(frames * c.updates_per_frame):
                 self._record(learner.update_cf(self.buffer_cf.sample()), losses)
                 self.counters["cf_updates"] += 1
-        if len(self.buffer_lc) >= int(c["batch_size_lc"]):
-            for _ in range(decisions * int(c["updates_per_decision"])):
+        if len(self.buffer_lc) >= c.batch_size_lc:
+            for _ in range(decisions * c.updates_per_decision):
                 self._record(learner.update_lc(self.buffer_lc.sample()), losses)
                 self.counters["lc_updates"] += 1
 
@@ -141,16 +139,13 @@ class Trainer:
         self.logger.log_scalar("time/frames_per_s", self.counters["frames"] / max(elapsed, 1e-9), step=step)
         self.logger.log_scalar("time/cf_updates", self.counters["cf_updates"], step=step)
 
-    def run(self, env) -> list[dict]:
-        """Train on ``env`` until ``cfg.episodes`` episodes have finished (counting those of a resumed run);
-        return the training-episode history. ``env`` stays open."""
+    def run(self, collector: MultiTimescaleCollector) -> list[dict]:
+        """Train on the batches of ``collector`` until ``episodes`` episodes have finished (counting those of a
+        resumed run); return the training-episode history. The collector is shut down, its env stays open."""
         from tqdm.auto import tqdm
 
-        c, learner = self.cfg, self.learner
-        target = int(c["episodes"])
-        self.collector = MultiTimescaleCollector.from_env(
-            env, learner.policy(explore=True), frames_per_env=int(c["frames_per_env"]),
-            frame_buffer=self.buffer_cf, macro_buffer=self.buffer_lc, frame_keys=learner.buffer_keys())
+        learner, target = self.learner, self.episodes
+        self.collector = collector
         next_ckpt = self._next_checkpoint()
         recent: deque = deque(maxlen=50)
         recent.extend(self.history[-50:])

@@ -12,9 +12,9 @@ transform              writes                               paper
 =====================  ==================================  ================================================
 
 :func:`make_kddrl_transforms` builds the stack (and its ablations) as a :class:`PredictiveStack`: a ``Compose``
-that runs its members' maths as one (optionally compiled) function per frame. All transforms read only raw
-keys of :mod:`kddrl_trl.keys` and keys of earlier transforms, are stateless per frame, and work on reset, step
-and replay-buffer samples (``forward``) of any batch shape.
+that runs its members' maths as one function per frame (compiled with ``compile=True``: the transforms' only
+compile site). All transforms read only raw keys of :mod:`kddrl_trl.keys` and keys of earlier transforms, are
+stateless per frame, and work on reset, step and replay-buffer samples (``forward``) of any batch shape.
 """
 from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior

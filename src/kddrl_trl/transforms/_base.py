@@ -24,8 +24,6 @@ from torch import Tensor
 from torchrl.data import Bounded, Composite, TensorSpec, Unbounded
 from torchrl.envs.transforms import Transform
 
-from ..compiling import maybe_compile, resolve_compile
-
 
 def unbounded_spec(batch: torch.Size, shape: Sequence[int], device) -> TensorSpec:
     """float32 spec of positions / gaps (m): ``[*batch, *shape]``."""
@@ -67,36 +65,25 @@ def call_on_root_and_next(call, tensordict: TensorDictBase, in_keys: Sequence[Ne
 class PredictiveTransform(Transform):
     """Base of the KDDRL observation transforms: reads ``in_keys``, writes ``out_keys`` of one frame.
 
-    Subclasses implement :meth:`frame` (a *pure tensor function*: ``{in_key: tensor [*B, ...]}`` and the
-    call's noise -> ``{out_key: tensor [*B, ...]}``, batched over any leading batch shape), optionally
-    :meth:`noise` (drawn from the transform's own generator, outside ``frame``), and :meth:`out_specs`
-    (``{out_key: spec}`` for a given batch shape / device). Keeping the maths pure is what lets
-    :class:`~kddrl_trl.transforms.PredictiveStack` run a whole stack as ONE (compiled) function per frame.
-    This class wires them into TorchRL: ``_call`` (step), ``_reset`` (reset), ``forward`` (replay buffer) and
-    ``transform_observation_spec`` (every added key declared with shape and dtype).
+    A plain TorchRL transform. Subclasses implement :meth:`frame` (a *pure tensor function*:
+    ``{in_key: tensor [*B, ...]}`` and the call's noise -> ``{out_key: tensor [*B, ...]}``, batched over any
+    leading batch shape), optionally :meth:`noise` (drawn from the transform's own generator, outside
+    ``frame``), and :meth:`out_specs` (``{out_key: spec}`` for a given batch shape / device). Keeping the maths
+    pure is what lets :class:`~kddrl_trl.transforms.PredictiveStack` run a whole stack as ONE function per frame
+    (the one place where it is compiled). This class wires them into TorchRL: ``_call`` (step), ``_reset``
+    (reset), ``forward`` (replay buffer) and ``transform_observation_spec`` (every added key declared with shape
+    and dtype).
 
     Args:
         in_keys, out_keys: the keys read / written.
-        compile: run :meth:`frame` through ``torch.compile`` when this transform is called on its own
-            (``True`` / ``False`` / ``"auto"``, see :func:`kddrl_trl.compiling.resolve_compile`).
         pure: see the attribute.
     """
 
-    def __init__(self, in_keys: Sequence[NestedKey], out_keys: Sequence[NestedKey], compile: bool | str = False,
-                 pure: bool = True):
+    def __init__(self, in_keys: Sequence[NestedKey], out_keys: Sequence[NestedKey], pure: bool = True):
         super().__init__(in_keys=list(in_keys), out_keys=list(out_keys))
         #: whether :meth:`frame` is plain tensor maths that ``torch.compile`` can fuse with its neighbours (False
         #: for a transform wrapping a user's TensorDict module: never compiled)
         self.pure = bool(pure)
-        self.compile = resolve_compile(compile)
-        self._frame = maybe_compile(self.frame, self.compile and self.pure)
-
-    def __getstate__(self):  # a compiled function does not pickle: rebuilt on unpickling
-        return {k: v for k, v in super().__getstate__().items() if k != "_frame"}
-
-    def __setstate__(self, state):
-        super().__setstate__(state)
-        self._frame = maybe_compile(self.frame, self.compile and self.pure)
 
     # ----------------------------------------------------------------------------- to implement
     def frame(self, values: Mapping[NestedKey, Tensor],
@@ -112,9 +99,9 @@ class PredictiveTransform(Transform):
         raise NotImplementedError
 
     def compute(self, tensordict: TensorDictBase) -> dict[NestedKey, Tensor]:
-        """:meth:`frame` on the ``in_keys`` of ``tensordict`` (compiled when ``compile`` was asked for)."""
+        """:meth:`frame` on the ``in_keys`` of ``tensordict``."""
         values = {key: tensordict.get(key) for key in self.in_keys}
-        return self._frame(values, self.noise(tensordict.batch_size))
+        return self.frame(values, self.noise(tensordict.batch_size))
 
     # --------------------------------------------------------------------------------- TorchRL
     def _has_inputs(self, tensordict: TensorDictBase) -> bool:

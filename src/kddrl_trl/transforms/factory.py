@@ -30,7 +30,6 @@ def make_kddrl_transforms(
     num_lanes: int = 3,
     device: str | torch.device = "cpu",
     compile: bool | str = False,
-    aot: bool | None = None,
 ) -> PredictiveStack:
     """The KDDRL predictive-state transforms, in the order of Algorithm 1 (paper §III.B-C).
 
@@ -61,11 +60,8 @@ def make_kddrl_transforms(
         num_lanes: lanes of the road (MOBIL and lcGAN lane availability).
         device: device of the generative networks.
         compile: ``torch.compile`` the whole stack (physics priors and GAN inference) as ONE function per
-            frame: fused kernels, several times cheaper per frame on a CPU, after a one-off compile of ~30-60 s
-            per process and batch rank; ``"auto"``: when a C++ compiler is found. Off by default. Each member
-            called on its own compiles its own part.
-        aot: the environment's calls through a cached AOTInductor package (default: as ``compile``; see
-            :class:`PredictiveStack`).
+            frame (:func:`~kddrl_trl.transforms.stack.compiled_frames`, where the measured gain is stated),
+            after a one-off compile per process; ``"auto"``: when a C++ compiler is found. Off by default.
 
     A Hydra / plain-dict config maps onto the keyword arguments: ``make_kddrl_transforms(**cfg)``.
 
@@ -82,15 +78,15 @@ def make_kddrl_transforms(
         raise ValueError(f"num_samples must be >= 1, got {num_samples!r}")
     idm_p, mobil_p = as_idm_params(idm), as_mobil_params(mobil)
     seed, num_lanes = int(seed), int(num_lanes)
-    stack = [IDMPrior(idm_p, compile=compile)]
+    stack = [IDMPrior(idm_p)]
     if trajgan:
         stack.append(TrajGANPrediction(checkpoint=trajgan_checkpoint, num_samples=int(num_samples), reduce=reduce,
-                                       seed=seed, device=device, compile=compile))
+                                       seed=seed, device=device))
     else:
         stack.append(KeyGapsFromPrior())
     if priors:
-        stack.append(MOBILPrior(mobil_p, idm_p, num_lanes=num_lanes, compile=compile))
+        stack.append(MOBILPrior(mobil_p, idm_p, num_lanes=num_lanes))
         draws = int(num_samples) if reduce == "mean" else 1
         stack.append(LCGANPrior(checkpoint=lcgan_checkpoint, num_lanes=num_lanes, draws=draws, seed=seed,
-                                device=device, compile=compile))
-    return PredictiveStack(*stack, compile=compile, aot=aot)
+                                device=device))
+    return PredictiveStack(*stack, compile=compile)

@@ -47,8 +47,6 @@ class IDMPrior(PredictiveTransform):
         idm: IDM parameters (default Table A.1); an :class:`IDMParams` or a mapping of its fields.
         steps: horizon in frames.
         dt: frame length (s).
-        compile: run the rollout through ``torch.compile`` (one fused kernel instead of ~400 small ops per
-            frame: ~30x faster on a CPU, at a one-off compile of ~20 s per process). Off by default.
 
     Examples:
         >>> from kddrl_trl.envs import FakeHighwayEnv
@@ -58,12 +56,10 @@ class IDMPrior(PredictiveTransform):
         torch.Size([4, 3, 20])
     """
 
-    def __init__(self, idm: IDMParams | Mapping | None = None, steps: int = 20, dt: float = 0.1,
-                 compile: bool | str = False):
+    def __init__(self, idm: IDMParams | Mapping | None = None, steps: int = 20, dt: float = 0.1):
         self.idm = as_idm_params(idm)
         self.steps, self.dt = int(steps), float(dt)
-        super().__init__(in_keys=[K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LEADERS_AHEAD], out_keys=[K.PRED_PRIOR_TRAJ],
-                         compile=compile)
+        super().__init__(in_keys=[K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LEADERS_AHEAD], out_keys=[K.PRED_PRIOR_TRAJ])
 
     def frame(self, values, noise=None) -> dict:
         traj = prior_trajectory(values[K.NEIGHBORS_KIN], values[K.NEIGHBORS_MASK], values[K.LEADERS_AHEAD],

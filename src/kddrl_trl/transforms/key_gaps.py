@@ -7,10 +7,8 @@ import torch
 from torch import Tensor
 
 from .. import keys as K
+from ..gan_inputs import KEY_STEPS
 from ._base import PredictiveTransform, finite_or_zero, unbounded_spec
-
-#: the key steps of Eq. 24, 1-based (step 10 = 1 s, step 20 = 2 s ahead)
-KEY_STEPS = (10, 20)
 
 
 def key_step_gaps(traj: Tensor, ego_y: Tensor, present: Tensor, key_steps: Sequence[int] = KEY_STEPS) -> Tensor:

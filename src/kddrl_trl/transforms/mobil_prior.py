@@ -40,14 +40,13 @@ class MOBILPrior(PredictiveTransform):
         mobil: MOBIL parameters (default Table A.1); :class:`MOBILParams` or a mapping of its fields.
         idm: IDM parameters of the accelerations MOBIL compares (default Table A.1).
         num_lanes: lanes of the road (left exists where lane < num_lanes - 1, right where lane > 0).
-        compile: run the prior through ``torch.compile`` (fused kernels; one-off compile per process).
     """
 
     def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
-                 num_lanes: int = 3, compile: bool | str = False):
+                 num_lanes: int = 3):
         self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
         super().__init__(in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK],
-                         out_keys=[K.PRIOR_P_MOBIL], compile=compile)
+                         out_keys=[K.PRIOR_P_MOBIL])
 
     def frame(self, values, noise=None) -> dict:
         p = mobil_prior_from_obs(values[K.EGO_STATE], values[K.EGO_LANE], values[K.NEIGHBORS_KIN],

@@ -8,12 +8,12 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 
 from .. import keys as K
-from ._base import PredictiveTransform, finite_or_zero, unbounded_spec
-from ._frozen import as_tensordict, freeze, run_frozen
+from ._base import finite_or_zero, unbounded_spec
+from ._frozen import FrozenPredictorTransform
 from .key_gaps import KEY_STEPS, key_step_gaps
 
 
-class TrajGANPrediction(PredictiveTransform):
+class TrajGANPrediction(FrozenPredictorTransform):
     """``TG^T = G(Z^T, TC^T)`` (paper Eq. 13) -> ``keys.PRED_TRAJ`` ``[*B, 3, T]``, and the key-step gaps
     ``y_lv^pre`` of Eq. 24 -> ``keys.PRED_KEY_GAPS`` ``[*B, 3, 2]`` (Algorithm 1 lines 16-17).
 
@@ -29,7 +29,8 @@ class TrajGANPrediction(PredictiveTransform):
     Noise: ``reduce="sample"`` uses one draw per leader, ``"mean"`` the mean of ``num_samples`` draws. The
     draws come from the predictor's own ``torch.Generator`` seeded with ``seed``: two transforms built with the
     same seed give the same outputs for the same sequence of calls. The generator is a stream over calls, not
-    per-environment state, so resets (full or partial) never touch it; :meth:`reseed` restarts it.
+    per-environment state, so resets (full or partial) never touch it; :meth:`reseed` restarts it. Loading,
+    freezing, noise and reseeding: :class:`~kddrl_trl.transforms._frozen.FrozenPredictorTransform`.
 
     Args:
         predictor: a TensorDict module with out key ``PRED_TRAJ`` (exclusive with ``checkpoint``).
@@ -37,50 +38,26 @@ class TrajGANPrediction(PredictiveTransform):
         num_samples, reduce, seed: noise options of the default predictor (see above).
         device: device of the default predictor (inputs are moved there and outputs back).
         key_steps: 1-based key steps of Eq. 24.
-        compile: ``torch.compile`` this transform's :meth:`frame` when it is called on its own (``True`` /
-            ``False`` / ``"auto"``; a user's predictor module is never compiled). In a
-            :class:`~kddrl_trl.transforms.PredictiveStack` the stack's own ``compile`` applies.
     """
+
+    kind, out_key, rows_per_env = "trajgan", K.PRED_TRAJ, 3  # one noise row per leader a, b, c
 
     def __init__(self, predictor: TensorDictModuleBase | None = None, *, checkpoint: str | Path | None = None,
                  num_samples: int = 1, reduce: str = "sample", seed: int = 0, device: str | torch.device = "cpu",
-                 key_steps: Sequence[int] = KEY_STEPS, compile: bool | str = False):
-        if predictor is not None and checkpoint is not None:
-            raise ValueError("give either a predictor module or a checkpoint path, not both")
-        from ..generative import TrajGANPredictor, load_predictor
-
-        if predictor is None:
-            predictor = load_predictor("trajgan", checkpoint, num_samples=num_samples, reduce=reduce,
-                                       seed=seed).to(device)
-        if K.PRED_TRAJ not in [tuple(k) if isinstance(k, (tuple, list)) else k for k in predictor.out_keys]:
-            raise ValueError(f"the trajGAN predictor must write {K.PRED_TRAJ}, it writes {predictor.out_keys}")
-        in_keys = list(dict.fromkeys([*predictor.in_keys, K.EGO_STATE, K.NEIGHBORS_MASK]))
-        self.horizon = int(getattr(predictor, "horizon", 20))
+                 key_steps: Sequence[int] = KEY_STEPS):
+        super().__init__(predictor, checkpoint=checkpoint, seed=seed, device=device,
+                         options={"num_samples": num_samples, "reduce": reduce},
+                         in_keys=[K.NEIGHBORS_MASK], out_keys=[K.PRED_TRAJ, K.PRED_KEY_GAPS])
+        self.horizon = int(getattr(self.predictor, "horizon", 20))
         self.key_steps = tuple(int(s) for s in key_steps)
-        self.seed = int(getattr(predictor, "seed", seed))
-        super().__init__(in_keys=in_keys, out_keys=[K.PRED_TRAJ, K.PRED_KEY_GAPS], compile=compile,
-                         pure=isinstance(predictor, TrajGANPredictor))
-        self.predictor = freeze(predictor)
 
-    def reseed(self, seed: int | None = None) -> None:
-        """Restart the predictor's noise stream (with ``seed``, or the constructor's)."""
-        if hasattr(self.predictor, "reset"):
-            self.predictor.reset(seed)
-        elif isinstance(getattr(self.predictor, "generator", None), torch.Generator):
-            self.predictor.generator.manual_seed(self.seed if seed is None else int(seed))
-
-    def noise(self, batch: torch.Size) -> torch.Tensor | None:
-        """The shipped predictor's noise for ``batch`` x 3 leaders (a user's module draws its own)."""
-        return self.predictor.noise(batch.numel() * 3) if self.pure else None
+    def predict_inputs(self, values) -> tuple:
+        return (values[K.LEADERS_HISTORY], values[K.LEADERS_AHEAD], values[K.NEIGHBORS_MASK][..., :3].bool(),
+                values[K.PRED_PRIOR_TRAJ])
 
     def frame(self, values, noise=None) -> dict:
+        traj = finite_or_zero(self.prediction(values, noise).to(torch.float32))
         present = values[K.NEIGHBORS_MASK][..., :3].bool()
-        if self.pure:
-            traj = self.predictor.predict(values[K.LEADERS_HISTORY], values[K.LEADERS_AHEAD], present,
-                                          values[K.PRED_PRIOR_TRAJ], noise)
-        else:
-            traj = run_frozen(self.predictor, as_tensordict(values, present.shape[:-1]), K.PRED_TRAJ)
-        traj = finite_or_zero(traj.to(torch.float32))
         return {K.PRED_TRAJ: traj,
                 K.PRED_KEY_GAPS: key_step_gaps(traj, values[K.EGO_STATE][..., 0], present, self.key_steps)}
 

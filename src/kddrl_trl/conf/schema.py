@@ -1,0 +1,166 @@
+"""Typed schemas of the Hydra configs (registered in Hydra's ConfigStore by :mod:`kddrl_trl.conf`).
+
+The YAML files hold the values and say why; these dataclasses hold the types and the ranges. Hydra refuses a
+misspelt key or a value of the wrong type while it composes the config, naming the key (``train.batch_size_cf=abc``,
+``algo.learner.d3qn.lrr=1``); the range checks (``__post_init__``) run once, when an entry point turns the
+composed config into these objects (``OmegaConf.to_object``), before any simulator starts.
+
+=====================  =================================================================================
+``env``                :class:`EnvNode`: every :class:`~kddrl_trl.envs.config.HighwayConfig` field + ``num_roads``
+``algo`` (learning)    :class:`HierarchicalAlgo`: ``lc_period``, ``transforms``, ``learner{d3qn, td3, ...}``
+``algo`` (rule-based)  :class:`RuleAlgo`: ``idm``, ``mobil`` (fields of the physics parameter dataclasses)
+``train``              :class:`TrainConfig`: the Algorithm 1 loop of :class:`~kddrl_trl.training.Trainer`
+``logger``             :class:`LoggerConfig`
+``train.py`` job       :class:`TrainJob`; ``evaluate.py`` job: :class:`EvaluateJob`
+=====================  =================================================================================
+
+Each option of the ``algo`` group names its schema first in its defaults list (``hierarchical_schema`` or
+``rule_schema``), so one group types both kinds of algos; the algo's ``kind`` says which it is, also in a
+run's saved ``config.yaml`` (:func:`algo_from_node`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, make_dataclass
+from typing import Any, Optional
+
+from omegaconf import MISSING, DictConfig, OmegaConf
+
+from ..envs.config import HighwayConfig
+from ..physics import IDMParams, MOBILParams
+
+
+def _at_least(prefix: str, node, low: int, *names: str) -> None:
+    for name in names:
+        value = getattr(node, name)
+        if value < low:
+            raise ValueError(f"{prefix}{name} must be >= {low}, got {value!r}")
+
+
+@dataclass
+class EnvNode(HighwayConfig):
+    """The ``env`` node: the highway config plus the number of roads simulated side by side."""
+
+    num_roads: int = 8
+
+    def __post_init__(self) -> None:
+        _at_least("env.", self, 1, "num_roads")
+        self.validate()
+
+    def highway(self) -> HighwayConfig:
+        """This node's :class:`HighwayConfig` (its scenario preset was applied by Hydra: no preset applies again)."""
+        return HighwayConfig(**{f.name: getattr(self, f.name) for f in fields(HighwayConfig)})
+
+
+def _node(name: str, doc: str, check=None, **types: type) -> type:
+    """A schema whose fields all take their values from the YAML (``field=type`` pairs, no defaults); ``check``
+    (the range checks) runs when the composed config becomes objects."""
+    namespace = {"__doc__": doc} if check is None else {"__doc__": doc, "__post_init__": check}
+    return make_dataclass(name, [(key, kind, field(default=MISSING)) for key, kind in types.items()],
+                          namespace=namespace)
+
+
+def _check_train(train) -> None:
+    _at_least("train.", train, 1, "frames_per_env", "batch_size_cf", "batch_size_lc", "buffer_cf", "buffer_lc",
+              "checkpoint_every")
+    _at_least("train.", train, 0, "warmup_frames", "updates_per_frame", "updates_per_decision")
+
+
+LoggerConfig = _node("LoggerConfig", "``logger``: CSV and TensorBoard (true | false | auto: when installed).",
+                     csv=bool, tensorboard=Any)
+TrainConfig = _node("TrainConfig", "The ``train`` node (``conf/config.yaml``): collection, replay buffers, update "
+                    "ratios, checkpoints.", _check_train, frames_per_env=int, warmup_frames=int, batch_size_cf=int,
+                    batch_size_lc=int, buffer_cf=int, buffer_lc=int, updates_per_frame=int, updates_per_decision=int,
+                    checkpoint_every=int, keep_buffers=bool)
+TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
+                         ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none).",
+                         enabled=bool, trajgan=bool, priors=bool, num_samples=int, reduce=str,
+                         trajgan_checkpoint=Optional[str], lcgan_checkpoint=Optional[str])
+D3QNConfig = _node("D3QNConfig", "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the "
+                   "learning rate.", hidden=list[int], dueling=bool, double=bool, gamma=float, tau=float, lr=float,
+                   eps_init=float, eps_end=float, eps_decisions=int)
+TD3Config = _node("TD3Config", "``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the "
+                  "learning rates.", hidden=list[int], gamma=float, tau=float, actor_lr=float, critic_lr=float,
+                  policy_noise=float, noise_clip=float, policy_delay=int, exploration_sigma=float)
+LearnerConfig = _node("LearnerConfig", "``algo.learner``: keyword arguments of "
+                      ":class:`~kddrl_trl.training.HierarchicalLearner`.", priors=bool, key_gaps=bool, embed_dim=int,
+                      embed_hidden=int, embed_lr=float, d3qn=D3QNConfig, td3=TD3Config)
+
+
+@dataclass
+class HierarchicalAlgo:
+    """A learning algo (KDDRL and its configuration-only comparison systems)."""
+
+    name: str = MISSING
+    kind: str = "hierarchical"
+    lc_period: int = MISSING
+    transforms: TransformsConfig = MISSING
+    learner: LearnerConfig = MISSING
+
+    def __post_init__(self) -> None:
+        _at_least("algo.", self, 1, "lc_period")
+
+
+#: ``algo.idm`` / ``algo.mobil``: the fields of the physics parameters, as floats (defaults: paper Table A.1)
+IDMNode = make_dataclass("IDMNode", [(f.name, float, field(default=f.default)) for f in fields(IDMParams)])
+MOBILNode = make_dataclass("MOBILNode", [(f.name, float, field(default=f.default)) for f in fields(MOBILParams)])
+
+
+@dataclass
+class RuleAlgo:
+    """A rule-based algo: MOBIL lane choice + IDM car following (``algo=idm_mobil``)."""
+
+    name: str = MISSING
+    kind: str = "rule"
+    lc_period: int = 1
+    idm: IDMNode = field(default_factory=IDMNode)
+    mobil: MOBILNode = field(default_factory=MOBILNode)
+
+
+#: the algo schema of each ``algo.kind``
+ALGO_SCHEMAS = {"hierarchical": HierarchicalAlgo, "rule": RuleAlgo}
+
+
+def algo_from_node(node: DictConfig) -> HierarchicalAlgo | RuleAlgo:
+    """The typed algo of an ``algo`` node read back from a run's saved ``config.yaml``."""
+    kind = node.get("kind")
+    if kind not in ALGO_SCHEMAS:
+        raise ValueError(f"algo.kind={kind!r}: known kinds are {', '.join(ALGO_SCHEMAS)}")
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(ALGO_SCHEMAS[kind]), node))
+
+
+@dataclass
+class Job:
+    """What every entry point that runs a policy has: seed, evaluation size, the env, logging, compiling."""
+
+    seed: int = MISSING
+    eval_episodes: int = MISSING
+    progress: bool = MISSING
+    compile: Any = MISSING  # true | false | auto: torch.compile the fused transform stack and the learner update
+    env: EnvNode = MISSING
+    logger: LoggerConfig = MISSING
+
+    def __post_init__(self) -> None:
+        _at_least("", self, 1, "eval_episodes")
+        if self.compile not in (True, False, "auto"):
+            raise ValueError(f"compile must be true, false or auto, got {self.compile!r}")
+
+
+@dataclass
+class TrainJob(Job):
+    """``conf/config.yaml``: ``python -m kddrl_trl.train``."""
+
+    episodes: int = MISSING
+    resume: Any = MISSING  # false | true | a run folder
+    train: TrainConfig = MISSING
+    algo: Any = MISSING    # HierarchicalAlgo | RuleAlgo, typed by the option's own schema
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _at_least("", self, 1, "episodes")
+
+
+@dataclass
+class EvaluateJob(Job):
+    """``conf/evaluate.yaml``: ``python -m kddrl_trl.evaluate``."""
+
+    run: str = MISSING

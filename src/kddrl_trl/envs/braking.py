@@ -1,0 +1,124 @@
+"""Scenario 2 of the paper (§IV.D, ``conf/scenario/braking.yaml``): once per episode, a leader 100-300 m ahead in
+the ego's lane brakes to a stop at ``decel``, stands for ``stand_time`` and drives on.
+
+:class:`BrakingEvents` runs the event on every road of a :class:`~kddrl_trl.envs.sim.HighwaySim` and writes its
+phase (``keys.BRAKING_PHASE``, codes of ``keys.BRAKING_PHASES``) and the gap at which it started
+(``keys.BRAKING_DISTANCE``) into the simulator's observation arrays, from which the episode metrics
+(``braking_distance``, ``braking_start_frame`` ...) are read.
+"""
+from __future__ import annotations
+
+import math
+
+from .. import keys as K
+from .network import LC_MODE_DEFAULT, edge_ids
+from .observe import _libsumo, longitudinal
+
+
+class BrakingEvents:
+    """Per-road state of the braking event: seek a leader at a drawn target distance (phase ``none``), brake
+    it to a stop (``braking``), hold it (``standing``), release it (``resumed``, or ``vanished`` if it left the
+    simulation). No vehicle in range within ``trigger_frames``: one is inserted at the target distance.
+
+    ``sim`` is the simulator (its egos, frame counters, random streams, counters ``stats`` and vehicle insertion).
+    """
+
+    def __init__(self, sim):
+        self.sim, self.cfg = sim, sim.cfg.braking
+        self.state = [dict(phase=K.BRAKE_NONE, target=math.nan) for _ in range(sim.num_roads)]
+
+    def _write(self, r: int, phase: int, distance: float | None = None) -> None:
+        self.state[r]["phase"] = phase
+        self.sim.obs[K.BRAKING_PHASE][r, 0] = phase
+        if distance is not None:
+            self.sim.obs[K.BRAKING_DISTANCE][r, 0] = distance
+
+    def start(self, r: int) -> None:
+        """A new episode on road ``r``: draw the target distance (nothing to do if the scenario has no event)."""
+        self.state[r] = dict(phase=K.BRAKE_NONE, target=math.nan)
+        self._write(r, K.BRAKE_NONE, 0.0)
+        if self.cfg.enabled:
+            self.state[r]["target"] = float(self.sim.rngs[r].uniform(self.cfg.min_distance, self.cfg.max_distance))
+
+    def update(self, r: int) -> None:
+        """One frame of road ``r``'s running episode (called after the simulation step)."""
+        if not self.cfg.enabled:
+            return
+        br = self.state[r]
+        if br["phase"] == K.BRAKE_NONE:
+            self._seek(r)
+        elif br["phase"] in (K.BRAKE_BRAKING, K.BRAKE_STANDING):
+            self._hold(r)
+
+    def _seek(self, r: int) -> None:
+        ls, sim, cfg, br = _libsumo(), self.sim, self.cfg, self.state[r]
+        ego = sim.ego[r]
+        lane, y_ego = ls.vehicle.getLaneIndex(ego), longitudinal(ego, sim.cfg)
+        best, best_err, best_d = None, math.inf, math.nan
+        for e in edge_ids(r):
+            for vid in ls.lane.getLastStepVehicleIDs(f"{e}_{lane}"):
+                d = longitudinal(vid, sim.cfg) - y_ego
+                if vid != ego and cfg.min_distance <= d <= cfg.max_distance and abs(d - br["target"]) < best_err:
+                    best, best_err, best_d = vid, abs(d - br["target"]), d
+        if best is not None:
+            ls.vehicle.setDecel(best, cfg.decel)
+            ls.vehicle.setEmergencyDecel(best, max(cfg.decel, 9.0))
+            ls.vehicle.setLaneChangeMode(best, 0)
+            ls.vehicle.setSpeed(best, 0.0)
+            br.update(vid=best, start=sim.t)
+            self._write(r, K.BRAKE_BRAKING, best_d)
+            sim.stats["braking_events"] += 1
+        elif sim.frame[r] >= cfg.trigger_frames and not br.get("inserted"):
+            self._insert(r, lane, y_ego + br["target"])
+            br["inserted"] = True
+
+    def _hold(self, r: int) -> None:
+        ls, sim, br = _libsumo(), self.sim, self.state[r]
+        try:
+            speed = ls.vehicle.getSpeed(br["vid"])
+        except ls.TraCIException:
+            self._write(r, K.BRAKE_VANISHED)
+            return
+        if br["phase"] == K.BRAKE_BRAKING and speed < 1e-3:
+            br["stop"] = sim.t
+            self._write(r, K.BRAKE_STANDING)
+        elif br["phase"] == K.BRAKE_STANDING and (sim.t - br["stop"]) * sim.dt >= self.cfg.stand_time - 1e-9:
+            self._release(r)
+            self._write(r, K.BRAKE_RESUMED)
+
+    def _insert(self, r: int, lane: int, y: float) -> None:
+        """No vehicle in range within ``trigger_frames``: insert one in the ego's lane at ``y`` (it is found
+        as the braking leader on a later frame; counted in ``stats["braking_inserted"]``)."""
+        road = self.sim.cfg
+        y = min(y, road.section_length + road.exit_length - 2 * road.vehicle_length)
+        route, offset = f"route_r{r}_main", 0.0
+        if y >= road.section_length:
+            route, offset = f"route_r{r}_out", road.section_length
+        if y < 0:
+            route, offset = f"route_r{r}", -road.entry_length
+        self.sim.add_human(r, lane=lane, route=route, pos=y - offset, prefix="b")
+        self.sim.stats["braking_inserted"] += 1
+
+    def _release(self, r: int) -> None:
+        """Give a braking or standing vehicle back to SUMO (its own deceleration and lane changes)."""
+        ls, br = _libsumo(), self.state[r]
+        if br["phase"] not in (K.BRAKE_BRAKING, K.BRAKE_STANDING):
+            return
+        vid = br["vid"]
+        params = self.sim.vehicle_params.get(vid)
+        try:
+            ls.vehicle.setSpeed(vid, -1)
+            ls.vehicle.setLaneChangeMode(vid, LC_MODE_DEFAULT)
+            if params:
+                ls.vehicle.setDecel(vid, params["b"])
+        except ls.TraCIException:
+            pass
+
+    def end(self, r: int, recorded: bool) -> None:
+        """Road ``r``'s episode ends: release the vehicle if it still brakes or stands; a ``recorded`` episode
+        (not cut short by a reset) without an event counts in ``stats["braking_missed"]``. The observation
+        arrays keep the phase of the final frame."""
+        self._release(r)
+        if recorded and self.cfg.enabled and "vid" not in self.state[r]:
+            self.sim.stats["braking_missed"] += 1
+        self.state[r] = dict(phase=K.BRAKE_NONE, target=math.nan)

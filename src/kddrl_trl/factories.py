@@ -1,0 +1,230 @@
+"""Builders of the parts the entry points wire (``train.py``, ``evaluate.py``, ``pretrain.py``), as TorchRL's
+``sota-implementations/*/utils.py`` do: each ``make_*`` turns a typed config node (:mod:`kddrl_trl.conf.schema`)
+into one part, and holds no algorithm. Also the two steps ``train.py`` and ``evaluate.py`` share:
+:func:`evaluate` (exploration off, ``eval/`` scalars) and :func:`report` (``summary.json``, ``eval_episodes.csv``).
+
+=============================  ===========================================================================
+:func:`seed_everything`        ``random``, ``numpy`` and ``torch`` from one seed (each env is seeded itself)
+:func:`make_device`            ``auto`` | ``cpu`` | ``cuda``
+:func:`make_run_dir`           the folder Hydra made for this run, and whether it resumes
+:func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
+:func:`make_transforms`        the algo's predictive-state transforms + its :class:`DecisionClock`
+:func:`make_env`               the batched highway env (SUMO, or the fake) with the algo's transforms
+:func:`make_learner`           :class:`~kddrl_trl.training.HierarchicalLearner` of a learning algo
+:func:`make_policy`            the acting policy of any algo, exploration off
+:func:`make_buffers`           replay buffers L (frames) and H (macro-transitions)
+:func:`make_collector`         the two-clock collector filling both buffers
+:func:`load_trained_learner`   a training run's learner, from its latest checkpoint
+:func:`make_gan_data`          the dataset splits a generative model learns from
+=============================  ===========================================================================
+
+``compile`` (the top-level ``compile: true | false | auto`` key) reaches the two compile sites: the fused
+transform stack (:func:`make_transforms`) and the learner's update (:func:`make_learner`); a learner that
+only acts is built with ``compile=False``.
+"""
+from __future__ import annotations
+
+import random
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+from torchrl.data import TensorDictReplayBuffer
+from torchrl.envs import Compose, EnvBase, TransformedEnv
+
+from .collectors import DecisionClock, MultiTimescaleCollector
+from .conf.schema import EnvNode, HierarchicalAlgo, Job, LoggerConfig, RuleAlgo, TrainConfig, algo_from_node
+from .envs.config import HighwayConfig
+from .loggers import MultiLogger
+from .runs import latest_checkpoint, resume_requested, trained_run
+from .training import HierarchicalLearner, load_training_checkpoint, make_buffer
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def make_device(name: str) -> torch.device:
+    """``auto``: CUDA when available, else the CPU; ``cuda`` fails clearly without a CUDA device."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise SystemExit("device=cuda but no CUDA device is available (use device=auto or device=cpu)")
+    return torch.device(name)
+
+
+def make_run_dir(resume) -> tuple[Path, bool]:
+    """The output folder Hydra made for this run and whether it resumes. The folder was chosen once, while the
+    config was composed (:mod:`kddrl_trl.conf.resolvers`: the resumed run's own folder, or a new one); a run
+    resumes when its folder holds a checkpoint."""
+    from hydra.core.hydra_config import HydraConfig
+
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    resuming = latest_checkpoint(run_dir) is not None
+    if resume_requested(resume) and not resuming:
+        raise SystemExit(f"resume={resume}: {run_dir} holds no checkpoint (single runs resume, -m sweeps do not)")
+    return run_dir, resuming
+
+
+def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> MultiLogger:
+    """CSV logger always (``cfg.csv``); TensorBoard when installed (``tensorboard: auto``) or asked."""
+    import importlib.util
+    import logging
+
+    from torchrl.record.loggers import CSVLogger
+
+    loggers = [CSVLogger(exp_name=exp_name, log_dir=str(run_dir))] if cfg.csv else []
+    installed = importlib.util.find_spec("tensorboard") is not None
+    tb = installed if str(cfg.tensorboard).lower() == "auto" else cfg.tensorboard
+    if tb and not installed:
+        logging.getLogger(__name__).warning("logger.tensorboard=true but tensorboard is not installed: CSV only")
+    elif tb:
+        from torchrl.record.loggers import TensorboardLogger
+
+        loggers.append(TensorboardLogger(exp_name=exp_name, log_dir=str(run_dir)))
+    return MultiLogger(loggers)
+
+
+def make_transforms(algo: HierarchicalAlgo, seed: int, num_lanes: int, compile: bool | str = False) -> Compose:
+    """The predictive-state transforms of ``algo.transforms`` (none with ``enabled: false``), then the
+    :class:`DecisionClock` of ``algo.lc_period``."""
+    from .transforms import make_kddrl_transforms
+
+    options = asdict(algo.transforms)
+    stack = []
+    if options.pop("enabled"):
+        stack.append(make_kddrl_transforms(**options, seed=seed, num_lanes=num_lanes, compile=compile))
+    stack.append(DecisionClock(algo.lc_period))
+    return Compose(*stack)
+
+
+def make_env(env: EnvNode, algo: HierarchicalAlgo | RuleAlgo, seed: int, compile: bool | str = False,
+             fake: bool = False) -> EnvBase:
+    """``SumoHighwayEnv`` (``FakeHighwayEnv`` with ``fake=True``) of ``env.num_roads`` roads on the composed
+    highway config; a learning algo's env carries :func:`make_transforms` (built first: no simulator starts
+    before every option is checked)."""
+    highway = env.highway()
+    transforms = make_transforms(algo, seed, highway.num_lanes, compile) if isinstance(algo, HierarchicalAlgo) else None
+    if fake:
+        from .envs.fake import FakeHighwayEnv as Env
+    else:
+        from .envs.highway import SumoHighwayEnv as Env
+    base = Env(highway, num_roads=env.num_roads, seed=seed)
+    return base if transforms is None else TransformedEnv(base, transforms)
+
+
+def make_learner(algo: HierarchicalAlgo, compile: bool | str = False) -> HierarchicalLearner:
+    """The :class:`HierarchicalLearner` of ``algo.learner`` (``compile``: its update, the learner's one compile
+    site)."""
+    return HierarchicalLearner(**asdict(algo.learner), compile=compile)
+
+
+def make_policy(algo: HierarchicalAlgo | RuleAlgo, highway: HighwayConfig,
+                learner: HierarchicalLearner | None = None):
+    """The acting policy with exploration off: MOBIL + IDM with ``algo.idm`` / ``algo.mobil`` for a rule-based
+    algo; the trained ``learner`` 's greedy two-clock policy for a learning algo."""
+    if isinstance(algo, RuleAlgo):
+        from .baselines import IDMMobilPolicy
+        from .physics import IDMParams, MOBILParams
+
+        return IDMMobilPolicy(IDMParams(**asdict(algo.idm)), MOBILParams(**asdict(algo.mobil)),
+                              num_lanes=highway.num_lanes, lane_width=highway.lane_width)
+    if learner is None:
+        raise ValueError(f"algo={algo.name} is a learning algo: its policy needs the trained learner")
+    return learner.policy(explore=False).eval()
+
+
+def make_buffers(train: TrainConfig, seed: int) -> tuple[TensorDictReplayBuffer, TensorDictReplayBuffer]:
+    """Buffer L (frames, TD3) and buffer H (macro-transitions, D3QN) with the ``train`` sizes."""
+    return (make_buffer(train.buffer_cf, train.batch_size_cf, seed),
+            make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1))
+
+
+def make_collector(env: EnvBase, learner: HierarchicalLearner, buffers: tuple, train: TrainConfig
+                   ) -> MultiTimescaleCollector:
+    """``train.frames_per_env`` frames per road per iteration with the exploring policy, into ``buffers``
+    (restricted to the keys the learner reads)."""
+    return MultiTimescaleCollector.from_env(env, learner.policy(explore=True), frames_per_env=train.frames_per_env,
+                                            frame_buffer=buffers[0], macro_buffer=buffers[1],
+                                            frame_keys=learner.buffer_keys())
+
+
+def load_trained_learner(run: Path) -> tuple[HierarchicalAlgo, HierarchicalLearner, Path, str]:
+    """(algo, learner with the latest checkpoint's weights, that checkpoint, scenario trained on) of a training
+    run folder. The learner only acts: it is not compiled."""
+    saved = OmegaConf.load(trained_run(run) / "config.yaml")
+    algo = algo_from_node(saved.algo)
+    if not isinstance(algo, HierarchicalAlgo):
+        raise ValueError(f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "
+                         f"python -m kddrl_trl.train algo={algo.name} +scenario=...")
+    path = latest_checkpoint(run)
+    if path is None:
+        raise FileNotFoundError(f"run={run}: no checkpoint in {Path(run) / 'checkpoints'}")
+    learner = make_learner(algo, compile=False)
+    learner.load_full_state_dict(load_training_checkpoint(path)["learner"])
+    return algo, learner, path, str(saved.env.scenario)
+
+
+def evaluate(env: EnvBase, policy, job: Job, logger) -> tuple[list[dict], dict]:
+    """``job.eval_episodes`` episodes of ``policy`` (in start order, :func:`kddrl_trl.eval.evaluate_policy`),
+    logged under ``eval/``, and the env's counters; closes ``env``."""
+    from .eval import evaluate_policy, unwrap_env
+
+    def on_episode(ep: dict) -> None:
+        for key in ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc",
+                    "return_cf", "collision"):
+            logger.log_scalar(f"eval/{key}", float(ep[key]), step=ep["start"])
+
+    try:
+        episodes = evaluate_policy(env, policy, job.eval_episodes, job.seed, progress=job.progress,
+                                   on_episode=on_episode)
+        stats = dict(unwrap_env(env).stats)
+    finally:
+        env.close()
+    return episodes, stats
+
+
+def report(out_dir: Path, episodes: list[dict], title: str, reference: dict | None = None, **fields) -> dict:
+    """Summary of the evaluation ``episodes`` plus ``fields``: written to ``summary.json`` (the episodes to
+    ``eval_episodes.csv``) in ``out_dir`` and printed under ``title``."""
+    import pandas as pd
+
+    from .eval.metrics import format_summary, summarize
+    from .io import write_json_atomic, write_text_atomic
+
+    summary = {**summarize(episodes), **fields}
+    write_text_atomic(out_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
+    write_json_atomic(out_dir / "summary.json", summary)
+    print(f"\n{title}")
+    print(format_summary(summary, reference))
+    print(f"results in {out_dir}")
+    return summary
+
+
+#: which sample kind each generative model learns from (``kddrl_trl.data.extract``)
+GAN_DATA_KIND = {"trajgan": "leaders", "lcgan": "lane_changes"}
+
+
+def make_gan_data(kind: str, data_dir: Path, highway: HighwayConfig, recordings_dir: Path, seed: int,
+                  device: torch.device, progress: bool = True) -> tuple[dict, str]:
+    """The train / val / test splits (on ``device``) that model ``kind`` learns from, and the dataset's hash
+    (the input recordings and the extraction parameters). ``data_dir`` without a dataset: the default one is
+    built first from our own recordings of ``highway`` traffic."""
+    import hashlib
+    import json
+
+    from .data.extract import load_dataset
+    from .data.prepare import synthetic_dataset
+
+    if (data_dir / "meta.json").is_file():
+        meta = json.loads((data_dir / "meta.json").read_text())
+    else:
+        meta = synthetic_dataset(highway, data_dir, recordings_dir, seed=seed, progress=progress)
+    splits = {s: load_dataset(data_dir, GAN_DATA_KIND[kind], s).to_tensordict().to(device)
+              for s in ("train", "val", "test")}
+    digest = hashlib.sha256(json.dumps([meta["input_hash"], meta["params"], kind], sort_keys=True).encode()).hexdigest()
+    return splits, digest

@@ -1,0 +1,54 @@
+"""Run folders: where a run's checkpoints are, which one is the latest, and which folder a run writes into.
+
+Layout of a training run: ``<run_dir>/checkpoints/ep<NNNNNN>.pt`` and ``<run_dir>/checkpoints/latest`` (the
+file name of the newest complete checkpoint, :mod:`kddrl_trl.training.checkpoint`). The output folder of an
+entry point is chosen once, while Hydra composes the config (:mod:`kddrl_trl.conf.resolvers`); the entry point
+reads it from ``HydraConfig`` and learns that it resumes from the checkpoint the folder holds.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def checkpoint_dir(run_dir: str | Path) -> Path:
+    return Path(run_dir) / "checkpoints"
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path | None:
+    """The newest complete checkpoint of ``run_dir``, or None if it has none."""
+    pointer = checkpoint_dir(run_dir) / "latest"
+    if not pointer.is_file():
+        return None
+    path = checkpoint_dir(run_dir) / pointer.read_text().strip()
+    if not path.is_file():
+        raise FileNotFoundError(f"{pointer} names {path.name}, which does not exist")
+    return path
+
+
+def resume_requested(resume) -> bool:
+    """Whether a ``resume`` option asks to resume (``true`` or a run folder; ``false`` / null do not)."""
+    return resume not in (None, False, "", "false", "False")
+
+
+def find_resume_dir(resume, runs_root: str | Path, prefix: str) -> Path | None:
+    """The run directory to resume: ``resume`` a path -> that directory; ``resume=True`` -> the newest
+    ``<runs_root>/<prefix>*`` directory holding a checkpoint; ``False`` / None -> None."""
+    if not resume_requested(resume):
+        return None
+    if resume is True or str(resume).lower() == "true":
+        candidates = [d for d in Path(runs_root).glob(f"{prefix}*") if latest_checkpoint(d) is not None]
+        if not candidates:
+            raise FileNotFoundError(f"resume=true: no run directory {Path(runs_root) / (prefix + '*')} holds a "
+                                    "checkpoint (pass resume=<run dir> to pick one)")
+        return max(candidates, key=lambda d: latest_checkpoint(d).stat().st_mtime)
+    path = Path(str(resume))
+    if latest_checkpoint(path) is None:
+        raise FileNotFoundError(f"resume={resume}: {checkpoint_dir(path)} holds no checkpoint")
+    return path
+
+
+def trained_run(run) -> Path:
+    """``run``, if it is a folder made by ``kddrl_trl.train`` (it holds ``config.yaml``)."""
+    if not (Path(str(run)) / "config.yaml").is_file():
+        raise FileNotFoundError(f"run={run}: no config.yaml there (is it a directory made by kddrl_trl.train?)")
+    return Path(str(run))

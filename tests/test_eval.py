@@ -1,0 +1,134 @@
+"""The one episode-metrics path: ``EpisodeTracker`` on collected frames and ``evaluate_policy`` on the fake and the
+SUMO env (bare or transformed), checked against the metrics the frames imply."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from torchrl.envs import StepCounter, TransformedEnv
+
+from conftest import command
+from kddrl_trl import keys as K
+from kddrl_trl.baselines import IDMMobilPolicy
+from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv
+from kddrl_trl.eval import EpisodeTracker, evaluate_policy, summarize
+
+
+def rollout(env, policy, steps: int):
+    """``steps`` frames [B, steps] with auto-reset of done rows (what evaluate_policy and collectors do)."""
+    td, out = env.reset(), []
+    for _ in range(steps):
+        full, td = env.step_and_maybe_reset(policy(td))
+        out.append(full)
+    return torch.stack(out, 1)
+
+
+def implied_episodes(frames) -> list[dict]:
+    """The episodes of ``frames`` [B, T], frame by frame in plain Python (the reference for the tracker)."""
+    nxt = frames["next"]
+    b, t = frames.batch_size
+    out, open_ = [], [dict(frames=0, speed=0.0, accel=0.0, lc=0, r_lc=0.0, r_cf=0.0) for _ in range(b)]
+    for j in range(t):
+        for r in range(b):
+            ep = open_[r]
+            ep["frames"] += 1
+            ep["speed"] += float(nxt[K.EGO_STATE][r, j, 1])
+            ep["accel"] += float(nxt[K.EGO_ACCEL][r, j, 0])
+            ep["lc"] += int(nxt[K.LC_STARTED][r, j, 0])
+            ep["r_lc"] += float(nxt[K.LC_REWARD][r, j, 0])
+            ep["r_cf"] += float(nxt[K.CF_REWARD][r, j, 0])
+            if nxt["done"][r, j, 0]:
+                out.append({"road": r, "frames": ep["frames"], "mean_speed": ep["speed"] / ep["frames"],
+                            "mean_accel": ep["accel"] / ep["frames"], "lane_changes": ep["lc"],
+                            "return_lc": ep["r_lc"], "return_cf": ep["r_cf"],
+                            "outcome": K.OUTCOMES[int(nxt[K.OUTCOME][r, j, 0])]})
+                open_[r] = dict(frames=0, speed=0.0, accel=0.0, lc=0, r_lc=0.0, r_cf=0.0)
+    return out
+
+
+def assert_match(tracked: list[dict], implied: list[dict], ignore=()) -> None:
+    """Same episodes, same fields (floats up to rounding: sums run in another order)."""
+    assert len(tracked) == len(implied) > 0
+    for got, want in zip(tracked, implied):
+        for key, value in want.items():
+            if key not in ignore:
+                expected = pytest.approx(value, rel=1e-6, abs=1e-6, nan_ok=True) if isinstance(value, float) else value
+                assert got[key] == expected, key
+
+
+def test_tracker_matches_the_frames_and_carries_across_batches():
+    env = FakeHighwayEnv("congested", num_roads=4, seed=0)
+    frames = rollout(env, IDMMobilPolicy(), 400)
+    whole = EpisodeTracker()(frames)
+    assert_match(whole, implied_episodes(frames))
+    assert [e["index"] for e in whole] == list(range(len(whole)))  # finish order
+    chunked, tracker = [], EpisodeTracker()
+    for part in frames.split([7, 93, 1, 299], dim=1):
+        chunked += tracker(part)
+    assert_match(chunked, whole)
+    assert tracker.finished == len(whole)
+    # start order: the 4 first episodes, then a new one on each row right after each done
+    assert sorted(e["start"] for e in whole) == list(range(len(whole)))
+    assert [e["road"] for e in sorted(whole, key=lambda e: e["start"])[:4]] == [0, 1, 2, 3]
+
+
+def test_tracker_outcomes_and_collision_codes_on_the_fake():
+    env = FakeHighwayEnv(num_roads=8, seed=0, flow_vph=6000.0)
+    frames = rollout(env, lambda td: td.update(command(env, K.KEEP, 5.0)), 300)
+    episodes = EpisodeTracker()(frames)
+    assert_match(episodes, implied_episodes(frames))
+    hit = [e for e in episodes if e["collision"]]
+    assert hit and all(e["outcome"] == "collision" for e in hit)
+    assert all(e["collision_kind"] in ("rear_end", "hit_from_behind") for e in hit)  # no lane change commanded
+    assert {e["outcome"] for e in episodes} <= set(K.OUTCOMES[1:])
+    assert all(e["collision_kind"] == "none" and e["collision_with"] == "" for e in episodes if not e["collision"])
+    assert all(math.isnan(e["braking_distance"]) for e in episodes)  # no braking event in the fake
+
+
+def test_tracker_refuses_frames_without_the_keys():
+    frames = rollout(FakeHighwayEnv(num_roads=2, seed=0), IDMMobilPolicy(), 3)
+    with pytest.raises(KeyError, match="episode"):
+        EpisodeTracker()(frames.exclude(("next", *K.OUTCOME)))
+    with pytest.raises(ValueError, match=r"\[B, T\]"):
+        EpisodeTracker()(frames[:, 0])
+
+
+def test_evaluate_policy_on_the_fake_in_start_order():
+    env = FakeHighwayEnv("baseline", num_roads=4, seed=123)
+    seen = []
+    episodes = evaluate_policy(env, IDMMobilPolicy(), 10, seed=5, progress=False, on_episode=seen.append)
+    assert [e["start"] for e in episodes] == list(range(10))
+    assert [e["start"] for e in sorted(seen, key=lambda e: e["start"])] == list(range(10))
+    # the same seed gives the same episodes, bare or transformed; the episodes are the frames'
+    again = evaluate_policy(TransformedEnv(FakeHighwayEnv("baseline", num_roads=4), StepCounter()), IDMMobilPolicy(),
+                            10, seed=5, progress=False)
+    assert_match(again, episodes)
+    env.set_seed(5)
+    frames = rollout(env, IDMMobilPolicy(), 600)
+    tracked = sorted(EpisodeTracker()(frames), key=lambda e: e["start"])[:10]
+    assert_match(tracked, episodes, ignore=("index",))
+    summary = summarize(episodes)
+    assert summary["episodes"] == 10 and summary["collision_rate"] == 0.0
+    with pytest.raises(ValueError, match="episodes"):
+        evaluate_policy(env, IDMMobilPolicy(), 0, seed=0)
+
+
+@pytest.mark.usefixtures("no_sumo_open")
+def test_evaluate_policy_on_sumo_matches_the_frames():
+    env = SumoHighwayEnv("braking", num_roads=4, seed=0)
+    try:
+        episodes = evaluate_policy(TransformedEnv(env, StepCounter()), IDMMobilPolicy(), 6, seed=3, progress=False)
+        assert [e["start"] for e in episodes] == list(range(6))
+        assert all(100.0 <= e["braking_distance"] <= 300.0 for e in episodes)
+        assert all(e["outcome"] in K.OUTCOMES[1:] for e in episodes)
+        env.set_seed(3)  # the same traffic again: the frames imply the same episodes
+        frames = rollout(env, IDMMobilPolicy(), 300)
+        tracked = EpisodeTracker()(frames)
+        assert_match(tracked, implied_episodes(frames))
+        by_start = {e["start"]: e for e in tracked}
+        same = [e for e in episodes if e["start"] in by_start]
+        assert len(same) >= 4
+        assert_match([by_start[e["start"]] for e in same], same, ignore=("index",))
+    finally:
+        env.close()
