@@ -54,3 +54,23 @@ def test_a_ready_config_is_not_given_its_scenario_preset_again():
     again = make_config(cfg, {"flow_vph": 2000.0})
     assert again.scenario == "braking" and not again.braking.enabled and again.braking.stand_time == 9.0
     assert again.flow_vph == 2000.0
+
+
+
+def test_a_run_saved_with_the_old_per_algo_compile_keys_still_loads():
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from kddrl_trl.conf.schema import HierarchicalAlgo, algo_from_node
+    from kddrl_trl.factories import make_learner
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        cfg = compose(config_name="config")
+    saved = OmegaConf.create(OmegaConf.to_yaml(cfg.algo))  # as a run's config.yaml holds it
+    saved.transforms.compile, saved.transforms.aot, saved.learner.compile = "auto", None, "auto"
+    algo = algo_from_node(saved)
+    assert isinstance(algo, HierarchicalAlgo) and algo.lc_period == 20
+    assert make_learner(algo).compiled is False
+    saved.learner.lrr = 1.0  # anything else unknown is still refused
+    with pytest.raises(Exception, match="lrr"):
+        algo_from_node(saved)

@@ -120,8 +120,17 @@ class RuleAlgo:
 ALGO_SCHEMAS = {"hierarchical": HierarchicalAlgo, "rule": RuleAlgo}
 
 
+#: per-algo compile options of runs saved before the single top-level ``compile`` key (ignored on reading)
+LEGACY_ALGO_KEYS = (("transforms", "compile"), ("transforms", "aot"), ("learner", "compile"))
+
+
 def algo_from_node(node: DictConfig) -> HierarchicalAlgo | RuleAlgo:
-    """The typed algo of an ``algo`` node read back from a run's saved ``config.yaml``."""
+    """The typed algo of an ``algo`` node read back from a run's saved ``config.yaml`` (a run saved by an earlier
+    version may still hold :data:`LEGACY_ALGO_KEYS`: how it was compiled does not change what it learned)."""
+    node = OmegaConf.create(OmegaConf.to_container(node))
+    for parent, key in LEGACY_ALGO_KEYS:
+        if isinstance(node.get(parent), DictConfig) and key in node[parent]:
+            del node[parent][key]
     kind = node.get("kind")
     if kind not in ALGO_SCHEMAS:
         raise ValueError(f"algo.kind={kind!r}: known kinds are {', '.join(ALGO_SCHEMAS)}")
