@@ -59,9 +59,9 @@ class HierarchicalLearner(nn.Module):
         compile: ``torch.compile`` :meth:`loss` (the learner's one compile site; optimiser steps stay eager):
             removes most of TensorDict's per-call overhead, after a one-off compile of ~30 s; ``"auto"``: when a
             C++ compiler is found. Measured gain: updates per collected frame (TD3 + D3QN / ``lc_period``)
-            15.1 -> 8.6 ms, i.e. **39 %** of the training wall time (collection + updates) at K = 8 saved
-            (2-core CPU shared with other jobs; ``python benchmarks/train_throughput.py --roads 8 --updates 60
-            --frames 1000 --repeats 5``); the full-size run before this layout gave 4.98 -> 3.72 ms, 24 %.
+            15.9 -> 8.2 ms (0.49 -> 0.94 of plain PyTorch), **45 %** of the training wall time (collection +
+            updates) saved at K = 8 and 46 % at K = 32, from ``python benchmarks/train_throughput.py``
+            (``benchmarks/results/train_throughput.json``, 2-core CPU).
 
     Updates (one call = one gradient step):
 

@@ -46,9 +46,8 @@ def compiled_frames():
     on a stack, so stacks pickle as they are).
 
     Measured gain: collection ego-frames/s of the SUMO env with the full KDDRL stack, compiled vs eager (2-core
-    CPU shared with other jobs, arms in paired turns): **+76 %** at K = 8 roads (+151 % at K = 1), from
-    ``python benchmarks/transform_overhead.py --roads 8 1 --frames 300 --segment 50``; the full-size run
-    before this layout (same fused function, ``torch.compile`` only) gave +69 % at K = 8, +34 % at K = 32."""
+    CPU, arms in paired turns on one simulation): **+73 %** at K = 8 roads, +46 % at K = 32, +122 % at K = 1,
+    from ``python benchmarks/transform_overhead.py`` (``benchmarks/results/transform_overhead.json``)."""
     return torch.compile(run_frames, dynamic=True)
 
 
