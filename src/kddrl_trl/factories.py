@@ -1,7 +1,7 @@
 """Builders of the parts the entry points wire (``train.py``, ``evaluate.py``, ``pretrain.py``), as TorchRL's
 ``sota-implementations/*/utils.py`` do: each ``make_*`` turns a typed config node (:mod:`kddrl_trl.conf.schema`)
 into one part, and holds no algorithm. Also the two steps ``train.py`` and ``evaluate.py`` share:
-:func:`evaluate` (exploration off, ``eval/`` scalars) and :func:`report` (``summary.json``, ``eval_episodes.csv``).
+:func:`evaluate` (exploration off, ``test/`` scalars) and :func:`report` (``summary.json``, ``eval_episodes.csv``).
 
 =============================  ===========================================================================
 :func:`seed_everything`        ``random``, ``numpy`` and ``torch`` from one seed (each env is seeded itself)
@@ -14,7 +14,8 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 :func:`make_policy`            the acting policy of any algo, exploration off
 :func:`make_buffers`           replay buffers L (frames) and H (macro-transitions)
 :func:`make_collector`         the two-clock collector filling both buffers
-:func:`load_trained_learner`   a training run's learner, from its latest checkpoint
+:func:`make_evaluator`         the periodic evaluation during training (validation traffic, a worker process)
+:func:`load_trained_learner`   a training run's learner, from its latest (or best) checkpoint
 :func:`make_gan_data`          the dataset splits a generative model learns from
 =============================  ===========================================================================
 
@@ -30,15 +31,15 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs import Compose, EnvBase, TransformedEnv
 
 from .collectors import DecisionClock, MultiTimescaleCollector
-from .conf.schema import EnvNode, HierarchicalAlgo, Job, LoggerConfig, RuleAlgo, TrainConfig, algo_from_node
+from .conf.schema import EnvNode, HierarchicalAlgo, Job, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
 from .envs.config import HighwayConfig
 from .loggers import MultiLogger
-from .runs import latest_checkpoint, resume_requested, trained_run
+from .runs import checkpoint_dir, latest_checkpoint, resume_requested, trained_run
 from .training import HierarchicalLearner, load_training_checkpoint, make_buffer
 
 
@@ -59,14 +60,17 @@ def make_device(name: str) -> torch.device:
 
 def make_run_dir(resume) -> tuple[Path, bool]:
     """The output folder Hydra made for this run and whether it resumes. The folder was chosen once, while the
-    config was composed (:mod:`kddrl_trl.conf.resolvers`: the resumed run's own folder, or a new one); a run
-    resumes when its folder holds a checkpoint."""
+    config was composed (:mod:`kddrl_trl.conf.resolvers`: the resumed run's or sweep's own folder, or a new one);
+    a run resumes when its folder holds a checkpoint. A job of a resumed sweep (``-m ... resume=true``) whose
+    folder holds none starts afresh: it never reached its first checkpoint."""
     from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
 
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    hydra_cfg = HydraConfig.get()
+    run_dir = Path(hydra_cfg.runtime.output_dir)
     resuming = latest_checkpoint(run_dir) is not None
-    if resume_requested(resume) and not resuming:
-        raise SystemExit(f"resume={resume}: {run_dir} holds no checkpoint (single runs resume, -m sweeps do not)")
+    if resume_requested(resume) and not resuming and hydra_cfg.mode != RunMode.MULTIRUN:
+        raise SystemExit(f"resume={resume}: {run_dir} holds no checkpoint")
     return run_dir, resuming
 
 
@@ -153,35 +157,55 @@ def make_collector(env: EnvBase, learner: HierarchicalLearner, buffers: tuple, t
                                             frame_keys=learner.buffer_keys())
 
 
-def load_trained_learner(run: Path) -> tuple[HierarchicalAlgo, HierarchicalLearner, Path, str]:
-    """(algo, learner with the latest checkpoint's weights, that checkpoint, scenario trained on) of a training
-    run folder. The learner only acts: it is not compiled."""
+def make_evaluator(job: TrainJob):
+    """The periodic evaluation of :class:`~kddrl_trl.training.Trainer` (None with ``train.eval_every=0``):
+    ``train.eval_episodes`` greedy episodes on the validation seed of :mod:`kddrl_trl.eval.protocol`, in an env
+    of the job's traffic and the algo's transforms run by a worker process (eager: it acts a few times per run)."""
+    from functools import partial
+
+    from .eval.periodic import PeriodicEvaluator
+    from .eval.protocol import validation_seed
+
+    if job.train.eval_every == 0:
+        return None
+    seed = validation_seed(job.seed)
+    return PeriodicEvaluator(partial(make_env, job.env, job.algo, seed=seed, compile=False),
+                             job.train.eval_episodes, seed, job.train.best_metric)
+
+
+def load_trained_learner(run: Path, checkpoint: str = "latest"
+                         ) -> tuple[HierarchicalAlgo, HierarchicalLearner, Path, DictConfig]:
+    """(algo, learner with the weights of its ``latest`` or ``best`` checkpoint, that checkpoint, the run's saved
+    config) of a training run folder. The learner only acts: it is not compiled."""
     saved = OmegaConf.load(trained_run(run) / "config.yaml")
     algo = algo_from_node(saved.algo)
     if not isinstance(algo, HierarchicalAlgo):
         raise ValueError(f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "
                          f"python -m kddrl_trl.train algo={algo.name} +scenario=...")
-    path = latest_checkpoint(run)
-    if path is None:
-        raise FileNotFoundError(f"run={run}: no checkpoint in {Path(run) / 'checkpoints'}")
+    path = latest_checkpoint(run) if checkpoint == "latest" else checkpoint_dir(run) / "best.pt"
+    if path is None or not path.is_file():
+        raise FileNotFoundError(f"run={run}: no {checkpoint} checkpoint in {checkpoint_dir(run)}"
+                                + (" (train.eval_every=0 writes no best.pt)" if checkpoint == "best" else ""))
     learner = make_learner(algo, compile=False)
     learner.load_full_state_dict(load_training_checkpoint(path)["learner"])
-    return algo, learner, path, str(saved.env.scenario)
+    return algo, learner, path, saved
 
 
 def evaluate(env: EnvBase, policy, job: Job, logger) -> tuple[list[dict], dict]:
-    """``job.eval_episodes`` episodes of ``policy`` (in start order, :func:`kddrl_trl.eval.evaluate_policy`),
-    logged under ``eval/``, and the env's counters; closes ``env``."""
+    """``job.eval_episodes`` episodes of ``policy`` (in start order, :func:`kddrl_trl.eval.evaluate_policy`) on
+    the test seed of :mod:`kddrl_trl.eval.protocol`, logged under ``test/``, and the env's counters; closes
+    ``env``."""
     from .eval import evaluate_policy, unwrap_env
+    from .eval.protocol import test_seed
 
     def on_episode(ep: dict) -> None:
         for key in ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc",
                     "return_cf", "collision"):
-            logger.log_scalar(f"eval/{key}", float(ep[key]), step=ep["start"])
+            logger.log_scalar(f"test/{key}", float(ep[key]), step=ep["start"])
 
     try:
-        episodes = evaluate_policy(env, policy, job.eval_episodes, job.seed, progress=job.progress,
-                                   on_episode=on_episode)
+        episodes = evaluate_policy(env, policy, job.eval_episodes, test_seed(job.seed, job.eval_seed),
+                                   progress=job.progress, on_episode=on_episode)
         stats = dict(unwrap_env(env).stats)
     finally:
         env.close()

@@ -18,8 +18,10 @@ class MultiLogger:
 
 def trim_logs(run_dir: Path, last_step: int, exp_name: str = "logs") -> None:
     """Before a resumed run logs again: drop the ``train/`` and ``time/`` rows after ``last_step`` (episodes
-    logged after the checkpoint, which the resumed run replays) and any ``eval/`` file (evaluation restarts).
-    TorchRL's CSV logger appends, so without this those rows would appear twice."""
+    logged after the checkpoint, which the resumed run replays), the periodic ``eval/`` rows after the
+    checkpoint (logged at the number of episodes trained, ``last_step + 1`` for the checkpoint's own) and any
+    ``test/`` file (the final evaluation restarts). TorchRL's CSV logger appends, so without this those rows
+    would appear twice."""
     folder = Path(run_dir) / exp_name / "scalars"
     if not folder.is_dir():
         return
@@ -27,8 +29,9 @@ def trim_logs(run_dir: Path, last_step: int, exp_name: str = "logs") -> None:
 
     for path in folder.rglob("*.csv"):
         rel = path.relative_to(folder).as_posix()
-        if rel.startswith("eval"):
+        if rel.startswith("test"):
             path.unlink()
             continue
-        rows = [line for line in path.read_text().splitlines() if line and int(float(line.split(",")[0])) <= last_step]
+        last = last_step + 1 if rel.startswith("eval") else last_step
+        rows = [line for line in path.read_text().splitlines() if line and int(float(line.split(",")[0])) <= last]
         write_text_atomic(path, "".join(r + "\n" for r in rows))

@@ -47,6 +47,37 @@ def find_resume_dir(resume, runs_root: str | Path, prefix: str) -> Path | None:
     return path
 
 
+def find_sweep_dir(resume, prefix: str, stamp: str) -> Path:
+    """The folder of a sweep (``-m``): ``resume=true`` -> the newest ``<prefix>*`` folder; ``resume=<dir>`` -> that
+    folder; otherwise a new ``<prefix><stamp>``. Its jobs then resume or skip one by one (:mod:`kddrl_trl.train`)."""
+    if not resume_requested(resume):
+        return Path(f"{prefix}{stamp}")
+    if resume is True or str(resume).lower() == "true":
+        candidates = [d for d in Path(prefix).parent.glob(f"{Path(prefix).name}*") if d.is_dir()]
+        if not candidates:
+            raise FileNotFoundError(f"resume=true: no sweep folder {prefix}* to resume (pass resume=<sweep dir>)")
+        return max(candidates, key=lambda d: d.stat().st_mtime)
+    return Path(str(resume))
+
+
+#: options that do not change what a run computes (a sweep may be resumed with other values)
+NON_RESULT_KEYS = ("resume", "progress")
+
+
+def config_differences(saved: dict, current: dict, prefix: str = "") -> list[str]:
+    """The dotted keys whose values differ between two configs (``NON_RESULT_KEYS`` ignored at the top)."""
+    out = []
+    for key in sorted(set(saved) | set(current)):
+        if not prefix and key in NON_RESULT_KEYS:
+            continue
+        a, b = saved.get(key, "<missing>"), current.get(key, "<missing>")
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += config_differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            out.append(f"{prefix}{key}: {a!r} there, {b!r} now")
+    return out
+
+
 def trained_run(run) -> Path:
     """``run``, if it is a folder made by ``kddrl_trl.train`` (it holds ``config.yaml``)."""
     if not (Path(str(run)) / "config.yaml").is_file():

@@ -4,16 +4,21 @@ Wires the parts of :mod:`kddrl_trl.factories` and holds no algorithm:
 
 - learning algos (``algo.kind: hierarchical``: ``kddrl`` by default, ``d3qn_td3``, ``d3qn_td3_lg``,
   ``kddrl_same_clock``, ``ni``): train for ``episodes`` episodes (:class:`~kddrl_trl.training.Trainer`,
-  checkpoints every ``train.checkpoint_every`` episodes, ``resume=true`` continues), then evaluate
-  ``eval_episodes`` episodes with exploration off on a fresh env;
+  checkpoints every ``train.checkpoint_every`` episodes, periodic validation every ``train.eval_every``,
+  ``resume=true`` continues), then evaluate ``eval_episodes`` episodes with exploration off on a fresh env;
 - rule-based algos (``algo=idm_mobil``): evaluate ``eval_episodes`` episodes.
 
-Outputs go to ``runs/<scenario>__<algo>__<seed>__<time>/``: ``config.yaml``, ``train_episodes.csv``,
-``training_curves.png``, ``checkpoints/``, ``eval_episodes.csv``, ``summary.json``, TorchRL CSV logs.
+The evaluation traffic never repeats training traffic (:mod:`kddrl_trl.eval.protocol`). Outputs go to
+``runs/<scenario>__<algo>__<seed>__<time>/`` (a sweep, ``-m``: ``runs/multirun__<time>/<scenario>__<algo>__<seed>``;
+``-m ... resume=true`` continues the newest sweep job by job, skipping finished jobs): ``config.yaml``,
+``train_episodes.csv``, ``validation.csv``, ``training_curves.png``, ``checkpoints/``, ``eval_episodes.csv``,
+``summary.json``, TorchRL CSV logs.
 """
 from __future__ import annotations
 
+import json
 import logging
+import time
 from pathlib import Path
 
 import hydra
@@ -23,12 +28,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from .conf.schema import HierarchicalAlgo, TrainJob
-from .eval.metrics import PAPER_IDM_MOBIL
+from .eval.metrics import paper_reference
+from .eval.protocol import protocol, test_seed
 from .factories import (
-    evaluate, make_buffers, make_collector, make_env, make_learner, make_logger, make_policy, make_run_dir, report,
-    seed_everything,
+    evaluate, make_buffers, make_collector, make_env, make_evaluator, make_learner, make_logger, make_policy,
+    make_run_dir, report, seed_everything,
 )
 from .io import write_text_atomic
+from .runs import config_differences
 from .loggers import trim_logs
 from .training import Trainer, plot_training_curves
 
@@ -40,7 +47,8 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     returns it and the summary of its training."""
     learner = make_learner(job.algo, compile=job.compile)
     buffers = make_buffers(job.train, job.seed)
-    trainer = Trainer(learner, buffers, job.train, run_dir, logger, episodes=job.episodes, progress=job.progress)
+    trainer = Trainer(learner, buffers, job.train, run_dir, logger, episodes=job.episodes, progress=job.progress,
+                      evaluator=make_evaluator(job))
     done = trainer.load(run_dir) if resuming else 0
     if done:
         log.info("resuming %s", run_dir)
@@ -52,6 +60,8 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     finally:
         env.close()
     write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))
+    if trainer.validations:
+        write_text_atomic(run_dir / "validation.csv", pd.DataFrame(trainer.validations).to_csv(index=False))
     plot_training_curves(history, run_dir / "training_curves.png",
                          title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}")
     tail = history[-100:]
@@ -63,6 +73,16 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
 def main(cfg: DictConfig) -> dict:
     job: TrainJob = OmegaConf.to_object(cfg)  # typed; ranges checked once, before any simulator starts
     run_dir, resuming = make_run_dir(job.resume)
+    if (run_dir / "config.yaml").is_file():  # a resumed run or sweep job: the same config, or refuse
+        different = config_differences(OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml")),
+                                       OmegaConf.to_container(cfg, resolve=True))
+        if different:
+            raise SystemExit(f"{run_dir} holds a run of another config ({'; '.join(different[:5])}): in a sweep over "
+                             "these keys, add them to hydra.sweep.subdir")
+    if (run_dir / "summary.json").is_file() and not resuming:
+        log.info("%s is finished (summary.json): skipped", run_dir)  # a job of a resumed sweep
+        return json.loads((run_dir / "summary.json").read_text())
+    started = time.perf_counter()
     seed_everything(job.seed)
     logger = make_logger(job.logger, run_dir)
     if not resuming:
@@ -71,13 +91,14 @@ def main(cfg: DictConfig) -> dict:
     extra, learner = {}, None
     if isinstance(job.algo, HierarchicalAlgo):
         learner, extra["training"] = train(job, run_dir, logger, resuming)
-    env = make_env(job.env, job.algo, seed=job.seed, compile=job.compile)
+    env = make_env(job.env, job.algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
     policy = make_policy(job.algo, job.env, learner)
     episodes, stats = evaluate(env, policy, job, logger)
-    reference = PAPER_IDM_MOBIL if job.algo.name == "idm_mobil" and job.env.scenario == "baseline" else None
+    reference = paper_reference(job.env.scenario, job.algo.name)
     return report(run_dir, episodes, f"{job.algo.name} on {job.env.scenario}, seed {job.seed}: evaluation, "
                   "exploration off", reference, scenario=job.env.scenario, algo=job.algo.name, seed=job.seed,
-                  env_stats=stats, flow_vph=job.env.flow, run_dir=str(run_dir), **extra)
+                  protocol=protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes), env_stats=stats,
+                  flow_vph=job.env.flow, run_dir=str(run_dir), wall_s=time.perf_counter() - started, **extra)
 
 
 if __name__ == "__main__":

@@ -6,6 +6,8 @@ folder behind. These resolvers decide while the config is composed, once (:mod:`
 
 * ``${kddrl_train_dir:${resume},runs,<prefix>,<stamp>}``: the run folder to resume (``resume=true``: the
   newest ``runs/<prefix>*`` with a checkpoint; ``resume=<dir>``: that one), else ``runs/<prefix><stamp>``;
+* ``${kddrl_sweep_dir:${resume},<prefix>,<stamp>}``: the sweep folder to resume (``resume=true``: the newest
+  ``<prefix>*``; ``resume=<dir>``: that one), else ``<prefix><stamp>``;
 * ``${kddrl_trained_run:${run}}``: ``run`` itself, after checking that it is a training run folder
   (holds ``config.yaml``); a clear error naming the folder otherwise.
 """
@@ -15,7 +17,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from ..runs import find_resume_dir, trained_run
+from ..runs import find_resume_dir, find_sweep_dir, trained_run
 
 
 def train_dir(resume, runs_root: str, prefix: str, stamp: str) -> str:
@@ -26,6 +28,7 @@ def train_dir(resume, runs_root: str, prefix: str, stamp: str) -> str:
 
 def register() -> None:
     """Register the resolvers (idempotent; cached so a config resolves them once)."""
-    for name, fn in (("kddrl_train_dir", train_dir), ("kddrl_trained_run", lambda run: str(trained_run(run)))):
+    for name, fn in (("kddrl_train_dir", train_dir), ("kddrl_trained_run", lambda run: str(trained_run(run))),
+                     ("kddrl_sweep_dir", lambda resume, prefix, stamp: str(find_sweep_dir(resume, prefix, stamp)))):
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, fn, use_cache=True)

@@ -62,7 +62,12 @@ def _node(name: str, doc: str, check=None, **types: type) -> type:
 def _check_train(train) -> None:
     _at_least("train.", train, 1, "frames_per_env", "batch_size_cf", "batch_size_lc", "buffer_cf", "buffer_lc",
               "checkpoint_every")
-    _at_least("train.", train, 0, "warmup_frames", "updates_per_frame", "updates_per_decision")
+    _at_least("train.", train, 0, "warmup_frames", "updates_per_frame", "updates_per_decision", "eval_every")
+    _at_least("train.", train, 1, "eval_episodes")
+    from ..eval.periodic import BEST_METRICS
+
+    if train.best_metric not in BEST_METRICS:
+        raise ValueError(f"train.best_metric={train.best_metric!r}: known metrics are {', '.join(BEST_METRICS)}")
 
 
 LoggerConfig = _node("LoggerConfig", "``logger``: CSV and TensorBoard (true | false | auto: when installed).",
@@ -70,7 +75,7 @@ LoggerConfig = _node("LoggerConfig", "``logger``: CSV and TensorBoard (true | fa
 TrainConfig = _node("TrainConfig", "The ``train`` node (``conf/config.yaml``): collection, replay buffers, update "
                     "ratios, checkpoints.", _check_train, frames_per_env=int, warmup_frames=int, batch_size_cf=int,
                     batch_size_lc=int, buffer_cf=int, buffer_lc=int, updates_per_frame=int, updates_per_decision=int,
-                    checkpoint_every=int, keep_buffers=bool)
+                    checkpoint_every=int, keep_buffers=bool, eval_every=int, eval_episodes=int, best_metric=str)
 TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
                          ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none).",
                          enabled=bool, trajgan=bool, priors=bool, num_samples=int, reduce=str,
@@ -143,6 +148,7 @@ class Job:
 
     seed: int = MISSING
     eval_episodes: int = MISSING
+    eval_seed: Optional[int] = None  # env seed of the evaluation; null: seed + eval.protocol.TEST_OFFSET
     progress: bool = MISSING
     compile: Any = MISSING  # true | false | auto: torch.compile the fused transform stack and the learner update
     env: EnvNode = MISSING
@@ -166,6 +172,9 @@ class TrainJob(Job):
     def __post_init__(self) -> None:
         super().__post_init__()
         _at_least("", self, 1, "episodes")
+        from ..eval.protocol import check_disjoint, test_seed
+
+        check_disjoint("eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes)
 
 
 @dataclass
@@ -173,3 +182,9 @@ class EvaluateJob(Job):
     """``conf/evaluate.yaml``: ``python -m kddrl_trl.evaluate``."""
 
     run: str = MISSING
+    checkpoint: str = "latest"  # latest | best (the best validation score during training)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.checkpoint not in ("latest", "best"):
+            raise ValueError(f"checkpoint must be latest or best, got {self.checkpoint!r}")

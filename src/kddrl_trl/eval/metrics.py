@@ -3,9 +3,20 @@ from __future__ import annotations
 
 import numpy as np
 
-#: the paper's figures for the rule-based baseline (Table V, baseline scenario), to print beside ours
-PAPER_IDM_MOBIL = {"mean_speed_kmh": 146.6, "mean_speed_kmh_sd": 25.5, "mean_accel": 1.20, "mean_accel_sd": 0.8,
-                   "collision_rate": 0.0}
+from .paper import paper_value
+
+
+def paper_reference(scenario: str, algo: str) -> dict | None:
+    """The paper's values for ``algo`` on ``scenario`` (:mod:`kddrl_trl.eval.paper`) in the keys of
+    :func:`summarize`, for :func:`format_summary`; None where the paper has none."""
+    ref = {}
+    for key in ("mean_speed_kmh", "mean_accel", "collision_rate"):
+        value = paper_value(scenario, algo, key)
+        if value is not None:
+            ref[key] = value[0]
+            if value[1] is not None:
+                ref[f"{key}_sd"] = value[1]
+    return ref or None
 
 
 def summarize(episodes: list[dict]) -> dict:
@@ -49,7 +60,7 @@ def format_summary(summary: dict, reference: dict | None = None) -> str:
         return f"{summary[key]:.2f} ± {summary[key + '_sd']:.2f}"
 
     def ref_pm(key):
-        return f"{ref[key]:.2f} ± {ref[key + '_sd']:.2f}" if key in ref else ""
+        return f"{ref[key]:.2f} ± {ref[key + '_sd']:.2f}" if key + "_sd" in ref else ""
 
     rows += [
         ("mean speed (km/h), sd over episodes", pm("mean_speed_kmh"), ref_pm("mean_speed_kmh")),

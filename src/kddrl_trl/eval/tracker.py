@@ -23,8 +23,8 @@ PHASE_FIELDS = {K.BRAKE_BRAKING: "braking_start_frame", K.BRAKE_STANDING: "braki
 TRUNCATED_OUTSIDE = "truncated"
 #: the entries of a frame the tracker reads, all under "next"
 IN_KEYS = tuple(("next", *(key if isinstance(key, tuple) else (key,))) for key in (
-    K.EGO_STATE, K.EGO_ACCEL, K.LC_STARTED, K.LC_REWARD, K.CF_REWARD, "done", K.OUTCOME, K.COLLISION_KIND,
-    K.COLLISION_SLOT, K.BRAKING_PHASE, K.BRAKING_DISTANCE))
+    K.EGO_STATE, K.EGO_ACCEL, K.LC_STARTED, K.LC_ACTIVE, K.LC_REWARD, K.CF_REWARD, "done", K.OUTCOME,
+    K.COLLISION_KIND, K.COLLISION_SLOT, K.BRAKING_PHASE, K.BRAKING_DISTANCE))
 
 
 class EpisodeTracker:
@@ -47,7 +47,9 @@ class EpisodeTracker:
       ``return_lc``, ``return_cf`` (undiscounted sums of the two rewards, Eq. 26 and 32);
     - ``outcome`` (a ``keys.OUTCOMES`` label, or ``"truncated"`` when the done flag came from outside the env),
       ``collision`` (outcome is a collision), ``collision_kind`` (``keys.COLLISION_KINDS`` label),
-      ``collision_with`` (the other vehicle's neighbour slot ``"a"``-``"f"``, ``""`` if none or unknown);
+      ``collision_with`` (the other vehicle's neighbour slot ``"a"``-``"f"``, ``""`` if none or unknown; its
+      role: leaders a/b/c, followers d/e/f), ``ended_changing_lane`` (the ego's lane-change manoeuvre was under
+      way at the last frame);
     - ``braking_distance`` (m, NaN without a braking event) and, once reached, ``braking_start_frame``,
       ``braking_stop_frame``, ``braking_resume_frame`` (the episode's frame count at which each phase began).
     """
@@ -79,7 +81,8 @@ class EpisodeTracker:
                               accel.abs(), col(nxt, K.LC_STARTED).double(), col(nxt, K.LC_REWARD).double(),
                               col(nxt, K.CF_REWARD).double()], -1)
         done, phase = col(nxt, "done").bool(), col(nxt, K.BRAKING_PHASE).long()
-        codes = torch.stack([col(nxt, K.OUTCOME), col(nxt, K.COLLISION_KIND), col(nxt, K.COLLISION_SLOT)], -1).long()
+        codes = torch.stack([col(nxt, K.OUTCOME), col(nxt, K.COLLISION_KIND), col(nxt, K.COLLISION_SLOT),
+                             col(nxt, K.LC_ACTIVE).long()], -1).long()
         distance = col(nxt, K.BRAKING_DISTANCE).double()
         if self._carry is None:
             self._carry = torch.zeros(b, len(SUMS), dtype=torch.float64)
@@ -119,7 +122,7 @@ class EpisodeTracker:
     def _episode(self, r: int, sums: torch.Tensor, codes: list[int]) -> dict:
         total = dict(zip(SUMS, sums.tolist()))
         n = max(total["frames"], 1.0)
-        outcome, kind, slot = codes
+        outcome, kind, slot, changing = codes
         label = K.OUTCOMES[outcome] if outcome != K.RUNNING else TRUNCATED_OUTSIDE
         events = self._events[r]
         ep = {
@@ -129,6 +132,7 @@ class EpisodeTracker:
             "mean_sq_speed": total["speed_sq"] / n, "mean_sq_accel": total["accel_sq"] / n,
             "lane_changes": int(total["lane_changes"]), "collision": outcome == K.COLLIDED, "outcome": label,
             "collision_kind": K.COLLISION_KINDS[kind], "collision_with": K.NEIGHBOR_SLOTS[slot] if slot >= 0 else "",
+            "ended_changing_lane": bool(changing),
             "return_lc": total["return_lc"], "return_cf": total["return_cf"],
             "braking_distance": events.pop("braking_distance", math.nan), **events,
         }

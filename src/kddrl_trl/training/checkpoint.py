@@ -6,6 +6,8 @@ optimisers, exploration schedules, counters, the training-episode history and â€
 resume, so intervals open at the checkpoint are dropped) and ``<run_dir>/checkpoints/latest`` (the file name of
 the newest complete checkpoint). A file is complete before ``latest`` names it, so a run killed at any moment
 resumes from its last complete checkpoint. Older checkpoints are deleted after the pointer moves.
+``<run_dir>/checkpoints/best.pt``: the learner with the best validation score so far (periodic evaluation,
+:class:`~kddrl_trl.training.Trainer`) and that evaluation's record.
 """
 from __future__ import annotations
 
@@ -27,6 +29,11 @@ def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, 
     for old in sorted(folder.glob("ep*.pt"))[:-max(int(keep), 1)]:
         old.unlink(missing_ok=True)
     return path
+
+
+def save_best_checkpoint(run_dir: str | Path, payload: dict) -> Path:
+    """Write ``payload`` (``learner`` state and its ``validation`` record) as ``checkpoints/best.pt``."""
+    return torch_save_atomic(checkpoint_dir(run_dir) / "best.pt", {"format": FORMAT, **payload})
 
 
 def load_training_checkpoint(path: str | Path) -> dict:

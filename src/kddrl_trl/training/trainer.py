@@ -9,7 +9,10 @@ Per collection batch of ``frames_per_env`` frames from each of the B environment
    frame / per decision are the paper's; they are run after each batch instead of between two frames, so
    the acting policy lags by at most ``frames_per_env`` frames (the usual collector trade-off);
 3. finished episodes are logged (``train/`` and ``time/``), the progress bar moves, and every
-   ``checkpoint_every`` episodes a checkpoint is written (:mod:`kddrl_trl.training.checkpoint`).
+   ``checkpoint_every`` episodes a checkpoint is written (:mod:`kddrl_trl.training.checkpoint`);
+4. every ``eval_every`` episodes (0: never) the greedy policy drives ``eval_episodes`` validation episodes
+   (:class:`~kddrl_trl.eval.periodic.PeriodicEvaluator`, fixed seeds disjoint from training), logged under
+   ``eval/``; the best score so far is kept as ``checkpoints/best.pt`` beside ``latest``.
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from ..collectors import MultiTimescaleCollector
 from ..eval.tracker import EpisodeTracker
 from ..runs import latest_checkpoint
-from .checkpoint import load_training_checkpoint, save_training_checkpoint
+from .checkpoint import load_training_checkpoint, save_best_checkpoint, save_training_checkpoint
 from .learner import HierarchicalLearner
 
 if TYPE_CHECKING:
@@ -55,12 +58,16 @@ class Trainer:
     ``buffers``: (buffer L of frames, buffer H of macro-transitions). ``cfg``: the typed ``train`` node
     (:class:`~kddrl_trl.conf.schema.TrainConfig`, ranges checked there). ``logger`` has
     ``log_scalar(name, value, step)``. :meth:`load` restores a run directory's latest checkpoint before
-    :meth:`run` continues it. All parts come from :mod:`kddrl_trl.factories`.
+    :meth:`run` continues it. ``evaluator`` (e.g. :class:`~kddrl_trl.eval.periodic.PeriodicEvaluator`) maps the
+    greedy policy to (episodes, summary with a ``"score"``); it runs every ``cfg.eval_every`` episodes. All parts
+    come from :mod:`kddrl_trl.factories`.
     """
 
     def __init__(self, learner: HierarchicalLearner, buffers: tuple[TensorDictReplayBuffer, TensorDictReplayBuffer],
-                 cfg: TrainConfig, run_dir: str | Path, logger, *, episodes: int, progress: bool = True):
-        self.learner, self.cfg, self.episodes = learner, cfg, int(episodes)
+                 cfg: TrainConfig, run_dir: str | Path, logger, *, episodes: int, progress: bool = True,
+                 evaluator=None):
+        self.learner, self.cfg, self.episodes, self.evaluator = learner, cfg, int(episodes), evaluator
+        self.validations: list[dict] = []  # per periodic evaluation: episodes trained, summary
         self.buffer_cf, self.buffer_lc = buffers
         self.run_dir, self.logger, self.progress = Path(run_dir), logger, progress
         self.tracker = EpisodeTracker()
@@ -72,7 +79,7 @@ class Trainer:
     def state(self) -> dict:
         # the environments restart on resume, so unfinished macro-transitions are not kept
         state = {"learner": self.learner.full_state_dict(), "counters": dict(self.counters),
-                 "history": list(self.history)}
+                 "history": list(self.history), "validations": list(self.validations)}
         if self.cfg.keep_buffers:
             state["buffer_cf"] = self.buffer_cf.state_dict()
             state["buffer_lc"] = self.buffer_lc.state_dict()
@@ -87,6 +94,7 @@ class Trainer:
         self.learner.load_full_state_dict(payload["learner"])
         self.counters.update(payload["counters"])
         self.history = list(payload["history"])
+        self.validations = list(payload.get("validations", []))
         if "buffer_cf" in payload:
             self.buffer_cf.load_state_dict(payload["buffer_cf"])
             self.buffer_lc.load_state_dict(payload["buffer_lc"])
@@ -98,10 +106,24 @@ class Trainer:
     def checkpoint(self) -> Path:
         return save_training_checkpoint(self.run_dir, len(self.history), self.state())
 
-    def _next_checkpoint(self) -> int:
-        """Episode count at which the next checkpoint is due (the next multiple of ``checkpoint_every``)."""
-        every = self.cfg.checkpoint_every
-        return (len(self.history) // every + 1) * every
+    def _next_multiple(self, every: int) -> int:
+        """Episode count at which the next multiple of ``every`` is reached (``every`` 0: never)."""
+        return (len(self.history) // every + 1) * every if every > 0 else math.inf
+
+    def validate(self) -> dict:
+        """One periodic evaluation of the greedy policy: logged under ``eval/`` at the number of episodes
+        trained; a new best score writes ``checkpoints/best.pt``."""
+        episodes, summary = self.evaluator(self.learner.policy(explore=False))
+        step = len(self.history)
+        for key in ("score", "mean_speed_kmh", "mean_accel", "lane_changes", "return_lc", "return_cf",
+                    "collision_rate"):
+            self.logger.log_scalar(f"eval/{key}", float(summary[key]), step=step)
+        best = max((v["score"] for v in self.validations), default=-math.inf)
+        record = {"episodes_trained": step, **{k: v for k, v in summary.items() if not isinstance(v, dict)}}
+        self.validations.append(record)
+        if summary["score"] > best:
+            save_best_checkpoint(self.run_dir, {"learner": self.learner.full_state_dict(), "validation": record})
+        return record
 
     # ------------------------------------------------------------------------------------ loop
     def _record(self, out: dict[str, float], losses: dict[str, list[float]]) -> None:
@@ -146,7 +168,8 @@ class Trainer:
 
         learner, target = self.learner, self.episodes
         self.collector = collector
-        next_ckpt = self._next_checkpoint()
+        next_ckpt = self._next_multiple(self.cfg.checkpoint_every)
+        next_eval = self._next_multiple(self.cfg.eval_every if self.evaluator is not None else 0)
         recent: deque = deque(maxlen=50)
         recent.extend(self.history[-50:])
         bar = tqdm(total=target, initial=min(len(self.history), target), desc="train", unit="ep",
@@ -173,15 +196,20 @@ class Trainer:
                                     R_cf=f"{np.mean([e['return_cf'] for e in recent]):.1f}",
                                     kmh=f"{np.mean([e['mean_speed_kmh'] for e in recent]):.1f}",
                                     coll=f"{100 * np.mean([e['collision'] for e in recent]):.0f}%")
+                if len(self.history) >= next_eval:
+                    self.validate()
+                    next_eval = self._next_multiple(self.cfg.eval_every)
                 if len(self.history) >= next_ckpt or len(self.history) >= target:
                     self.counters["elapsed_s"] += time.perf_counter() - started
                     started = time.perf_counter()
                     self.checkpoint()
-                    next_ckpt = self._next_checkpoint()
+                    next_ckpt = self._next_multiple(self.cfg.checkpoint_every)
                 if len(self.history) >= target:
                     break
         finally:
             bar.close()
             self.counters["elapsed_s"] += time.perf_counter() - started
             self.collector.shutdown(close_env=False)
+            if self.evaluator is not None:
+                self.evaluator.close()
         return self.history

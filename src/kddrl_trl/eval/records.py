@@ -1,0 +1,109 @@
+"""The records a run leaves (``summary.json``, ``eval_episodes.csv``, ``train_episodes.csv``, ``validation.csv``,
+``traces/``), found under any run or sweep folder and read back for the report (:mod:`kddrl_trl.eval.report`).
+
+A run folder is any folder holding ``summary.json`` and ``eval_episodes.csv`` (written by
+:func:`kddrl_trl.factories.report`): a single run, a sweep job, or an evaluation of a trained run (whose
+``algo`` / ``scenario`` are those of the evaluation). Bad or missing files raise, naming the file and column.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from .metrics import summarize
+
+#: columns every ``eval_episodes.csv`` must hold (EpisodeTracker records)
+EPISODE_COLUMNS = ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc",
+                   "return_cf", "collision", "outcome", "collision_kind", "collision_with")
+
+
+@dataclass
+class RunRecord:
+    """One run: where it is, what it ran, its evaluation episodes and (learning algos) its training history."""
+
+    path: Path
+    algo: str
+    scenario: str
+    seed: int
+    summary: dict
+    episodes: pd.DataFrame
+    training: pd.DataFrame | None = None
+    validation: pd.DataFrame | None = None
+    traces: list[Path] = field(default_factory=list)
+
+    def metrics(self) -> dict:
+        """The per-run driving metrics of Tables II-V (:func:`~kddrl_trl.eval.summarize` of its episodes)."""
+        out = summarize(self.episodes.to_dict("records"))
+        out["lane_changes_per_episode"] = out["lane_changes"]
+        out["lane_changes_per_1000_episodes"] = 1000.0 * out["lane_changes"]
+        return out
+
+
+def _csv(path: Path, required: tuple = ()) -> pd.DataFrame:
+    try:
+        frame = pd.read_csv(path, keep_default_na=False, na_values=[""])
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
+        raise ValueError(f"{path}: not a readable CSV ({err})") from err
+    missing = [c for c in required if c not in frame.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}")
+    if frame.empty:
+        raise ValueError(f"{path}: no rows")
+    return frame
+
+
+def load_run(path: str | Path) -> RunRecord:
+    """Read the run folder ``path``."""
+    path = Path(path)
+    summary_path = path / "summary.json"
+    try:
+        summary = json.loads(summary_path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"{summary_path}: not a readable summary ({err})") from err
+    for key in ("algo", "scenario", "seed"):
+        if key not in summary:
+            raise ValueError(f"{summary_path}: no {key!r} key")
+    episodes = _csv(path / "eval_episodes.csv", EPISODE_COLUMNS)
+    episodes["collision"] = episodes["collision"].astype(str).str.lower().map({"true": True, "false": False, "1": True,
+                                                                               "0": False})
+    if episodes["collision"].isna().any():
+        raise ValueError(f"{path / 'eval_episodes.csv'}: column collision holds values other than True / False")
+    numeric = [c for c in EPISODE_COLUMNS if c not in ("collision", "outcome", "collision_kind", "collision_with")]
+    bad = [c for c in numeric if not pd.api.types.is_numeric_dtype(episodes[c]) or episodes[c].isna().any()]
+    if bad:
+        raise ValueError(f"{path / 'eval_episodes.csv'}: non-numeric or empty values in column(s) {', '.join(bad)}")
+    episodes["collision_with"] = episodes["collision_with"].fillna("").astype(str)
+    training = _csv(path / "train_episodes.csv", ("return_lc", "return_cf")) \
+        if (path / "train_episodes.csv").is_file() else None
+    validation = _csv(path / "validation.csv") if (path / "validation.csv").is_file() else None
+    traces = sorted((path / "traces").glob("*.json")) if (path / "traces").is_dir() else []
+    return RunRecord(path, str(summary["algo"]), str(summary["scenario"]), int(summary["seed"]), summary, episodes,
+                     training, validation, traces)
+
+
+def find_runs(paths) -> list[RunRecord]:
+    """Every run folder at or under ``paths`` (run folders, sweep folders, or folders of those), sorted by
+    (scenario, algo, seed). Evaluations inside a training run (``eval__*``) are left out: the report compares
+    runs on their own scenario. Raises if a path does not exist or holds no run."""
+    found: dict[Path, RunRecord] = {}
+    for p in map(Path, paths):
+        if not p.exists():
+            raise FileNotFoundError(f"{p}: no such run or sweep folder")
+        summaries = [p / "summary.json"] if (p / "summary.json").is_file() else sorted(p.rglob("summary.json"))
+        summaries = [s for s in summaries if not s.parent.name.startswith("eval__")]
+        if not summaries:
+            raise FileNotFoundError(f"{p}: holds no run (no summary.json at or under it)")
+        for s in summaries:
+            found.setdefault(s.parent.resolve(), load_run(s.parent))
+    runs = sorted(found.values(), key=lambda r: (r.scenario, r.algo, r.seed, str(r.path)))
+    seen: dict[tuple, Path] = {}
+    for r in runs:
+        key = (r.scenario, r.algo, r.seed)
+        if key in seen:
+            raise ValueError(f"two runs of {r.algo} on {r.scenario} with seed {r.seed}: {seen[key]} and {r.path}; "
+                             "pass only one of them")
+        seen[key] = r.path
+    return runs
