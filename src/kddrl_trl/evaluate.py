@@ -29,7 +29,8 @@ def main(cfg: DictConfig) -> dict:
     check_disjoint("eval_seed", env_seed, int(saved.seed), int(saved.episodes))  # the run's own training traffic
     seed_everything(job.seed)
     env = make_env(job.env, algo, seed=env_seed, compile=job.compile)
-    episodes, stats = evaluate(env, make_policy(algo, job.env, learner), job, make_logger(job.logger, out_dir))
+    episodes, stats = evaluate(env, make_policy(algo, job.env, learner), job, make_logger(job.logger, out_dir),
+                               out_dir, algo.name)
     return report(out_dir, episodes, f"{algo.name} trained on {trained_on}, evaluated on {job.env.scenario}, "
                   f"seed {job.seed}, exploration off ({ckpt.name})", scenario=job.env.scenario, algo=algo.name,
                   trained_on=trained_on, checkpoint=str(ckpt), seed=job.seed, eval_seed=env_seed, env_stats=stats,

@@ -191,12 +191,23 @@ def load_trained_learner(run: Path, checkpoint: str = "latest"
     return algo, learner, path, saved
 
 
-def evaluate(env: EnvBase, policy, job: Job, logger) -> tuple[list[dict], dict]:
+def evaluate(env: EnvBase, policy, job: Job, logger, out_dir: Path | None = None, algo: str = ""
+             ) -> tuple[list[dict], dict]:
     """``job.eval_episodes`` episodes of ``policy`` (in start order, :func:`kddrl_trl.eval.evaluate_policy`) on
     the test seed of :mod:`kddrl_trl.eval.protocol`, logged under ``test/``, and the env's counters; closes
-    ``env``."""
+    ``env``. With ``job.video``, ``job.video_episodes`` of them are recorded into ``out_dir``: ``traces/*.json``
+    (:class:`~kddrl_trl.eval.trace.TraceRecorder`) and ``videos/*.mp4`` (:func:`~kddrl_trl.eval.render.write_video`).
+    """
     from .eval import evaluate_policy, unwrap_env
     from .eval.protocol import test_seed
+    from .eval.trace import TraceRecorder
+
+    recorder = None
+    if job.video:
+        h = job.env
+        recorder = TraceRecorder(job.video_episodes, scenario=h.scenario, algo=algo, seed=job.seed,
+                                 num_lanes=h.num_lanes, lane_width=h.lane_width, section_length=h.section_length,
+                                 step_length=h.step_length)
 
     def on_episode(ep: dict) -> None:
         for key in ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc",
@@ -205,10 +216,18 @@ def evaluate(env: EnvBase, policy, job: Job, logger) -> tuple[list[dict], dict]:
 
     try:
         episodes = evaluate_policy(env, policy, job.eval_episodes, test_seed(job.seed, job.eval_seed),
-                                   progress=job.progress, on_episode=on_episode)
+                                   progress=job.progress, on_episode=on_episode, trace=recorder)
         stats = dict(unwrap_env(env).stats)
     finally:
         env.close()
+    if recorder is not None:
+        from .eval.render import write_video
+        from .io import write_json_atomic
+
+        for i, trace in enumerate(recorder.chosen()):
+            name = f"{job.env.scenario}__{algo}__{job.seed}__ep{i}_{trace['lane_changes']}lc_{trace['outcome']}"
+            write_json_atomic(out_dir / "traces" / f"{name}.json", trace)
+            write_video(trace, out_dir / "videos" / f"{name}.mp4")
     return episodes, stats
 
 

@@ -65,10 +65,11 @@ NON_RESULT_KEYS = ("resume", "progress")
 
 
 def config_differences(saved: dict, current: dict, prefix: str = "") -> list[str]:
-    """The dotted keys whose values differ between two configs (``NON_RESULT_KEYS`` ignored at the top)."""
+    """The dotted keys whose values differ between two configs (``NON_RESULT_KEYS`` ignored at the top; a key the
+    saved config lacks is an option added since, whose default keeps what the run computed)."""
     out = []
     for key in sorted(set(saved) | set(current)):
-        if not prefix and key in NON_RESULT_KEYS:
+        if (not prefix and key in NON_RESULT_KEYS) or key not in saved:
             continue
         a, b = saved.get(key, "<missing>"), current.get(key, "<missing>")
         if isinstance(a, dict) and isinstance(b, dict):

@@ -93,7 +93,7 @@ def main(cfg: DictConfig) -> dict:
         learner, extra["training"] = train(job, run_dir, logger, resuming)
     env = make_env(job.env, job.algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
     policy = make_policy(job.algo, job.env, learner)
-    episodes, stats = evaluate(env, policy, job, logger)
+    episodes, stats = evaluate(env, policy, job, logger, run_dir, job.algo.name)
     reference = paper_reference(job.env.scenario, job.algo.name)
     return report(run_dir, episodes, f"{job.algo.name} on {job.env.scenario}, seed {job.seed}: evaluation, "
                   "exploration off", reference, scenario=job.env.scenario, algo=job.algo.name, seed=job.seed,

@@ -3,7 +3,7 @@
 Importing this module registers in Hydra's ConfigStore:
 
 * the typed schemas of :mod:`kddrl_trl.conf.schema` (``env/highway_schema``, ``algo/hierarchical_schema``,
-  ``algo/rule_schema``, ``logger/logger_schema``, ``train_job``, ``evaluate_job``), so a misspelt key or a
+  ``algo/rule_schema``, ``logger/logger_schema``, ``train_job``, ``evaluate_job``, ``report_job``), so a misspelt key or a
   wrong type fails at composition, naming the key;
 * the ``scenario`` group: one option per preset of :data:`kddrl_trl.envs.config.SCENARIOS` (the same
   presets ``SumoHighwayEnv(scenario=...)`` applies), an ``env:`` block in the global package, appended with
@@ -14,7 +14,7 @@ from hydra.core.config_store import ConfigStore
 
 from ..envs.config import SCENARIOS
 from . import resolvers
-from .schema import EnvNode, EvaluateJob, HierarchicalAlgo, LoggerConfig, RuleAlgo, TrainJob
+from .schema import EnvNode, EvaluateJob, HierarchicalAlgo, LoggerConfig, ReportJob, RuleAlgo, TrainJob
 
 
 def register() -> None:
@@ -25,6 +25,7 @@ def register() -> None:
     store.store(group="logger", name="logger_schema", node=LoggerConfig)
     store.store(name="train_job", node=TrainJob)
     store.store(name="evaluate_job", node=EvaluateJob)
+    store.store(name="report_job", node=ReportJob)
     for name, preset in SCENARIOS.items():
         store.store(group="scenario", name=name, node={"env": {"scenario": name, **preset}}, package="_global_")
     resolvers.register()

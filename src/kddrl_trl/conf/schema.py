@@ -149,13 +149,15 @@ class Job:
     seed: int = MISSING
     eval_episodes: int = MISSING
     eval_seed: Optional[int] = None  # env seed of the evaluation; null: seed + eval.protocol.TEST_OFFSET
+    video: bool = False     # record evaluation episodes: traces/*.json (Fig. 14) and videos/*.mp4
+    video_episodes: int = 3
     progress: bool = MISSING
     compile: Any = MISSING  # true | false | auto: torch.compile the fused transform stack and the learner update
     env: EnvNode = MISSING
     logger: LoggerConfig = MISSING
 
     def __post_init__(self) -> None:
-        _at_least("", self, 1, "eval_episodes")
+        _at_least("", self, 1, "eval_episodes", "video_episodes")
         if self.compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or auto, got {self.compile!r}")
 
@@ -175,6 +177,19 @@ class TrainJob(Job):
         from ..eval.protocol import check_disjoint, test_seed
 
         check_disjoint("eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes)
+
+
+@dataclass
+class ReportJob:
+    """``conf/report.yaml``: ``python -m kddrl_trl.report <run or sweep folders ...> [out=<folder>]``."""
+
+    runs: list[str] = field(default_factory=list)
+    out: str = "report"
+    lcgan_metrics: Optional[str] = None  # JSON of lcGAN test metrics for Figs. 16-17 (default: beside the weights)
+
+    def __post_init__(self) -> None:
+        if not self.runs:
+            raise ValueError("report: name at least one run or sweep folder (python -m kddrl_trl.report <dir> ...)")
 
 
 @dataclass

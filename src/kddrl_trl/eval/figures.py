@@ -100,3 +100,39 @@ def distributions(runs, scenario: str, path: Path) -> Path | None:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def space_time(runs, out_dir: Path, prefer: str = "kddrl") -> dict:
+    """Fig. 14 per scenario: the space-time diagrams of two recorded episodes (``traces/*.json`` of a run, made
+    with ``video=true``), one with a lane change and one without, of ``prefer``'s runs where they have traces."""
+    import json
+
+    from .render import plot_space_time
+
+    out = {}
+    for scenario in sorted({r.scenario for r in runs}):
+        holders = sorted([r for r in runs if r.scenario == scenario and r.traces],
+                         key=lambda r: (r.algo != prefer, r.algo, r.seed))
+        title = f"Fig. 14: {scenario}, space-time diagrams"
+        if not holders:
+            out[title] = None
+            continue
+        run = holders[0]
+        traces = [json.loads(p.read_text()) for p in run.traces]
+        picked = [next((t for t in traces if bool(t.get("lane_changes")) == want), None) for want in (True, False)]
+        picked = [(f"{run.algo} on {scenario}, seed {run.seed}", t) for t in picked if t is not None]
+        out[title] = plot_space_time(picked, out_dir / f"fig14_space_time_{scenario}.png")
+    return out
+
+
+def lcgan(metrics: dict | None, out_dir: Path) -> dict:
+    """Figs. 16 / 17 from the lcGAN test metrics (class shares and confusion), when given."""
+    title = "Figs. 16 / 17: lcGAN class shares and confusion"
+    if not metrics:
+        return {title: None}
+    from ..generative.lcgan.figures import plot_confusion, plot_shares
+
+    plot_shares(metrics, out_dir / "fig16_lcgan_shares.png")
+    plot_confusion(metrics, out_dir / "fig17_lcgan_confusion.png")
+    return {"Fig. 16: lcGAN class shares": out_dir / "fig16_lcgan_shares.png",
+            "Fig. 17: lcGAN confusion": out_dir / "fig17_lcgan_confusion.png"}

@@ -25,6 +25,15 @@ BEST_METRICS = {
 }
 
 
+def _spawnable_start_method() -> None:
+    """A spawned child re-applies its parent's default start method; inside a joblib (loky) worker that is
+    ``"loky"``, which the child's ``multiprocessing`` does not know: make it ``"spawn"`` there."""
+    import multiprocessing
+
+    if multiprocessing.get_start_method(allow_none=True) not in (None, "spawn", "fork", "forkserver"):
+        multiprocessing.set_start_method("spawn", force=True)
+
+
 class PeriodicEvaluator:
     """``episodes`` greedy episodes per call on env seed ``seed``; the env (``make_env()``, run in a worker
     process) is set up here, before any other simulation of this process starts. Each call returns the per-episode records (:class:`~kddrl_trl.eval.EpisodeTracker`)
@@ -35,6 +44,7 @@ class PeriodicEvaluator:
             raise ValueError(f"train.best_metric={best_metric!r}: known metrics are {', '.join(BEST_METRICS)}")
         self.make_env, self.episodes, self.seed = make_env, int(episodes), int(seed)
         self.score = BEST_METRICS[best_metric]
+        _spawnable_start_method()
         self.env: ParallelEnv | None = ParallelEnv(1, make_env, mp_start_method="spawn")  # worker starts on use
 
     def __call__(self, policy) -> tuple[list[dict], dict]:

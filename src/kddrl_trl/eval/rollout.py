@@ -18,7 +18,7 @@ def unwrap_env(env):
 
 @torch.no_grad()
 def evaluate_policy(env, policy: Callable, episodes: int, seed: int, progress: bool = True,
-                    on_episode: Callable[[dict], None] | None = None) -> list[dict]:
+                    on_episode: Callable[[dict], None] | None = None, trace: Callable | None = None) -> list[dict]:
     """Seed ``env`` with ``seed``, reset it and step it with ``policy`` until the first ``episodes`` episodes *to
     start* have all finished; return their :class:`~kddrl_trl.eval.EpisodeTracker` metrics in start order
     (``ep["start"]`` = 0, 1, ...). ``on_episode`` is called with each of them as it finishes.
@@ -26,7 +26,8 @@ def evaluate_policy(env, policy: Callable, episodes: int, seed: int, progress: b
     ``env``: any env writing the raw keys and episode events of ``kddrl_trl.keys`` (``SumoHighwayEnv``,
     ``FakeHighwayEnv``, bare or inside a ``TransformedEnv``, of any batch size); done rows are reset as TorchRL's
     ``step_and_maybe_reset`` does. Counting by start order (not by completion) keeps the sample unbiased: with
-    K roads running at once, the first episodes to finish are the short ones.
+    K roads running at once, the first episodes to finish are the short ones. ``trace`` (e.g. a
+    :class:`~kddrl_trl.eval.trace.TraceRecorder`) is called with every step's TensorDict.
     """
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"evaluate_policy: episodes must be an integer >= 1, got {episodes!r}")
@@ -38,6 +39,8 @@ def evaluate_policy(env, policy: Callable, episodes: int, seed: int, progress: b
     bar = tqdm(total=episodes, desc="episodes", disable=not progress, unit="ep")
     while len(wanted) < episodes:
         full, td = env.step_and_maybe_reset(policy(td))
+        if trace is not None:
+            trace(full)
         pending.append(full.select(*IN_KEYS).reshape(-1))
         if not pending[-1].get(("next", "done")).any():
             continue

@@ -1,0 +1,258 @@
+"""The reproduction report: the paper's Tables II-V with across-seed 95 % CIs, comparisons with KDDRL, the
+collision breakdown, the figures and a footer saying what produced them (``python -m kddrl_trl.report``).
+
+The seed (run) is the unit of evidence: each run's evaluation episodes give one value per metric
+(:meth:`~kddrl_trl.eval.records.RunRecord.metrics`), and a row's value is the mean over its seeds with a
+percentile-bootstrap CI over seeds (:mod:`kddrl_trl.eval.stats`). ``report.json`` is the machine-readable form:
+a list of rows ``{"algo", "scenario", "seeds", "episodes", "metrics": {name: {"mean", "ci_low", "ci_high"}}}``.
+"""
+from __future__ import annotations
+
+import platform
+import subprocess
+from collections import Counter
+from importlib import metadata
+from pathlib import Path
+
+from .. import keys as K
+from . import figures
+from .paper import PAPER_NAMES, TABLES, paper_value
+from .records import RunRecord
+from .stats import difference_ci, mean_ci
+
+#: metric name -> (column title, unit, format); the first four are the paper's table columns
+METRICS = {
+    "mean_speed_kmh": ("mean speed", "km/h", "{:.1f}"),
+    "mean_accel": ("mean acceleration", "m/s²", "{:.2f}"),
+    "lane_changes_per_episode": ("lane changes per episode", "", "{:.2f}"),
+    "lane_changes_per_1000_episodes": ("lane changes per 1000 episodes", "", "{:.0f}"),
+    "collision_rate": ("collision rate", "", "{:.1%}"),
+    "mean_abs_accel": ("mean |acceleration|", "m/s²", "{:.2f}"),
+    "frame_speed_kmh_sd": ("sd of speed over frames", "km/h", "{:.1f}"),
+    "frame_accel_sd": ("sd of acceleration over frames", "m/s²", "{:.2f}"),
+    "return_lc": ("lane-change return", "", "{:.1f}"),
+    "return_cf": ("car-following return", "", "{:.1f}"),
+}
+TABLE_METRICS = ("mean_speed_kmh", "mean_accel", "lane_changes_per_episode", "lane_changes_per_1000_episodes",
+                 "collision_rate")
+REFERENCE = "kddrl"
+#: scenario order of the paper's tables
+SCENARIO_ORDER = ("baseline", "congested", "braking")
+
+
+def _fmt(metric: str, value) -> str:
+    return "n/a" if value is None else METRICS[metric][2].format(value)
+
+
+def _cell(metric: str, stats: dict) -> str:
+    mean = _fmt(metric, stats["mean"])
+    if stats["ci_low"] is None:
+        return f"{mean} (1 seed)"
+    return f"{mean} [{_fmt(metric, stats['ci_low'])}, {_fmt(metric, stats['ci_high'])}]"
+
+
+def _paper_cell(scenario: str, algo: str, metric: str) -> str:
+    if metric == "lane_changes_per_episode":
+        value = paper_value(scenario, algo, "lane_changes_per_1000_episodes")
+        return "" if value is None else _fmt(metric, value[0] / 1000.0)
+    value = paper_value(scenario, algo, metric)
+    if value is None:
+        return ""
+    mean, sd = value
+    return _fmt(metric, mean) + ("" if sd is None else f" ± {_fmt(metric, sd)}")
+
+
+def _groups(runs: list[RunRecord]) -> dict[tuple[str, str], list[RunRecord]]:
+    out: dict[tuple[str, str], list[RunRecord]] = {}
+    for r in runs:
+        out.setdefault((r.scenario, r.algo), []).append(r)
+    order = {s: i for i, s in enumerate(SCENARIO_ORDER)}
+    return dict(sorted(out.items(), key=lambda kv: (order.get(kv[0][0], 99), kv[0][0], kv[0][1] != REFERENCE,
+                                                    kv[0][1])))
+
+
+def rows(runs: list[RunRecord]) -> list[dict]:
+    """The ``report.json`` rows: one per (algo, scenario), every metric of :data:`METRICS` over seeds."""
+    out = []
+    for (scenario, algo), group in _groups(runs).items():
+        per_seed = [r.metrics() for r in group]
+        out.append({
+            "algo": algo, "scenario": scenario, "seeds": sorted(r.seed for r in group),
+            "episodes": int(sum(m["episodes"] for m in per_seed)),
+            "episodes_per_seed": sorted({int(m["episodes"]) for m in per_seed}),
+            "metrics": {name: {k: v for k, v in mean_ci([m[name] for m in per_seed]).items() if k != "n"}
+                        for name in METRICS},
+            "per_seed": {name: [m[name] for m in per_seed] for name in METRICS},
+            "paper": {name: paper_value(scenario, algo, name) for name in METRICS
+                      if paper_value(scenario, algo, name) is not None},
+            "runs": [str(r.path) for r in group],
+        })
+    return out
+
+
+def _table(scenario: str, table_rows: list[dict]) -> list[str]:
+    head = ["algo (paper's name)", "seeds × episodes"] + [METRICS[m][0] + (f" ({METRICS[m][1]})" if METRICS[m][1] else "")
+                                                          for m in TABLE_METRICS]
+    lines = [f"### {scenario} (paper {TABLES.get(scenario, 'no table')})", "",
+             "Each cell: the mean over seeds [95 % bootstrap CI over seeds]; below it, the paper's value (mean ± its "
+             "unexplained ±) where it published one.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in table_rows:
+        n = row["episodes_per_seed"]
+        cells = [f"**{row['algo']}** ({PAPER_NAMES.get(row['algo'], 'not in the paper')})",
+                 f"{len(row['seeds'])} × {n[0] if len(n) == 1 else n}"]
+        for m in TABLE_METRICS:
+            paper = _paper_cell(scenario, row["algo"], m)
+            cells.append(_cell(m, row["metrics"][m]) + (f"<br>paper: {paper}" if paper else ""))
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _verdict(diff: dict, metric: str, algo: str, n: tuple[int, int]) -> str:
+    if diff["ci_low"] is None:
+        return "one seed on a side: no interval"
+    if diff["ci_low"] > 0:
+        return f"{algo} is higher"
+    if diff["ci_high"] < 0:
+        return f"{algo} is lower"
+    return f"no clear difference at {n[0]} vs {n[1]} seeds (the CI holds 0)"
+
+
+def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
+    ref = next((r for r in table_rows if r["algo"] == REFERENCE), None)
+    others = [r for r in table_rows if r["algo"] != REFERENCE]
+    if ref is None or not others:
+        return []
+    lines = [f"### {scenario}: each algo minus {REFERENCE}", "",
+             "Difference of the across-seed means, 95 % bootstrap CI (seeds resampled within each system), and the "
+             f"probability of improvement P(algo > {REFERENCE}) over all pairs of seeds.", "",
+             "| algo | metric | difference | 95 % CI | P(algo > kddrl) | reading |", "|---|---|---|---|---|---|"]
+    for row in others:
+        for m in TABLE_METRICS:
+            d = difference_ci(row["per_seed"][m], ref["per_seed"][m])
+            ci = "n/a" if d["ci_low"] is None else f"[{_fmt(m, d['ci_low'])}, {_fmt(m, d['ci_high'])}]"
+            lines.append(f"| {row['algo']} | {METRICS[m][0]} | {_fmt(m, d['mean'])} | {ci} | {d['p_greater']:.2f} | "
+                         f"{_verdict(d, m, row['algo'], (len(row['seeds']), len(ref['seeds'])))} |")
+    return lines
+
+
+def collision_breakdown(runs: list[RunRecord]) -> list[str]:
+    """Per (scenario, algo): collisions by kind, by the other vehicle's role, during the ego's lane change, and
+    how the other episodes ended."""
+    lines = ["| scenario | algo | episodes | collisions | " + " | ".join(K.COLLISION_KINDS[1:])
+             + " | with a leader (a/b/c) | with a follower (d/e/f) | other vehicle unknown | ego changing lane | "
+             "other endings |", "|" + "---|" * (9 + len(K.COLLISION_KINDS) - 1)]
+    for (scenario, algo), group in _groups(runs).items():
+        eps = [e for r in group for e in r.episodes.to_dict("records")]
+        hits = [e for e in eps if e["collision"]]
+        kinds = Counter(e["collision_kind"] for e in hits)
+        roles = Counter("leader" if e["collision_with"] in K.LEADER_SLOTS else
+                        "follower" if e["collision_with"] else "unknown" for e in hits)
+        changing = sum(bool(e.get("ended_changing_lane", False)) for e in hits) if "ended_changing_lane" in \
+            group[0].episodes.columns else "n/a"
+        endings = Counter(e["outcome"] for e in eps if not e["collision"])
+        lines.append(f"| {scenario} | {algo} | {len(eps)} | {len(hits)} | "
+                     + " | ".join(str(kinds.get(k, 0)) for k in K.COLLISION_KINDS[1:])
+                     + f" | {roles['leader']} | {roles['follower']} | {roles['unknown']} | {changing} | "
+                     + ", ".join(f"{k} {v}" for k, v in sorted(endings.items())) + " |")
+    return lines
+
+
+def _versions() -> str:
+    names = ("kddrl_trl", "torch", "torchrl", "tensordict", "libsumo", "numpy", "scipy", "hydra-core")
+    out = []
+    for name in names:
+        try:
+            out.append(f"{name} {metadata.version(name)}")
+        except metadata.PackageNotFoundError:
+            out.append(f"{name} (not installed)")
+    return ", ".join(out)
+
+
+def _commit() -> str:
+    try:
+        done = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
+                              cwd=Path(__file__).parent)
+        return done.stdout.strip() or "unknown (not a git checkout)"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def footer(runs: list[RunRecord], command: str) -> list[str]:
+    protocols = Counter()
+    for r in runs:
+        p = r.summary.get("protocol")
+        protocols[("seed + 1,000,000" if p and p["eval_seed"] == r.seed + 1_000_000 else
+                   f"eval seed {p['eval_seed']}" if p else "not recorded (run made before the protocol)")] += 1
+    wall = [r.summary.get("wall_s") for r in runs]
+    training = [r.summary.get("training", {}).get("elapsed_s") for r in runs]
+    machines = Counter(r.summary.get("machine", "not recorded") for r in runs)
+    return [
+        "---", "",
+        f"* **Command:** `{command}`",
+        f"* **Commit:** {_commit()}; **packages:** {_versions()}",
+        f"* **Report made on:** {platform.platform()}, Python {platform.python_version()}, "
+        f"{__import__('os').cpu_count()} CPUs. **Runs made on:** "
+        + "; ".join(f"{m} ({n} runs)" for m, n in machines.items()),
+        f"* **Runs:** {len(runs)}; seeds per (algo, scenario) in the tables. **Evaluation protocol:** greedy policy "
+        "(exploration off), the first N episodes to *start* (unbiased by episode length), env seed "
+        + "; ".join(f"{k} ({n} runs)" for k, n in protocols.items())
+        + " — never a training seed (`kddrl_trl/eval/protocol.py`). Training seeds: seed, seed + 1, ...",
+        f"* **Wall time:** {sum(w for w in wall if w) / 3600:.2f} h over all runs (training "
+        f"{sum(t for t in training if t) / 3600:.2f} h), as recorded in each `summary.json` (`wall_s`)"
+        + ("" if all(wall) else f"; {sum(1 for w in wall if not w)} runs did not record it") + ".",
+    ]
+
+
+def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "python -m kddrl_trl.report",
+                 lcgan_metrics: dict | None = None) -> dict:
+    """Write ``report.md``, ``report.json`` and the figures into ``out_dir``; return the JSON content."""
+    from ..io import write_json_atomic, write_text_atomic
+
+    if not runs:
+        raise ValueError("build_report: no runs")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    table_rows = rows(runs)
+    scenarios = list(dict.fromkeys(r["scenario"] for r in table_rows))
+    md = ["# kddrl_trl reproduction report", "",
+          f"{len(runs)} runs: " + ", ".join(f"{r['algo']} on {r['scenario']} ({len(r['seeds'])} seeds)"
+                                            for r in table_rows) + ".", "",
+          "## Tables II-V: driving metrics in evaluation", ""]
+    for s in scenarios:
+        md += _table(s, [r for r in table_rows if r["scenario"] == s]) + [""]
+    md += ["## Comparison with KDDRL", ""]
+    for s in scenarios:
+        md += _comparisons(s, [r for r in table_rows if r["scenario"] == s]) + [""]
+    md += ["## Collisions by kind", "",
+           "Kinds (`kddrl_trl/keys.py`): `rear_end`, the ego ran into a vehicle ahead; `hit_from_behind`, a vehicle "
+           "behind ran into the ego; `side`, any contact while the ego's lane change was under way. The other "
+           "vehicle's role is its neighbour slot in the last observation before the contact. Episodes pooled over "
+           "seeds.", ""] + collision_breakdown(runs) + [""]
+    figs = {"Fig. 8: training curves": figures.training_curves(runs, out_dir / "fig08_training_curves.png"),
+            "Figs. 9 / 15: evaluation returns": figures.return_boxes(runs, out_dir / "fig09_returns.png")}
+    for s, fig_no in zip(scenarios, ("10", "12", "13")):
+        number = {"baseline": "10", "congested": "12", "braking": "13"}.get(s, fig_no)
+        figs[f"Fig. {number}: {s}, speed and acceleration"] = figures.distributions(
+            runs, s, out_dir / f"fig{number}_distributions_{s}.png")
+    figs.update(figures.space_time(runs, out_dir))
+    figs.update(figures.lcgan(lcgan_metrics, out_dir))
+    md += ["## Figures", ""]
+    for title, path in figs.items():
+        md += [f"### {title}", "", f"![{title}]({Path(path).name})" if path else
+               "Not drawn: " + ("no space-time traces in these runs (record them with `python -m kddrl_trl.evaluate "
+                                "run=<dir> video=true`)" if "14" in title else
+                                "the shipped lcGAN weights carry no test metrics" if "16" in title else
+                                "nothing to draw"), ""]
+    md += ["## Runs", "", "| scenario | algo | seed | episodes | mean speed (km/h) | collision rate | wall time (s) | folder |",
+           "|---|---|---|---|---|---|---|---|"]
+    for r in runs:
+        m = r.metrics()
+        md.append(f"| {r.scenario} | {r.algo} | {r.seed} | {m['episodes']} | {m['mean_speed_kmh']:.1f} | "
+                  f"{m['collision_rate']:.1%} | {r.summary.get('wall_s', float('nan')):.0f} | `{r.path.name}` |")
+    md += [""] + footer(runs, command)
+    report = [{k: v for k, v in row.items() if k not in ("runs", "per_seed")} | {"per_seed": row["per_seed"]}
+              for row in table_rows]
+    write_json_atomic(out_dir / "report.json", report)
+    write_text_atomic(out_dir / "report.md", "\n".join(md) + "\n")
+    return {"rows": report, "figures": {k: str(v) if v else None for k, v in figs.items()}}

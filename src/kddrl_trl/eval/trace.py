@@ -1,0 +1,91 @@
+"""``TraceRecorder``: the kinematics of whole evaluation episodes, for space-time diagrams (paper Fig. 14) and
+videos (:mod:`kddrl_trl.eval.render`), from the frames any highway env writes.
+
+It reads only the raw keys of ``kddrl_trl.keys`` (no simulator): the ego's position, lane, speeds and
+acceleration, the six neighbours' relative positions (slots a-f, where present), the lane-change start flags and
+the braking phase. The ego's lateral position is its lane centre, moved by its lateral speed while a lane change
+is under way (``EGO_STATE``'s ``vx``). A trace is a JSON-able dict; traces are small (a few kB per episode).
+"""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+
+from .. import keys as K
+
+#: per-frame keys a trace reads (root for an episode's first frame, ``"next"`` for every step)
+TRACE_KEYS = (K.EGO_STATE, K.EGO_LANE, K.EGO_ACCEL, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.LC_STARTED, K.LC_ACTIVE,
+              K.BRAKING_PHASE, K.OUTCOME, K.COLLISION_KIND)
+
+
+class TraceRecorder:
+    """Records the first ``episodes`` episodes to finish on any row, going on (up to ``4 * episodes``) until it
+    holds at least one episode with a lane change and one without, when the env gives both.
+
+    Call it with each step's TensorDict of batch ``[B]`` (root = the observation acted on, ``"next"`` = the
+    result), as :func:`~kddrl_trl.eval.evaluate_policy` does with ``trace=``. ``meta`` (e.g. scenario, algo,
+    seed, lane width, number of lanes, section length, step length) is copied into each trace.
+    """
+
+    def __init__(self, episodes: int = 3, **meta):
+        self.episodes, self.meta = int(episodes), dict(meta)
+        self.lane_width = float(meta.get("lane_width", 3.2))
+        self.dt = float(meta.get("step_length", 0.1))
+        self.traces: list[dict] = []
+        self._open: dict[int, dict] = {}
+        self._x: dict[int, float] = {}
+
+    @property
+    def done(self) -> bool:
+        with_lc = any(t["lane_changes"] for t in self.traces)
+        without = any(not t["lane_changes"] for t in self.traces)
+        return len(self.traces) >= 4 * self.episodes or (len(self.traces) >= self.episodes and with_lc and without)
+
+    def _frame(self, td: TensorDictBase, r: int, t: int, first: bool) -> dict:
+        state = td.get(K.EGO_STATE)[r].tolist()
+        lane = int(td.get(K.EGO_LANE)[r].reshape(-1)[0])
+        active = bool(td.get(K.LC_ACTIVE)[r].reshape(-1)[0])
+        centre = (lane + 0.5) * self.lane_width
+        if first or not active or r not in self._x:
+            self._x[r] = centre
+        else:
+            self._x[r] += state[2] * self.dt
+        x, y = self._x[r], state[0]
+        rel, mask = td.get(K.NEIGHBORS_REL)[r], td.get(K.NEIGHBORS_MASK)[r].reshape(-1)
+        neighbours = {slot: [round(y + float(rel[i, 1]), 2), round(x + float(rel[i, 0]), 2)]
+                      for i, slot in enumerate(K.NEIGHBOR_SLOTS) if bool(mask[i])}
+        return {"t": t, "y": round(y, 2), "x": round(x, 2), "v": round(state[1], 3), "lane": lane,
+                "accel": round(float(td.get(K.EGO_ACCEL)[r].reshape(-1)[0]), 3),
+                "lc_started": bool(td.get(K.LC_STARTED)[r].reshape(-1)[0]), "lc_active": active,
+                "braking_phase": K.BRAKING_PHASES[int(td.get(K.BRAKING_PHASE)[r].reshape(-1)[0])],
+                "neighbours": neighbours}
+
+    @torch.no_grad()
+    def __call__(self, step: TensorDictBase) -> None:
+        if self.done:
+            return
+        step = step.reshape(-1)
+        nxt, done = step.get("next"), step.get(("next", "done")).reshape(step.shape[0], -1).any(-1)
+        for r in range(step.shape[0]):
+            if r not in self._open:
+                self._open[r] = {**self.meta, "row": r, "frames": [self._frame(step, r, 0, True)]}
+            trace = self._open[r]
+            trace["frames"].append(self._frame(nxt, r, len(trace["frames"]), False))
+            if bool(done[r]):
+                del self._open[r]
+                outcome = int(nxt.get(K.OUTCOME)[r].reshape(-1)[0])
+                trace["outcome"] = K.OUTCOMES[outcome]
+                trace["collision_kind"] = K.COLLISION_KINDS[int(nxt.get(K.COLLISION_KIND)[r].reshape(-1)[0])]
+                trace["lane_changes"] = sum(f["lc_started"] for f in trace["frames"])
+                if not self.done:
+                    self.traces.append(trace)
+
+    def chosen(self) -> list[dict]:
+        """The first ``episodes`` traces, with one with a lane change and one without among them when held."""
+        picked = self.traces[: self.episodes]
+        for want in (True, False):
+            if not any(bool(t["lane_changes"]) == want for t in picked):
+                extra = next((t for t in self.traces if bool(t["lane_changes"]) == want), None)
+                if extra is not None:
+                    picked = picked[:-1] + [extra] if len(picked) >= self.episodes else picked + [extra]
+        return picked

@@ -1,0 +1,53 @@
+"""``python -m kddrl_trl.report <run or sweep folders ...> [out=<folder>]``: the reproduction report.
+
+Reads every run under the folders (:func:`kddrl_trl.eval.records.find_runs`) and writes ``report.md``,
+``report.json`` and the figures into ``out`` (:func:`kddrl_trl.eval.report.build_report`): the paper's
+Tables II-V with across-seed 95 % CIs beside the paper's values, each algo against KDDRL, the collision
+breakdown, Figs. 8-17 and a footer of what produced them. Folders given without ``key=`` are passed as
+``runs=[...]`` to Hydra.
+"""
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from . import conf as _conf  # noqa: F401  (registers the typed schemas with Hydra)
+from .conf.schema import ReportJob
+from .eval.records import find_runs
+from .eval.report import build_report
+
+#: the lcGAN test metrics shipped beside the weights, when there are any
+SHIPPED_LCGAN_METRICS = Path(__file__).parent / "generative" / "weights" / "lcgan_metrics.json"
+
+
+def folders_as_override(argv: list[str]) -> list[str]:
+    """``a b key=v`` -> ``runs=['a','b'] key=v``: positional folders become Hydra's ``runs`` list."""
+    folders = [a for a in argv if "=" not in a and not a.startswith("-")]
+    if not folders:
+        return argv
+    quoted = ",".join("'" + f.replace("\\", "\\\\").replace("'", "\\'") + "'" for f in folders)
+    return [f"runs=[{quoted}]"] + [a for a in argv if a not in folders]
+
+
+@hydra.main(version_base="1.3", config_path="conf", config_name="report")
+def main(cfg: DictConfig) -> dict:
+    job: ReportJob = OmegaConf.to_object(cfg)
+    metrics_path = Path(job.lcgan_metrics) if job.lcgan_metrics else SHIPPED_LCGAN_METRICS
+    lcgan = json.loads(metrics_path.read_text()) if metrics_path.is_file() else None
+    if job.lcgan_metrics and lcgan is None:
+        raise SystemExit(f"lcgan_metrics={job.lcgan_metrics}: no such file")
+    runs = find_runs(job.runs)
+    command = "python -m kddrl_trl.report " + " ".join(shlex.quote(r) for r in job.runs) + f" out={job.out}"
+    result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan)
+    print(f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures")
+    return result
+
+
+if __name__ == "__main__":
+    sys.argv[1:] = folders_as_override(sys.argv[1:])
+    main()
