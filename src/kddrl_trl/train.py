@@ -79,8 +79,8 @@ def main(cfg: DictConfig) -> dict:
         if different:
             raise SystemExit(f"{run_dir} holds a run of another config ({'; '.join(different[:5])}): in a sweep over "
                              "these keys, add them to hydra.sweep.subdir")
-    if (run_dir / "summary.json").is_file() and not resuming:
-        log.info("%s is finished (summary.json): skipped", run_dir)  # a job of a resumed sweep
+    if (run_dir / "summary.json").is_file():  # written last: a finished run (a job of a resumed sweep)
+        log.info("%s is finished (summary.json): skipped", run_dir)
         return json.loads((run_dir / "summary.json").read_text())
     started = time.perf_counter()
     seed_everything(job.seed)

@@ -58,11 +58,16 @@ def _space(spec) -> spaces.Space:
 class SumoHighwayGymEnv(gym.Env):
     """One ego on one road of the SUMO highway, as a Gymnasium environment (same simulator as the TorchRL env)."""
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, scenario: str = "baseline", seed: int = 0, reward: str = "sum", **overrides):
+    def __init__(self, scenario: str = "baseline", seed: int = 0, reward: str = "sum", render_mode: str | None = None,
+                 **overrides):
         if reward not in ("sum", "lc", "cf"):
             raise ValueError(f"reward must be 'sum', 'lc' or 'cf', got {reward!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self._frame: dict | None = None
         self.config = make_config(scenario, overrides)
         self.reward_mode = reward
         self._seed = seed
@@ -90,7 +95,32 @@ class SumoHighwayGymEnv(gym.Env):
         self.sim.reset_roads([0])
         finished, self.tracker = self.tracker.finished, EpisodeTracker()  # a running episode is dropped
         self.tracker.finished = finished
+        self._draw(first=True)
         return self._obs(), {"ego": self.sim.ego[0]}
+
+    def _draw(self, first: bool) -> None:
+        """Keep the current frame for :meth:`render` (the renderer of ``kddrl_trl.eval.render``)."""
+        if self.render_mode is None:
+            return
+        from ..eval.trace import TraceRecorder
+
+        if first:
+            c = self.config
+            self._recorder = TraceRecorder(1, scenario=c.scenario, algo="gym", num_lanes=c.num_lanes,
+                                           lane_width=c.lane_width, section_length=c.section_length,
+                                           step_length=c.step_length)
+        frame = TensorDict({key: torch.from_numpy(arr) for key, arr in self.sim.outputs(False).items()}, batch_size=[1])
+        self._frame = self._recorder.frame(frame, 0, 0 if first else self._frame["t"] + 1, first)
+
+    def render(self):
+        """``rgb_array``: the current frame seen from above (ego and its six neighbours), ``uint8 [H, W, 3]``."""
+        if self.render_mode is None:
+            return None
+        if self._frame is None:
+            raise RuntimeError("call reset() before render()")
+        from ..eval.render import frame_rgb
+
+        return frame_rgb(self._frame, self._recorder.meta)
 
     def step(self, action):
         if self.sim is None or self.sim.ego[0] is None:
@@ -105,6 +135,7 @@ class SumoHighwayGymEnv(gym.Env):
         frame["done"] = frame["terminated"] | frame["truncated"]
         for episode in self.tracker(TensorDict({"next": frame}, batch_size=[1]).unsqueeze(-1)):
             info["episode"] = episode
+        self._draw(first=False)
         return self._obs(), reward, bool(self.sim.terminated[0, 0]), bool(self.sim.truncated[0, 0]), info
 
     def close(self):

@@ -75,7 +75,8 @@ def load_run(path: str | Path) -> RunRecord:
     bad = [c for c in numeric if not pd.api.types.is_numeric_dtype(episodes[c]) or episodes[c].isna().any()]
     if bad:
         raise ValueError(f"{path / 'eval_episodes.csv'}: non-numeric or empty values in column(s) {', '.join(bad)}")
-    episodes["collision_with"] = episodes["collision_with"].fillna("").astype(str)
+    episodes["collision_with"] = episodes["collision_with"].astype(object).where(episodes["collision_with"].notna(),
+                                                                                 "").astype(str)
     training = _csv(path / "train_episodes.csv", ("return_lc", "return_cf")) \
         if (path / "train_episodes.csv").is_file() else None
     validation = _csv(path / "validation.csv") if (path / "validation.csv").is_file() else None

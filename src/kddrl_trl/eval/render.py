@@ -15,6 +15,8 @@ EGO_COLOR, NEIGHBOUR_COLOR, LEADER_COLOR = "tab:red", "tab:gray", "tab:blue"
 VEHICLE_LENGTH, VEHICLE_WIDTH = 4.5, 1.8
 #: metres shown behind and ahead of the ego in a frame
 BEHIND, AHEAD = 60.0, 140.0
+#: frame size (inches) and resolution: 800 x 176 pixels, ~1-2 MB per 1000-frame episode in H.264
+FIGSIZE, DPI = (10, 2.2), 80
 
 
 def _plt():
@@ -50,8 +52,7 @@ def draw_frame(ax, frame: dict, trace: dict) -> None:
         ax.text(y - VEHICLE_LENGTH / 2, x, label, ha="center", va="center", fontsize=6, color="white", zorder=4)
     ax.set_xlim(y0, y0 + BEHIND + AHEAD)
     ax.set_ylim(-0.5, lanes * width + 0.5)
-    ax.set_aspect("equal")
-    ax.set_yticks([])
+    ax.set_yticks([])  # lateral scale stretched (about 2.5x) so that three lanes stay readable
     ax.set_xlabel("longitudinal position y (m from the study section's start)")
     phase = frame.get("braking_phase", "none")
     ax.set_title(f"{trace.get('algo', '')} on {trace.get('scenario', '')}  t = {frame['t'] * trace.get('step_length', 0.1):.1f} s"
@@ -64,10 +65,10 @@ def frame_rgb(frame: dict, trace: dict, fig=None) -> np.ndarray:
     """``draw_frame`` as an ``uint8`` array ``[H, W, 3]``."""
     plt = _plt()
     own = fig is None
-    fig = fig or plt.figure(figsize=(10, 1.6), dpi=100)
+    fig = fig or plt.figure(figsize=FIGSIZE, dpi=DPI)
     ax = fig.axes[0] if fig.axes else fig.add_subplot(1, 1, 1)
     draw_frame(ax, frame, trace)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.3, top=0.86)
     fig.canvas.draw()
     rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
     if own:
@@ -82,12 +83,12 @@ def write_video(trace: dict, path: str | Path, fps: int = 10) -> Path:
     import imageio.v2 as imageio
 
     plt = _plt()
-    fig = plt.figure(figsize=(10, 1.6), dpi=100)
+    fig = plt.figure(figsize=FIGSIZE, dpi=DPI)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp.mp4")  # complete before it takes the final name
     try:
-        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=6, macro_block_size=8,
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=5, macro_block_size=8,
                                 ffmpeg_log_level="error") as writer:
             for frame in trace["frames"]:
                 writer.append_data(frame_rgb(frame, trace, fig))

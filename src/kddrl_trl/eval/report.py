@@ -54,7 +54,7 @@ def _cell(metric: str, stats: dict) -> str:
 def _paper_cell(scenario: str, algo: str, metric: str) -> str:
     if metric == "lane_changes_per_episode":
         value = paper_value(scenario, algo, "lane_changes_per_1000_episodes")
-        return "" if value is None else _fmt(metric, value[0] / 1000.0)
+        return "" if value is None else _fmt(metric, value[0] / 1000.0) + " (its total ÷ 1000)"
     value = paper_value(scenario, algo, metric)
     if value is None:
         return ""
@@ -131,7 +131,7 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
         for m in TABLE_METRICS:
             d = difference_ci(row["per_seed"][m], ref["per_seed"][m])
             ci = "n/a" if d["ci_low"] is None else f"[{_fmt(m, d['ci_low'])}, {_fmt(m, d['ci_high'])}]"
-            lines.append(f"| {row['algo']} | {METRICS[m][0]} | {_fmt(m, d['mean'])} | {ci} | {d['p_greater']:.2f} | "
+            lines.append(f"| {row['algo']} | {METRICS[m][0]} | {'+' if d['mean'] > 0 else ''}{_fmt(m, d['mean'])} | {ci} | {d['p_greater']:.2f} | "
                          f"{_verdict(d, m, row['algo'], (len(row['seeds']), len(ref['seeds'])))} |")
     return lines
 

@@ -41,7 +41,9 @@ class TraceRecorder:
         without = any(not t["lane_changes"] for t in self.traces)
         return len(self.traces) >= 4 * self.episodes or (len(self.traces) >= self.episodes and with_lc and without)
 
-    def _frame(self, td: TensorDictBase, r: int, t: int, first: bool) -> dict:
+    def frame(self, td: TensorDictBase, r: int, t: int, first: bool) -> dict:
+        """Row ``r`` of the frame ``td`` (batch ``[B]``, raw keys at its root) as a trace frame; ``first``: an
+        episode's first frame (the lateral position restarts at the lane centre)."""
         state = td.get(K.EGO_STATE)[r].tolist()
         lane = int(td.get(K.EGO_LANE)[r].reshape(-1)[0])
         active = bool(td.get(K.LC_ACTIVE)[r].reshape(-1)[0])
@@ -68,9 +70,9 @@ class TraceRecorder:
         nxt, done = step.get("next"), step.get(("next", "done")).reshape(step.shape[0], -1).any(-1)
         for r in range(step.shape[0]):
             if r not in self._open:
-                self._open[r] = {**self.meta, "row": r, "frames": [self._frame(step, r, 0, True)]}
+                self._open[r] = {**self.meta, "row": r, "frames": [self.frame(step, r, 0, True)]}
             trace = self._open[r]
-            trace["frames"].append(self._frame(nxt, r, len(trace["frames"]), False))
+            trace["frames"].append(self.frame(nxt, r, len(trace["frames"]), False))
             if bool(done[r]):
                 del self._open[r]
                 outcome = int(nxt.get(K.OUTCOME)[r].reshape(-1)[0])

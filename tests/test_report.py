@@ -1,0 +1,220 @@
+"""Evidence: the evaluation protocol, a tiny sweep as typed, the report on it, determinism, traces and videos."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
+from kddrl_trl.eval.stats import difference_ci, mean_ci
+
+#: a tiny KDDRL budget that still trains, validates and evaluates
+TINY = ["episodes=4", "eval_episodes=4", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
+        "train.batch_size_cf=32", "train.batch_size_lc=8", "compile=false", "train.eval_every=2",
+        "train.eval_episodes=2", "env.max_steps=200"]
+
+
+def _run(cmd, cwd, timeout=900):
+    done = subprocess.run([sys.executable, "-m", *cmd], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    assert done.returncode == 0, done.stderr[-4000:]
+    return done
+
+
+# ------------------------------------------------------------------------------------------ protocol
+def test_evaluation_seeds_never_repeat_training_traffic():
+    p = protocol(seed=3, episodes=1000, eval_seed=None, eval_episodes=1000)
+    assert p == {"train_seeds": [3, 1002], "validation_seed": 3 + VALIDATION_OFFSET, "eval_seed": 3 + TEST_OFFSET,
+                 "eval_episodes": 1000}
+    with pytest.raises(ValueError, match=r"eval_seed=500 lies in the training seeds \[0, 1000\)"):
+        protocol(seed=0, episodes=1000, eval_seed=500, eval_episodes=10)
+    check_disjoint("eval_seed", 1000, 0, 1000)  # just past the last training seed: allowed
+
+
+def test_an_overlapping_eval_seed_is_refused_before_any_simulator_starts():
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["eval_seed=10", "seed=5"])
+    with pytest.raises(ValueError, match="eval_seed=10 lies in the training seeds"):
+        OmegaConf.to_object(cfg)
+
+
+# ---------------------------------------------------------------------------------------------- stats
+def test_bootstrap_intervals_over_seeds():
+    ci = mean_ci([1.0, 2.0, 3.0, 4.0, 5.0])
+    assert ci["mean"] == 3.0 and 1.0 <= ci["ci_low"] < 3.0 < ci["ci_high"] <= 5.0
+    assert mean_ci([1.0, 2.0, 3.0, 4.0, 5.0]) == ci  # fixed resampling seed: the same records, the same report
+    assert mean_ci([2.0]) == {"mean": 2.0, "ci_low": None, "ci_high": None, "n": 1}
+    assert mean_ci([0.0, 0.0, 0.0])["ci_low"] == 0.0
+    with pytest.raises(ValueError, match="finite"):
+        mean_ci([1.0, float("nan")])
+    lower = difference_ci([1.0, 1.1, 0.9], [5.0, 5.2, 4.9])
+    assert lower["ci_high"] < 0 and lower["p_greater"] == 0.0
+    same = difference_ci([1.0, 2.0, 3.0], [1.5, 2.5, 2.0])
+    assert same["ci_low"] < 0 < same["ci_high"]
+
+
+# -------------------------------------------------------------------------------------------- records
+def _fake_run(folder, algo="kddrl", seed=0, speeds=(100.0, 110.0), collisions=(False, True)):
+    folder.mkdir(parents=True)
+    n = len(speeds)
+    pd.DataFrame({"mean_speed_kmh": speeds, "mean_speed": np.asarray(speeds) / 3.6, "mean_sq_speed": (np.asarray(speeds) / 3.6) ** 2,
+                  "mean_accel": [0.1] * n, "mean_sq_accel": [0.01] * n, "mean_abs_accel": [0.1] * n,
+                  "lane_changes": [1] * n, "frames": [100] * n, "return_lc": [1.0] * n, "return_cf": [2.0] * n,
+                  "collision": list(collisions), "outcome": ["collision" if c else "left_section" for c in collisions],
+                  "collision_kind": ["rear_end" if c else "none" for c in collisions],
+                  "collision_with": ["b" if c else "" for c in collisions]}).to_csv(folder / "eval_episodes.csv",
+                                                                                       index=False)
+    (folder / "summary.json").write_text(json.dumps({"algo": algo, "scenario": "baseline", "seed": seed}))
+    return folder
+
+
+def test_records_refuse_bad_files_naming_file_and_column(tmp_path):
+    from kddrl_trl.eval.records import find_runs, load_run
+
+    run = _fake_run(tmp_path / "a")
+    assert load_run(run).metrics()["collision_rate"] == 0.5
+    frame = pd.read_csv(run / "eval_episodes.csv")
+    frame.drop(columns=["lane_changes"]).to_csv(run / "eval_episodes.csv", index=False)
+    with pytest.raises(ValueError, match=r"eval_episodes.csv: missing column\(s\) lane_changes"):
+        load_run(run)
+    frame.assign(mean_speed_kmh=["fast"] * len(frame)).to_csv(run / "eval_episodes.csv", index=False)
+    with pytest.raises(ValueError, match="mean_speed_kmh"):
+        load_run(run)
+    with pytest.raises(FileNotFoundError, match="no such run"):
+        find_runs([tmp_path / "missing"])
+    _fake_run(tmp_path / "b")
+    _fake_run(tmp_path / "c")
+    with pytest.raises(ValueError, match="two runs of kddrl on baseline with seed 0"):
+        find_runs([tmp_path / "b", tmp_path / "c"])
+
+
+def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
+    from kddrl_trl.eval.records import find_runs
+    from kddrl_trl.eval.report import build_report
+
+    for seed, speed in enumerate((100.0, 120.0, 140.0)):
+        _fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(speed, speed + 10), collisions=(False, False))
+        _fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(90.0, 90.0), collisions=(False, False))
+    out = build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep")
+    rows = {r["algo"]: r for r in json.loads((tmp_path / "rep" / "report.json").read_text())}
+    speed = rows["kddrl"]["metrics"]["mean_speed_kmh"]
+    assert speed["mean"] == pytest.approx(125.0) and speed["ci_low"] < 125.0 < speed["ci_high"]
+    assert rows["kddrl"]["seeds"] == [0, 1, 2] and rows["kddrl"]["episodes"] == 6
+    assert rows["idm_mobil"]["metrics"]["collision_rate"] == {"mean": 0.0, "ci_low": 0.0, "ci_high": 0.0}
+    assert rows["kddrl"]["paper"]["mean_speed_kmh"] == [159.4, 22.5]
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "idm_mobil is lower" in md and "125.0 [" in md and "paper: 159.4 ± 22.5" in md
+    assert out["figures"]["Figs. 9 / 15: evaluation returns"]
+
+
+# ------------------------------------------------------------------------------ the sweep, as typed
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sweep")
+    cmd = ["kddrl_trl.train", "-m", "algo=idm_mobil,kddrl", "+scenario=braking", "seed=0,1", "hydra/launcher=joblib",
+           "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={root / 'sweep'}", "video=true", "video_episodes=2", *TINY]
+    _run(cmd, root)
+    return root, cmd
+
+
+def test_sweep_runs_every_job_and_resumes_job_by_job(sweep):
+    root, cmd = sweep
+    jobs = sorted(p.name for p in (root / "sweep").iterdir() if p.is_dir())
+    assert jobs == ["braking__idm_mobil__0", "braking__idm_mobil__1", "braking__kddrl__0", "braking__kddrl__1"]
+    for job in jobs:
+        summary = json.loads((root / "sweep" / job / "summary.json").read_text())
+        seed = summary["seed"]
+        assert summary["protocol"] == {"train_seeds": [seed, seed + 3], "validation_seed": seed + VALIDATION_OFFSET,
+                                       "eval_seed": seed + TEST_OFFSET, "eval_episodes": 4}
+        records = pd.read_csv(root / "sweep" / job / "eval_episodes.csv", keep_default_na=False)
+        assert len(records) == 4 and {"outcome", "collision_kind", "collision_with", "ended_changing_lane"} <= set(records)
+        assert list((root / "sweep" / job / "videos").glob("*.mp4")) and list((root / "sweep" / job / "traces").glob("*.json"))
+    kddrl = root / "sweep" / "braking__kddrl__0"
+    validation = pd.read_csv(kddrl / "validation.csv")
+    assert len(validation) >= 1 and (validation["episodes"] == 2).all()
+    assert (kddrl / "checkpoints" / "best.pt").is_file() and (kddrl / "logs" / "scalars" / "eval" / "score.csv").is_file()
+
+    # the sweep again with resume=true after one job's folder was lost: the finished jobs are skipped, the lost one
+    # is computed again, and the same config and seed give identical records (determinism on one machine)
+    lost = root / "sweep" / "braking__kddrl__1"
+    first = {name: pd.read_csv(lost / name, keep_default_na=False) for name in ("eval_episodes.csv", "train_episodes.csv")}
+    shutil.rmtree(lost)
+    before = (kddrl / "eval_episodes.csv").stat().st_mtime_ns
+    done = _run(cmd + ["resume=true"], root)
+    assert (done.stdout + done.stderr).count("is finished (summary.json): skipped") == 3
+    assert (kddrl / "eval_episodes.csv").stat().st_mtime_ns == before
+    for name, frame in first.items():
+        pd.testing.assert_frame_equal(pd.read_csv(lost / name, keep_default_na=False), frame)
+
+
+def test_report_of_the_sweep_as_typed(sweep, tmp_path):
+    root, _ = sweep
+    _run(["kddrl_trl.report", str(root / "sweep"), f"out={tmp_path / 'rep'}"], tmp_path)
+    rows = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert sorted((r["algo"], r["scenario"]) for r in rows) == [("idm_mobil", "braking"), ("kddrl", "braking")]
+    for row in rows:
+        runs = [json.loads((root / "sweep" / f"braking__{row['algo']}__{s}" / "summary.json").read_text())
+                for s in (0, 1)]
+        assert row["seeds"] == [0, 1] and row["episodes"] == 8
+        for name, key in (("mean_speed_kmh", "mean_speed_kmh"), ("mean_accel", "mean_accel"),
+                          ("collision_rate", "collision_rate"), ("lane_changes_per_episode", "lane_changes")):
+            m = row["metrics"][name]
+            assert m["mean"] == pytest.approx(np.mean([r[key] for r in runs]))
+            assert m["ci_low"] <= m["mean"] + 1e-12 and m["mean"] <= m["ci_high"] + 1e-12
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "## Tables II-V" in md and "## Comparison with KDDRL" in md and "## Collisions by kind" in md
+    assert "**Commit:**" in md and "Evaluation protocol" in md
+    for fig in ("fig08_training_curves.png", "fig09_returns.png", "fig13_distributions_braking.png",
+                "fig14_space_time_braking.png"):
+        assert (tmp_path / "rep" / fig).read_bytes()[:4] == b"\x89PNG", fig
+
+
+# ------------------------------------------------------------------------------------ traces, video
+def test_traces_follow_the_tracked_episodes_and_make_videos(tmp_path):
+    from kddrl_trl.baselines import IDMMobilPolicy
+    from kddrl_trl.envs.fake import FakeHighwayEnv
+    from kddrl_trl.eval import evaluate_policy
+    from kddrl_trl.eval.render import plot_space_time, write_video
+    from kddrl_trl.eval.trace import TraceRecorder
+
+    env = FakeHighwayEnv(num_roads=3, seed=0)
+    recorder = TraceRecorder(2, scenario="baseline", algo="idm_mobil", lane_width=3.2, num_lanes=3)
+    episodes = evaluate_policy(env, IDMMobilPolicy(), 6, seed=4, progress=False, trace=recorder)
+    by_key = {(e["road"], e["frames"], e["lane_changes"]) for e in episodes}
+    assert recorder.traces
+    for trace in recorder.traces:
+        frames = trace["frames"]
+        assert [f["t"] for f in frames] == list(range(len(frames)))
+        assert trace["lane_changes"] == sum(f["lc_started"] for f in frames)
+        assert all(0.0 <= f["x"] <= 3 * 3.2 for f in frames)
+        # a trace is one whole episode the tracker counted (first frame = the reset observation)
+        assert (trace["row"], len(frames) - 1, trace["lane_changes"]) in by_key
+    video = write_video(recorder.traces[0], tmp_path / "v" / "ep.mp4")
+    assert video.read_bytes()[4:8] == b"ftyp" and not list((tmp_path / "v").glob(".*tmp*"))
+    png = plot_space_time([("ep", t) for t in recorder.chosen()], tmp_path / "st.png")
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_gym_env_renders_rgb_frames():
+    import gymnasium as gym
+
+    import kddrl_trl  # noqa: F401  (registers the env)
+
+    env = gym.make("kddrl_trl/SumoHighway-v0", render_mode="rgb_array")
+    try:
+        env.reset(seed=0)
+        first = env.render()
+        for _ in range(5):
+            env.step({"lc": 1, "cf": np.array([1.0], np.float32)})
+        frame = env.render()
+    finally:
+        env.close()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3 and frame.shape == first.shape
+    assert frame.std() > 0  # something is drawn
