@@ -50,7 +50,7 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
     assert (run / "train_episodes.csv").read_text().count("\n") == 4
     assert (run / "training_curves.png").read_bytes()[:4] == b"\x89PNG"
     assert (run / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
-    for name in ("train/return_lc", "train/return_cf", "train/loss_qvalue", "time/frames_per_s", "eval/mean_speed_kmh"):
+    for name in ("train/return_lc", "train/return_cf", "train/loss_qvalue", "time/frames_per_s", "test/mean_speed_kmh"):
         assert (run / "logs" / "scalars" / f"{name}.csv").is_file(), name
 
     # the trained policy, evaluated on another scenario from its checkpoint (paper §IV.D)
