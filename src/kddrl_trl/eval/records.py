@@ -1,5 +1,5 @@
 """The records a run leaves (``summary.json``, ``eval_episodes.csv``, ``train_episodes.csv``, ``validation.csv``,
-``traces/``), found under any run or sweep folder and read back for the report (:mod:`kddrl_trl.eval.report`).
+``traces/``, also those of its ``eval__<its scenario>__*`` evaluations), found under any run or sweep folder and read back for the report (:mod:`kddrl_trl.eval.report`).
 
 A run folder is any folder holding ``summary.json`` and ``eval_episodes.csv`` (written by
 :func:`kddrl_trl.factories.report`): a single run, a sweep job, or an evaluation of a trained run (whose
@@ -80,7 +80,8 @@ def load_run(path: str | Path) -> RunRecord:
     training = _csv(path / "train_episodes.csv", ("return_lc", "return_cf")) \
         if (path / "train_episodes.csv").is_file() else None
     validation = _csv(path / "validation.csv") if (path / "validation.csv").is_file() else None
-    traces = sorted((path / "traces").glob("*.json")) if (path / "traces").is_dir() else []
+    # traces of its final evaluation, and of later evaluations of it on its own scenario (evaluate video=true)
+    traces = sorted((path / "traces").glob("*.json")) + sorted(path.glob(f"eval__{summary['scenario']}__*/traces/*.json"))
     return RunRecord(path, str(summary["algo"]), str(summary["scenario"]), int(summary["seed"]), summary, episodes,
                      training, validation, traces)
 
