@@ -16,7 +16,7 @@ from kddrl_trl.eval.stats import difference_ci, mean_ci
 #: a tiny KDDRL budget that still trains, validates and evaluates
 TINY = ["episodes=4", "eval_episodes=4", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
         "train.batch_size_cf=32", "train.batch_size_lc=8", "compile=false", "train.eval_every=2",
-        "train.eval_episodes=2", "env.max_steps=200"]
+        "train.eval_episodes=2", "env.max_steps=120"]
 
 
 def _run(cmd, cwd, timeout=900):
@@ -119,7 +119,7 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
 def sweep(tmp_path_factory):
     root = tmp_path_factory.mktemp("sweep")
     cmd = ["kddrl_trl.train", "-m", "algo=idm_mobil,kddrl", "+scenario=braking", "seed=0,1", "hydra/launcher=joblib",
-           "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={root / 'sweep'}", "video=true", "video_episodes=2", *TINY]
+           "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={root / 'sweep'}", "video=true", "video_episodes=1", *TINY]
     _run(cmd, root)
     return root, cmd
 

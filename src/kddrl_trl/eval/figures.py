@@ -26,17 +26,24 @@ def _by(runs, *keys) -> dict:
     return dict(out)
 
 
+def _agent_grid(scenarios: list[str]):
+    """One row per scenario, one column per agent (lane change, car following)."""
+    plt = _plt()
+    fig, axes = plt.subplots(len(scenarios), 2, figsize=(11, 3.4 * len(scenarios)), squeeze=False)
+    agents = (("return_lc", "lane-change return"), ("return_cf", "car-following return"))
+    return plt, fig, [(scenario, [(ax, *agent) for ax, agent in zip(row, agents)])
+                      for scenario, row in zip(scenarios, axes)]
+
+
 def training_curves(runs, path: Path, window: int = 50) -> Path | None:
     """Fig. 8: per scenario, both agents' training returns (rolling mean over ``window`` episodes), the mean over
     seeds as a line and the range over seeds (min to max) as a band."""
     learning = [r for r in runs if r.training is not None]
     if not learning:
         return None
-    plt = _plt()
-    scenarios = sorted({r.scenario for r in learning})
-    fig, axes = plt.subplots(len(scenarios), 2, figsize=(11, 3.4 * len(scenarios)), squeeze=False)
-    for row, scenario in zip(axes, scenarios):
-        for ax, key, title in zip(row, ("return_lc", "return_cf"), ("lane-change return", "car-following return")):
+    plt, fig, grid = _agent_grid(sorted({r.scenario for r in learning}))
+    for scenario, panels in grid:
+        for ax, key, title in panels:
             for (algo,), group in sorted(_by([r for r in learning if r.scenario == scenario], "algo").items()):
                 n = min(len(r.training) for r in group)
                 curves = np.stack([r.training[key].rolling(window, min_periods=1).mean().to_numpy()[:n] for r in group])
@@ -59,12 +66,10 @@ def return_boxes(runs, path: Path) -> Path | None:
     of all seeds pooled)."""
     if not runs:
         return None
-    plt = _plt()
-    scenarios = sorted({r.scenario for r in runs})
-    fig, axes = plt.subplots(len(scenarios), 2, figsize=(11, 3.4 * len(scenarios)), squeeze=False)
-    for row, scenario in zip(axes, scenarios):
+    plt, fig, grid = _agent_grid(sorted({r.scenario for r in runs}))
+    for scenario, panels in grid:
         groups = sorted(_by([r for r in runs if r.scenario == scenario], "algo").items())
-        for ax, key, title in zip(row, ("return_lc", "return_cf"), ("lane-change return", "car-following return")):
+        for ax, key, title in panels:
             data = [np.concatenate([r.episodes[key].to_numpy() for r in g]) for _, g in groups]
             ax.boxplot(data, showfliers=False)
             ax.set_xticks(range(1, len(groups) + 1), [a for (a,), _ in groups], fontsize=8)
