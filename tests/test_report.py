@@ -114,6 +114,23 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
     assert out["figures"]["Figs. 9 / 15: evaluation returns"]
 
 
+def test_provenance_names_the_commit_and_a_changed_tree(tmp_path):
+    from kddrl_trl.provenance import commit, provenance
+
+    assert commit(tmp_path) == "unknown"  # not a checkout
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path)]
+    (tmp_path / "src").mkdir()
+    (tmp_path / "src" / "a.py").write_text("x = 1\n")
+    for args in (["init", "-q"], ["add", "."], ["commit", "-qm", "a"]):
+        subprocess.run(git + args, check=True)
+    head = subprocess.run(git + ["rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    assert commit(tmp_path) == head
+    (tmp_path / "src" / "a.py").write_text("x = 2\n")
+    assert commit(tmp_path) == head + "+dirty"
+    p = provenance()
+    assert set(p) == {"commit", "machine", "packages"} and "CPUs" in p["machine"]
+
+
 # ------------------------------------------------------------------------------ the sweep, as typed
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
@@ -135,6 +152,7 @@ def test_sweep_runs_every_job_and_resumes_job_by_job(sweep):
                                        "eval_seed": seed + TEST_OFFSET, "eval_episodes": 4}
         records = pd.read_csv(root / "sweep" / job / "eval_episodes.csv", keep_default_na=False)
         assert len(records) == 4 and {"outcome", "collision_kind", "collision_with", "ended_changing_lane"} <= set(records)
+        assert {"commit", "machine", "packages"} <= set(summary) and summary["packages"]["torchrl"].startswith("0.14")
         assert list((root / "sweep" / job / "videos").glob("*.mp4")) and list((root / "sweep" / job / "traces").glob("*.json"))
     kddrl = root / "sweep" / "braking__kddrl__0"
     validation = pd.read_csv(kddrl / "validation.csv")
@@ -170,7 +188,8 @@ def test_report_of_the_sweep_as_typed(sweep, tmp_path):
             assert m["ci_low"] <= m["mean"] + 1e-12 and m["mean"] <= m["ci_high"] + 1e-12
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## Tables II-V" in md and "## Comparison with KDDRL" in md and "## Collisions by kind" in md
-    assert "**Commit:**" in md and "Evaluation protocol" in md
+    assert "Report made at commit" in md and "Evaluation protocol" in md
+    assert "Runs made at commits:" in md and "not recorded" not in md.split("Runs made at commits:")[1].split("\n")[0]
     for fig in ("fig08_training_curves.png", "fig09_returns.png", "fig13_distributions_braking.png",
                 "fig14_space_time_braking.png"):
         assert (tmp_path / "rep" / fig).read_bytes()[:4] == b"\x89PNG", fig

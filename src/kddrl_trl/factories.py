@@ -238,8 +238,9 @@ def report(out_dir: Path, episodes: list[dict], title: str, reference: dict | No
 
     from .eval.metrics import format_summary, summarize
     from .io import write_json_atomic, write_text_atomic
+    from .provenance import provenance
 
-    summary = {**summarize(episodes), **fields}
+    summary = {**summarize(episodes), **fields, **provenance()}
     write_text_atomic(out_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
     write_json_atomic(out_dir / "summary.json", summary)
     print(f"\n{title}")

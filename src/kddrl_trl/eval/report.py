@@ -8,13 +8,11 @@ a list of rows ``{"algo", "scenario", "seeds", "episodes", "metrics": {name: {"m
 """
 from __future__ import annotations
 
-import platform
-import subprocess
 from collections import Counter
-from importlib import metadata
 from pathlib import Path
 
 from .. import keys as K
+from ..provenance import commit, machine, versions
 from . import figures
 from .paper import PAPER_NAMES, TABLES, paper_value
 from .records import RunRecord
@@ -158,26 +156,6 @@ def collision_breakdown(runs: list[RunRecord]) -> list[str]:
     return lines
 
 
-def _versions() -> str:
-    names = ("kddrl_trl", "torch", "torchrl", "tensordict", "libsumo", "numpy", "scipy", "hydra-core")
-    out = []
-    for name in names:
-        try:
-            out.append(f"{name} {metadata.version(name)}")
-        except metadata.PackageNotFoundError:
-            out.append(f"{name} (not installed)")
-    return ", ".join(out)
-
-
-def _commit() -> str:
-    try:
-        done = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
-                              cwd=Path(__file__).parent)
-        return done.stdout.strip() or "unknown (not a git checkout)"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 def footer(runs: list[RunRecord], command: str) -> list[str]:
     protocols = Counter()
     for r in runs:
@@ -187,13 +165,17 @@ def footer(runs: list[RunRecord], command: str) -> list[str]:
     wall = [r.summary.get("wall_s") for r in runs]
     training = [r.summary.get("training", {}).get("elapsed_s") for r in runs]
     machines = Counter(r.summary.get("machine", "not recorded") for r in runs)
+    commits = Counter(r.summary.get("commit", "not recorded") for r in runs)
+    packages = Counter(", ".join(f"{k} {v}" for k, v in r.summary["packages"].items()) if "packages" in r.summary
+                       else "not recorded" for r in runs)
     return [
         "---", "",
         f"* **Command:** `{command}`",
-        f"* **Commit:** {_commit()}; **packages:** {_versions()}",
-        f"* **Report made on:** {platform.platform()}, Python {platform.python_version()}, "
-        f"{__import__('os').cpu_count()} CPUs. **Runs made on:** "
-        + "; ".join(f"{m} ({n} runs)" for m, n in machines.items()),
+        f"* **Report made at commit** {commit()} on {machine()}; **packages:** "
+        + ", ".join(f"{k} {v}" for k, v in versions().items()),
+        "* **Runs made at commits:** " + "; ".join(f"{c} ({n} runs)" for c, n in commits.items())
+        + ". **On machines:** " + "; ".join(f"{m} ({n} runs)" for m, n in machines.items())
+        + ". **With packages:** " + "; ".join(f"{p} ({n} runs)" for p, n in packages.items()),
         f"* **Runs:** {len(runs)}; seeds per (algo, scenario) in the tables. **Evaluation protocol:** greedy policy "
         "(exploration off), the first N episodes to *start* (unbiased by episode length), env seed "
         + "; ".join(f"{k} ({n} runs)" for k, n in protocols.items())

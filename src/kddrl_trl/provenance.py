@@ -1,0 +1,55 @@
+"""What produced a result: the code's commit, the package versions and the machine.
+
+Every run's ``summary.json`` records :func:`provenance` (``report`` in :mod:`kddrl_trl.factories`), and the
+reproduction report's footer lists what its runs recorded beside what made the report, so a table built up over
+several sessions (or machines) says which code and machine each of its runs came from.
+"""
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+from importlib import metadata
+from pathlib import Path
+
+#: the packages whose versions change a result
+PACKAGES = ("kddrl_trl", "torch", "torchrl", "tensordict", "libsumo", "numpy", "scipy", "hydra-core")
+
+
+def versions() -> dict[str, str]:
+    """``{package: version}`` of :data:`PACKAGES` (``"not installed"`` where missing)."""
+    out = {}
+    for name in PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def commit(where: str | Path | None = None) -> str:
+    """The git commit of the checkout holding ``where`` (default: the working directory, then this package's
+    folder), ``+dirty`` when tracked files differ from it; ``"unknown"`` outside a checkout (an installed
+    wheel run from elsewhere)."""
+    for folder in ([Path(where)] if where else [Path.cwd(), Path(__file__).parent]):
+        try:
+            head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                  timeout=10, cwd=folder)
+            if head.returncode or not head.stdout.strip():
+                continue
+            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", "src"],
+                                   capture_output=True, text=True, timeout=10, cwd=folder)
+            return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+        except (OSError, subprocess.SubprocessError):
+            continue
+    return "unknown"
+
+
+def machine() -> str:
+    """One line: platform, Python and CPU count."""
+    return f"{platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPUs"
+
+
+def provenance() -> dict:
+    """``{"commit", "machine", "packages"}``: what a run's ``summary.json`` records."""
+    return {"commit": commit(), "machine": machine(), "packages": versions()}
