@@ -204,7 +204,7 @@ def test_collector_fills_both_buffers_with_consistent_macro_steps():
     from kddrl_trl.training import make_buffer
 
     period, k = 4, 3
-    env = clocked_env(k=k, period=period)
+    env = clocked_env(k=k, period=period, ego_start="window")  # distinct start positions: y identifies a frame
     policy = MultiRatePolicy(lc_recorder(K.KEEP), cf_recorder())
     rb_l, rb_h = make_buffer(10_000, 8, 0), make_buffer(10_000, 8, 0)
     mtc = MultiTimescaleCollector.from_env(env, policy, frames_per_env=7, frame_buffer=rb_l, macro_buffer=rb_h)
