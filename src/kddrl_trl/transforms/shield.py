@@ -13,9 +13,13 @@ The leaders checked are the current lane's (slot b) and, during a lane change, t
 c to the right, from the sign of the lateral speed).
 
 Where the executed action is recorded: the inverse path (``_inv_call``) replaces ``("cf", "action")`` in what the
-env receives; the post-step hook (TorchRL's ``_post_step_mdp_hooks``, run by ``step_and_maybe_reset``, i.e. by
-collectors, ``rollout`` and :func:`~kddrl_trl.eval.evaluate_policy`) writes the executed action back into the
-collected frame, so buffer L stores ``(s, a_exec, r, s')``: the transition that really happened. Each frame carries
+env receives (TorchRL's ``inv`` works on a copy of the step's root, which keeps the agent's command); the post-step
+hook (TorchRL's ``_post_step_mdp_hooks``, run by ``step_and_maybe_reset``: collectors,
+:func:`~kddrl_trl.eval.evaluate_policy`, ``rollout``) writes the executed action into the recorded frame, so buffer
+L stores ``(s, a_exec, r, s')``: the transition that really happened. TorchRL runs no hook on a bare ``env.step``
+(nor on the last frame of ``env.rollout(..., break_when_any_done=False)``): there the frame keeps the agent's
+command, and ``("next", "cf", "shield")`` still says the shield acted. Inside a ``ParallelEnv`` worker only the flag
+reaches the outer env. Each frame carries
 ``("next", "cf", "shield")`` (``keys.CF_SHIELD``): True when the shield lowered the command, which the episode
 tracker counts (``shield_interventions``, ``shield_rate``).
 """
@@ -33,6 +37,7 @@ from ..physics import IDMParams, idm_acceleration
 
 #: ``algo.shield`` kinds this transform implements (``none`` adds no transform)
 SHIELD_KINDS = ("idm", "ttc")
+_FLAG = "_shield_intervened"  # carries the intervention flag from the inverse path to ``_step``
 
 
 def ttc_bound(v: torch.Tensor, v_lead: torch.Tensor, a_lead: torch.Tensor, gap: torch.Tensor, ttc: float,
@@ -86,8 +91,6 @@ class SafetyShield(Transform):
         self.kind, self.low, self.high, self.ttc, self.min_gap = kind, float(low), float(high), float(ttc), float(min_gap)
         base = idm if idm is not None else IDMParams()
         self.idm = IDMParams(**{**base.__dict__, "v0": math.inf})
-        self._executed: torch.Tensor | None = None
-        self._flag: torch.Tensor | None = None
 
     def shielded(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """(executed action, intervened) ``[*B, 1]`` for the command and raw keys at the root of ``tensordict``."""
@@ -100,19 +103,22 @@ class SafetyShield(Transform):
     # ---------------------------------------------------------------------------------- TorchRL
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
         with torch.no_grad():
-            self._executed, self._flag = self.shielded(tensordict)
-        tensordict.set(K.CF_ACTION, self._executed)
+            executed, flag = self.shielded(tensordict)
+        tensordict.set(K.CF_ACTION, executed)  # what the env receives (``inv`` works on a copy of the root)
+        tensordict.set(_FLAG, flag)            # read (and removed) by _step
         return tensordict
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        flag = self._flag if self._flag is not None else torch.zeros(*next_tensordict.batch_size, 1, dtype=torch.bool)
+        flag = tensordict.pop(_FLAG, None)  # TorchRL hands _step the inverse-transformed input
+        if flag is None:
+            flag = torch.zeros(*next_tensordict.batch_size, 1, dtype=torch.bool)
         next_tensordict.set(K.CF_SHIELD, flag.reshape(*next_tensordict.batch_size, 1).to(next_tensordict.device))
         return next_tensordict
 
     def _post_step_mdp_hooks(self, tensordict: TensorDictBase, tensordict_: TensorDictBase):
-        if self._executed is not None:  # the collected frame holds the action the env executed
-            tensordict.set(K.CF_ACTION, self._executed.to(tensordict.get(K.CF_ACTION).dtype))
-            self._executed = self._flag = None
+        # the frame that is recorded holds the executed action (recomputed from its root: stateless)
+        with torch.no_grad():
+            tensordict.set(K.CF_ACTION, self.shielded(tensordict)[0])
         return tensordict, tensordict_
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
