@@ -765,7 +765,8 @@ def test_shield_executes_and_records_the_bounded_action_and_counts_interventions
     assert torch.allclose(roll["next", *K.EGO_ACCEL][..., 0][moving], action[moving], atol=1e-3)
     from torchrl.collectors import Collector
 
-    collector = Collector(env_(), floor_it, frames_per_batch=80, total_frames=80, trust_policy=True)
+    collector = Collector(env_(), floor_it, frames_per_batch=80, total_frames=80, trust_policy=True,
+                          auto_register_policy_transforms=False)
     batch = next(iter(collector))                                 # what buffer L receives
     collector.shutdown()
     flag, action = batch["next", *K.CF_SHIELD][..., 0], batch[K.CF_ACTION][..., 0]
