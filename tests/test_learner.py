@@ -243,3 +243,29 @@ def test_acting_noise_is_clipped_as_in_algorithm_1():
     with set_exploration_type(ExplorationType.RANDOM):
         unclipped = make_td3(4, hidden=[8], exploration_sigma=50.0, exploration_clip=None).explore(td.clone())
     assert unclipped[K.CF_ACTION].abs().max() > 4.0           # only the action bounds [-5, 5]
+
+
+def test_semi_mdp_option_discounts_the_bootstrap_by_gamma_to_the_frames_spanned():
+    """algo.learner.d3qn.semi_mdp: R + gamma^k max Q(s', .) with k = ("next", "lc", "macro_frames"); default: gamma."""
+    from tensordict import TensorDict
+
+    from kddrl_trl.objectives import make_d3qn
+
+    def loss_of(semi_mdp: bool) -> tuple[float, torch.Tensor, torch.Tensor]:
+        torch.manual_seed(0)
+        parts = make_d3qn(4, hidden=[8], gamma=0.9, double=False, semi_mdp=semi_mdp)
+        obs, nobs = torch.randn(1, 4), torch.randn(1, 4)
+        with torch.no_grad():
+            q_s = parts.actor.module[0](TensorDict({K.LC_OBS: obs}, [1]))[K.LC_ACTION_VALUE][0]
+            q_n = parts.actor.module[0](TensorDict({K.LC_OBS: nobs}, [1]))[K.LC_ACTION_VALUE][0]
+        ones = torch.ones(1, 3, dtype=torch.bool)
+        td = TensorDict({K.LC_OBS: obs, K.LC_ACTION: torch.tensor([[0.0, 1.0, 0.0]]), K.LC_ACTION_MASK: ones,
+                         "next": {K.LC_OBS: nobs, K.LC_ACTION_MASK: ones, K.LC_REWARD: torch.ones(1, 1),
+                                  K.LC_MACRO_FRAMES: torch.tensor([[20]]), "done": torch.zeros(1, 1, dtype=torch.bool),
+                                  "terminated": torch.zeros(1, 1, dtype=torch.bool)}}, [1])
+        return float(parts.loss(td)["loss"]), q_s[K.KEEP], q_n.max()
+
+    loss, q, q_next = loss_of(False)
+    assert loss == pytest.approx(float((q - (1.0 + 0.9 * q_next)) ** 2), rel=1e-5)
+    loss, q, q_next = loss_of(True)
+    assert loss == pytest.approx(float((q - (1.0 + 0.9 ** 20 * q_next)) ** 2), rel=1e-5)

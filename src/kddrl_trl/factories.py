@@ -178,6 +178,7 @@ def make_collector(env: EnvBase, learner: HierarchicalLearner, buffers: tuple, t
     return MultiTimescaleCollector.from_env(env, learner.policy(explore=True), frames_per_env=train.frames_per_env,
                                             frame_buffer=buffers[0], macro_buffer=buffers[1],
                                             frame_keys=learner.buffer_keys(),
+                                            macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],
                                             writer=MacroTransitionWriter(efficiency=efficiency))
 
 

@@ -83,8 +83,8 @@ TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
                          enabled=bool, trajgan=bool, priors=bool, num_samples=int, reduce=str,
                          trajgan_checkpoint=Optional[str], lcgan_checkpoint=Optional[str])
 D3QNConfig = _node("D3QNConfig", "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the "
-                   "learning rate.", hidden=list[int], dueling=bool, double=bool, gamma=float, tau=float, lr=float,
-                   eps_init=float, eps_end=float, eps_decisions=int)
+                   "learning rate.", defaults={"semi_mdp": False}, hidden=list[int], dueling=bool, double=bool,
+                   gamma=float, tau=float, lr=float, eps_init=float, eps_end=float, eps_decisions=int, semi_mdp=bool)
 TD3Config = _node("TD3Config", "``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the "
                   "learning rates.", defaults={"exploration_clip": None}, hidden=list[int], gamma=float, tau=float,
                   actor_lr=float, critic_lr=float, policy_noise=float, noise_clip=float, policy_delay=int,
