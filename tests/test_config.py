@@ -97,7 +97,7 @@ def test_issue14_options_are_typed_and_checked():
             compose(config_name="config", overrides=["algo.shieldd=idm"])
     algo = algo_from_node(cfg.algo)
     assert algo.mobil_safety_mask and algo.lc_reward == "frames" and algo.shield == "none"
-    assert algo.learner.td3.exploration_clip == 2.5
+    assert algo.learner.td3.exploration_clip == 2.5 and algo.learner.d3qn.semi_mdp is False
     assert not algo_from_node(ni.algo).mobil_safety_mask and algo_from_node(rule.algo).shield == "ttc"
     for key, bad in (("shield", "cbf"), ("lc_reward", "mean")):
         node = OmegaConf.create(OmegaConf.to_container(cfg.algo))

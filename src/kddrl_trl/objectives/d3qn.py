@@ -30,8 +30,10 @@ def make_d3qn(obs_dim: int, *, num_actions: int = 3, hidden: Sequence[int] = (25
     """The lane-change agent on ``obs_key`` (``keys.LC_OBS``, Eq. 24).
 
     ``dueling=False, double=True`` is the DDQN of Ni et al. Invalid commands (``mask_key`` False: no lane
-    there, or a manoeuvre in progress) are never chosen, greedily or at random; in the double-DQN target the
-    argmax over next actions is masked with the next state's mask, which the Q actor reads under ``"next"``.
+    there, a manoeuvre in progress and, with ``algo.mobil_safety_mask``, an unsafe gap by MOBIL's Eq. 20-21:
+    :class:`~kddrl_trl.transforms.MOBILSafetyMask`) are never chosen, greedily or at random; in the double-DQN
+    target the argmax over next actions is masked with the next state's mask, which ``DQNLoss`` hands the Q actor
+    through ``step_mdp`` (tested in ``tests/test_learner.py``).
     ε decays linearly from ``eps_init`` to ``eps_end`` over ``eps_decisions`` decisions (call
     ``explore.step(n)`` with the number of decisions taken).
 
