@@ -103,12 +103,14 @@ def make_transforms(algo: HierarchicalAlgo | RuleAlgo, seed: int, highway: Highw
     from .transforms import MOBILSafetyMask, SafetyShield, make_kddrl_transforms
 
     stack = []
-    if isinstance(algo, HierarchicalAlgo):
+    learning = isinstance(algo, HierarchicalAlgo)
+    if learning:
         options = asdict(algo.transforms)
         if options.pop("enabled"):
             stack.append(make_kddrl_transforms(**options, seed=seed, num_lanes=highway.num_lanes, compile=compile))
-        if getattr(algo, "mobil_safety_mask", False):
-            stack.append(MOBILSafetyMask(num_lanes=highway.num_lanes))
+    if getattr(algo, "mobil_safety_mask", False):  # any algo schema that has the option
+        stack.append(MOBILSafetyMask(num_lanes=highway.num_lanes))
+    if learning:
         stack.append(DecisionClock(algo.lc_period))
     if getattr(algo, "shield", "none") != "none":
         stack.append(SafetyShield(algo.shield, low=highway.accel_low, high=highway.accel_high, ttc=algo.shield_ttc))
