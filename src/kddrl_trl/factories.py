@@ -96,10 +96,11 @@ def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> Mul
 
 def make_transforms(algo: HierarchicalAlgo | RuleAlgo, seed: int, highway: HighwayConfig,
                     compile: bool | str = False) -> Compose:
-    """The env-side transforms of ``algo``: for a learning algo, the predictive-state transforms of
-    ``algo.transforms`` (none with ``enabled: false``), MOBIL's safety mask (``algo.mobil_safety_mask``:
-    :class:`~kddrl_trl.transforms.MOBILSafetyMask`) and the :class:`DecisionClock` of ``algo.lc_period``; for
-    every algo, the car-following shield of ``algo.shield`` (:class:`~kddrl_trl.transforms.SafetyShield`)."""
+    """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
+    ``algo.transforms`` (none with ``enabled: false``); MOBIL's safety mask where ``algo.mobil_safety_mask``
+    (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
+    :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
+    (:class:`~kddrl_trl.transforms.SafetyShield`, every algo)."""
     from .transforms import MOBILSafetyMask, SafetyShield, make_kddrl_transforms
 
     stack = []

@@ -137,4 +137,3 @@ class MacroTransitionWriter:
         self._frames = torch.where(open_now, seg_frames[:, last], torch.zeros_like(self._frames))
         self._open = open_now
         return out
-
