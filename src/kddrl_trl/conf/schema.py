@@ -94,7 +94,8 @@ LearnerConfig = _node("LearnerConfig", "``algo.learner``: keyword arguments of "
                       embed_hidden=int, embed_lr=float, d3qn=D3QNConfig, td3=TD3Config)
 
 
-#: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound (:class:`~kddrl_trl.transforms.SafetyShield`)
+#: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound
+#: (:class:`~kddrl_trl.transforms.SafetyShield`)
 SHIELDS = ("none", "idm", "ttc")
 #: ``algo.lc_reward`` values (:class:`~kddrl_trl.collectors.MacroTransitionWriter`): Algorithm 1 lines 26/35 sum
 #: the per-frame r_D3QN over the interval; §III.G computes it once "at each 2-second decision step"

@@ -23,7 +23,8 @@ def summarize(episodes: list[dict]) -> dict:
     """Mean ± sd over episodes of speed (km/h) and acceleration (signed and absolute, m/s²), the sd of speed
     and acceleration over all frames (``frame_*_sd``), lane changes (total and per episode), collision
     rate (fraction of episodes), outcome counts and, for episodes of the tracker, the shield intervention rate
-    (``shield_rate``: fraction of all frames; ``shield_episode_rate``: of episodes with at least one). The paper does not say which sd its tables give."""
+    (``shield_rate``: fraction of all frames; ``shield_episode_rate``: of episodes with at least one). The paper
+    does not say which sd its tables give."""
     if not episodes:
         raise ValueError("summarize: no finished episodes to summarize")
 

@@ -38,8 +38,8 @@ class EpisodeTracker:
     Reads :data:`IN_KEYS` (under ``"next"`` of each frame): ``EGO_STATE`` (speed), ``EGO_ACCEL``,
     ``LC_STARTED``, the two rewards, ``done`` and the episode events ``OUTCOME``, ``COLLISION_KIND``,
     ``COLLISION_SLOT``, ``BRAKING_PHASE``, ``BRAKING_DISTANCE``; and :data:`OPTIONAL_KEYS` where present
-    (``CF_SHIELD``, written by :class:`~kddrl_trl.transforms.SafetyShield`). The row order of successive batches must be the
-    same, and a row's episode goes on across batches until a frame has ``done`` set.
+    (``CF_SHIELD``, written by :class:`~kddrl_trl.transforms.SafetyShield`). The row order of successive batches
+    must be the same, and a row's episode goes on across batches until a frame has ``done`` set.
 
     Each episode is a dict of:
 

@@ -174,7 +174,7 @@ def build_agent_states(td: TensorDictBase, embedding: TensorDictModuleBase | Non
                 decide = nxt.get(K.LC_DECIDE, None)
                 if decide is None:
                     raise KeyError(f"build_agent_states: the batch has no ('next', {K.LC_DECIDE!r}) (the "
-                                   "DecisionClock's flag): the next lane-change action cannot be told from the held one")
+                               "DecisionClock's flag): the next lane-change action cannot be told from the held one")
                 chosen = next_lc_policy(nxt.clone(False)).get(K.LC_ACTION).to(held.dtype)
                 nxt.set(K.LC_ACTION, torch.where(decide.reshape(*held.shape[:-1], 1).bool(), chosen, held))
             for b in builders:

@@ -28,6 +28,7 @@ from .shield import SafetyShield
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
-__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "MOBILSafetyMask", "PredictiveStack", "SafetyShield",
+__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "MOBILSafetyMask",
+           "PredictiveStack", "SafetyShield",
            "TrajGANPrediction",
            "key_step_gaps", "make_kddrl_transforms"]

@@ -88,7 +88,8 @@ class SafetyShield(Transform):
         if kind not in SHIELD_KINDS:
             raise ValueError(f"SafetyShield: kind must be one of {', '.join(SHIELD_KINDS)}, got {kind!r}")
         super().__init__(in_keys=[], out_keys=[K.CF_SHIELD], in_keys_inv=[K.CF_ACTION], out_keys_inv=[K.CF_ACTION])
-        self.kind, self.low, self.high, self.ttc, self.min_gap = kind, float(low), float(high), float(ttc), float(min_gap)
+        self.kind, self.low, self.high = kind, float(low), float(high)
+        self.ttc, self.min_gap = float(ttc), float(min_gap)
         base = idm if idm is not None else IDMParams()
         self.idm = IDMParams(**{**base.__dict__, "v0": math.inf})
 
