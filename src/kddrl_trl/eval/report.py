@@ -32,6 +32,7 @@ METRICS = {
     "frame_accel_sd": ("sd of acceleration over frames", "m/s²", "{:.2f}"),
     "return_lc": ("lane-change return", "", "{:.1f}"),
     "return_cf": ("car-following return", "", "{:.1f}"),
+    "shield_rate": ("shield interventions (fraction of frames)", "", "{:.2%}"),  # algo.shield; 0 without one
 }
 TABLE_METRICS = ("mean_speed_kmh", "mean_accel", "lane_changes_per_episode", "lane_changes_per_1000_episodes",
                  "collision_rate")
