@@ -111,6 +111,30 @@ def test_macro_transitions_match_reference_across_batches_and_partial_resets(chu
     assert writer.dropped_frames == 0
 
 
+def test_decision_reading_counts_the_efficiency_term_once_per_decision():
+    """F5, ``algo.lc_reward=decision`` (§III.G, "calculated at each 2-second decision step"): sum(r - e) + mean(e) over
+    the interval, e the per-frame efficiency term; the same across batch cuts."""
+    def efficiency(nxt):
+        return 0.5 * nxt.get("obs")[..., 0]
+
+    td, _ = episode_frames([[5, 4]], period=3)
+    macros = MacroTransitionWriter(efficiency=efficiency)(td)
+    # frames 0-2: r = 0, 1, 2 and e = 0.5, 1, 1.5 -> 3 - 3 + 1; frames 3-4 (terminal): r = 3, 4, e = 2, 2.5
+    assert macros[0]["next", K.LC_REWARD].item() == pytest.approx(0.0 + 1.0)
+    assert macros[1]["next", K.LC_REWARD].item() == pytest.approx(7.0 - 4.5 + 2.25)
+    td, _ = episode_frames([[9, 3, 14], [1, 2, 17], [30, 4, 4]], period=4)
+    whole = MacroTransitionWriter(efficiency=efficiency)(td)
+    writer, parts = MacroTransitionWriter(efficiency=efficiency), []
+    for s in range(td.shape[1]):
+        out = writer(td[:, s:s + 1])
+        if out is not None:
+            parts.append(out)
+    parts = torch.cat(parts)
+    key = lambda m: float(m["obs"])  # noqa: E731
+    got = sorted((key(m), round(float(m["next", K.LC_REWARD]), 4)) for m in parts)
+    assert got == sorted((key(m), round(float(m["next", K.LC_REWARD]), 4)) for m in whole)
+
+
 def test_macro_writer_errors_name_the_missing_key():
     td, _ = episode_frames([[5]], period=2)
     with pytest.raises(KeyError, match="decide"):
@@ -204,7 +228,7 @@ def test_collector_fills_both_buffers_with_consistent_macro_steps():
     from kddrl_trl.training import make_buffer
 
     period, k = 4, 3
-    env = clocked_env(k=k, period=period)
+    env = clocked_env(k=k, period=period, ego_start="window")  # distinct start positions: y identifies a frame
     policy = MultiRatePolicy(lc_recorder(K.KEEP), cf_recorder())
     rb_l, rb_h = make_buffer(10_000, 8, 0), make_buffer(10_000, 8, 0)
     mtc = MultiTimescaleCollector.from_env(env, policy, frames_per_env=7, frame_buffer=rb_l, macro_buffer=rb_h)

@@ -40,8 +40,9 @@ def test_error_message_is_one_clear_line():
 
 
 def test_scenarios_and_overrides():
-    assert scenario_names() == ["baseline", "braking", "congested"]
-    assert make_config("congested").flow == pytest.approx(1.5 * 2325)
+    assert scenario_names() == ["baseline", "braking", "congested", "congested_text"]
+    assert make_config("congested").flow == pytest.approx(1.5 * 2325)       # Table A.1's flow + 50 % (default)
+    assert make_config("congested_text").flow == pytest.approx(3 * 1329)    # §IV.D: 886 -> 1329 veh/h/lane
     assert make_config("braking").braking.enabled and not make_config("baseline").braking.enabled
     cfg = make_config("congested", {"flow_vph": 2658.0, "braking": {"stand_time": 5.0}})
     assert cfg.flow == pytest.approx(1.5 * 2658) and cfg.braking.stand_time == 5.0 and cfg.scenario == "congested"
@@ -74,3 +75,40 @@ def test_a_run_saved_with_the_old_per_algo_compile_keys_still_loads():
     saved.learner.lrr = 1.0  # anything else unknown is still refused
     with pytest.raises(Exception, match="lrr"):
         algo_from_node(saved)
+
+
+def test_issue14_options_are_typed_and_checked():
+    """Every safety / learning-signal option is a typed key; typos and bad values are refused."""
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from kddrl_trl.conf.schema import algo_from_node
+
+    assert make_config().reward == "paper" and make_config().ego_start == "entry"
+    assert make_config(overrides={"reward": "safe", "ego_start": "window"}).reward == "safe"
+    for key, bad in (("reward", "nice"), ("ego_start", "middle")):
+        with pytest.raises(ValueError, match=key):
+            make_config(overrides={key: bad})
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        cfg = compose(config_name="config")
+        ni = compose(config_name="config", overrides=["algo=ni"])
+        rule = compose(config_name="config", overrides=["algo=idm_mobil", "algo.shield=ttc"])
+        with pytest.raises(Exception, match="shieldd"):
+            compose(config_name="config", overrides=["algo.shieldd=idm"])
+    algo = algo_from_node(cfg.algo)
+    assert algo.mobil_safety_mask and algo.lc_reward == "frames" and algo.shield == "none"
+    assert algo.learner.td3.exploration_clip == 2.5 and algo.learner.d3qn.semi_mdp is False
+    assert not algo_from_node(ni.algo).mobil_safety_mask and algo_from_node(rule.algo).shield == "ttc"
+    for key, bad in (("shield", "cbf"), ("lc_reward", "mean")):
+        node = OmegaConf.create(OmegaConf.to_container(cfg.algo))
+        node[key] = bad
+        with pytest.raises(ValueError, match=key):
+            algo_from_node(node)
+    # a run saved before these keys existed reads back as it ran: no mask, frame sums, no shield, unclipped noise
+    old = OmegaConf.create(OmegaConf.to_container(cfg.algo))
+    for key in ("mobil_safety_mask", "lc_reward", "shield", "shield_ttc"):
+        del old[key]
+    del old.learner.td3.exploration_clip
+    algo = algo_from_node(old)
+    assert not algo.mobil_safety_mask and algo.lc_reward == "frames" and algo.shield == "none"
+    assert algo.learner.td3.exploration_clip is None

@@ -324,3 +324,27 @@ def test_a_closed_env_says_so():
     env.close()
     with pytest.raises(RuntimeError, match="closed"):
         env.reset()
+
+
+def test_ego_starts_at_the_section_entry_by_default():
+    """F3: ego_start=entry designates the steady vehicle nearest the study section's entry (the next to enter it);
+    ego_start=window (the old behaviour) any one in the last pick_window metres; both start before the entry."""
+    from kddrl_trl.envs.network import edge_ids
+
+    starts = {}
+    for mode in ("entry", "window"):
+        env = SumoHighwayEnv(num_roads=8, seed=3, ego_start=mode)
+        td = env.reset()
+        y = td[K.EGO_STATE][:, 0]
+        assert (y <= 0.0).all() and (y >= -env.config.pick_window - 1.0).all()
+        if mode == "entry":
+            cfg = env.config
+            for r in range(8):
+                ego = env.sim.ego[r]
+                others = [v for v in libsumo.edge.getLastStepVehicleIDs(edge_ids(r)[0])
+                          if v != ego and libsumo.vehicle.getLateralSpeed(v) == 0.0
+                          and libsumo.vehicle.getLanePosition(v) >= cfg.entry_length - cfg.pick_window]
+                assert all(libsumo.vehicle.getLanePosition(v) <= libsumo.vehicle.getLanePosition(ego) for v in others)
+        starts[mode] = float(y.mean())
+        env.close()
+    assert starts["entry"] > starts["window"]

@@ -166,3 +166,106 @@ def test_full_state_dict_round_trip(batches):
     b.update_cf(frames)
     for (n, p), (_, q) in zip(a.state_dict().items(), b.state_dict().items()):
         torch.testing.assert_close(p, q, msg=n)
+
+
+# ------------------------------------------------------------------------------------------------ issue 14
+def test_td3_target_reads_the_new_lane_change_decision_on_the_frame_before_a_decision():
+    """F6: s_TD3^{t+1} holds a_D3QN^{t+1} (Eq. 30). Where the next frame is a decision frame that is the D3QN's new
+    choice (here forced to keep by the next state's mask), not the action held during the ending interval; elsewhere
+    it is the held one. The old code copied the root action on every row."""
+    torch.manual_seed(0)
+    learner = HierarchicalLearner(priors=False, key_gaps=False, **{k: v for k, v in SMALL.items() if k != "embed_dim"})
+    env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), DecisionClock(5))
+    roll = env.rollout(3, learner.policy(explore=False), break_when_any_done=False).reshape(-1)
+    left = torch.zeros(roll.batch_size[0], 3)
+    left[:, K.LEFT] = 1.0
+    roll.set(K.LC_ACTION, left)                               # held: a left change
+    keep_only = torch.zeros(roll.batch_size[0], 3, dtype=torch.bool)
+    keep_only[:, K.KEEP] = True
+    roll.set(("next", *K.LC_ACTION_MASK), keep_only)          # at t+1 only keep is allowed
+    decide = torch.arange(roll.batch_size[0]) % 2 == 0
+    roll.set(("next", *K.LC_DECIDE), decide[:, None])
+    seen = {}
+
+    def capture(states):
+        seen["states"] = states
+        return (states.get(K.CF_OBS).sum() * 0.0,)
+
+    learner.cf_loss.value_loss = capture
+    learner.loss("cf_value", roll.select(*learner.buffer_keys(), strict=False))
+    next_action = seen["states"].get(("next", *K.CF_OBS))[:, -4:-1]   # the one-hot a_D3QN block of Eq. 30
+    assert (next_action[decide].argmax(-1) == K.KEEP).all()
+    assert (next_action[~decide].argmax(-1) == K.LEFT).all()
+    assert (seen["states"].get(K.CF_OBS)[:, -4:-1].argmax(-1) == K.LEFT).all()
+
+
+def test_double_dqn_target_argmax_respects_the_next_action_mask():
+    """F1: TorchRL's DQNLoss takes the double-DQN argmax (Eq. 4) with the masked Q actor on the next state, so an
+    action the next mask forbids (e.g. an unsafe lane change) never enters the target."""
+    from tensordict import TensorDict
+
+    from kddrl_trl.objectives import make_d3qn
+
+    torch.manual_seed(0)
+    parts = make_d3qn(4, hidden=[8], gamma=0.5)
+    obs, nobs = torch.randn(1, 4), torch.randn(1, 4)
+    with torch.no_grad():
+        q_s = parts.actor.module[0](TensorDict({K.LC_OBS: obs}, [1]))[K.LC_ACTION_VALUE][0]
+        q_next = parts.actor.module[0](TensorDict({K.LC_OBS: nobs}, [1]))[K.LC_ACTION_VALUE][0]
+    best = int(q_next.argmax())
+    mask = torch.ones(1, 3, dtype=torch.bool)
+    mask[0, best] = False                                       # the next state's best action is forbidden
+    td = TensorDict({K.LC_OBS: obs, K.LC_ACTION: torch.tensor([[0.0, 1.0, 0.0]]),
+                     K.LC_ACTION_MASK: torch.ones(1, 3, dtype=torch.bool),
+                     "next": {K.LC_OBS: nobs, K.LC_ACTION_MASK: mask, K.LC_REWARD: torch.zeros(1, 1),
+                              "done": torch.zeros(1, 1, dtype=torch.bool),
+                              "terminated": torch.zeros(1, 1, dtype=torch.bool)}}, [1])
+    loss = float(parts.loss(td)["loss"])
+    allowed = q_next.masked_fill(~mask[0], -torch.inf).max()   # the target network is still the online copy
+    assert loss == pytest.approx(float((q_s[K.KEEP] - 0.5 * allowed) ** 2), rel=1e-5)
+    assert loss != pytest.approx(float((q_s[K.KEEP] - 0.5 * q_next.max()) ** 2), rel=1e-5)
+
+
+def test_acting_noise_is_clipped_as_in_algorithm_1():
+    """F2: a = mu(s) + clip(eps, -c, c) (Algorithm 1 line 32), then the bounds; TorchRL's module alone does not clip."""
+    from tensordict import TensorDict
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from kddrl_trl.objectives import make_td3
+    from kddrl_trl.objectives.td3 import ClippedGaussianModule
+
+    parts = make_td3(4, hidden=[8], exploration_sigma=50.0, exploration_clip=0.5)
+    assert isinstance(parts.explore, ClippedGaussianModule)
+    td = TensorDict({K.CF_ACTION: torch.zeros(10_000, 1)}, [10_000])
+    with set_exploration_type(ExplorationType.RANDOM):
+        noisy = parts.explore(td.clone())[K.CF_ACTION]
+    assert noisy.abs().max() <= 0.5 + 1e-6 and noisy.std() > 0.3
+    with set_exploration_type(ExplorationType.RANDOM):
+        unclipped = make_td3(4, hidden=[8], exploration_sigma=50.0, exploration_clip=None).explore(td.clone())
+    assert unclipped[K.CF_ACTION].abs().max() > 4.0           # only the action bounds [-5, 5]
+
+
+def test_semi_mdp_option_discounts_the_bootstrap_by_gamma_to_the_frames_spanned():
+    """algo.learner.d3qn.semi_mdp: R + gamma^k max Q(s', .) with k = ("next", "lc", "macro_frames"); default: gamma."""
+    from tensordict import TensorDict
+
+    from kddrl_trl.objectives import make_d3qn
+
+    def loss_of(semi_mdp: bool) -> tuple[float, torch.Tensor, torch.Tensor]:
+        torch.manual_seed(0)
+        parts = make_d3qn(4, hidden=[8], gamma=0.9, double=False, semi_mdp=semi_mdp)
+        obs, nobs = torch.randn(1, 4), torch.randn(1, 4)
+        with torch.no_grad():
+            q_s = parts.actor.module[0](TensorDict({K.LC_OBS: obs}, [1]))[K.LC_ACTION_VALUE][0]
+            q_n = parts.actor.module[0](TensorDict({K.LC_OBS: nobs}, [1]))[K.LC_ACTION_VALUE][0]
+        ones = torch.ones(1, 3, dtype=torch.bool)
+        td = TensorDict({K.LC_OBS: obs, K.LC_ACTION: torch.tensor([[0.0, 1.0, 0.0]]), K.LC_ACTION_MASK: ones,
+                         "next": {K.LC_OBS: nobs, K.LC_ACTION_MASK: ones, K.LC_REWARD: torch.ones(1, 1),
+                                  K.LC_MACRO_FRAMES: torch.tensor([[20]]), "done": torch.zeros(1, 1, dtype=torch.bool),
+                                  "terminated": torch.zeros(1, 1, dtype=torch.bool)}}, [1])
+        return float(parts.loss(td)["loss"]), q_s[K.KEEP], q_n.max()
+
+    loss, q, q_next = loss_of(False)
+    assert loss == pytest.approx(float((q - (1.0 + 0.9 * q_next)) ** 2), rel=1e-5)
+    loss, q, q_next = loss_of(True)
+    assert loss == pytest.approx(float((q - (1.0 + 0.9 ** 20 * q_next)) ** 2), rel=1e-5)

@@ -161,7 +161,8 @@ def fake_trainer(job, tmp_path, **train):
     buffers = make_buffers(train_cfg, seed=0)
     trainer = Trainer(learner, buffers, train_cfg, tmp_path, make_logger(LoggerConfig(csv=True, tensorboard=False),
                                                                          tmp_path), episodes=3, progress=False)
-    return env, learner, trainer, make_collector(env, learner, buffers, train_cfg)
+    return env, learner, trainer, make_collector(env, learner, buffers, train_cfg, job.algo.lc_reward,
+                                                 job.env.highway())
 
 
 @pytest.mark.parametrize("algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni"])
@@ -183,6 +184,20 @@ def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_
     assert trainer.counters["frames"] / period <= trainer.counters["decisions"] <= trainer.counters["frames"]
     if period == 1:
         assert trainer.counters["decisions"] == trainer.counters["frames"]
+
+
+def test_every_issue14_option_trains_on_the_fake_env(tmp_path):
+    """The safety and learning-signal options together (README "Safety and learning-signal options"): the pipeline
+    builds and learns; the shield's interventions reach the episode records."""
+    job = compose_job("algo=d3qn_td3", "env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]",
+                      "algo.learner.td3.hidden=[16]", "algo.mobil_safety_mask=true", "algo.lc_reward=decision",
+                      "algo.shield=idm", "algo.learner.d3qn.semi_mdp=true", "env.reward=safe", "env.ego_start=window")
+    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
+                                                    batch_size_lc=4, frames_per_env=10)
+    history = trainer.run(collector)
+    env.close()
+    assert len(history) == 3 and trainer.counters["cf_updates"] > 0 and trainer.counters["lc_updates"] > 0
+    assert all("shield_rate" in ep for ep in history)
 
 
 def test_a_diverging_loss_stops_training_with_a_clear_error(tmp_path):

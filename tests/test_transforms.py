@@ -662,3 +662,118 @@ def test_compiled_stack_pickles():
     out, ref = copy(obs.clone()), eager(obs.clone())
     for key in DERIVED:
         torch.testing.assert_close(out[key], ref[key], rtol=1e-4, atol=1e-3, msg=str(key))
+
+
+# ------------------------------------------------------------------------------------------------ issue 14
+def _one_ego(lane=1, kin=None, mask=None, env_mask=(True, True, True)) -> TensorDict:
+    """Raw keys of one ego at y = 100 m, 30 m/s (neighbours a-f given as {slot: (y, v, a)})."""
+    k, m = torch.zeros(1, 6, 3), torch.zeros(1, 6, dtype=torch.bool)
+    for slot, values in (kin or {}).items():
+        k[0, K.SLOT[slot]] = torch.tensor(values)
+        m[0, K.SLOT[slot]] = True
+    return TensorDict({K.EGO_STATE: torch.tensor([[100.0, 30.0, 0.0]]), K.EGO_LANE: torch.tensor([[lane]]),
+                       K.NEIGHBORS_KIN: k, K.NEIGHBORS_MASK: m, K.LC_ACTIVE: torch.zeros(1, 1, dtype=torch.bool),
+                       K.LC_ACTION_MASK: torch.tensor([env_mask]), K.CF_ACTION: torch.full((1, 1), 5.0)}, [1])
+
+
+def test_mobil_safety_mask_ands_eq_20_21_into_the_command_mask():
+    """F1: a left change with the left follower 2 m behind (Eq. 20) is refused; a right change with room is kept; the
+    env's own mask (no lane, manoeuvre under way) still applies; keep is always allowed."""
+    from kddrl_trl.transforms import MOBILSafetyMask
+
+    mask = MOBILSafetyMask()
+    td = _one_ego(kin={"d": (98.0, 30.0, 0.0), "c": (200.0, 30.0, 0.0), "f": (50.0, 30.0, 0.0)})
+    assert mask(td.clone())[K.LC_ACTION_MASK].tolist() == [[False, True, True]]
+    td = _one_ego(kin={"c": (200.0, 30.0, 0.0), "f": (50.0, 30.0, 0.0)}, env_mask=(True, True, False))
+    assert mask(td.clone())[K.LC_ACTION_MASK].tolist() == [[True, True, False]]
+    td = _one_ego(kin={"f": (92.0, 30.0, 0.0)})                 # the right follower would brake below -b_safe
+    assert mask(td.clone())[K.LC_ACTION_MASK].tolist() == [[True, True, False]]
+    # on an env: specs hold, and the mask only ever removes commands
+    check_env_specs(TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), MOBILSafetyMask()))
+    env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), MOBILSafetyMask())
+    raw = FakeHighwayEnv(num_roads=4, seed=0)
+    def keep(td):
+        return td.update({K.LC_ACTION: F.one_hot(torch.full((4,), K.KEEP), 3).float(), K.CF_ACTION: torch.zeros(4, 1)})
+
+    roll, bare = env.rollout(30, keep, break_when_any_done=False), raw.rollout(30, keep, break_when_any_done=False)
+    assert not (roll[K.LC_ACTION_MASK] & ~bare[K.LC_ACTION_MASK]).any() and roll[K.LC_ACTION_MASK][..., K.KEEP].all()
+    assert (roll[K.LC_ACTION_MASK] != bare[K.LC_ACTION_MASK]).any()  # and it does remove some
+
+
+def test_mobil_safety_mask_is_switched_by_the_algo_option():
+    from kddrl_trl.collectors import DecisionClock
+    from kddrl_trl.conf.schema import HierarchicalAlgo
+    from kddrl_trl.factories import make_transforms
+    from kddrl_trl.transforms import MOBILSafetyMask, SafetyShield
+    from tests.test_collectors import compose_job
+
+    job = compose_job("algo=d3qn_td3")
+    assert not any(isinstance(t, MOBILSafetyMask) for t in make_transforms(job.algo, 0, job.env.highway()).transforms)
+    job = compose_job("algo=d3qn_td3", "algo.mobil_safety_mask=true", "algo.shield=idm")
+    kinds = [type(t) for t in make_transforms(job.algo, 0, job.env.highway()).transforms]
+    assert isinstance(job.algo, HierarchicalAlgo) and kinds == [MOBILSafetyMask, DecisionClock, SafetyShield]
+    rule = compose_job("algo=idm_mobil", "algo.shield=ttc")
+    assert [type(t) for t in make_transforms(rule.algo, 0, rule.env.highway()).transforms] == [SafetyShield]
+
+
+def test_safety_bounds():
+    """a_safe: no leader -> the action bound; idm = Eq. 11-12's interaction term only (v0 = inf); ttc = the
+    deceleration cancelling the closing speed before min_gap, only below the TTC threshold."""
+    from kddrl_trl.physics import idm_acceleration
+    from kddrl_trl.transforms.shield import safe_acceleration
+
+    kw = dict(idm=IDMParams(v0=math.inf), ttc=3.0, min_gap=2.0, high=5.0)
+    assert safe_acceleration(_one_ego(), "idm", **kw).item() == 5.0
+    assert safe_acceleration(_one_ego(), "ttc", **kw).item() == 5.0
+    close = _one_ego(kin={"b": (135.0, 20.0, -1.0)})             # gap 30 m, closing at 10 m/s: TTC 3 s
+    expected = idm_acceleration(torch.tensor(30.0), torch.tensor(20.0), torch.tensor(30.0), IDMParams(v0=math.inf))
+    assert safe_acceleration(close, "idm", **kw).item() == pytest.approx(expected.item())
+    assert safe_acceleration(close, "ttc", **kw).item() == 5.0  # TTC = 3 s: not below the threshold
+    closer = _one_ego(kin={"b": (125.0, 20.0, -1.0)})            # gap 20 m: TTC 2 s
+    assert safe_acceleration(closer, "ttc", **kw).item() == pytest.approx(-1.0 - 10.0 ** 2 / (2 * 18.0))
+    # the left leader counts only during a left lane change
+    left = _one_ego(kin={"a": (110.0, 10.0, 0.0)})
+    assert safe_acceleration(left, "ttc", **kw).item() == 5.0
+    left.set(K.LC_ACTIVE, torch.ones(1, 1, dtype=torch.bool))
+    left.set(K.EGO_STATE, torch.tensor([[100.0, 30.0, 1.0]]))
+    assert safe_acceleration(left, "ttc", **kw).item() < -5.0
+
+
+@pytest.mark.parametrize("kind", ["idm", "ttc"])
+def test_shield_executes_and_records_the_bounded_action_and_counts_interventions(kind):
+    """The env executes min(a_agent, a_safe); the collected frame holds the executed action (buffer L learns the
+    transition that happened); ("next", "cf", "shield") flags the frames; the tracker counts them per episode."""
+    from tensordict.nn import TensorDictModule
+
+    from kddrl_trl.eval import evaluate_policy
+    from kddrl_trl.eval.metrics import summarize
+    from kddrl_trl.transforms import SafetyShield
+
+    def env_():
+        return TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0, ego_start="window"), SafetyShield(kind))
+
+    env = env_()
+    check_env_specs(env)
+    floor_it = TensorDictModule(lambda s: (F.one_hot(torch.full(s.shape[:-1], K.KEEP), 3).float(),
+                                           torch.full_like(s[..., :1], 5.0)),
+                                in_keys=[K.EGO_STATE], out_keys=[K.LC_ACTION, K.CF_ACTION])
+    roll = env.rollout(61, floor_it, break_when_any_done=False)[:, :-1]  # TorchRL runs no hook on the last step
+    flag = roll["next", *K.CF_SHIELD][..., 0]
+    action = roll[K.CF_ACTION][..., 0]
+    assert flag.any() and (action[flag] < 5.0).all() and (action[~flag] == 5.0).all()
+    moving = roll["next", *K.EGO_STATE][..., 1] > 0.5             # v' = max(v + a dt, 0): executed = command
+    assert torch.allclose(roll["next", *K.EGO_ACCEL][..., 0][moving], action[moving], atol=1e-3)
+    from torchrl.collectors import Collector
+
+    collector = Collector(env_(), floor_it, frames_per_batch=80, total_frames=80, trust_policy=True,
+                          auto_register_policy_transforms=False)
+    batch = next(iter(collector))                                 # what buffer L receives
+    collector.shutdown()
+    flag, action = batch["next", *K.CF_SHIELD][..., 0], batch[K.CF_ACTION][..., 0]
+    assert flag.any() and (action[flag] < 5.0).all() and (action[~flag] == 5.0).all()
+    episodes = evaluate_policy(env_(), floor_it, episodes=4, seed=0, progress=False)
+    assert sum(e["shield_interventions"] for e in episodes) > 0
+    assert all(e["shield_rate"] == pytest.approx(e["shield_interventions"] / e["frames"]) for e in episodes)
+    assert 0 < summarize(episodes)["shield_rate"] <= 1
+    bare = evaluate_policy(FakeHighwayEnv(num_roads=4, seed=0), floor_it, episodes=2, seed=0, progress=False)
+    assert all(e["shield_interventions"] == 0 for e in bare)  # no shield: the key is absent, counted as 0

@@ -8,7 +8,7 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 :func:`make_device`            ``auto`` | ``cpu`` | ``cuda``
 :func:`make_run_dir`           the folder Hydra made for this run, and whether it resumes
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
-:func:`make_transforms`        the algo's predictive-state transforms + its :class:`DecisionClock`
+:func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
 :func:`make_env`               the batched highway env (SUMO, or the fake) with the algo's transforms
 :func:`make_learner`           :class:`~kddrl_trl.training.HierarchicalLearner` of a learning algo
 :func:`make_policy`            the acting policy of any algo, exploration off
@@ -35,6 +35,7 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs import Compose, EnvBase, TransformedEnv
 
+from . import keys as K
 from .collectors import DecisionClock, MultiTimescaleCollector
 from .conf.schema import EnvNode, HierarchicalAlgo, Job, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
 from .envs.config import HighwayConfig
@@ -93,32 +94,43 @@ def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> Mul
     return MultiLogger(loggers)
 
 
-def make_transforms(algo: HierarchicalAlgo, seed: int, num_lanes: int, compile: bool | str = False) -> Compose:
-    """The predictive-state transforms of ``algo.transforms`` (none with ``enabled: false``), then the
-    :class:`DecisionClock` of ``algo.lc_period``."""
-    from .transforms import make_kddrl_transforms
+def make_transforms(algo: HierarchicalAlgo | RuleAlgo, seed: int, highway: HighwayConfig,
+                    compile: bool | str = False) -> Compose:
+    """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
+    ``algo.transforms`` (none with ``enabled: false``); MOBIL's safety mask where ``algo.mobil_safety_mask``
+    (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
+    :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
+    (:class:`~kddrl_trl.transforms.SafetyShield`, every algo)."""
+    from .transforms import MOBILSafetyMask, SafetyShield, make_kddrl_transforms
 
-    options = asdict(algo.transforms)
     stack = []
-    if options.pop("enabled"):
-        stack.append(make_kddrl_transforms(**options, seed=seed, num_lanes=num_lanes, compile=compile))
-    stack.append(DecisionClock(algo.lc_period))
+    learning = isinstance(algo, HierarchicalAlgo)
+    if learning:
+        options = asdict(algo.transforms)
+        if options.pop("enabled"):
+            stack.append(make_kddrl_transforms(**options, seed=seed, num_lanes=highway.num_lanes, compile=compile))
+    if getattr(algo, "mobil_safety_mask", False):  # any algo schema that has the option
+        stack.append(MOBILSafetyMask(num_lanes=highway.num_lanes))
+    if learning:
+        stack.append(DecisionClock(algo.lc_period))
+    if getattr(algo, "shield", "none") != "none":
+        stack.append(SafetyShield(algo.shield, low=highway.accel_low, high=highway.accel_high, ttc=algo.shield_ttc))
     return Compose(*stack)
 
 
 def make_env(env: EnvNode, algo: HierarchicalAlgo | RuleAlgo, seed: int, compile: bool | str = False,
              fake: bool = False) -> EnvBase:
     """``SumoHighwayEnv`` (``FakeHighwayEnv`` with ``fake=True``) of ``env.num_roads`` roads on the composed
-    highway config; a learning algo's env carries :func:`make_transforms` (built first: no simulator starts
-    before every option is checked)."""
+    highway config, with :func:`make_transforms` (built first: no simulator starts before every option is
+    checked; a rule-based algo without a shield gets the bare env)."""
     highway = env.highway()
-    transforms = make_transforms(algo, seed, highway.num_lanes, compile) if isinstance(algo, HierarchicalAlgo) else None
+    transforms = make_transforms(algo, seed, highway, compile)
     if fake:
         from .envs.fake import FakeHighwayEnv as Env
     else:
         from .envs.highway import SumoHighwayEnv as Env
     base = Env(highway, num_roads=env.num_roads, seed=seed)
-    return base if transforms is None else TransformedEnv(base, transforms)
+    return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
 
 def make_learner(algo: HierarchicalAlgo, compile: bool | str = False) -> HierarchicalLearner:
@@ -148,13 +160,29 @@ def make_buffers(train: TrainConfig, seed: int) -> tuple[TensorDictReplayBuffer,
             make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1))
 
 
-def make_collector(env: EnvBase, learner: HierarchicalLearner, buffers: tuple, train: TrainConfig
-                   ) -> MultiTimescaleCollector:
+def make_collector(env: EnvBase, learner: HierarchicalLearner, buffers: tuple, train: TrainConfig,
+                   lc_reward: str = "frames", highway: HighwayConfig | None = None) -> MultiTimescaleCollector:
     """``train.frames_per_env`` frames per road per iteration with the exploring policy, into ``buffers``
-    (restricted to the keys the learner reads)."""
+    (restricted to the keys the learner reads). ``lc_reward`` (``algo.lc_reward``): ``frames`` sums the per-frame
+    lane-change rewards of a macro-transition (Algorithm 1 line 35); ``decision`` counts the efficiency term of
+    ``highway`` 's reward variant once per decision (§III.G, :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
+    from .collectors import MacroTransitionWriter
+
+    efficiency = None
+    if lc_reward == "decision":
+        if highway is None:
+            raise ValueError("make_collector: lc_reward='decision' needs the highway config (its efficiency term)")
+        from .envs.rewards import efficiency_term
+
+        def efficiency(nxt):  # Eq. 27 (or its reward=safe variant) of each frame's speed
+            return efficiency_term(nxt.get(K.EGO_STATE)[..., 1], highway)
+    elif lc_reward != "frames":
+        raise ValueError(f"make_collector: lc_reward must be frames or decision, got {lc_reward!r}")
     return MultiTimescaleCollector.from_env(env, learner.policy(explore=True), frames_per_env=train.frames_per_env,
                                             frame_buffer=buffers[0], macro_buffer=buffers[1],
-                                            frame_keys=learner.buffer_keys())
+                                            frame_keys=learner.buffer_keys(),
+                                            macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],
+                                            writer=MacroTransitionWriter(efficiency=efficiency))
 
 
 def make_evaluator(job: TrainJob):
@@ -211,7 +239,7 @@ def evaluate(env: EnvBase, policy, job: Job, logger, out_dir: Path | None = None
 
     def on_episode(ep: dict) -> None:
         for key in ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc",
-                    "return_cf", "collision"):
+                    "return_cf", "collision", "shield_rate"):
             logger.log_scalar(f"test/{key}", float(ep[key]), step=ep["start"])
 
     try:

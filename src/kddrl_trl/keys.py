@@ -93,6 +93,8 @@ LC_DECIDE = ("lc", "decide")    # [1] bool, the lane-change agent decides on thi
 CF_ACTION = ("cf", "action")    # [1] acceleration in [-5, 5] m/s²
 LC_REWARD = ("lc", "reward")    # [1] paper Eq. 26-29
 CF_REWARD = ("cf", "reward")    # [1] paper Eq. 32-33
+CF_SHIELD = ("cf", "shield")    # [1] bool, the car-following shield lowered the command in this frame (under "next";
+#                                     transforms.SafetyShield, algo.shield; absent without a shield)
 
 # ------------------------------------------------------------------------- clocks (collectors/)
 LC_HELD = ("lc", "held")                # [3] one-hot lane-change action in force (executed last frame; keep at reset)

@@ -56,7 +56,7 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     # a resumed run meets new traffic: the env's streams start from seed + episodes already done
     env = make_env(job.env, job.algo, seed=job.seed + done, compile=job.compile)
     try:
-        history = trainer.run(make_collector(env, learner, buffers, job.train))
+        history = trainer.run(make_collector(env, learner, buffers, job.train, job.algo.lc_reward, job.env.highway()))
     finally:
         env.close()
     write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))

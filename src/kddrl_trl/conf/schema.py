@@ -51,11 +51,13 @@ class EnvNode(HighwayConfig):
         return HighwayConfig(**{f.name: getattr(self, f.name) for f in fields(HighwayConfig)})
 
 
-def _node(name: str, doc: str, check=None, **types: type) -> type:
-    """A schema whose fields all take their values from the YAML (``field=type`` pairs, no defaults); ``check``
+def _node(name: str, doc: str, check=None, defaults: dict | None = None, **types: type) -> type:
+    """A schema whose fields take their values from the YAML (``field=type`` pairs, no defaults, except those of
+    ``defaults``: keys added after runs were saved, whose default is the behaviour those runs had); ``check``
     (the range checks) runs when the composed config becomes objects."""
     namespace = {"__doc__": doc} if check is None else {"__doc__": doc, "__post_init__": check}
-    return make_dataclass(name, [(key, kind, field(default=MISSING)) for key, kind in types.items()],
+    defaults = defaults or {}
+    return make_dataclass(name, [(key, kind, field(default=defaults.get(key, MISSING))) for key, kind in types.items()],
                           namespace=namespace)
 
 
@@ -81,28 +83,57 @@ TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
                          enabled=bool, trajgan=bool, priors=bool, num_samples=int, reduce=str,
                          trajgan_checkpoint=Optional[str], lcgan_checkpoint=Optional[str])
 D3QNConfig = _node("D3QNConfig", "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the "
-                   "learning rate.", hidden=list[int], dueling=bool, double=bool, gamma=float, tau=float, lr=float,
-                   eps_init=float, eps_end=float, eps_decisions=int)
+                   "learning rate.", defaults={"semi_mdp": False}, hidden=list[int], dueling=bool, double=bool,
+                   gamma=float, tau=float, lr=float, eps_init=float, eps_end=float, eps_decisions=int, semi_mdp=bool)
 TD3Config = _node("TD3Config", "``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the "
-                  "learning rates.", hidden=list[int], gamma=float, tau=float, actor_lr=float, critic_lr=float,
-                  policy_noise=float, noise_clip=float, policy_delay=int, exploration_sigma=float)
+                  "learning rates.", defaults={"exploration_clip": None}, hidden=list[int], gamma=float, tau=float,
+                  actor_lr=float, critic_lr=float, policy_noise=float, noise_clip=float, policy_delay=int,
+                  exploration_sigma=float, exploration_clip=Optional[float])
 LearnerConfig = _node("LearnerConfig", "``algo.learner``: keyword arguments of "
                       ":class:`~kddrl_trl.training.HierarchicalLearner`.", priors=bool, key_gaps=bool, embed_dim=int,
                       embed_hidden=int, embed_lr=float, d3qn=D3QNConfig, td3=TD3Config)
 
 
+#: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound
+#: (:class:`~kddrl_trl.transforms.SafetyShield`)
+SHIELDS = ("none", "idm", "ttc")
+#: ``algo.lc_reward`` values (:class:`~kddrl_trl.collectors.MacroTransitionWriter`): Algorithm 1 lines 26/35 sum
+#: the per-frame r_D3QN over the interval; §III.G computes it once "at each 2-second decision step"
+LC_REWARDS = ("frames", "decision")
+
+
 @dataclass
-class HierarchicalAlgo:
+class SafetyOptions:
+    """Options every algo has (issue 14), learning or rule-based. Schema defaults = how runs saved before these keys
+    existed behaved; the algo YAMLs set the project's defaults (README, "Safety and learning-signal options")."""
+
+    shield: str = "none"       # car-following shield: none | idm | ttc (a_exec = min(a_agent, a_safe))
+    shield_ttc: float = 3.0    # s, time-to-collision below which the ttc shield bounds the acceleration
+
+    def _check_safety(self) -> None:
+        if self.shield not in SHIELDS:
+            raise ValueError(f"algo.shield={self.shield!r}: known shields are {', '.join(SHIELDS)}")
+        if not self.shield_ttc > 0:
+            raise ValueError(f"algo.shield_ttc must be > 0 (s), got {self.shield_ttc!r}")
+
+
+@dataclass
+class HierarchicalAlgo(SafetyOptions):
     """A learning algo (KDDRL and its configuration-only comparison systems)."""
 
     name: str = MISSING
     kind: str = "hierarchical"
     lc_period: int = MISSING
+    mobil_safety_mask: bool = False  # AND MOBIL's safety check (Eq. 20-21) into ("lc","action_mask") (§III.C.2)
+    lc_reward: str = "frames"        # D3QN macro reward: frames (Algorithm 1 line 35) | decision (§III.G)
     transforms: TransformsConfig = MISSING
     learner: LearnerConfig = MISSING
 
     def __post_init__(self) -> None:
         _at_least("algo.", self, 1, "lc_period")
+        self._check_safety()
+        if self.lc_reward not in LC_REWARDS:
+            raise ValueError(f"algo.lc_reward={self.lc_reward!r}: known readings are {', '.join(LC_REWARDS)}")
 
 
 #: ``algo.idm`` / ``algo.mobil``: the fields of the physics parameters, as floats (defaults: paper Table A.1)
@@ -111,7 +142,7 @@ MOBILNode = make_dataclass("MOBILNode", [(f.name, float, field(default=f.default
 
 
 @dataclass
-class RuleAlgo:
+class RuleAlgo(SafetyOptions):
     """A rule-based algo: MOBIL lane choice + IDM car following (``algo=idm_mobil``)."""
 
     name: str = MISSING
@@ -119,6 +150,9 @@ class RuleAlgo:
     lc_period: int = 1
     idm: IDMNode = field(default_factory=IDMNode)
     mobil: MOBILNode = field(default_factory=MOBILNode)
+
+    def __post_init__(self) -> None:
+        self._check_safety()
 
 
 #: the algo schema of each ``algo.kind``

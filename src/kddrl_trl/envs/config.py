@@ -20,6 +20,8 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 KMH = 1.0 / 3.6
+#: values of ``HighwayConfig.ego_start``
+EGO_STARTS = ("entry", "window")
 
 
 @dataclass
@@ -100,11 +102,14 @@ class HighwayConfig:
     accel_low: float = -5.0        # m/s² (Eq. 31)
     accel_high: float = 5.0        # m/s²
     pick_window: float = 150.0     # m before the section in which the ego is designated
+    ego_start: str = "entry"       # entry: the vehicle nearest the section entry in the pick window (the next to
+    #                                enter the study area, paper §IV.B) | window: any vehicle in it (before issue 14)
     ego_lane: int | None = None    # start lane of the ego (None = any)
     # --- rewards (Eq. 26-29, 32-33)
     collision_penalty: float = -100.0
     lane_change_penalty: float = -1.0
     accel_comfort: float = 4.0     # m/s², |a| above it is penalised quadratically
+    reward: str = "paper"          # paper: Eq. 26-29, 32-33 as written | safe: no -1 below v_min (envs/rewards.py)
     # --- scenario events
     braking: BrakingEvent = field(default_factory=BrakingEvent)
 
@@ -131,6 +136,10 @@ class HighwayConfig:
         _check("max_steps", self.max_steps, self.max_steps >= 1, "must be >= 1")
         _check("accel_low", self.accel_low, self.accel_low < 0 < self.accel_high, "need accel_low < 0 < accel_high")
         _check("pick_window", self.pick_window, self.pick_window <= self.entry_length, "must be <= entry_length")
+        _check("ego_start", self.ego_start, self.ego_start in EGO_STARTS, f"must be one of {', '.join(EGO_STARTS)}")
+        from .rewards import REWARDS
+
+        _check("reward", self.reward, self.reward in REWARDS, f"must be one of {', '.join(REWARDS)}")
         if self.ego_lane is not None:
             _check("ego_lane", self.ego_lane, 0 <= self.ego_lane < self.num_lanes,
                    f"must be in [0, {self.num_lanes - 1}] (num_lanes={self.num_lanes})")
@@ -165,8 +174,10 @@ def _check(key: str, value: Any, ok: bool, why: str) -> None:
 SCENARIOS: dict[str, dict[str, Any]] = {
     # baseline traffic (paper §IV.C, Table A.1): 2325 veh/h over 3 lanes, heterogeneous IDM drivers
     "baseline": {},
-    # scenario 1 (paper §IV.D): traffic flow +50 % over the baseline
+    # scenario 1 (paper §IV.D): traffic flow +50 % over the baseline: 1.5 x 2325 = 3487 veh/h (Table A.1's flow)
     "congested": {"flow_scale": 1.5},
+    # scenario 1 as the text quotes it: "from 886 veh/h/lane to 1329 veh/h/lane", 1.5 x 3 x 886 = 3987 veh/h
+    "congested_text": {"flow_vph": 2658.0, "flow_scale": 1.5},
     # scenario 2 (paper §IV.D): in every episode a leader 100-300 m ahead of the ego in its lane brakes hard
     # to a stop, stands 3 s, then resumes
     "braking": {"braking": {"enabled": True, "min_distance": 100.0, "max_distance": 300.0, "stand_time": 3.0}},

@@ -45,7 +45,8 @@ class FakeHighwayEnv(HighwayEnvBase):
         for r in rows.tolist():
             g = torch.Generator().manual_seed(self._seed * 100_003 + r * 1_009 + int(self.episode_count[r]))
             self.ego_lane[r] = cfg.ego_lane if cfg.ego_lane is not None else int(torch.randint(cfg.num_lanes, (1,), generator=g))
-            self.ego_y[r] = -cfg.pick_window * float(torch.rand(1, generator=g))
+            start = float(torch.rand(1, generator=g))  # drawn in both modes: the other draws stay the same
+            self.ego_y[r] = 0.0 if cfg.ego_start == "entry" else -cfg.pick_window * start
             self.ego_v[r] = 25.0 + 10.0 * float(torch.rand(1, generator=g))
             k = torch.arange(_PER_LANE).repeat(cfg.num_lanes).float()
             offset = spacing * (k - 1.0) + spacing * torch.rand(k.shape, generator=g) * 0.5 + 20.0

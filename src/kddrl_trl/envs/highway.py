@@ -32,7 +32,7 @@ class SumoHighwayEnv(HighwayEnvBase):
     """The KDDRL highway: K roads x one ego, raw keys of ``kddrl_trl.keys``, two per-agent rewards.
 
     Args:
-        scenario: ``"baseline"``, ``"congested"`` or ``"braking"`` (``conf/scenario/*.yaml``).
+        scenario: ``"baseline"``, ``"congested"``, ``"congested_text"`` or ``"braking"`` (``envs.config.SCENARIOS``).
         num_roads: K >= 1, the batch size.
         seed: seeds SUMO and the env's own generator; same seed -> identical rollouts.
         device: torch device of the output tensors (the simulator itself is CPU).

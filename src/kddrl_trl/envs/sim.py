@@ -9,9 +9,13 @@ runs in :mod:`~kddrl_trl.envs.braking`, and the episode metrics are computed fro
 
 Ego control (paper §III.G, Eq. 25 and 31):
 
-* The ego is a background vehicle designated at reset: one chosen at random among those driving in the
-  last ``pick_window`` metres of the entry stretch, not changing lanes (paper §IV.C: "one vehicle is
-  randomly designated as the controlled ego AV in each episode"). From then on SUMO's speed and
+* The ego is a background vehicle designated at reset among those driving in the last ``pick_window`` metres
+  of the entry stretch, not changing lanes (paper §IV.C: "one vehicle is randomly designated as the controlled
+  ego AV in each episode"): with ``ego_start="entry"`` (default) the one nearest the section entry, i.e. the
+  next vehicle to enter the study area, so that the episode is as close as the traffic allows to "the complete
+  traversal of a vehicle from the entry to the exit of the study area" (§IV.B); with ``"window"`` any of them
+  at random (the behaviour before issue 14: the ego started up to 150 m, on average ~75 m, before the
+  section). Which vehicle is nearest is random through the traffic. From then on SUMO's speed and
   lane-change safety overrides are off for it (speed mode 0, lane-change mode 0), so a bad command
   really collides and SUMO's collision detection reports it.
 * Acceleration: every frame v' = max(v + a·dt, 0) with a clipped to [accel_low, accel_high]; the
@@ -242,7 +246,10 @@ class HighwaySim:
             return False
         cands = tiers[tier]
         self.stats["designation_fallbacks"] += int(tier > 0)
-        vid = cands[int(self.rngs[r].integers(len(cands)))]
+        if cfg.ego_start == "entry":  # the next vehicle to enter the study section (paper §IV.B)
+            vid = max(cands, key=ls.vehicle.getLanePosition)
+        else:
+            vid = cands[int(self.rngs[r].integers(len(cands)))]
         ls.vehicle.setSpeedMode(vid, 0)
         ls.vehicle.setLaneChangeMode(vid, 0)
         ls.vehicle.setColor(vid, (255, 0, 0, 255))

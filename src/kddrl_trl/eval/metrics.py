@@ -22,7 +22,9 @@ def paper_reference(scenario: str, algo: str) -> dict | None:
 def summarize(episodes: list[dict]) -> dict:
     """Mean ± sd over episodes of speed (km/h) and acceleration (signed and absolute, m/s²), the sd of speed
     and acceleration over all frames (``frame_*_sd``), lane changes (total and per episode), collision
-    rate (fraction of episodes) and outcome counts. The paper does not say which sd its tables give."""
+    rate (fraction of episodes), outcome counts and, for episodes of the tracker, the shield intervention rate
+    (``shield_rate``: fraction of all frames; ``shield_episode_rate``: of episodes with at least one). The paper
+    does not say which sd its tables give."""
     if not episodes:
         raise ValueError("summarize: no finished episodes to summarize")
 
@@ -44,6 +46,9 @@ def summarize(episodes: list[dict]) -> dict:
             out[f"frame_{key}_sd"] = float(scale * np.sqrt(max(second - mean * mean, 0.0)))
     out["lane_changes_total"] = int(col("lane_changes").sum())
     out["collision_rate"] = float(col("collision").mean())
+    if "shield_interventions" in episodes[0]:  # the car-following shield (algo.shield): frames it acted in
+        out["shield_rate"] = float(col("shield_interventions").sum() / max(frames.sum(), 1.0))
+        out["shield_episode_rate"] = float((col("shield_interventions") > 0).mean())
     outcomes: dict[str, int] = {}
     for e in episodes:
         outcomes[e["outcome"]] = outcomes.get(e["outcome"], 0) + 1

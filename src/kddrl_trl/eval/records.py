@@ -39,6 +39,7 @@ class RunRecord:
         out = summarize(self.episodes.to_dict("records"))
         out["lane_changes_per_episode"] = out["lane_changes"]
         out["lane_changes_per_1000_episodes"] = 1000.0 * out["lane_changes"]
+        out.setdefault("shield_rate", 0.0)  # runs from before the shield option (issue 14) had none
         return out
 
 

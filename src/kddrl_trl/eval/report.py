@@ -30,12 +30,13 @@ METRICS = {
     "frame_accel_sd": ("sd of acceleration over frames", "m/s²", "{:.2f}"),
     "return_lc": ("lane-change return", "", "{:.1f}"),
     "return_cf": ("car-following return", "", "{:.1f}"),
+    "shield_rate": ("shield interventions (fraction of frames)", "", "{:.2%}"),  # algo.shield; 0 without one
 }
 TABLE_METRICS = ("mean_speed_kmh", "mean_accel", "lane_changes_per_episode", "lane_changes_per_1000_episodes",
                  "collision_rate")
 REFERENCE = "kddrl"
 #: scenario order of the paper's tables
-SCENARIO_ORDER = ("baseline", "congested", "braking")
+SCENARIO_ORDER = ("baseline", "congested", "congested_text", "braking")
 
 
 def _fmt(metric: str, value) -> str:
@@ -215,7 +216,7 @@ def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "pyt
     figs = {"Fig. 8: training curves": figures.training_curves(runs, out_dir / "fig08_training_curves.png"),
             "Figs. 9 / 15: evaluation returns": figures.return_boxes(runs, out_dir / "fig09_returns.png")}
     for s, fig_no in zip(scenarios, ("10", "12", "13")):
-        number = {"baseline": "10", "congested": "12", "braking": "13"}.get(s, fig_no)
+        number = {"baseline": "10", "congested": "12", "congested_text": "12", "braking": "13"}.get(s, fig_no)
         figs[f"Fig. {number}: {s}, speed and acceleration"] = figures.distributions(
             runs, s, out_dir / f"fig{number}_distributions_{s}.png")
     figs.update(figures.space_time(runs, out_dir))

@@ -6,7 +6,7 @@ from typing import Callable
 import torch
 from tqdm.auto import tqdm
 
-from .tracker import IN_KEYS, EpisodeTracker
+from .tracker import IN_KEYS, OPTIONAL_KEYS, EpisodeTracker
 
 
 def unwrap_env(env):
@@ -41,7 +41,7 @@ def evaluate_policy(env, policy: Callable, episodes: int, seed: int, progress: b
         full, td = env.step_and_maybe_reset(policy(td))
         if trace is not None:
             trace(full)
-        pending.append(full.select(*IN_KEYS).reshape(-1))
+        pending.append(full.select(*IN_KEYS, *OPTIONAL_KEYS, strict=False).reshape(-1))
         if not pending[-1].get(("next", "done")).any():
             continue
         frames, pending = torch.stack(pending, 1), []

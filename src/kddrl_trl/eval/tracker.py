@@ -15,7 +15,8 @@ from tensordict import TensorDictBase
 from .. import keys as K
 
 #: running sums per row, in column order
-SUMS = ("frames", "speed", "speed_sq", "accel", "accel_sq", "abs_accel", "lane_changes", "return_lc", "return_cf")
+SUMS = ("frames", "speed", "speed_sq", "accel", "accel_sq", "abs_accel", "lane_changes", "return_lc", "return_cf",
+        "shield")
 #: episode field written at the first frame of each braking phase (the braking distance with the first one)
 PHASE_FIELDS = {K.BRAKE_BRAKING: "braking_start_frame", K.BRAKE_STANDING: "braking_stop_frame",
                 K.BRAKE_RESUMED: "braking_resume_frame"}
@@ -25,6 +26,8 @@ TRUNCATED_OUTSIDE = "truncated"
 IN_KEYS = tuple(("next", *(key if isinstance(key, tuple) else (key,))) for key in (
     K.EGO_STATE, K.EGO_ACCEL, K.LC_STARTED, K.LC_ACTIVE, K.LC_REWARD, K.CF_REWARD, "done", K.OUTCOME,
     K.COLLISION_KIND, K.COLLISION_SLOT, K.BRAKING_PHASE, K.BRAKING_DISTANCE))
+#: entries read when present (0 where absent): the car-following shield's interventions (``keys.CF_SHIELD``)
+OPTIONAL_KEYS = (("next", *K.CF_SHIELD),)
 
 
 class EpisodeTracker:
@@ -34,8 +37,9 @@ class EpisodeTracker:
 
     Reads :data:`IN_KEYS` (under ``"next"`` of each frame): ``EGO_STATE`` (speed), ``EGO_ACCEL``,
     ``LC_STARTED``, the two rewards, ``done`` and the episode events ``OUTCOME``, ``COLLISION_KIND``,
-    ``COLLISION_SLOT``, ``BRAKING_PHASE``, ``BRAKING_DISTANCE``. The row order of successive batches must be the
-    same, and a row's episode goes on across batches until a frame has ``done`` set.
+    ``COLLISION_SLOT``, ``BRAKING_PHASE``, ``BRAKING_DISTANCE``; and :data:`OPTIONAL_KEYS` where present
+    (``CF_SHIELD``, written by :class:`~kddrl_trl.transforms.SafetyShield`). The row order of successive batches
+    must be the same, and a row's episode goes on across batches until a frame has ``done`` set.
 
     Each episode is a dict of:
 
@@ -45,6 +49,8 @@ class EpisodeTracker:
     - ``frames``; ``mean_speed`` (m/s), ``mean_speed_kmh``, ``mean_accel``, ``mean_abs_accel`` (m/s²),
       ``mean_sq_speed``, ``mean_sq_accel`` (for frame-level spreads); ``lane_changes`` (manoeuvres started);
       ``return_lc``, ``return_cf`` (undiscounted sums of the two rewards, Eq. 26 and 32);
+      ``shield_interventions`` (frames in which the car-following shield lowered the command; 0 without a
+      shield) and ``shield_rate`` (their fraction of the episode's frames);
     - ``outcome`` (a ``keys.OUTCOMES`` label, or ``"truncated"`` when the done flag came from outside the env),
       ``collision`` (outcome is a collision), ``collision_kind`` (``keys.COLLISION_KINDS`` label),
       ``collision_with`` (the other vehicle's neighbour slot ``"a"``-``"f"``, ``""`` if none or unknown; its
@@ -63,8 +69,10 @@ class EpisodeTracker:
         self._events: list[dict] = []            # per row: braking fields of the open episode
 
     @staticmethod
-    def _column(nxt: TensorDictBase, key, index: int = 0) -> torch.Tensor:
+    def _column(nxt: TensorDictBase, key, index: int = 0, optional: bool = False) -> torch.Tensor:
         value = nxt.get(key, None)
+        if value is None and optional:
+            return torch.zeros(nxt.batch_size)
         if value is None:
             raise KeyError(f"EpisodeTracker: the frames have no ('next', {key!r}) entry; the env must write the raw "
                            "keys and episode events of kddrl_trl/keys.py (SumoHighwayEnv, FakeHighwayEnv)")
@@ -79,7 +87,7 @@ class EpisodeTracker:
         speed, accel = col(nxt, K.EGO_STATE, 1).double(), col(nxt, K.EGO_ACCEL).double()
         values = torch.stack([torch.ones(b, t, dtype=torch.float64), speed, speed * speed, accel, accel * accel,
                               accel.abs(), col(nxt, K.LC_STARTED).double(), col(nxt, K.LC_REWARD).double(),
-                              col(nxt, K.CF_REWARD).double()], -1)
+                              col(nxt, K.CF_REWARD).double(), col(nxt, K.CF_SHIELD, optional=True).double()], -1)
         done, phase = col(nxt, "done").bool(), col(nxt, K.BRAKING_PHASE).long()
         codes = torch.stack([col(nxt, K.OUTCOME), col(nxt, K.COLLISION_KIND), col(nxt, K.COLLISION_SLOT),
                              col(nxt, K.LC_ACTIVE).long()], -1).long()
@@ -134,6 +142,7 @@ class EpisodeTracker:
             "collision_kind": K.COLLISION_KINDS[kind], "collision_with": K.NEIGHBOR_SLOTS[slot] if slot >= 0 else "",
             "ended_changing_lane": bool(changing),
             "return_lc": total["return_lc"], "return_cf": total["return_cf"],
+            "shield_interventions": int(total["shield"]), "shield_rate": total["shield"] / n,
             "braking_distance": events.pop("braking_distance", math.nan), **events,
         }
         self.finished += 1

@@ -137,16 +137,21 @@ def soft_update_embedding_(target: nn.Module | None, source: nn.Module | None, t
 
 def build_agent_states(td: TensorDictBase, embedding: TensorDictModuleBase | None,
                        *builders: TensorDictModuleBase,
-                       target_embedding: TensorDictModuleBase | None = None) -> TensorDictBase:
+                       target_embedding: TensorDictModuleBase | None = None,
+                       next_lc_policy: TensorDictModuleBase | None = None) -> TensorDictBase:
     """Computes ``s_e`` and the agent states (Eq. 24, Eq. 30) on a sampled batch, root and ``"next"``.
 
     At the root the online ``embedding`` runs with gradients (the value losses train it); under ``"next"``
     the ``target_embedding`` (or, if ``None``, the online one) runs under ``torch.no_grad()`` — bootstrap
     targets are never differentiated. ``builders`` are :func:`lc_state` / :func:`cf_state` modules.
 
-    ``keys.LC_ACTION`` is an action, so TorchRL stores it at the root only; when a builder needs it under
-    ``"next"`` and it is missing there, the root one is copied (the lane-change action is held between
-    decisions, paper §III.G.2). A collector that writes ``("next", "lc", "action")`` itself wins.
+    The lane-change action of the next state (Eq. 30's a_D3QN^{t+1}, when a builder needs ``keys.LC_ACTION``):
+    TorchRL stores actions at the root only. Between decisions the action is held (§III.G.2), so the next
+    state's is the root one. On a transition whose next frame is a decision frame (``("next", "lc", "decide")``),
+    the action in force at t+1 is the *new* decision: ``next_lc_policy`` (the D3QN's greedy policy on the next
+    state, masked by its ``("lc", "action_mask")``) gives it there, as the target actor gives TD3's own next
+    action (Eq. 6). Without ``next_lc_policy`` the root action is copied on every row (wrong on the frame before
+    each decision: the bug of issue 14, F6). A collector that writes ``("next", "lc", "action")`` itself wins.
 
     Returns a shallow copy of ``td``; ``td`` (e.g. a replay-buffer sample) is not modified.
     """
@@ -157,12 +162,21 @@ def build_agent_states(td: TensorDictBase, embedding: TensorDictModuleBase | Non
         b(out)
     nxt = out.get("next", None)
     if nxt is not None:
+        held = None
         if any(K.LC_ACTION in b.in_keys for b in builders) and nxt.get(K.LC_ACTION, None) is None:
-            nxt.set(K.LC_ACTION, out.get(K.LC_ACTION).detach())
+            held = out.get(K.LC_ACTION).detach()
+            nxt.set(K.LC_ACTION, held)
         with torch.no_grad():
             emb = target_embedding if target_embedding is not None else embedding
             if emb is not None:
                 emb(nxt)
+            if held is not None and next_lc_policy is not None:
+                decide = nxt.get(K.LC_DECIDE, None)
+                if decide is None:
+                    raise KeyError(f"build_agent_states: the batch has no ('next', {K.LC_DECIDE!r}) (the "
+                               "DecisionClock's flag): the next lane-change action cannot be told from the held one")
+                chosen = next_lc_policy(nxt.clone(False)).get(K.LC_ACTION).to(held.dtype)
+                nxt.set(K.LC_ACTION, torch.where(decide.reshape(*held.shape[:-1], 1).bool(), chosen, held))
             for b in builders:
                 b(nxt)
     return out

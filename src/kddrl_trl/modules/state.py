@@ -18,6 +18,12 @@ d         s_e from ``keys.EMBED_S_E`` (only when ``embed``)       none (tanh out
 the acceleration executed in the last frame a_TD3^{t-1} (``keys.EGO_ACCEL`` / accel, 1). Every scaled
 feature is clipped to ±``StateScale.clip``.
 
+Executed, not commanded (issue 14, F7): Eq. 30 reads "the continuous acceleration action executed at the previous
+time step", and Algorithm 1 line 33 executes a_TD3 in the env. The env executes the command (already within
+[-5, 5] m/s², Eq. 31) except where v + a dt would fall below 0 (v' = max(v + a dt, 0)), so the two differ only at
+a standstill; with a car-following shield (``algo.shield``) the executed acceleration is the shielded command,
+which is also the action buffer L stores, so state and action stay consistent. No option: the text is explicit.
+
 The mask is included although Eq. 24 does not list it: an absent neighbour is written as zeros, which would
 otherwise be indistinguishable from a neighbour level with the ego at the same speed.
 

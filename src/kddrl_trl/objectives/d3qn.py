@@ -25,15 +25,23 @@ class D3QNParts:
 
 def make_d3qn(obs_dim: int, *, num_actions: int = 3, hidden: Sequence[int] = (256, 256), dueling: bool = True,
               double: bool = True, gamma: float = 0.99, tau: float = 0.005, loss_function: str = "l2",
-              eps_init: float = 1.0, eps_end: float = 0.05, eps_decisions: int = 5000,
-              obs_key=K.LC_OBS, mask_key=K.LC_ACTION_MASK) -> D3QNParts:
+              eps_init: float = 1.0, eps_end: float = 0.05, eps_decisions: int = 5000, semi_mdp: bool = False,
+              obs_key=K.LC_OBS, mask_key=K.LC_ACTION_MASK, frames_key=("next", *K.LC_MACRO_FRAMES)) -> D3QNParts:
     """The lane-change agent on ``obs_key`` (``keys.LC_OBS``, Eq. 24).
 
     ``dueling=False, double=True`` is the DDQN of Ni et al. Invalid commands (``mask_key`` False: no lane
-    there, or a manoeuvre in progress) are never chosen, greedily or at random; in the double-DQN target the
-    argmax over next actions is masked with the next state's mask, which the Q actor reads under ``"next"``.
+    there, a manoeuvre in progress and, with ``algo.mobil_safety_mask``, an unsafe gap by MOBIL's Eq. 20-21:
+    :class:`~kddrl_trl.transforms.MOBILSafetyMask`) are never chosen, greedily or at random; in the double-DQN
+    target the argmax over next actions is masked with the next state's mask, which ``DQNLoss`` hands the Q actor
+    through ``step_mdp`` (tested in ``tests/test_learner.py``).
     ε decays linearly from ``eps_init`` to ``eps_end`` over ``eps_decisions`` decisions (call
     ``explore.step(n)`` with the number of decisions taken).
+
+    ``semi_mdp``: the bootstrap of Eq. 4 is discounted by ``gamma ** k``, k = the frames the macro-transition spans
+    (``frames_key``, written by :class:`~kddrl_trl.collectors.MacroTransitionWriter`), ``gamma`` then being per
+    frame (TorchRL's TD(0) estimator reads it as ``steps_to_next_obs``); the interval's reward stays the sum of
+    Algorithm 1 line 35. Default False: one ``gamma`` per decision, as Eq. 4 is written (a macro-transition cut
+    short by the episode's end is then discounted as a whole decision).
     """
     spec = OneHot(num_actions, dtype=torch.float32)
     net = DuelingQNet(obs_dim, num_actions, hidden, dueling=dueling)
@@ -47,4 +55,6 @@ def make_d3qn(obs_dim: int, *, num_actions: int = 3, hidden: Sequence[int] = (25
     loss.set_keys(action=K.LC_ACTION, action_value=K.LC_ACTION_VALUE, value=K.LC_CHOSEN_VALUE,
                   reward=K.LC_REWARD, done="done", terminated="terminated")
     loss.make_value_estimator(gamma=gamma)
+    if semi_mdp:
+        loss.value_estimator.set_keys(steps_to_next_obs=frames_key)
     return D3QNParts(actor, explore, loss, SoftUpdate(loss, tau=tau))

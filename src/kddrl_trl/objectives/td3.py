@@ -15,10 +15,28 @@ from .. import keys as K
 from ..modules.heads import BoundedActor, StateActionCritic
 
 
+class ClippedGaussianModule(AdditiveGaussianModule):
+    """Acting noise of Algorithm 1 line 32: ``a = mu(s) + clip(eps, -c, c)``, ``eps ~ N(0, sigma)``, then projected
+    onto the action bounds (Eq. 31). TorchRL's ``AdditiveGaussianModule`` adds unclipped noise; this one clips the
+    noise itself (not only the action) to ``±noise_clip`` (m/s²). Like its parent, it acts only under
+    ``ExplorationType.RANDOM``."""
+
+    def __init__(self, *args, noise_clip: float, **kwargs):
+        super().__init__(*args, **kwargs)
+        if not noise_clip > 0:
+            raise ValueError(f"noise_clip must be > 0, got {noise_clip!r}")
+        self.noise_clip = float(noise_clip)
+
+    def _add_noise(self, action: torch.Tensor) -> torch.Tensor:
+        eps = torch.randn(action.shape, device=action.device, dtype=action.dtype)
+        noise = (self.mean.to(action) + self.std.to(action) * eps) * self.sigma.to(action)
+        return self.spec[self.action_key].project(action + noise.clamp(-self.noise_clip, self.noise_clip))
+
+
 @dataclass
 class TD3Parts:
     actor: TensorDictModule          # mu(s; φ), Eq. 8
-    explore: AdditiveGaussianModule  # a = mu(s) + N(0, σ), clipped to the bounds (Algorithm 1 line 32)
+    explore: AdditiveGaussianModule  # a = mu(s) + clip(N(0, σ), -c, c), then the bounds (Algorithm 1 line 32)
     critic: TensorDictModule         # Q_k(s, a; φ_k), Eq. 7 (TD3Loss makes the twin copies and targets)
     loss: TD3Loss                    # Eq. 6-8
     target_updater: SoftUpdate       # Eq. 9-10
@@ -27,19 +45,22 @@ class TD3Parts:
 
 def make_td3(obs_dim: int, *, low: float = -5.0, high: float = 5.0, hidden: Sequence[int] = (256, 256),
              gamma: float = 0.99, tau: float = 0.005, policy_noise: float = 1.0, noise_clip: float = 2.5,
-             policy_delay: int = 2, exploration_sigma: float = 0.5, loss_function: str = "l2",
-             obs_key=K.CF_OBS) -> TD3Parts:
+             policy_delay: int = 2, exploration_sigma: float = 0.5, exploration_clip: float | None = 2.5,
+             loss_function: str = "l2", obs_key=K.CF_OBS) -> TD3Parts:
     """The car-following agent on ``obs_key`` (``keys.CF_OBS``, Eq. 30).
 
     Noise scales are in m/s² (Fujimoto et al.'s defaults 0.1 / 0.2 / 0.5 of the action bound 5 m/s²):
-    ``exploration_sigma`` for acting, ``policy_noise`` clipped to ``±noise_clip`` for target smoothing (Eq. 6).
+    ``exploration_sigma`` for acting, its noise clipped to ``±exploration_clip`` (Algorithm 1 line 32, the c of
+    ``clip(ε, -c, c)``; ``None``: unclipped, TorchRL's ``AdditiveGaussianModule``, this project's behaviour before
+    issue 14), ``policy_noise`` clipped to ``±noise_clip`` for target smoothing (Eq. 6).
     """
     spec = Composite(cf=Composite(action=Bounded(low, high, shape=(1,), dtype=torch.float32)))
     actor = TensorDictModule(BoundedActor(obs_dim, 1, hidden, low, high), in_keys=[obs_key], out_keys=[K.CF_ACTION])
     critic = TensorDictModule(StateActionCritic(obs_dim, 1, hidden, action_scale=max(abs(low), abs(high))),
                               in_keys=[obs_key, K.CF_ACTION], out_keys=[K.CF_STATE_ACTION_VALUE])
-    explore = AdditiveGaussianModule(spec, sigma_init=exploration_sigma, sigma_end=exploration_sigma,
-                                     action_key=K.CF_ACTION)
+    noise = dict(sigma_init=exploration_sigma, sigma_end=exploration_sigma, action_key=K.CF_ACTION)
+    explore = (AdditiveGaussianModule(spec, **noise) if exploration_clip is None
+               else ClippedGaussianModule(spec, noise_clip=exploration_clip, **noise))
     loss = TD3Loss(actor, critic, bounds=(low, high), num_qvalue_nets=2,
                    policy_noise=policy_noise, noise_clip=noise_clip, loss_function=loss_function)
     loss.set_keys(action=K.CF_ACTION, state_action_value=K.CF_STATE_ACTION_VALUE, reward=K.CF_REWARD,

@@ -36,7 +36,7 @@ from ..objectives import make_d3qn, make_td3
 log = logging.getLogger(__name__)
 
 #: keys a learner reads from a replay-buffer sample besides those of its embedding (root and "next")
-STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
+STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK, K.LC_DECIDE)
 DONE_KEYS = ("done", "terminated", "truncated")
 
 
@@ -90,6 +90,10 @@ class HierarchicalLearner(nn.Module):
         self.lc_loss, self.cf_loss = self.d3qn.loss, self.td3.loss
         self.lc_explore, self.cf_explore = self.d3qn.explore, self.td3.explore
         self.lc_actor, self.cf_actor = self.d3qn.actor, self.td3.actor
+        # the D3QN's greedy choice at a next state that is a decision frame (Eq. 30's a_D3QN^{t+1} in the TD3
+        # target, modules/sharing.py::build_agent_states); kept out of the module tree (its parameters are the
+        # lc actor's, already registered)
+        self.__dict__["next_lc_policy"] = TensorDictSequential(self.lc_state, self.lc_actor)
         self.opt_lc = adam(self.lc_loss.parameters(), self.lr_lc)
         self.opt_critic = adam(self.cf_loss.qvalue_network_params.flatten_keys().values(), self.lr_critic)
         self.opt_actor = adam(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor)
@@ -141,13 +145,15 @@ class HierarchicalLearner(nn.Module):
         """The loss ``name`` of a replay-buffer sample, on the agents' states (s_e of Eq. 23-24 inside):
 
         - ``"cf_value"``: TD3 twin-critic loss (Eq. 6-7); trains the embedding too (target s_e from the target
-          embedding);
+          embedding; the next state's lane-change action is the D3QN's greedy choice where the next frame is a
+          decision frame, the held one elsewhere);
         - ``"cf_actor"``: TD3 actor loss (Eq. 8) on a detached s_e;
         - ``"lc"``: D3QN double-DQN loss (Eq. 4); trains the embedding too.
 
         Tensor maths only (no optimiser step): what ``compile`` hands to ``torch.compile``."""
         if name == "cf_value":
-            states = build_agent_states(batch, self.embedding, self.cf_state, target_embedding=self.target_embedding)
+            states = build_agent_states(batch, self.embedding, self.cf_state, target_embedding=self.target_embedding,
+                                        next_lc_policy=self.next_lc_policy)
             return self.cf_loss.value_loss(states)[0]
         if name == "cf_actor":
             states = build_agent_states(batch.exclude("next"), self.embedding, self.cf_state)

@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 
 #: per-episode fields logged under ``train/``
 EPISODE_FIELDS = ("return_lc", "return_cf", "mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes",
-                  "frames", "collision")
+                  "frames", "collision", "shield_rate")
 
 
 def make_buffer(capacity: int, batch_size: int, seed: int) -> TensorDictReplayBuffer:

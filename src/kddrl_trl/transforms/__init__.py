@@ -9,6 +9,9 @@ transform              writes                               paper
 :class:`KeyGapsFromPrior` ``("pred", "key_gaps")`` [3, 2]    Eq. 24 from TC (stacks without trajGAN)
 :class:`MOBILPrior`     ``("prior", "p_mobil")`` [3]         P_MOBIL, Eq. 20-22
 :class:`LCGANPrior`     ``("prior", "p_lcgan")`` [3]         P_lcGAN, Eq. 16
+:class:`MOBILSafetyMask`  ``("lc", "action_mask")`` [3]      MOBIL's safety check as a hard mask, Eq. 20-21
+:class:`SafetyShield`   ``("cf", "action")`` (executed),     car-following shield (not in the paper; issue 14)
+                        ``("next", "cf", "shield")`` [1]
 =====================  ==================================  ================================================
 
 :func:`make_kddrl_transforms` builds the stack (and its ablations) as a :class:`PredictiveStack`: a ``Compose``
@@ -20,10 +23,12 @@ from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
 from .lcgan import LCGANPrior
-from .mobil_prior import MOBILPrior
+from .mobil_prior import MOBILPrior, MOBILSafetyMask
+from .shield import SafetyShield
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
-__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "PredictiveStack",
+__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "MOBILSafetyMask",
+           "PredictiveStack", "SafetyShield",
            "TrajGANPrediction",
            "key_step_gaps", "make_kddrl_transforms"]

@@ -1,4 +1,5 @@
-"""``MOBILPrior``: the knowledge-driven lane-change prior P_MOBIL (paper Eq. 20-22, Algorithm 1 lines 19-20)."""
+"""``MOBILPrior``: the knowledge-driven lane-change prior P_MOBIL (paper Eq. 20-22, Algorithm 1 lines 19-20), and
+``MOBILSafetyMask``: MOBIL's safety check as a hard constraint on the lane-change commands (§III.C.2)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -6,7 +7,9 @@ from collections.abc import Mapping
 import torch
 
 from .. import keys as K
-from ..physics import IDMParams, MOBILParams, mobil_prior
+from torchrl.data import Categorical
+
+from ..physics import IDMParams, MOBILParams, mobil_prior, mobil_utilities
 from ._base import PredictiveTransform, as_params, finite_or_zero, probability_spec
 from .idm_prior import as_idm_params
 
@@ -16,13 +19,27 @@ def as_mobil_params(mobil: MOBILParams | Mapping | None) -> MOBILParams:
     return as_params(MOBILParams, mobil)
 
 
+def _mobil_inputs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor) -> tuple:
+    """(ego y, ego v, kin, mask, lane) of the MOBIL functions from raw observation tensors (non-finite slots
+    absent)."""
+    ego, kin = ego.to(torch.float32), kin.to(torch.float32)
+    mask = mask.bool() & torch.isfinite(kin).all(-1)
+    return ego[..., 0], ego[..., 1], kin, mask, lane[..., 0].long()
+
+
 def mobil_prior_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
                          idm: IDMParams, mobil: MOBILParams) -> torch.Tensor:
     """``P_MOBIL`` ``[*B, 3]`` from raw observation tensors (a simplex, never NaN)."""
-    ego, kin = ego.to(torch.float32), kin.to(torch.float32)
-    mask = mask.bool() & torch.isfinite(kin).all(-1)
-    p = mobil_prior(ego[..., 0], ego[..., 1], kin, mask, lane[..., 0].long(), num_lanes, idm, mobil)
+    p = mobil_prior(*_mobil_inputs(ego, lane, kin, mask), num_lanes, idm, mobil)
     return finite_or_zero(p.to(torch.float32)).clamp(0.0, 1.0)
+
+
+def mobil_safe_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
+                        idm: IDMParams, mobil: MOBILParams) -> torch.Tensor:
+    """MOBIL's safety flags ``[*B, 3]`` (bool, left / keep / right) from raw observation tensors: the target lane
+    exists, the gaps to its leader and follower exceed ``y_safe`` (Eq. 20) and the new follower brakes less than
+    ``b_safe`` (Eq. 21, ``a_TF_new > -b_safe``); keep is always safe."""
+    return mobil_utilities(*_mobil_inputs(ego, lane, kin, mask), num_lanes, idm, mobil)[1]
 
 
 class MOBILPrior(PredictiveTransform):
@@ -55,6 +72,48 @@ class MOBILPrior(PredictiveTransform):
 
     def out_specs(self, batch, device) -> dict:
         return {K.PRIOR_P_MOBIL: probability_spec(batch, (3,), device)}
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(num_lanes={self.num_lanes}, mobil={self.mobil}, idm={self.idm})"
+
+
+class MOBILSafetyMask(PredictiveTransform):
+    """MOBIL's safety check as a hard constraint: ``keys.LC_ACTION_MASK`` AND the safety flags of Eq. 20-21.
+
+    §III.C.2: "The built-in safety checking mechanism of the MOBIL enforces hard safety distance constraints to
+    prevent the RL agent from attempting dangerous lane-changing maneuvers during exploration". ``P_MOBIL``
+    (:class:`MOBILPrior`) only *informs* the agent (an input of the embedding, Eq. 23); this transform makes the
+    check *binding*: it rewrites the env's command mask (no lane there, or a manoeuvre in progress) as
+    ``mask & safe``, where ``safe`` is :func:`kddrl_trl.physics.mobil_utilities`' flags (Eq. 20 gaps to the
+    target lane's leader and follower > ``y_safe``, Eq. 21 ``a_TF_new > -b_safe``; keep is always allowed). One
+    mechanism for every algo (``algo.mobil_safety_mask``), because every consumer of the mask follows it:
+
+    * acting: the D3QN ``QValueActor`` (``action_mask_key``) and the ε-greedy module pick among the allowed
+      commands only;
+    * learning: buffer H stores the mask at the decision and under ``"next"``; TorchRL's ``DQNLoss`` computes the
+      double-DQN argmax (Eq. 4) with the Q actor on the next state, which masks with ``("next", "lc",
+      "action_mask")``; the plain DQN target's max is masked the same way.
+
+    The env still executes any command its own mask allows: the constraint lives in the agent's command set, as
+    in the paper ("prevent the RL agent from attempting"). Reads only raw keys, so it works on any env writing
+    them, and needs no other transform before it.
+
+    Args: as :class:`MOBILPrior`.
+    """
+
+    def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
+                 num_lanes: int = 3):
+        self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
+        super().__init__(in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LC_ACTION_MASK],
+                         out_keys=[K.LC_ACTION_MASK])
+
+    def frame(self, values, noise=None) -> dict:
+        safe = mobil_safe_from_obs(values[K.EGO_STATE], values[K.EGO_LANE], values[K.NEIGHBORS_KIN],
+                                   values[K.NEIGHBORS_MASK], num_lanes=self.num_lanes, idm=self.idm, mobil=self.mobil)
+        return {K.LC_ACTION_MASK: values[K.LC_ACTION_MASK].bool() & safe}
+
+    def out_specs(self, batch, device) -> dict:
+        return {K.LC_ACTION_MASK: Categorical(2, shape=(*batch, 3), dtype=torch.bool, device=device)}
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(num_lanes={self.num_lanes}, mobil={self.mobil}, idm={self.idm})"

@@ -1,0 +1,139 @@
+"""``SafetyShield``: a car-following safety shield for any policy, ``a_exec = min(a_agent, a_safe)`` (issue 14).
+
+Not part of the paper (its TD3 acts unshielded, §III.G.2); an option of every algo (``algo.shield``), off by
+default. The bound ``a_safe`` comes from the raw keys of the frame the action is taken in:
+
+* ``idm``: the braking (interaction) part of the IDM, Eq. 11-12 with ``v0 = inf`` (so the shield never caps the
+  free-road speed): ``a_safe = a_max [1 - (s*/gap)^2]``, Table A.1 parameters;
+* ``ttc``: when the time to collision ``gap / (v - v_lead)`` is below ``ttc`` seconds, the constant deceleration
+  that brings the closing speed to zero before the gap shrinks to ``min_gap`` (plus the leader's own braking):
+  ``a_safe = min(a_lead, 0) - (v - v_lead)^2 / (2 (gap - min_gap))``; no bound otherwise.
+
+The leaders checked are the current lane's (slot b) and, during a lane change, the target lane's (a to the left,
+c to the right, from the sign of the lateral speed).
+
+Where the executed action is recorded: the inverse path (``_inv_call``) replaces ``("cf", "action")`` in what the
+env receives (TorchRL's ``inv`` works on a copy of the step's root, which keeps the agent's command); the post-step
+hook (TorchRL's ``_post_step_mdp_hooks``, run by ``step_and_maybe_reset``: collectors,
+:func:`~kddrl_trl.eval.evaluate_policy`, ``rollout``) writes the executed action into the recorded frame, so buffer
+L stores ``(s, a_exec, r, s')``: the transition that really happened. TorchRL runs no hook on a bare ``env.step``
+(nor on the last frame of ``env.rollout(..., break_when_any_done=False)``): there the frame keeps the agent's
+command, and ``("next", "cf", "shield")`` still says the shield acted. Inside a ``ParallelEnv`` worker only the flag
+reaches the outer env. Each frame carries
+``("next", "cf", "shield")`` (``keys.CF_SHIELD``): True when the shield lowered the command, which the episode
+tracker counts (``shield_interventions``, ``shield_rate``).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Categorical, Composite
+from torchrl.envs.transforms import Transform
+
+from .. import keys as K
+from ..physics import IDMParams, idm_acceleration
+
+#: ``algo.shield`` kinds this transform implements (``none`` adds no transform)
+SHIELD_KINDS = ("idm", "ttc")
+_FLAG = "_shield_intervened"  # carries the intervention flag from the inverse path to ``_step``
+
+
+def ttc_bound(v: torch.Tensor, v_lead: torch.Tensor, a_lead: torch.Tensor, gap: torch.Tensor, ttc: float,
+              min_gap: float, no_bound: float) -> torch.Tensor:
+    """The ``ttc`` shield's bound (m/s²): while closing in with ``gap / (v - v_lead) < ttc``, the deceleration that
+    cancels the closing speed within ``gap - min_gap`` (plus the leader's braking); ``no_bound`` otherwise."""
+    closing = (v - v_lead).clamp(min=0.0)
+    room = (gap - min_gap).clamp(min=0.1)
+    need = torch.minimum(a_lead, torch.zeros_like(a_lead)) - closing ** 2 / (2.0 * room)
+    risky = (closing > 0) & (gap < ttc * closing)
+    return torch.where(risky, need, torch.full_like(need, no_bound))
+
+
+def safe_acceleration(obs: TensorDictBase, kind: str, *, idm: IDMParams, ttc: float, min_gap: float,
+                      high: float) -> torch.Tensor:
+    """``a_safe`` ``[*B, 1]`` (m/s², at most ``high``) of shield ``kind`` from the raw keys of ``obs``."""
+    ego = obs.get(K.EGO_STATE).to(torch.float32)
+    kin = obs.get(K.NEIGHBORS_KIN).to(torch.float32)
+    mask = obs.get(K.NEIGHBORS_MASK).bool()
+    y, v, vx = ego[..., 0:1], ego[..., 1:2], ego[..., 2:3]
+    leaders = kin[..., :3, :]                                              # a, b, c
+    gap = leaders[..., 0] - y - idm.length                                 # [*B, 3] bumper to bumper
+    present = mask[..., :3].clone()
+    active = obs.get(K.LC_ACTIVE, torch.zeros_like(vx, dtype=torch.bool)).bool()
+    present[..., 0:1] &= active & (vx > 0)   # the left leader only while moving left
+    present[..., 2:3] &= active & (vx < 0)   # the right leader only while moving right
+    if kind == "idm":
+        bound = idm_acceleration(v, leaders[..., 1], gap, idm, has_leader=present).clamp(max=high)
+    else:
+        bound = ttc_bound(v, leaders[..., 1], leaders[..., 2], gap, ttc, min_gap, high)
+    bound = torch.where(present, bound, torch.full_like(bound, high))
+    return bound.amin(-1, keepdim=True)
+
+
+class SafetyShield(Transform):
+    """``a_exec = min(a_agent, a_safe)`` on ``keys.CF_ACTION`` before the env; the executed action recorded.
+
+    Args:
+        kind: ``"idm"`` or ``"ttc"`` (module docstring).
+        low, high: the action bounds (m/s², Eq. 31); the executed action stays within them.
+        ttc: s, the ``ttc`` shield's threshold. Defaults to 3 s.
+        min_gap: m, the gap the ``ttc`` shield keeps. Defaults to 2 m.
+        idm: IDM parameters of the ``idm`` shield (default Table A.1; ``v0`` is ignored: always ``inf``).
+    """
+
+    def __init__(self, kind: str, *, low: float = -5.0, high: float = 5.0, ttc: float = 3.0, min_gap: float = 2.0,
+                 idm: IDMParams | None = None):
+        if kind not in SHIELD_KINDS:
+            raise ValueError(f"SafetyShield: kind must be one of {', '.join(SHIELD_KINDS)}, got {kind!r}")
+        super().__init__(in_keys=[], out_keys=[K.CF_SHIELD], in_keys_inv=[K.CF_ACTION], out_keys_inv=[K.CF_ACTION])
+        self.kind, self.low, self.high = kind, float(low), float(high)
+        self.ttc, self.min_gap = float(ttc), float(min_gap)
+        base = idm if idm is not None else IDMParams()
+        self.idm = IDMParams(**{**base.__dict__, "v0": math.inf})
+
+    def shielded(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        """(executed action, intervened) ``[*B, 1]`` for the command and raw keys at the root of ``tensordict``."""
+        action = tensordict.get(K.CF_ACTION)
+        bound = safe_acceleration(tensordict, self.kind, idm=self.idm, ttc=self.ttc, min_gap=self.min_gap,
+                                  high=self.high).to(action.dtype).reshape(action.shape)
+        executed = torch.minimum(action, bound).clamp(self.low, self.high)
+        return executed, executed < action
+
+    # ---------------------------------------------------------------------------------- TorchRL
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        with torch.no_grad():
+            executed, flag = self.shielded(tensordict)
+        tensordict.set(K.CF_ACTION, executed)  # what the env receives (``inv`` works on a copy of the root)
+        tensordict.set(_FLAG, flag)            # read (and removed) by _step
+        return tensordict
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        flag = tensordict.pop(_FLAG, None)  # TorchRL hands _step the inverse-transformed input
+        if flag is None:
+            flag = torch.zeros(*next_tensordict.batch_size, 1, dtype=torch.bool)
+        next_tensordict.set(K.CF_SHIELD, flag.reshape(*next_tensordict.batch_size, 1).to(next_tensordict.device))
+        return next_tensordict
+
+    def _post_step_mdp_hooks(self, tensordict: TensorDictBase, tensordict_: TensorDictBase):
+        # the frame that is recorded holds the executed action (recomputed from its root: stateless)
+        with torch.no_grad():
+            tensordict.set(K.CF_ACTION, self.shielded(tensordict)[0])
+        return tensordict, tensordict_
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        tensordict_reset.set(K.CF_SHIELD, torch.zeros(*tensordict_reset.batch_size, 1, dtype=torch.bool,
+                                                      device=tensordict_reset.device))
+        return tensordict_reset
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:  # forward(): nothing to add to a sample
+        return next_tensordict
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        b, dev = observation_spec.shape, observation_spec.device
+        observation_spec[K.CF_SHIELD] = Categorical(2, shape=(*b, 1), dtype=torch.bool, device=dev)
+        return observation_spec
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(kind={self.kind!r}, ttc={self.ttc}, min_gap={self.min_gap})"
