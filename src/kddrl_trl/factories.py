@@ -40,7 +40,7 @@ from .collectors import DecisionClock, MultiTimescaleCollector
 from .conf.schema import EnvNode, HierarchicalAlgo, Job, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
 from .envs.config import HighwayConfig
 from .loggers import MultiLogger
-from .runs import checkpoint_dir, latest_checkpoint, remove_refused_run_dir, resume_requested, trained_run
+from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
 from .training import HierarchicalLearner, load_latest_training_checkpoint, load_training_checkpoint, make_buffer
 
 
@@ -62,18 +62,9 @@ def make_device(name: str) -> torch.device:
 def make_job(cfg: DictConfig):
     """The typed job of a composed entry-point config (``OmegaConf.to_object``: types and ranges checked once,
     before any simulator starts). A refused config raises, naming the key, and removes the output folder Hydra
-    already made for it (:func:`kddrl_trl.runs.remove_refused_run_dir`): a bad value leaves no empty run folder."""
-    from hydra.core.hydra_config import HydraConfig
-    from hydra.types import RunMode
-
-    try:
+    already made for it (:func:`kddrl_trl.runs.no_folder_if_refused`): a bad value leaves no empty run folder."""
+    with no_folder_if_refused():
         return OmegaConf.to_object(cfg)
-    except Exception:
-        if HydraConfig.initialized():
-            hydra_cfg = HydraConfig.get()
-            remove_refused_run_dir(hydra_cfg.runtime.output_dir,
-                                   hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None)
-        raise
 
 
 def make_run_dir(resume) -> tuple[Path, bool]:

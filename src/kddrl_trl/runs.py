@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -125,3 +126,20 @@ def remove_refused_run_dir(run_dir: str | Path, sweep_dir: str | Path | None = N
     if sweep_dir is not None and _hydra_only(Path(sweep_dir)):
         shutil.rmtree(sweep_dir, ignore_errors=True)
     return True
+
+
+@contextmanager
+def no_folder_if_refused():
+    """Inside a Hydra entry point: an error raised in the block (a refused config) removes the output folder
+    Hydra made for the run (:func:`remove_refused_run_dir`), then propagates."""
+    try:
+        yield
+    except BaseException:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        if HydraConfig.initialized():
+            hydra_cfg = HydraConfig.get()
+            remove_refused_run_dir(hydra_cfg.runtime.output_dir,
+                                   hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None)
+        raise
