@@ -117,3 +117,72 @@ def test_a_refused_resumed_run_keeps_its_folder(tmp_path):
     assert not remove_refused_run_dir(run) and run.is_dir()
     (run / "config.yaml").unlink()
     assert remove_refused_run_dir(run) and not run.exists()
+
+
+# ---------------------------------------------------------------------------------------- faults in the simulator
+def _sumo_env(num_roads=4):
+    from kddrl_trl.envs import SumoHighwayEnv
+
+    return SumoHighwayEnv("baseline", num_roads=num_roads, seed=0)
+
+
+def _fail_for(monkeypatch, name, vid, result=None):
+    """Make ``libsumo.vehicle.<name>`` raise a TraCIException for vehicle ``vid`` (or return ``result`` for it)."""
+    import libsumo
+
+    real = getattr(libsumo.vehicle, name)
+
+    def patched(v, *args):
+        if v != vid:
+            return real(v, *args)
+        if result is not None:
+            return result
+        raise libsumo.TraCIException(f"injected fault in {name}({v})")
+
+    monkeypatch.setattr(libsumo.vehicle, name, staticmethod(patched))
+
+
+@pytest.mark.parametrize("call", ["setSpeed", "getLateralSpeed", "getLeader"])
+def test_a_sumo_fault_mid_episode_truncates_that_road_as_lost_and_the_others_go_on(monkeypatch, caplog, no_sumo_open,
+                                                                                    call):
+    from kddrl_trl import keys as K
+    from kddrl_trl.baselines import IDMMobilPolicy
+    from kddrl_trl.eval import EpisodeTracker
+
+    env, policy = _sumo_env(), IDMMobilPolicy()
+    try:
+        td, frames = env.reset(), []
+        for _ in range(3):
+            full, td = env.step_and_maybe_reset(policy(td))
+            frames.append(full)
+        with monkeypatch.context() as m, caplog.at_level(logging.WARNING):
+            _fail_for(m, call, env.sim.ego[1])  # setSpeed: commanding; the getters: observing
+            full, td = env.step_and_maybe_reset(policy(td))
+        frames.append(full)
+        done = full["next", "done"].reshape(-1).tolist()
+        assert full["next", "truncated"][1].item() and not full["next", "terminated"][1].item()
+        assert full["next", *K.OUTCOME][1].item() == K.LOST and done.count(True) == 1
+        assert env.stats["sumo_errors"] == 1 and "injected fault" in caplog.text
+        episodes = EpisodeTracker()(torch.stack(frames, 1))
+        assert [(e["road"], e["outcome"]) for e in episodes] == [(1, "lost")]  # counted as lost, once
+        for _ in range(30):  # every road runs on, road 1 with a new ego
+            full, td = env.step_and_maybe_reset(policy(td))
+        assert env.sim.ego[1] is not None and env.stats["sumo_errors"] == 1
+    finally:
+        env.close()
+
+
+def test_a_nan_from_sumo_is_refused_naming_the_key(monkeypatch, no_sumo_open):
+    from kddrl_trl.baselines import IDMMobilPolicy
+    from kddrl_trl.envs.observe import NonFiniteObservation
+
+    env, policy = _sumo_env(2), IDMMobilPolicy()
+    try:
+        td = env.reset()
+        full, td = env.step_and_maybe_reset(policy(td))
+        neighbour = next(v for v in env.sim.observer.slots[0] if v)  # its acceleration is in ("neighbors","kin")
+        _fail_for(monkeypatch, "getAcceleration", neighbour, result=float("nan"))
+        with pytest.raises(NonFiniteObservation, match=r"\('neighbors', 'kin'\) on road\(s\) \[0"):
+            env.step(policy(td))
+    finally:
+        env.close()
