@@ -9,21 +9,24 @@ transform              writes                               paper
 :class:`KeyGapsFromPrior` ``("pred", "key_gaps")`` [3, 2]    Eq. 24 from TC (stacks without trajGAN)
 :class:`MOBILPrior`     ``("prior", "p_mobil")`` [3]         P_MOBIL, Eq. 20-22
 :class:`LCGANPrior`     ``("prior", "p_lcgan")`` [3]         P_lcGAN, Eq. 16
+:class:`LeaderHistory`  ``("leaders", "history")`` [3, H, 2] the leaders' last H (y, v), for envs without it
 =====================  ==================================  ================================================
 
 :func:`make_kddrl_transforms` builds the stack (and its ablations) as a :class:`PredictiveStack`: a ``Compose``
 that runs its members' maths as one function per frame (compiled with ``compile=True``: the transforms' only
 compile site). All transforms read only raw keys of :mod:`kddrl_trl.keys` and keys of earlier transforms, are
-stateless per frame, and work on reset, step and replay-buffer samples (``forward``) of any batch shape.
+stateless per frame (except :class:`LeaderHistory`, whose per-row window travels in the tensordicts as TorchRL's
+``RewardSum`` does), and work on reset, step and replay-buffer samples (``forward``) of any batch shape.
 """
 from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
 from .lcgan import LCGANPrior
+from .leader_history import LeaderHistory
 from .mobil_prior import MOBILPrior
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
-__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "PredictiveStack",
+__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "LeaderHistory", "MOBILPrior", "PredictiveStack",
            "TrajGANPrediction",
            "key_step_gaps", "make_kddrl_transforms"]
