@@ -186,3 +186,21 @@ def test_a_nan_from_sumo_is_refused_naming_the_key(monkeypatch, no_sumo_open):
             env.step(policy(td))
     finally:
         env.close()
+
+
+def test_a_trainer_resumes_from_the_previous_checkpoint_when_the_newest_is_truncated(tmp_path, caplog):
+    from test_train import compose_job, fake_trainer
+
+    job = compose_job("env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]",
+                      "algo.learner.td3.hidden=[16]")
+    small = dict(warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10, checkpoint_every=1)
+    env, _, trainer, collector = fake_trainer(job, tmp_path, **small)
+    trainer.run(collector)
+    env.close()
+    assert [p.name for p in checkpoint_candidates(tmp_path)] == ["ep000003.pt", "ep000002.pt"]
+    _truncate(tmp_path / "checkpoints" / "ep000003.pt")
+    env, _, again, _ = fake_trainer(job, tmp_path, **small)
+    env.close()
+    with caplog.at_level(logging.WARNING):
+        assert again.load(tmp_path) == 2 and len(again.history) == 2
+    assert "ep000003.pt: cannot be loaded" in caplog.text
