@@ -99,9 +99,10 @@ def test_kill_9_during_a_checkpoint_write_leaves_a_loadable_checkpoint(tmp_path)
     assert not list((tmp_path / "checkpoints").glob(".*.tmp"))
 
 
-@pytest.mark.parametrize("override", ["env.flow_vph=-1", "env.flow_vphh=3", "train.batch_size_cf=0"])
-def test_a_refused_config_leaves_no_run_folder(tmp_path, override):
-    cmd = [sys.executable, "-m", "kddrl_trl.train", override, "episodes=1", "progress=false"]
+@pytest.mark.parametrize("override, sweep", [("env.flow_vph=-1", []), ("env.flow_vphh=3", []),
+                                             ("train.batch_size_cf=0", []), ("env.flow_vph=-1", ["-m", "seed=0,1"])])
+def test_a_refused_config_leaves_no_run_folder(tmp_path, override, sweep):
+    cmd = [sys.executable, "-m", "kddrl_trl.train", *sweep, override, "episodes=1", "progress=false"]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode != 0 and override.split("=")[0].split(".")[-1] in done.stderr, done.stderr
     assert not list(tmp_path.glob("runs/*")), list(tmp_path.rglob("*"))
