@@ -44,3 +44,20 @@ def test_prepare_bad_source_and_path(tmp_path):
     assert "needs path=DIR" in run(["source=highd"], tmp_path).stderr
     assert "no HighD-format recording" in run(["source=highd", f"path={tmp_path}"], tmp_path).stderr
     assert "source must be" in run(["source=ngsim"], tmp_path).stderr
+    assert not list(tmp_path.glob("runs/*"))  # the refused options left no run folder
+
+
+def test_data_too_short_to_calibrate_gives_datasets_and_a_warning_unless_strict(tmp_path):
+    done = run(["record.duration_s=4", "record.num_roads=1"], tmp_path)  # no 5 s car-following segment
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = tmp_path / "data" / "datasets" / "synthetic_baseline_seed0"
+    said = done.stdout + done.stderr
+    assert "no car-following segment of at least 5.0 s" in said and "still good for pretraining" in said
+    assert "calibrate=strict" in said and "not calibrated" in said
+    assert (out / "meta.json").is_file() and (out / "leaders" / "train").is_dir()
+    assert not (out / "calibration.yaml").exists()
+
+    strict = run(["record.duration_s=4", "record.num_roads=1", "calibrate=strict"], tmp_path)
+    assert strict.returncode != 0 and "no car-following segment of at least 5.0 s" in strict.stderr
+    assert "dataset (cached)" in strict.stdout  # the datasets came first, as before
+    assert "calibrate must be" in run(["calibrate=maybe"], tmp_path).stderr  # checked before recording

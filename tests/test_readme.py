@@ -16,6 +16,7 @@ def test_readme_reuse_example_runs():
     td = namespace["td"]
     assert td["next", "pred", "key_gaps"].shape == (2, 5, 3, 2)
     assert td["next", "prior", "p_lcgan"].shape == (2, 5, 3)
+    assert td["next", "leaders", "history"].shape == (2, 5, 3, 10, 2)  # the env writes none: LeaderHistory keeps it
 
 
 def test_readme_gives_exactly_two_command_lines_first():

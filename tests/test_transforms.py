@@ -646,7 +646,9 @@ def test_fused_stack_falls_back_to_members():
         assert torch.equal(got[key], ref[key]), key
 
     with pytest.raises(KeyError, match="leaders"):
-        make_kddrl_transforms()(obs.exclude(K.LEADERS_HISTORY))
+        make_kddrl_transforms()(obs.exclude(K.LEADERS_AHEAD))
+    # the leaders' history is optional (issue 17): a lone frame without it gets fresh windows (LeaderHistory)
+    assert_derived(make_kddrl_transforms()(obs.exclude(K.LEADERS_HISTORY)))
 
 
 def test_compiled_stack_pickles():

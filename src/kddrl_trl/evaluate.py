@@ -12,17 +12,19 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from .conf.schema import EvaluateJob
 from .eval.protocol import check_disjoint, test_seed
-from .factories import evaluate, load_trained_learner, make_env, make_logger, make_policy, report, seed_everything
+from .factories import (
+    evaluate, load_trained_learner, make_env, make_job, make_logger, make_policy, report, seed_everything,
+)
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
 def main(cfg: DictConfig) -> dict:
-    job: EvaluateJob = OmegaConf.to_object(cfg)  # typed; ranges checked once, before any simulator starts
+    job: EvaluateJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     algo, learner, ckpt, saved = load_trained_learner(Path(job.run), job.checkpoint)
     env_seed, trained_on = test_seed(job.seed, job.eval_seed), str(saved.env.scenario)

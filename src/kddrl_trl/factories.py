@@ -6,6 +6,7 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 =============================  ===========================================================================
 :func:`seed_everything`        ``random``, ``numpy`` and ``torch`` from one seed (each env is seeded itself)
 :func:`make_device`            ``auto`` | ``cpu`` | ``cuda``
+:func:`make_job`               the typed job of a config; a refused one leaves no run folder behind
 :func:`make_run_dir`           the folder Hydra made for this run, and whether it resumes
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
 :func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
@@ -40,8 +41,8 @@ from .collectors import DecisionClock, MultiTimescaleCollector
 from .conf.schema import EnvNode, HierarchicalAlgo, Job, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
 from .envs.config import HighwayConfig
 from .loggers import MultiLogger
-from .runs import checkpoint_dir, latest_checkpoint, resume_requested, trained_run
-from .training import HierarchicalLearner, load_training_checkpoint, make_buffer
+from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
+from .training import HierarchicalLearner, load_latest_training_checkpoint, load_training_checkpoint, make_buffer
 
 
 def seed_everything(seed: int) -> None:
@@ -57,6 +58,14 @@ def make_device(name: str) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():
         raise SystemExit("device=cuda but no CUDA device is available (use device=auto or device=cpu)")
     return torch.device(name)
+
+
+def make_job(cfg: DictConfig):
+    """The typed job of a composed entry-point config (``OmegaConf.to_object``: types and ranges checked once,
+    before any simulator starts). A refused config raises, naming the key, and removes the output folder Hydra
+    already made for it (:func:`kddrl_trl.runs.no_folder_if_refused`): a bad value leaves no empty run folder."""
+    with no_folder_if_refused():
+        return OmegaConf.to_object(cfg)
 
 
 def make_run_dir(resume) -> tuple[Path, bool]:
@@ -210,12 +219,16 @@ def load_trained_learner(run: Path, checkpoint: str = "latest"
     if not isinstance(algo, HierarchicalAlgo):
         raise ValueError(f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "
                          f"python -m kddrl_trl.train algo={algo.name} +scenario=...")
-    path = latest_checkpoint(run) if checkpoint == "latest" else checkpoint_dir(run) / "best.pt"
-    if path is None or not path.is_file():
-        raise FileNotFoundError(f"run={run}: no {checkpoint} checkpoint in {checkpoint_dir(run)}"
-                                + (" (train.eval_every=0 writes no best.pt)" if checkpoint == "best" else ""))
+    if checkpoint == "latest":  # the newest that loads (a damaged one falls back to the previous, with a warning)
+        path, payload = load_latest_training_checkpoint(run)
+    else:
+        path = checkpoint_dir(run) / "best.pt"
+        if not path.is_file():
+            raise FileNotFoundError(f"run={run}: no {checkpoint} checkpoint in {checkpoint_dir(run)}"
+                                    " (train.eval_every=0 writes no best.pt)")
+        payload = load_training_checkpoint(path)
     learner = make_learner(algo, compile=False)
-    learner.load_full_state_dict(load_training_checkpoint(path)["learner"])
+    learner.load_full_state_dict(payload["learner"])
     return algo, learner, path, saved
 
 

@@ -1,12 +1,16 @@
 """Run folders: where a run's checkpoints are, which one is the latest, and which folder a run writes into.
 
-Layout of a training run: ``<run_dir>/checkpoints/ep<NNNNNN>.pt`` and ``<run_dir>/checkpoints/latest`` (the
-file name of the newest complete checkpoint, :mod:`kddrl_trl.training.checkpoint`). The output folder of an
+Layout of a training run: ``<run_dir>/checkpoints/ep<NNNNNN>.pt`` (the last two) and ``<run_dir>/checkpoints/latest``
+(the file name of the newest complete checkpoint, :mod:`kddrl_trl.training.checkpoint`, which falls back to the
+previous one when the newest does not load). The output folder of an
 entry point is chosen once, while Hydra composes the config (:mod:`kddrl_trl.conf.resolvers`); the entry point
 reads it from ``HydraConfig`` and learns that it resumes from the checkpoint the folder holds.
 """
 from __future__ import annotations
 
+import logging
+import shutil
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -14,15 +18,26 @@ def checkpoint_dir(run_dir: str | Path) -> Path:
     return Path(run_dir) / "checkpoints"
 
 
+def checkpoint_candidates(run_dir: str | Path) -> list[Path]:
+    """The training checkpoints of ``run_dir``, newest first: the one ``latest`` names (when it exists), then the
+    other ``ep<NNNNNN>.pt`` files by decreasing episode count. A missing or unreadable pointer only changes the
+    order: whatever checkpoint files are there are still found (the loader falls back along this list)."""
+    folder = checkpoint_dir(run_dir)
+    files = sorted(folder.glob("ep*.pt"), reverse=True)
+    pointer = folder / "latest"
+    try:
+        named = folder / pointer.read_text().strip() if pointer.is_file() else None
+    except (OSError, UnicodeDecodeError):
+        named = None
+    if named is not None and named.is_file():
+        files = [named] + [f for f in files if f != named]
+    return files
+
+
 def latest_checkpoint(run_dir: str | Path) -> Path | None:
-    """The newest complete checkpoint of ``run_dir``, or None if it has none."""
-    pointer = checkpoint_dir(run_dir) / "latest"
-    if not pointer.is_file():
-        return None
-    path = checkpoint_dir(run_dir) / pointer.read_text().strip()
-    if not path.is_file():
-        raise FileNotFoundError(f"{pointer} names {path.name}, which does not exist")
-    return path
+    """The newest checkpoint of ``run_dir`` (:func:`checkpoint_candidates`), or None if it has none."""
+    candidates = checkpoint_candidates(run_dir)
+    return candidates[0] if candidates else None
 
 
 def resume_requested(resume) -> bool:
@@ -84,3 +99,47 @@ def trained_run(run) -> Path:
     if not (Path(str(run)) / "config.yaml").is_file():
         raise FileNotFoundError(f"run={run}: no config.yaml there (is it a directory made by kddrl_trl.train?)")
     return Path(str(run))
+
+
+def _hydra_only(folder: Path) -> bool:
+    """Whether ``folder`` holds nothing but what Hydra writes before an entry point runs (``.hydra/``, ``*.log``,
+    a sweep's ``multirun.yaml``)."""
+    return folder.is_dir() and all(p.name in (".hydra", "multirun.yaml") or p.suffix == ".log"
+                                   for p in folder.iterdir())
+
+
+def remove_refused_run_dir(run_dir: str | Path, sweep_dir: str | Path | None = None) -> bool:
+    """Remove the folder Hydra made for a run whose config was then refused, so a bad value leaves no empty
+    ``runs/<...>`` behind; returns whether it was removed. Only a folder holding nothing but Hydra's own files
+    goes (a resumed run's folder, holding ``config.yaml`` and checkpoints, is kept); the log file handlers
+    writing into it are closed first. ``sweep_dir``: a sweep's folder, removed too when this leaves it with only
+    its ``multirun.yaml``."""
+    run_dir = Path(run_dir)
+    if not _hydra_only(run_dir):
+        return False
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == run_dir.resolve():
+            root.removeHandler(handler)
+            handler.close()
+    shutil.rmtree(run_dir, ignore_errors=True)
+    if sweep_dir is not None and _hydra_only(Path(sweep_dir)):
+        shutil.rmtree(sweep_dir, ignore_errors=True)
+    return True
+
+
+@contextmanager
+def no_folder_if_refused():
+    """Inside a Hydra entry point: an error raised in the block (a refused config) removes the output folder
+    Hydra made for the run (:func:`remove_refused_run_dir`), then propagates."""
+    try:
+        yield
+    except BaseException:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        if HydraConfig.initialized():
+            hydra_cfg = HydraConfig.get()
+            remove_refused_run_dir(hydra_cfg.runtime.output_dir,
+                                   hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None)
+        raise

@@ -31,8 +31,8 @@ from .conf.schema import HierarchicalAlgo, TrainJob
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol, test_seed
 from .factories import (
-    evaluate, make_buffers, make_collector, make_env, make_evaluator, make_learner, make_logger, make_policy,
-    make_run_dir, report, seed_everything,
+    evaluate, make_buffers, make_collector, make_env, make_evaluator, make_job, make_learner, make_logger,
+    make_policy, make_run_dir, report, seed_everything,
 )
 from .io import write_text_atomic
 from .runs import config_differences
@@ -71,7 +71,7 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> dict:
-    job: TrainJob = OmegaConf.to_object(cfg)  # typed; ranges checked once, before any simulator starts
+    job: TrainJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
     run_dir, resuming = make_run_dir(job.resume)
     if (run_dir / "config.yaml").is_file():  # a resumed run or sweep job: the same config, or refuse
         different = config_differences(OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml")),

@@ -629,6 +629,10 @@ def class_parameters(vehicle_fits: pd.DataFrame, by: str = "driver_type") -> pd.
 _TERCILE_NAMES = ("aggressive", "normal", "timid")  # increasing fitted T
 
 
+class CalibrationImpossible(ValueError):
+    """The tracks hold too little of what a calibration fits (the message says what is missing)."""
+
+
 def calibrate(
     tracks: pd.DataFrame,
     per_vehicle: bool = True,
@@ -652,12 +656,16 @@ def calibrate(
         dict with ``classes``, ``population`` (one-row), ``vehicles`` (or None) DataFrames from
         :func:`fit_idm`, ``shares`` {class: share}, ``mobil`` (from :func:`fit_mobil`), ``source``,
         ``created`` (ISO date), ``n_segments``, ``seconds`` (wall time).
+
+    Raises:
+        CalibrationImpossible: no car-following segment of at least ``min_duration_s``.
     """
     t0 = time.perf_counter()
     seg = car_following_segments(tracks, min_duration_s=min_duration_s)
     if seg.batch_size[0] == 0:
-        raise ValueError("calibrate: no car-following segment of at least "
-                         f"{min_duration_s} s in the tracks")
+        raise CalibrationImpossible("calibrate: no car-following segment of at least "
+                                    f"{min_duration_s} s in the tracks (too short a recording, or too few "
+                                    "vehicles following one another)")
     kw = dict(steps=steps, progress=progress)
     population = fit_idm(seg, groups="all", **kw)
     vehicles = fit_idm(seg, groups=None, **kw) if per_vehicle else None

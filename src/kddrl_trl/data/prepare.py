@@ -9,9 +9,15 @@ One reader and one extractor serve both sources. ``source=synthetic`` records ``
 (counts, schema, input hash: a second run with the same input is a cache hit) and, with ``calibrate=true``,
 ``calibration.yaml`` (``env:`` overrides the environment loads, plus ``idm:`` and ``mobil:`` blocks) and
 ``calibration.json``.
+
+``calibrate``: ``true`` (default) calibrates when the data allow it; when they do not (a short recording with no
+car-following segment long enough, :class:`~kddrl_trl.data.calibrate.CalibrationImpossible`) the run still
+finishes with the datasets and a warning saying why and what they are still good for. ``strict``: that case is
+an error. ``false``: no calibration.
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
@@ -21,7 +27,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
-from kddrl_trl.data.calibrate import calibrate, write_calibration
+from kddrl_trl.data.calibrate import CalibrationImpossible, calibrate, write_calibration
 from kddrl_trl.data.extract import extract_dataset
 from kddrl_trl.data.highd import list_recordings, read_recording
 from kddrl_trl.data.record import print_summary
@@ -31,6 +37,9 @@ from kddrl_trl.data.recorder import (
 from kddrl_trl.data.tracks import longitudinal_tracks
 from kddrl_trl.envs.config import HighwayConfig, default_drivers
 from kddrl_trl.io import write_json_atomic
+from kddrl_trl.runs import no_folder_if_refused
+
+log = logging.getLogger(__name__)
 
 #: paper §IV.F: lane-change windows of 2 s extracted from HighD
 PAPER_LANE_CHANGE_WINDOWS = 194_115
@@ -41,12 +50,7 @@ TABLE_A1 = {"v0": 130 / 3.6, "T": 1.5, "s0": 5.0, "a": 5.0, "b": 4.0}
 def recordings_directory(cfg: DictConfig) -> Path:
     """Where the recordings of ``cfg.source`` are; records them first for ``source=synthetic`` if needed."""
     if cfg.source == "highd":
-        if not cfg.path:
-            raise SystemExit("source=highd needs path=DIR, the folder holding HighD's XX_tracks.csv, "
-                             "XX_tracksMeta.csv and XX_recordingMeta.csv")
         return Path(cfg.path)
-    if cfg.source != "synthetic":
-        raise SystemExit(f"source must be 'synthetic' or 'highd', got {cfg.source!r}")
     return ensure_recordings(OmegaConf.to_object(cfg.env).highway(), cfg.recordings_dir, int(cfg.seed), float(cfg.record.duration_s),
                              int(cfg.record.num_roads), bool(cfg.progress))
 
@@ -122,13 +126,50 @@ def true_class_parameters(rec_dir: Path, ids: list[int]) -> pd.DataFrame | None:
     return params.groupby("driverType")[list(TABLE_A1)].median()
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="prepare")
-def main(cfg: DictConfig) -> dict:
-    rec_dir = recordings_directory(cfg)
+def recording_ids(rec_dir: Path) -> list[int]:
+    """The recording ids of ``rec_dir``; a clear error when it holds none."""
     ids = list_recordings(rec_dir) if rec_dir.is_dir() else []
     if not ids:
         raise SystemExit(f"no HighD-format recording (XX_tracks.csv, XX_tracksMeta.csv, XX_recordingMeta.csv) "
                          f"in {rec_dir}")
+    return ids
+
+
+def check_options(cfg: DictConfig) -> str | bool:
+    """Refuse a bad ``source`` / ``path`` / ``calibrate`` before anything is recorded; returns the calibration
+    mode: true | false | ``"strict"`` (strict: data too thin to calibrate is an error, not a warning)."""
+    if cfg.source not in ("synthetic", "highd"):
+        raise SystemExit(f"source must be 'synthetic' or 'highd', got {cfg.source!r}")
+    if cfg.source == "highd" and not cfg.path:
+        raise SystemExit("source=highd needs path=DIR, the folder holding HighD's XX_tracks.csv, "
+                         "XX_tracksMeta.csv and XX_recordingMeta.csv")
+    if isinstance(cfg.calibrate, bool):
+        return cfg.calibrate
+    if str(cfg.calibrate).lower() == "strict":
+        return "strict"
+    raise SystemExit(f"calibrate must be true, false or strict, got {cfg.calibrate!r}")
+
+
+def skip_calibration(err: CalibrationImpossible, out_dir: Path) -> str:
+    """Warn that ``out_dir``'s data cannot be calibrated, why, and what its datasets are still good for; remove
+    a calibration left there by an earlier run (it would not describe these data). Returns the reason."""
+    for stale in ("calibration.yaml", "calibration.json"):
+        (out_dir / stale).unlink(missing_ok=True)
+    log.warning("%s: no calibration written. The datasets in %s are complete and still good for pretraining "
+                "trajGAN and lcGAN (python -m kddrl_trl.pretrain gan=trajgan|lcgan data_dir=%s); the env keeps its "
+                "default drivers (envs/config.py). Calibrating needs longer recordings (record.duration_s, or more "
+                "HighD files); calibrate=strict makes this an error.", err, out_dir, out_dir)
+    return str(err)
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="prepare")
+def main(cfg: DictConfig) -> dict:
+    with no_folder_if_refused():  # bad options or a HighD folder without recordings: no run folder left
+        mode = check_options(cfg)
+        if cfg.source == "highd":
+            recording_ids(Path(cfg.path))
+    rec_dir = recordings_directory(cfg)  # records first for source=synthetic if needed
+    ids = recording_ids(rec_dir)
     recordings = [read_recording(rec_dir, i) for i in tqdm(ids, desc="read", unit="rec", disable=not cfg.progress)]
     out_dir = Path(cfg.out_dir)
     meta = extract_dataset(recordings, out_dir, seed=int(cfg.seed), stride=int(cfg.stride),
@@ -136,10 +177,17 @@ def main(cfg: DictConfig) -> dict:
     hours = sum(float(r.meta["duration"]) for r in recordings) / 3600.0
     print_dataset(meta, hours)
     summary = {"source": cfg.source, "recordings_dir": str(rec_dir), "out_dir": str(out_dir), "dataset": meta}
-    if cfg.calibrate:
+    if mode:
         cal_json = out_dir / "calibration.json"
-        result = calibrate(pd.concat([longitudinal_tracks(r) for r in recordings], ignore_index=True),
-                           progress=bool(cfg.progress), source=f"{cfg.source}: {rec_dir}")
+        try:
+            result = calibrate(pd.concat([longitudinal_tracks(r) for r in recordings], ignore_index=True),
+                               progress=bool(cfg.progress), source=f"{cfg.source}: {rec_dir}")
+        except CalibrationImpossible as err:
+            if mode == "strict":
+                raise
+            summary["calibration_skipped"] = skip_calibration(err, out_dir)
+            print(f"\ndatasets in {out_dir} (not calibrated)")
+            return summary
         write_calibration(result, out_dir / "calibration.yaml")
         truth = true_class_parameters(rec_dir, ids) if cfg.source == "synthetic" else None
         print_calibration(result, truth)

@@ -24,6 +24,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from .. import keys as K
+from .observe import FiniteCheck
 from .sim import HighwaySim
 from .specs import HighwayEnvBase, lc_command
 
@@ -47,6 +48,10 @@ class SumoHighwayEnv(HighwayEnvBase):
     Besides the observation, every frame carries the episode events of ``kddrl_trl.keys`` (outcome, collision
     kind and slot, braking phase and distance), from which :class:`~kddrl_trl.eval.EpisodeTracker` computes the
     per-episode metrics.
+
+    Faults: a SUMO error on one road (a ``TraCIException`` while it is commanded or observed) truncates that
+    road's episode as ``lost`` (counted in ``stats["sumo_errors"]``), the other roads go on; a NaN or infinity in
+    an output raises :class:`~kddrl_trl.envs.observe.NonFiniteObservation` naming the key and the roads.
 
     Attributes:
         stats: counters (episodes, collisions, SUMO errors, braking events, ...).
@@ -81,6 +86,7 @@ class SumoHighwayEnv(HighwayEnvBase):
             return TensorDict({**leaves, "done": torch.from_numpy(self._done)}, batch_size=batch)
 
         self._reset_view, self._step_view = view(False), view(True)
+        self._check_finite = FiniteCheck(sim.outputs(True))
         self._bound = sim.obs  # the arrays of a reseeded simulation are new: rebind then
 
     def _output(self, with_reward: bool) -> TensorDictBase:
@@ -88,6 +94,7 @@ class SumoHighwayEnv(HighwayEnvBase):
         if self._bound is not self.sim.obs:
             self._bind()
         np.logical_or(self.sim.terminated, self.sim.truncated, out=self._done)
+        self._check_finite()  # NonFiniteObservation naming the key: a NaN never reaches a transform or network
         out = (self._step_view if with_reward else self._reset_view).clone()
         return out if self.device is None or self.device == torch.device("cpu") else out.to(self.device)
 

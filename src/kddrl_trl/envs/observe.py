@@ -9,6 +9,7 @@ lane-change action mask (a command is executed only between manoeuvres and towar
 """
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -37,6 +38,31 @@ def observation_arrays(cfg: HighwayConfig, num_roads: int) -> dict:
     obs[K.LC_ACTION_MASK][:] = True
     obs[K.COLLISION_SLOT][:] = -1
     return obs
+
+
+class NonFiniteObservation(ValueError):
+    """A NaN or infinity in an env output (the message names the key, the roads and the values)."""
+
+
+class FiniteCheck:
+    """Raises :class:`NonFiniteObservation` when a float array of ``arrays`` (an env's output arrays by key,
+    which the simulator overwrites in place every frame) holds a NaN or an infinity, naming the key, the roads and
+    the values: a NaN never reaches a network. Per frame, one sum per float array (nine: seven observed, two
+    rewards), their total tested once; ``benchmarks/soak.py`` measures the cost against a frame (0.4 %)."""
+
+    def __init__(self, arrays: dict):
+        self.floats = [(key, arr) for key, arr in arrays.items() if arr.dtype.kind == "f"]
+
+    def __call__(self) -> None:
+        if math.isfinite(sum(arr.sum() for _, arr in self.floats)):  # the fast path: one sum per array
+            return
+        for key, arr in self.floats:
+            if not np.isfinite(arr).all():
+                bad = ~np.isfinite(arr.reshape(len(arr), -1)).all(axis=1)
+                roads = np.flatnonzero(bad).tolist()
+                raise NonFiniteObservation(
+                    f"non-finite value in env output {key} on road(s) {roads}: {arr[roads].tolist()} (SUMO returned "
+                    "a NaN / inf; the frame is refused before it reaches a transform or a network)")
 
 
 class Observer:
@@ -78,7 +104,8 @@ class Observer:
 
     def observe(self, r: int, ego: str, t: int, lc_active: bool) -> None:
         """Fill road ``r``'s raw observation of ``ego`` at simulation step ``t``; ``lc_active``: a lane-change
-        manoeuvre is in progress."""
+        manoeuvre is in progress. A neighbour SUMO cannot answer for (``TraCIException``) is treated as not seen;
+        a failing query of the ego itself propagates (the simulator truncates the road as lost)."""
         vmod = _libsumo().vehicle
         cfg, o = self.cfg, self.obs
         rng_ = cfg.sensing_range
@@ -92,10 +119,14 @@ class Observer:
         kin[:] = 0.0
         mask[:] = False
         hist = self.history[r]
+        ls = _libsumo()
         for slot, nid in enumerate(found):
             if nid is None:
                 continue
-            ny, nlat, nv, nvx, na = self._kin(nid)
+            try:
+                ny, nlat, nv, nvx, na = self._kin(nid)
+            except ls.TraCIException:  # SUMO cannot answer for this neighbour (gone mid-query): not seen
+                ny = np.inf
             if abs(ny - y) > rng_:
                 found[slot] = None
                 continue
@@ -113,9 +144,12 @@ class Observer:
             nid = found[slot]
             if nid is None:
                 continue
-            nxt = vmod.getLeader(nid, rng_)
-            if nxt and nxt[0]:
-                ahead[slot] = (longitudinal(nxt[0], cfg), vmod.getSpeed(nxt[0]), 1.0)
+            try:
+                nxt = vmod.getLeader(nid, rng_)
+                if nxt and nxt[0]:
+                    ahead[slot] = (longitudinal(nxt[0], cfg), vmod.getSpeed(nxt[0]), 1.0)
+            except ls.TraCIException:  # the vehicle ahead of this leader cannot be queried: none seen
+                ahead[slot] = 0.0
             self._fill_history(history[slot], hist[nid], t)
         o[K.LC_ACTIVE][r, 0] = lc_active
         am = o[K.LC_ACTION_MASK][r]

@@ -201,8 +201,9 @@ class HighwaySim:
         return longitudinal(vid, self.cfg)
 
     # ----------------------------------------------------------------------------------- episodes
-    def reset_roads(self, roads) -> None:
-        """Designate a new ego on each road in ``roads`` (a running episode there ends, unrecorded)."""
+    def reset_roads(self, roads, depth: int = 0) -> None:
+        """Designate a new ego on each road in ``roads`` (a running episode there ends, unrecorded); one lost
+        while it is first observed is replaced (``depth``: replacements so far)."""
         roads = [int(r) for r in roads]
         pending = []
         for r in roads:
@@ -225,6 +226,11 @@ class HighwaySim:
             pending = [r for r in pending if not self._designate(r)]
             tries += 1
         self._observe(roads if tries == 0 else range(self.num_roads))  # extra steps moved every road
+        retry = [r for r in roads if self.ego[r] is None]  # lost while observed at reset: designate another
+        if retry:
+            if depth >= 3:
+                raise RuntimeError(f"roads {retry}: SUMO lost {depth + 1} egos in a row at reset")
+            self.reset_roads(retry, depth + 1)
 
     def _designate(self, r: int) -> bool:
         ls = _libsumo()
@@ -341,12 +347,19 @@ class HighwaySim:
         gone = {r for r, outcome in finished if outcome == K.COLLIDED}
         self._observe([r for r in range(self.num_roads) if r not in gone])
         for r, outcome in finished:
-            self._end_episode(r, outcome)
+            if self.ego[r] is not None:  # not lost while it was observed
+                self._end_episode(r, outcome)
 
     def _observe(self, roads) -> None:
+        """Observe the egos of ``roads``; a road whose observation SUMO cannot answer (a ``TraCIException``: a
+        vehicle gone mid-query, ...) is truncated as lost (:meth:`_lose`), the others go on."""
+        ls = _libsumo()
         for r in roads:
             if self.ego[r] is not None:
-                self.observer.observe(r, self.ego[r], self.t, bool(self.lc_left[r] > 0))
+                try:
+                    self.observer.observe(r, self.ego[r], self.t, bool(self.lc_left[r] > 0))
+                except ls.TraCIException as err:
+                    self._lose(r, f"observation: {err}")
 
     def _is_terminated(self, collided: bool, y: float | None) -> int:
         """``COLLIDED`` on a collision, ``LEFT_SECTION`` once the ego is past the study section, else

@@ -5,25 +5,40 @@ optimisers, exploration schedules, counters, the training-episode history and â€
 â€” the contents of both replay buffers; not the unfinished macro-transitions: the environments restart on
 resume, so intervals open at the checkpoint are dropped) and ``<run_dir>/checkpoints/latest`` (the file name of
 the newest complete checkpoint). A file is complete before ``latest`` names it, so a run killed at any moment
-resumes from its last complete checkpoint. Older checkpoints are deleted after the pointer moves.
+resumes from its last complete checkpoint. The newest two checkpoints are kept (older ones are deleted after the
+pointer moves), so a checkpoint damaged after it was written (a truncated copy, a full disk, a bad sector) costs
+``checkpoint_every`` episodes, not the run: :func:`load_latest_training_checkpoint` names the file and the cause,
+warns, and falls back to the previous one; it fails only when none loads, listing each file and its error.
+Temporary files left by a writer killed mid-write (``.ep*.pt.*.tmp``) are never read and are removed by the next
+save.
 ``<run_dir>/checkpoints/best.pt``: the learner with the best validation score so far (periodic evaluation,
 :class:`~kddrl_trl.training.Trainer`) and that evaluation's record.
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import torch
 
 from ..io import torch_save_atomic, write_text_atomic
-from ..runs import checkpoint_dir
+from ..runs import checkpoint_candidates, checkpoint_dir
+
+log = logging.getLogger(__name__)
 
 FORMAT = "kddrl_trl.training/1"
 
 
-def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, keep: int = 1) -> Path:
-    """Write ``payload`` as the checkpoint after ``episodes`` training episodes; keep the newest ``keep``."""
+class CheckpointError(RuntimeError):
+    """No training checkpoint of a run folder could be loaded (the message lists each file and its error)."""
+
+
+def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, keep: int = 2) -> Path:
+    """Write ``payload`` as the checkpoint after ``episodes`` training episodes; keep the newest ``keep``
+    (default two: the previous one is the fallback of a damaged newest one)."""
     folder = checkpoint_dir(run_dir)
+    for stale in folder.glob(".ep*.pt.*.tmp"):  # left by a writer killed mid-write: never a checkpoint
+        stale.unlink(missing_ok=True)
     path = torch_save_atomic(folder / f"ep{episodes:06d}.pt", {"format": FORMAT, **payload})
     write_text_atomic(folder / "latest", path.name + "\n")
     for old in sorted(folder.glob("ep*.pt"))[:-max(int(keep), 1)]:
@@ -37,8 +52,34 @@ def save_best_checkpoint(run_dir: str | Path, payload: dict) -> Path:
 
 
 def load_training_checkpoint(path: str | Path) -> dict:
-    """Load a checkpoint written by :func:`save_training_checkpoint` (our own file: full unpickling)."""
-    payload = torch.load(path, map_location="cpu", weights_only=False)
+    """Load a checkpoint written by :func:`save_training_checkpoint` (our own file: full unpickling). A file that
+    does not load raises :class:`CheckpointError` naming it and the cause."""
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # torch/zip/pickle errors name no file: add it
+        raise CheckpointError(f"{path}: cannot be loaded ({type(err).__name__}: {err})") from err
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise ValueError(f"{path} is not a kddrl_trl training checkpoint (format {FORMAT!r})")
+        raise CheckpointError(f"{path}: not a kddrl_trl training checkpoint (format {FORMAT!r})")
     return payload
+
+
+def load_latest_training_checkpoint(run_dir: str | Path) -> tuple[Path, dict]:
+    """(path, payload) of the newest checkpoint of ``run_dir`` that loads. Each newer one that does not is named
+    in a warning with its cause; :class:`CheckpointError` lists every file and its error when none loads
+    (:class:`FileNotFoundError` when there is none)."""
+    candidates = checkpoint_candidates(run_dir)
+    if not candidates:
+        raise FileNotFoundError(f"no checkpoint in {checkpoint_dir(run_dir)}")
+    errors = []
+    for path in candidates:
+        try:
+            payload = load_training_checkpoint(path)
+        except CheckpointError as err:
+            errors.append(str(err))
+            log.warning("%s; %s", err, "trying the previous checkpoint" if path != candidates[-1] else
+                        "no older checkpoint")
+            continue
+        if errors:
+            log.warning("resuming from %s instead: the %d newer checkpoint(s) did not load", path, len(errors))
+        return path, payload
+    raise CheckpointError(f"no checkpoint of {checkpoint_dir(run_dir)} loads:\n  " + "\n  ".join(errors))

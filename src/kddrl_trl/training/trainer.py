@@ -29,8 +29,7 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
 from ..collectors import MultiTimescaleCollector
 from ..eval.tracker import EpisodeTracker
-from ..runs import latest_checkpoint
-from .checkpoint import load_training_checkpoint, save_best_checkpoint, save_training_checkpoint
+from .checkpoint import load_latest_training_checkpoint, save_best_checkpoint, save_training_checkpoint
 from .learner import HierarchicalLearner
 
 if TYPE_CHECKING:
@@ -86,11 +85,9 @@ class Trainer:
         return state
 
     def load(self, run_dir: str | Path) -> int:
-        """Restore the latest checkpoint of ``run_dir``; returns the number of episodes it had finished."""
-        path = latest_checkpoint(run_dir)
-        if path is None:
-            raise FileNotFoundError(f"no checkpoint in {run_dir}")
-        payload = load_training_checkpoint(path)
+        """Restore the latest checkpoint of ``run_dir`` that loads (a damaged newest one falls back to the previous,
+        with a warning); returns the number of episodes it had finished."""
+        path, payload = load_latest_training_checkpoint(run_dir)
         self.learner.load_full_state_dict(payload["learner"])
         self.counters.update(payload["counters"])
         self.history = list(payload["history"])

@@ -12,23 +12,26 @@ transform              writes                               paper
 :class:`MOBILSafetyMask`  ``("lc", "action_mask")`` [3]      MOBIL's safety check as a hard mask, Eq. 20-21
 :class:`SafetyShield`   ``("cf", "action")`` (executed),     car-following shield (not in the paper; issue 14)
                         ``("next", "cf", "shield")`` [1]
+:class:`LeaderHistory`  ``("leaders", "history")`` [3, H, 2] the leaders' last H (y, v), for envs without it
 =====================  ==================================  ================================================
 
 :func:`make_kddrl_transforms` builds the stack (and its ablations) as a :class:`PredictiveStack`: a ``Compose``
 that runs its members' maths as one function per frame (compiled with ``compile=True``: the transforms' only
 compile site). All transforms read only raw keys of :mod:`kddrl_trl.keys` and keys of earlier transforms, are
-stateless per frame, and work on reset, step and replay-buffer samples (``forward``) of any batch shape.
+stateless per frame (except :class:`LeaderHistory`, whose per-row window travels in the tensordicts as TorchRL's
+``RewardSum`` does), and work on reset, step and replay-buffer samples (``forward``) of any batch shape.
 """
 from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
 from .lcgan import LCGANPrior
+from .leader_history import LeaderHistory
 from .mobil_prior import MOBILPrior, MOBILSafetyMask
 from .shield import SafetyShield
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
-__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "MOBILSafetyMask",
+__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "LeaderHistory", "MOBILPrior", "MOBILSafetyMask",
            "PredictiveStack", "SafetyShield",
            "TrajGANPrediction",
            "key_step_gaps", "make_kddrl_transforms"]

@@ -9,6 +9,7 @@ from ..physics import IDMParams, MOBILParams
 from .idm_prior import IDMPrior, as_idm_params
 from .key_gaps import KeyGapsFromPrior
 from .lcgan import LCGANPrior
+from .leader_history import LeaderHistory
 from .mobil_prior import MOBILPrior, as_mobil_params
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
@@ -40,6 +41,10 @@ def make_kddrl_transforms(
     ``trajgan=True, priors=False`` ``IDMPrior -> TrajGANPrediction`` ("without LG": no prior keys)
     ``trajgan=False, priors=False`` ``IDMPrior -> KeyGapsFromPrior``
     ============================  ===========================================================================
+
+    With trajGAN, the stack also carries a :class:`LeaderHistory` (:attr:`PredictiveStack.history`, not a member):
+    on an env that does not write ``("leaders", "history")`` it keeps that window itself (and declares it in the
+    specs); on one that does, it does nothing.
 
     Keys written: ``("pred", "prior_traj")`` always, ``("pred", "traj")`` with trajGAN, ``("pred", "key_gaps")``
     always, ``("prior", "p_mobil")`` and ``("prior", "p_lcgan")`` with priors. Algorithm 1 evaluates lcGAN
@@ -89,4 +94,7 @@ def make_kddrl_transforms(
         draws = int(num_samples) if reduce == "mean" else 1
         stack.append(LCGANPrior(checkpoint=lcgan_checkpoint, num_lanes=num_lanes, draws=draws, seed=seed,
                                 device=device))
-    return PredictiveStack(*stack, compile=compile)
+    history = None
+    if trajgan:  # trajGAN reads ("leaders","history"): built by LeaderHistory where the env does not write it
+        history = LeaderHistory(history_len=int(getattr(stack[1].predictor, "history_len", 10)))
+    return PredictiveStack(*stack, history=history, compile=compile)

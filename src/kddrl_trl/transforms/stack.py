@@ -26,6 +26,7 @@ from torchrl.envs.transforms import Compose, Transform
 
 from ..compiling import resolve_compile
 from ._base import PredictiveTransform, call_on_root_and_next
+from .leader_history import LeaderHistory
 
 
 def run_frames(members: Sequence[PredictiveTransform], values: dict, noises: list) -> dict:
@@ -56,6 +57,8 @@ class PredictiveStack(Compose):
 
     Args:
         *transforms: the members, in order (each may read what the earlier ones write).
+        history: a :class:`LeaderHistory` run before the members (``make_kddrl_transforms`` adds one in front of
+            trajGAN): it builds ``("leaders","history")`` where the env does not write it, and is inert where it does.
         compile: ``torch.compile`` the fused function (``True`` / ``False`` / ``"auto"``, see
             :func:`kddrl_trl.compiling.resolve_compile`; gain measured in :func:`compiled_frames`); only when
             every member is ``pure`` (a member wrapping a user's TensorDict module is run eagerly).
@@ -69,9 +72,16 @@ class PredictiveStack(Compose):
         ['p_mobil']
     """
 
-    def __init__(self, *transforms: Transform, compile: bool | str = False):
+    def __init__(self, *transforms: Transform, history: LeaderHistory | None = None, compile: bool | str = False):
         super().__init__(*transforms)
         self.compiled = resolve_compile(compile)  # not `.compile`: that hides nn.Module.compile
+        #: builds ``("leaders","history")`` before the members where the env does not write it (not a member:
+        #: indexing and the fused members are as without it; inert on an env keeping its own history)
+        self.history = history
+
+    def _env_observation_spec(self):
+        parent = self.parent
+        return None if parent is None else parent.full_observation_spec
 
     # ------------------------------------------------------------------------------------------ fusion
     def _members(self) -> list[PredictiveTransform] | None:
@@ -89,6 +99,8 @@ class PredictiveStack(Compose):
         return reads
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        if self.history is not None:  # a lone frame without the key: windows can only start (no-op if present)
+            next_tensordict = self.history._call(next_tensordict)
         members = self._members()
         if members is None:
             return super()._call(next_tensordict)
@@ -105,10 +117,25 @@ class PredictiveStack(Compose):
 
     # ------------------------------------------------------------------------------------ TorchRL hooks
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        if self.history is not None:
+            next_tensordict = self.history._step(tensordict, next_tensordict)
         return self._call(next_tensordict)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        if self.history is not None:
+            tensordict_reset = self.history._reset(tensordict, tensordict_reset)
         return self._call(tensordict_reset)
+
+    def transform_output_spec(self, output_spec):
+        if self.history is not None:
+            output_spec["full_observation_spec"] = self.history.transform_observation_spec(
+                output_spec["full_observation_spec"])
+        return super().transform_output_spec(output_spec)
+
+    def transform_input_spec(self, input_spec):
+        if self.history is not None:
+            input_spec = self.history.declare_state(input_spec, self._env_observation_spec())
+        return super().transform_input_spec(input_spec)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Replay-buffer use, as :meth:`PredictiveTransform.forward`: the root and, when it holds the raw keys,
