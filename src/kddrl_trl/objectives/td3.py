@@ -24,6 +24,27 @@ class TD3Parts:
     target_updater: SoftUpdate       # Eq. 9-10
     policy_delay: int                # actor and targets updated every ``policy_delay`` critic updates
 
+    def value_loss(self, td):
+        """Twin-critic loss (Eq. 6-7) of a batch holding the agent's states."""
+        return self.loss.value_loss(td)[0]
+
+    def actor_loss(self, td):
+        """Deterministic policy-gradient loss (Eq. 8)."""
+        return self.loss.actor_loss(td)[0]
+
+
+def car_following_heads(obs_dim: int, low: float, high: float, hidden: Sequence[int], exploration_sigma: float,
+                        obs_key=K.CF_OBS) -> tuple[TensorDictModule, TensorDictModule, AdditiveGaussianModule]:
+    """Actor ``mu(s)`` -> ``keys.CF_ACTION`` in [low, high], critic ``Q(s, a)`` -> ``keys.CF_STATE_ACTION_VALUE`` and
+    Gaussian exploration of σ = ``exploration_sigma`` m/s²: the heads TD3 and DDPG (:mod:`.ddpg`) share."""
+    spec = Composite(cf=Composite(action=Bounded(low, high, shape=(1,), dtype=torch.float32)))
+    actor = TensorDictModule(BoundedActor(obs_dim, 1, hidden, low, high), in_keys=[obs_key], out_keys=[K.CF_ACTION])
+    critic = TensorDictModule(StateActionCritic(obs_dim, 1, hidden, action_scale=max(abs(low), abs(high))),
+                              in_keys=[obs_key, K.CF_ACTION], out_keys=[K.CF_STATE_ACTION_VALUE])
+    explore = AdditiveGaussianModule(spec, sigma_init=exploration_sigma, sigma_end=exploration_sigma,
+                                     action_key=K.CF_ACTION)
+    return actor, critic, explore
+
 
 def make_td3(obs_dim: int, *, low: float = -5.0, high: float = 5.0, hidden: Sequence[int] = (256, 256),
              gamma: float = 0.99, tau: float = 0.005, policy_noise: float = 1.0, noise_clip: float = 2.5,
@@ -34,12 +55,7 @@ def make_td3(obs_dim: int, *, low: float = -5.0, high: float = 5.0, hidden: Sequ
     Noise scales are in m/s² (Fujimoto et al.'s defaults 0.1 / 0.2 / 0.5 of the action bound 5 m/s²):
     ``exploration_sigma`` for acting, ``policy_noise`` clipped to ``±noise_clip`` for target smoothing (Eq. 6).
     """
-    spec = Composite(cf=Composite(action=Bounded(low, high, shape=(1,), dtype=torch.float32)))
-    actor = TensorDictModule(BoundedActor(obs_dim, 1, hidden, low, high), in_keys=[obs_key], out_keys=[K.CF_ACTION])
-    critic = TensorDictModule(StateActionCritic(obs_dim, 1, hidden, action_scale=max(abs(low), abs(high))),
-                              in_keys=[obs_key, K.CF_ACTION], out_keys=[K.CF_STATE_ACTION_VALUE])
-    explore = AdditiveGaussianModule(spec, sigma_init=exploration_sigma, sigma_end=exploration_sigma,
-                                     action_key=K.CF_ACTION)
+    actor, critic, explore = car_following_heads(obs_dim, low, high, hidden, exploration_sigma, obs_key)
     loss = TD3Loss(actor, critic, bounds=(low, high), num_qvalue_nets=2,
                    policy_noise=policy_noise, noise_clip=noise_clip, loss_function=loss_function)
     loss.set_keys(action=K.CF_ACTION, state_action_value=K.CF_STATE_ACTION_VALUE, reward=K.CF_REWARD,
