@@ -164,17 +164,25 @@ def fake_trainer(job, tmp_path, **train):
     return env, learner, trainer, make_collector(env, learner, buffers, train_cfg)
 
 
-@pytest.mark.parametrize("algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni"])
+#: small networks of every learning algo (each override names a node the algo has)
+SMALL_NETS = {"peng": ["algo.learner.d3qn.hidden=[16]", "algo.learner.ddpg.hidden=[16]"],
+              "d3qn_unified": ["algo.learner.d3qn.hidden=[16]"], "pasac_unified": ["algo.learner.pasac.hidden=[16]"]}
+KINDS = {"d3qn_unified": "joint_d3qn", "pasac_unified": "pasac"}
+
+
+@pytest.mark.parametrize("algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni", "peng",
+                                  "d3qn_unified", "pasac_unified"])
 def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_path):
     """Each comparison system is a configuration of the same pipeline: compose it, build env + learner, train
     a few episodes on the fake env (fast; the SUMO path is covered by the subprocess tests)."""
-    job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]",
-                      "algo.learner.td3.hidden=[16]")
-    assert job.algo.name == algo and job.algo.kind == "hierarchical"
+    nets = SMALL_NETS.get(algo, ["algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]"])
+    job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", *nets)
+    assert job.algo.name == algo and job.algo.kind == KINDS.get(algo, "hierarchical")
     env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
                                                     batch_size_lc=4, frames_per_env=10)
-    assert (learner.embedding is None) == (algo in ("d3qn_td3", "ni"))
-    assert learner.d3qn.actor.module[0].module.dueling == (algo != "ni")
+    if job.algo.kind == "hierarchical":
+        assert (learner.embedding is None) == (algo in ("d3qn_td3", "ni", "peng"))
+        assert learner.d3qn.actor.module[0].module.dueling == (algo != "ni")
     history = trainer.run(collector)
     env.close()
     assert len(history) == 3 and trainer.counters["cf_updates"] > 0

@@ -24,6 +24,10 @@ class DDPGParts:
     target_updater: SoftUpdate       # Polyak averaging of both targets
     policy_delay: int = 1            # DDPG updates the actor with every critic step
 
+    def critic_params(self):
+        """The critic's parameters (the critic optimiser's)."""
+        return self.loss.value_network_params
+
     def value_loss(self, td):
         """Critic loss ``(Q(s, a) - r - γ Q'(s', mu'(s')))²`` of a batch holding the agent's states."""
         return self.loss.loss_value(td)[0]

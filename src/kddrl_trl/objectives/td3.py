@@ -24,6 +24,10 @@ class TD3Parts:
     target_updater: SoftUpdate       # Eq. 9-10
     policy_delay: int                # actor and targets updated every ``policy_delay`` critic updates
 
+    def critic_params(self):
+        """The twin critics' parameters (the critic optimiser's)."""
+        return self.loss.qvalue_network_params
+
     def value_loss(self, td):
         """Twin-critic loss (Eq. 6-7) of a batch holding the agent's states."""
         return self.loss.value_loss(td)[0]

@@ -9,6 +9,8 @@ transform              writes                               paper
 :class:`KeyGapsFromPrior` ``("pred", "key_gaps")`` [3, 2]    Eq. 24 from TC (stacks without trajGAN)
 :class:`MOBILPrior`     ``("prior", "p_mobil")`` [3]         P_MOBIL, Eq. 20-22
 :class:`LCGANPrior`     ``("prior", "p_lcgan")`` [3]         P_lcGAN, Eq. 16
+:class:`MOBILCriteria`  ``("prior", "mobil_incentive")`` [3], MOBIL utilities (Eq. 21-22) and safety flags
+                        ``("prior", "mobil_safe")`` [3]       (Eq. 20-21): the state of Peng et al. (``algo=peng``)
 =====================  ==================================  ================================================
 
 :func:`make_kddrl_transforms` builds the stack (and its ablations) as a :class:`PredictiveStack`: a ``Compose``
@@ -20,10 +22,10 @@ from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
 from .lcgan import LCGANPrior
-from .mobil_prior import MOBILPrior
+from .mobil_prior import MOBILCriteria, MOBILPrior
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
-__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILPrior", "PredictiveStack",
+__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "MOBILCriteria", "MOBILPrior", "PredictiveStack",
            "TrajGANPrediction",
            "key_step_gaps", "make_kddrl_transforms"]
