@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams
 from tensordict.nn import TensorDictModule, TensorDictModuleBase
-from tensordict.utils import NestedKey
+from tensordict.utils import NestedKey, unravel_key
 from torch import Tensor
 from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.objectives import LossModule, SoftUpdate
@@ -142,9 +142,9 @@ class PASACLoss(LossModule):
 
     def _set_in_keys(self) -> None:
         keys = list(dict.fromkeys([*self.actor_network.in_keys, *self.qvalue_network.in_keys]))
-        nxt = [("next", *(k if isinstance(k, tuple) else (k,))) for k in self.actor_network.in_keys]
-        self._in_keys = list(dict.fromkeys([*keys, *nxt, ("next", self.tensor_keys.reward),
-                                            ("next", self.tensor_keys.done), ("next", self.tensor_keys.terminated)]))
+        t = self.tensor_keys
+        nxt = [unravel_key(("next", k)) for k in [*self.actor_network.in_keys, t.reward, t.done, t.terminated]]
+        self._in_keys = list(dict.fromkeys([*keys, *nxt]))
 
     @property
     def in_keys(self):
