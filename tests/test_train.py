@@ -193,6 +193,34 @@ def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_
         assert trainer.counters["decisions"] == trainer.counters["frames"]
 
 
+@pytest.mark.parametrize("algo", ["peng", "d3qn_unified", "pasac_unified"])
+def test_new_systems_checkpoint_and_resume_on_the_fake_env(algo, tmp_path):
+    """A run of each new system stops at its checkpoint; a fresh process's learner loads it (networks, targets,
+    optimisers, exploration state, buffers) and training continues to the new episode count."""
+    import torch
+
+    job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", *SMALL_NETS[algo])
+    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
+                                                    batch_size_lc=4, frames_per_env=10)
+    trainer.run(collector)
+    env.close()
+    unified = not learner.learns_from_decisions
+    assert (trainer.counters["lc_updates"] == 0) == unified and (len(trainer.buffer_lc) == 0) == unified
+    torch.manual_seed(99)
+    env, fresh, resumed, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
+                                                  batch_size_lc=4, frames_per_env=10)
+    assert resumed.load(tmp_path) == 3
+    assert {k: v for k, v in resumed.counters.items() if k != "elapsed_s"} == {
+        k: v for k, v in trainer.counters.items() if k != "elapsed_s"}
+    for (name, a), (_, b) in zip(learner.state_dict().items(), fresh.state_dict().items()):
+        torch.testing.assert_close(a, b, msg=name)
+    assert fresh.exploration() == learner.exploration()
+    assert len(resumed.buffer_cf) == len(trainer.buffer_cf) and len(resumed.buffer_lc) == len(trainer.buffer_lc)
+    resumed.episodes = 5
+    assert len(resumed.run(collector)) == 5 and resumed.counters["cf_updates"] > trainer.counters["cf_updates"]
+    env.close()
+
+
 def test_a_diverging_loss_stops_training_with_a_clear_error(tmp_path):
     job = compose_job("env.num_roads=2", "compile=false")
     env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=10, batch_size_cf=8,
