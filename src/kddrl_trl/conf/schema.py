@@ -143,12 +143,15 @@ class LearningAlgo:
         _at_least("algo.", self, 1, "lc_period")
 
 
-@dataclass
-class HierarchicalAlgo(LearningAlgo):
-    """A hierarchical learning algo: KDDRL and its configuration-only comparison systems (ni, peng, ablations)."""
+def _learning_algo(name: str, doc: str, parent: type, kind: str, learner: type) -> type:
+    """A learning algo schema: ``parent`` 's fields, its ``kind`` and its ``learner`` node."""
+    return make_dataclass(name, [("kind", str, field(default=kind)), ("learner", learner, field(default=MISSING))],
+                          bases=(parent,), namespace={"__doc__": doc})
 
-    kind: str = "hierarchical"
-    learner: LearnerConfig = MISSING
+
+HierarchicalAlgo = _learning_algo("HierarchicalAlgo", "A hierarchical learning algo: KDDRL and its configuration-only "
+                                  "comparison systems (ni, peng, ablations).", LearningAlgo, "hierarchical",
+                                  LearnerConfig)
 
 
 @dataclass
@@ -163,20 +166,10 @@ class UnifiedAlgo(LearningAlgo):
                              f"frame), got {self.lc_period!r}")
 
 
-@dataclass
-class JointD3QNAlgo(UnifiedAlgo):
-    """``algo=d3qn_unified``: one D3QN over (lane command x acceleration level)."""
-
-    kind: str = "joint_d3qn"
-    learner: JointD3QNLearnerConfig = MISSING
-
-
-@dataclass
-class PASACAlgo(UnifiedAlgo):
-    """``algo=pasac_unified``: one parameterised-action SAC agent."""
-
-    kind: str = "pasac"
-    learner: PASACLearnerConfig = MISSING
+JointD3QNAlgo = _learning_algo("JointD3QNAlgo", "``algo=d3qn_unified``: one D3QN over (lane command x acceleration "
+                               "level).", UnifiedAlgo, "joint_d3qn", JointD3QNLearnerConfig)
+PASACAlgo = _learning_algo("PASACAlgo", "``algo=pasac_unified``: one parameterised-action SAC agent.", UnifiedAlgo,
+                           "pasac", PASACLearnerConfig)
 
 
 #: ``algo.idm`` / ``algo.mobil``: the fields of the physics parameters, as floats (defaults: paper Table A.1)

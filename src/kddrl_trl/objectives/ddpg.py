@@ -12,11 +12,11 @@ from torchrl.modules import AdditiveGaussianModule
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
 from .. import keys as K
-from .td3 import car_following_heads
+from .td3 import CarFollowingLosses, car_following_heads
 
 
 @dataclass
-class DDPGParts:
+class DDPGParts(CarFollowingLosses):
     actor: TensorDictModule          # mu(s; φ)
     explore: AdditiveGaussianModule  # a = mu(s) + N(0, σ), clipped to the bounds
     critic: TensorDictModule         # Q(s, a; φ)
@@ -24,17 +24,7 @@ class DDPGParts:
     target_updater: SoftUpdate       # Polyak averaging of both targets
     policy_delay: int = 1            # DDPG updates the actor with every critic step
 
-    def critic_params(self):
-        """The critic's parameters (the critic optimiser's)."""
-        return self.loss.value_network_params
-
-    def value_loss(self, td):
-        """Critic loss ``(Q(s, a) - r - γ Q'(s', mu'(s')))²`` of a batch holding the agent's states."""
-        return self.loss.loss_value(td)[0]
-
-    def actor_loss(self, td):
-        """Deterministic policy-gradient loss ``-Q(s, mu(s))`` (critic parameters detached)."""
-        return self.loss.loss_actor(td)[0]
+    _value, _actor, _critic = "loss_value", "loss_actor", "value_network_params"  # DDPGLoss's names
 
 
 def make_ddpg(obs_dim: int, *, low: float = -5.0, high: float = 5.0, hidden: Sequence[int] = (256, 256),

@@ -15,26 +15,33 @@ from .. import keys as K
 from ..modules.heads import BoundedActor, StateActionCritic
 
 
+class CarFollowingLosses:
+    """The two losses and the critic parameters of a car-following agent's TorchRL loss ``self.loss``, under one
+    name whatever the loss calls them (:class:`TD3Parts`; ``DDPGParts`` of :mod:`.ddpg`)."""
+
+    _value, _actor, _critic = "value_loss", "actor_loss", "qvalue_network_params"  # TD3Loss's names
+
+    def critic_params(self):
+        """The critics' parameters (the critic optimiser's)."""
+        return getattr(self.loss, self._critic)
+
+    def value_loss(self, td):
+        """Critic loss (TD3: twin critics, Eq. 6-7) of a batch holding the agent's states."""
+        return getattr(self.loss, self._value)(td)[0]
+
+    def actor_loss(self, td):
+        """Deterministic policy-gradient loss ``-Q(s, mu(s))`` (Eq. 8), critic parameters detached."""
+        return getattr(self.loss, self._actor)(td)[0]
+
+
 @dataclass
-class TD3Parts:
+class TD3Parts(CarFollowingLosses):
     actor: TensorDictModule          # mu(s; φ), Eq. 8
     explore: AdditiveGaussianModule  # a = mu(s) + N(0, σ), clipped to the bounds (Algorithm 1 line 32)
     critic: TensorDictModule         # Q_k(s, a; φ_k), Eq. 7 (TD3Loss makes the twin copies and targets)
     loss: TD3Loss                    # Eq. 6-8
     target_updater: SoftUpdate       # Eq. 9-10
     policy_delay: int                # actor and targets updated every ``policy_delay`` critic updates
-
-    def critic_params(self):
-        """The twin critics' parameters (the critic optimiser's)."""
-        return self.loss.qvalue_network_params
-
-    def value_loss(self, td):
-        """Twin-critic loss (Eq. 6-7) of a batch holding the agent's states."""
-        return self.loss.value_loss(td)[0]
-
-    def actor_loss(self, td):
-        """Deterministic policy-gradient loss (Eq. 8)."""
-        return self.loss.actor_loss(td)[0]
 
 
 def car_following_heads(obs_dim: int, low: float, high: float, hidden: Sequence[int], exploration_sigma: float,
