@@ -64,6 +64,28 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
     assert summary["checkpoint"].endswith("ep000003.pt")
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("algo, small", [("peng", "algo.learner.ddpg.hidden=[32,32]"),
+                                         ("d3qn_unified", "algo.learner.d3qn.hidden=[32,32]"),
+                                         ("pasac_unified", "algo.learner.pasac.hidden=[32,32]")])
+def test_the_new_systems_train_and_evaluate_on_sumo_as_typed(algo, small, tmp_path):
+    """``python -m kddrl_trl.train algo=<new system> +scenario=braking``, a few episodes with updates: every frame
+    is a decision (lc_period 1), the summary and the evaluation records are the same as for every algo."""
+    cmd = [sys.executable, "-m", "kddrl_trl.train", f"algo={algo}", "+scenario=braking", "episodes=3",
+           "eval_episodes=2", "train.eval_every=0", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
+           "train.batch_size_cf=32", "train.batch_size_lc=8", "compile=false", small]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    (run,) = list((tmp_path / "runs").glob(f"braking__{algo}__0__*"))
+    summary = json.loads((run / "summary.json").read_text())
+    training = summary["training"]
+    assert summary["algo"] == algo and summary["episodes"] == 2 and training["episodes"] == 3
+    assert training["decisions"] == training["frames"] > 50 and training["cf_updates"] > 0
+    assert (training["lc_updates"] > 0) == (algo == "peng")
+    assert (run / "eval_episodes.csv").read_text().count("\n") == 3
+    assert (run / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
+
+
 def test_evaluate_refuses_a_directory_without_a_trained_run(tmp_path):
     cmd = [sys.executable, "-m", "kddrl_trl.evaluate", f"run={tmp_path / 'nothing'}", "progress=false"]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
