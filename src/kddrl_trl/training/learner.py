@@ -67,6 +67,8 @@ class HierarchicalLearner(Learner):
     - :meth:`update_lc`: D3QN double-DQN loss (Eq. 4, trains the embedding too), soft target update (Eq. 5).
     """
 
+    learns_from_decisions = True  # buffer H: the D3QN's macro-transitions
+
     def __init__(self, *, priors: bool = True, key_gaps: bool = True, embed_dim: int = 16, embed_hidden: int = 64,
                  d3qn: Mapping[str, Any] | None = None, td3: Mapping[str, Any] | None = None,
                  embed_lr: float = 3e-4, tau: float | None = None, compile: bool | str = False,
@@ -110,8 +112,6 @@ class HierarchicalLearner(Learner):
         lc = [self.lc_state, self.lc_actor] + ([self.lc_explore] if explore else [])
         cf = [self.cf_state, self.cf_actor] + ([self.cf_explore] if explore else [])
         return MultiRatePolicy(TensorDictSequential(*lc), TensorDictSequential(*cf), shared=self.embedding)
-
-    learns_from_decisions = True
 
     def buffer_keys(self) -> list:
         """Keys a replay-buffer entry must keep for the updates (root and under ``"next"``)."""
