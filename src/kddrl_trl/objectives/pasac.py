@@ -35,7 +35,7 @@ from tensordict.utils import NestedKey, unravel_key
 from torch import Tensor
 from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.objectives import LossModule, SoftUpdate
-from torchrl.objectives.utils import ValueEstimators, default_value_kwargs, distance_loss
+from torchrl.objectives.utils import ValueEstimators, _vmap_func, default_value_kwargs, distance_loss
 from torchrl.objectives.value import TD0Estimator, TD1Estimator, TDLambdaEstimator
 
 from .. import keys as K
@@ -126,6 +126,8 @@ class PASACLoss(LossModule):
         self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
         self.convert_to_functional(qvalue_network, "qvalue_network", expand_dim=self.num_qvalue_nets,
                                    create_target_params=True, compare_against=list(actor_network.parameters()))
+        # every critic on one batch in one call (the critics' parameters stacked along dim 0), as SACLoss does
+        self._vmap_q = _vmap_func(self.qvalue_network, (None, 0), randomness="error")
         self.register_buffer("param_loc", torch.tensor((high + low) / 2.0))
         self.register_buffer("param_half", torch.tensor((high - low) / 2.0))
         self.log_alpha_lane = torch.nn.Parameter(torch.tensor(math.log(alpha_init)))
@@ -192,11 +194,7 @@ class PASACLoss(LossModule):
         x = td.select(*obs_keys).clone(False)
         x.set(self.tensor_keys.action, choice)
         x.set(self.tensor_keys.param, param)
-        out = []
-        for i in range(self.num_qvalue_nets):
-            with params[i].to_module(self.qvalue_network):
-                out.append(self.qvalue_network(x.clone(False)).get(self.tensor_keys.state_action_value).squeeze(-1))
-        return torch.stack(out)
+        return self._vmap_q(x, params).get(self.tensor_keys.state_action_value).squeeze(-1)
 
     def _q_every_choice(self, td: TensorDictBase, param: Tensor, params: TensorDictBase) -> Tensor:
         """``min_i Q_i(s, k, param)`` for every choice k: ``[*batch, K]``."""
