@@ -40,7 +40,9 @@ from .conf.schema import EnvNode, Job, LearningAlgo, LoggerConfig, RuleAlgo, Tra
 from .envs.config import HighwayConfig
 from .loggers import MultiLogger
 from .runs import checkpoint_dir, latest_checkpoint, resume_requested, trained_run
-from .training import HierarchicalLearner, JointD3QNLearner, Learner, PASACLearner, load_training_checkpoint, make_buffer
+from .training import (
+    HierarchicalLearner, JointD3QNLearner, Learner, PASACLearner, load_training_checkpoint, make_buffer,
+)
 
 #: the learner of each learning ``algo.kind`` (:data:`kddrl_trl.conf.schema.ALGO_SCHEMAS`)
 LEARNERS = {"hierarchical": HierarchicalLearner, "joint_d3qn": JointD3QNLearner, "pasac": PASACLearner}

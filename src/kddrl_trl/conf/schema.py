@@ -17,8 +17,8 @@ composed config into these objects (``OmegaConf.to_object``), before any simulat
 =====================  =================================================================================
 
 Each option of the ``algo`` group names its schema first in its defaults list (``hierarchical_schema``,
-``joint_d3qn_schema``, ``pasac_schema`` or ``rule_schema``), so one group types every kind of algo; the algo's ``kind`` says which it is, also in a
-run's saved ``config.yaml`` (:func:`algo_from_node`).
+``joint_d3qn_schema``, ``pasac_schema`` or ``rule_schema``), so one group types every kind of algo; the algo's
+``kind`` says which it is, also in a run's saved ``config.yaml`` (:func:`algo_from_node`).
 """
 from __future__ import annotations
 
@@ -83,8 +83,8 @@ TrainConfig = _node("TrainConfig", "The ``train`` node (``conf/config.yaml``): c
 TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
                          ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
                          "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.).",
-                         optional={"mobil_criteria": (bool, False)}, enabled=bool, trajgan=bool, priors=bool, num_samples=int, reduce=str,
-                         trajgan_checkpoint=Optional[str], lcgan_checkpoint=Optional[str])
+                         optional={"mobil_criteria": (bool, False)}, enabled=bool, trajgan=bool, priors=bool,
+                         num_samples=int, reduce=str, trajgan_checkpoint=Optional[str], lcgan_checkpoint=Optional[str])
 D3QNConfig = _node("D3QNConfig", "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the "
                    "learning rate.", hidden=list[int], dueling=bool, double=bool, gamma=float, tau=float, lr=float,
                    eps_init=float, eps_end=float, eps_decisions=int)

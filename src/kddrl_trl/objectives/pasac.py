@@ -118,11 +118,13 @@ class PASACLoss(LossModule):
                 "entropy_lane", "log_prob_param", "state_action_value", "target_value"]
 
     def __init__(self, actor_network: TensorDictModule, qvalue_network: TensorDictModule, *, num_choices: int = 3,
-                 num_qvalue_nets: int = 2, low: float = -5.0, high: float = 5.0, alpha_init: float = 1.0, target_entropy_lane: float = 0.33,
+                 num_qvalue_nets: int = 2, low: float = -5.0, high: float = 5.0, alpha_init: float = 1.0,
+                 target_entropy_lane: float = 0.33,
                  target_entropy_param: float = -1.0, loss_function: str = "l2"):
         super().__init__()
         self._in_keys = None
-        self.num_choices, self.num_qvalue_nets, self.loss_function = int(num_choices), int(num_qvalue_nets), loss_function
+        self.num_choices, self.num_qvalue_nets = int(num_choices), int(num_qvalue_nets)
+        self.loss_function = loss_function
         self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
         self.convert_to_functional(qvalue_network, "qvalue_network", expand_dim=self.num_qvalue_nets,
                                    create_target_params=True, compare_against=list(actor_network.parameters()))

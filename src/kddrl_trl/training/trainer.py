@@ -132,8 +132,8 @@ class Trainer:
         for k, v in out.items():
             if not math.isfinite(v):
                 raise FloatingPointError(
-                    f"{k} = {v} after {self.counters['cf_updates']} buffer-L / {self.counters['lc_updates']} buffer-H updates "
-                    f"({len(self.history)} episodes): training diverged. The last checkpoint in "
+                    f"{k} = {v} after {self.counters['cf_updates']} buffer-L / {self.counters['lc_updates']} buffer-H "
+                    f"updates ({len(self.history)} episodes): training diverged. The last checkpoint in "
                     f"{self.run_dir / 'checkpoints'} is from before; lower the learning rates (algo.learner.*) and "
                     "resume=true, or start again")
             losses.setdefault(k, []).append(v)
