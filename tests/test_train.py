@@ -64,6 +64,28 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
     assert summary["checkpoint"].endswith("ep000003.pt")
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("algo, small", [("peng", "algo.learner.ddpg.hidden=[32,32]"),
+                                         ("d3qn_unified", "algo.learner.d3qn.hidden=[32,32]"),
+                                         ("pasac_unified", "algo.learner.pasac.hidden=[32,32]")])
+def test_the_new_systems_train_and_evaluate_on_sumo_as_typed(algo, small, tmp_path):
+    """``python -m kddrl_trl.train algo=<new system> +scenario=braking``, a few episodes with updates: every frame
+    is a decision (lc_period 1), the summary and the evaluation records are the same as for every algo."""
+    cmd = [sys.executable, "-m", "kddrl_trl.train", f"algo={algo}", "+scenario=braking", "episodes=3",
+           "eval_episodes=2", "train.eval_every=0", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
+           "train.batch_size_cf=32", "train.batch_size_lc=8", "compile=false", small]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    (run,) = list((tmp_path / "runs").glob(f"braking__{algo}__0__*"))
+    summary = json.loads((run / "summary.json").read_text())
+    training = summary["training"]
+    assert summary["algo"] == algo and summary["episodes"] == 2 and training["episodes"] == 3
+    assert training["decisions"] == training["frames"] > 50 and training["cf_updates"] > 0
+    assert (training["lc_updates"] > 0) == (algo == "peng")
+    assert (run / "eval_episodes.csv").read_text().count("\n") == 3
+    assert (run / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
+
+
 def test_evaluate_refuses_a_directory_without_a_trained_run(tmp_path):
     cmd = [sys.executable, "-m", "kddrl_trl.evaluate", f"run={tmp_path / 'nothing'}", "progress=false"]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
@@ -165,17 +187,25 @@ def fake_trainer(job, tmp_path, **train):
                                                  job.env.highway())
 
 
-@pytest.mark.parametrize("algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni"])
+#: small networks of every learning algo (each override names a node the algo has)
+SMALL_NETS = {"peng": ["algo.learner.d3qn.hidden=[16]", "algo.learner.ddpg.hidden=[16]"],
+              "d3qn_unified": ["algo.learner.d3qn.hidden=[16]"], "pasac_unified": ["algo.learner.pasac.hidden=[16]"]}
+KINDS = {"d3qn_unified": "joint_d3qn", "pasac_unified": "pasac"}
+
+
+@pytest.mark.parametrize("algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni", "peng",
+                                  "d3qn_unified", "pasac_unified"])
 def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_path):
     """Each comparison system is a configuration of the same pipeline: compose it, build env + learner, train
     a few episodes on the fake env (fast; the SUMO path is covered by the subprocess tests)."""
-    job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]",
-                      "algo.learner.td3.hidden=[16]")
-    assert job.algo.name == algo and job.algo.kind == "hierarchical"
+    nets = SMALL_NETS.get(algo, ["algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]"])
+    job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", *nets)
+    assert job.algo.name == algo and job.algo.kind == KINDS.get(algo, "hierarchical")
     env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
                                                     batch_size_lc=4, frames_per_env=10)
-    assert (learner.embedding is None) == (algo in ("d3qn_td3", "ni"))
-    assert learner.d3qn.actor.module[0].module.dueling == (algo != "ni")
+    if job.algo.kind == "hierarchical":
+        assert (learner.embedding is None) == (algo in ("d3qn_td3", "ni", "peng"))
+        assert learner.d3qn.actor.module[0].module.dueling == (algo != "ni")
     history = trainer.run(collector)
     env.close()
     assert len(history) == 3 and trainer.counters["cf_updates"] > 0
@@ -198,6 +228,34 @@ def test_every_issue14_option_trains_on_the_fake_env(tmp_path):
     env.close()
     assert len(history) == 3 and trainer.counters["cf_updates"] > 0 and trainer.counters["lc_updates"] > 0
     assert all("shield_rate" in ep for ep in history)
+
+
+@pytest.mark.parametrize("algo", ["peng", "d3qn_unified", "pasac_unified"])
+def test_new_systems_checkpoint_and_resume_on_the_fake_env(algo, tmp_path):
+    """A run of each new system stops at its checkpoint; a fresh process's learner loads it (networks, targets,
+    optimisers, exploration state, buffers) and training continues to the new episode count."""
+    import torch
+
+    job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", *SMALL_NETS[algo])
+    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
+                                                    batch_size_lc=4, frames_per_env=10)
+    trainer.run(collector)
+    env.close()
+    unified = not learner.learns_from_decisions
+    assert (trainer.counters["lc_updates"] == 0) == unified and (len(trainer.buffer_lc) == 0) == unified
+    torch.manual_seed(99)
+    env, fresh, resumed, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
+                                                  batch_size_lc=4, frames_per_env=10)
+    assert resumed.load(tmp_path) == 3
+    assert {k: v for k, v in resumed.counters.items() if k != "elapsed_s"} == {
+        k: v for k, v in trainer.counters.items() if k != "elapsed_s"}
+    for (name, a), (_, b) in zip(learner.state_dict().items(), fresh.state_dict().items()):
+        torch.testing.assert_close(a, b, msg=name)
+    assert fresh.exploration() == learner.exploration()
+    assert len(resumed.buffer_cf) == len(trainer.buffer_cf) and len(resumed.buffer_lc) == len(trainer.buffer_lc)
+    resumed.episodes = 5
+    assert len(resumed.run(collector)) == 5 and resumed.counters["cf_updates"] > trainer.counters["cf_updates"]
+    env.close()
 
 
 def test_a_diverging_loss_stops_training_with_a_clear_error(tmp_path):
@@ -239,6 +297,28 @@ def test_a_typo_or_wrong_type_in_algo_or_train_is_refused_naming_the_key(overrid
 def test_out_of_range_values_are_refused_by_the_schema(override, match):
     with pytest.raises(ValueError, match=match):
         compose_job(override)
+
+
+@pytest.mark.parametrize("algo, override, message", [
+    ("peng", "algo.learner.ddpg.tauu=1", "algo.learner.ddpg.tauu"),
+    ("peng", "algo.learner.ddpg.hidden=wide", "algo.learner.ddpg.hidden"),
+    ("d3qn_unified", "algo.learner.num_levels=many", "algo.learner.num_levels"),
+    ("pasac_unified", "algo.learner.pasac.alpha_lrr=1", "algo.learner.pasac.alpha_lrr"),
+    ("pasac_unified", "algo.learner.td3.hidden=[8]", "algo.learner.td3"),
+    ("d3qn_unified", "algo.lc_period=20", "algo.lc_period must be 1 for algo=d3qn_unified"),
+    ("pasac_unified", "algo.lc_period=2", "algo.lc_period must be 1"),
+    ("d3qn_unified", "algo.learner.num_levels=1", "algo.learner.num_levels must be >= 2"),
+    ("peng", "algo.learner.cf_agent=ppo", "algo.learner.cf_agent='ppo': known agents are td3, ddpg"),
+    ("kddrl", "algo.learner.cf_agent=ddpg", "the algo.learner.ddpg node is missing"),
+])
+def test_the_new_systems_configs_are_typed_and_range_checked(algo, override, message):
+    """Typos and wrong types fail while Hydra composes (naming the key), ranges when the config becomes objects."""
+    from hydra.errors import ConfigCompositionException
+
+    with pytest.raises((ConfigCompositionException, ValueError)) as err:
+        compose_job(f"algo={algo}", override)
+    text = f"{err.value}\n{err.value.__cause__}"
+    assert message in text, text
 
 
 def test_a_bad_algo_or_train_value_is_refused_before_any_simulator_starts(tmp_path):

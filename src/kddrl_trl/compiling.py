@@ -1,7 +1,8 @@
 """When to ``torch.compile``: one rule for the two compile sites (the fused transform stack and the learner).
 
 The sites themselves are :func:`kddrl_trl.transforms.stack.compiled_frames` (the fused predictive-state stack)
-and :meth:`kddrl_trl.training.HierarchicalLearner.loss` (the learner's update); each states its measured gain.
+and the learner's ``loss`` (:meth:`kddrl_trl.training.Learner._compile`, for every learner; its measured gain is
+stated on :class:`kddrl_trl.training.HierarchicalLearner`).
 """
 from __future__ import annotations
 

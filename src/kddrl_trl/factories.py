@@ -11,7 +11,7 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
 :func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
 :func:`make_env`               the batched highway env (SUMO, or the fake) with the algo's transforms
-:func:`make_learner`           :class:`~kddrl_trl.training.HierarchicalLearner` of a learning algo
+:func:`make_learner`           the :class:`~kddrl_trl.training.Learner` of a learning algo (by ``algo.kind``)
 :func:`make_policy`            the acting policy of any algo, exploration off
 :func:`make_buffers`           replay buffers L (frames) and H (macro-transitions)
 :func:`make_collector`         the two-clock collector filling both buffers
@@ -38,11 +38,17 @@ from torchrl.envs import Compose, EnvBase, TransformedEnv
 
 from . import keys as K
 from .collectors import DecisionClock, MultiTimescaleCollector
-from .conf.schema import EnvNode, HierarchicalAlgo, Job, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
+from .conf.schema import EnvNode, Job, LearningAlgo, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
 from .envs.config import HighwayConfig
 from .loggers import MultiLogger
 from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
-from .training import HierarchicalLearner, load_latest_training_checkpoint, load_training_checkpoint, make_buffer
+from .training import (
+    HierarchicalLearner, JointD3QNLearner, Learner, PASACLearner, load_latest_training_checkpoint,
+    load_training_checkpoint, make_buffer,
+)
+
+#: the learner of each learning ``algo.kind`` (:data:`kddrl_trl.conf.schema.ALGO_SCHEMAS`)
+LEARNERS = {"hierarchical": HierarchicalLearner, "joint_d3qn": JointD3QNLearner, "pasac": PASACLearner}
 
 
 def seed_everything(seed: int) -> None:
@@ -103,21 +109,25 @@ def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> Mul
     return MultiLogger(loggers)
 
 
-def make_transforms(algo: HierarchicalAlgo | RuleAlgo, seed: int, highway: HighwayConfig,
+def make_transforms(algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayConfig,
                     compile: bool | str = False) -> Compose:
     """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
-    ``algo.transforms`` (none with ``enabled: false``); MOBIL's safety mask where ``algo.mobil_safety_mask``
+    ``algo.transforms`` (none with ``enabled: false``) and MOBIL's criteria (``mobil_criteria: true``,
+    :class:`~kddrl_trl.transforms.MOBILCriteria`); MOBIL's safety mask where ``algo.mobil_safety_mask``
     (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
     :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
     (:class:`~kddrl_trl.transforms.SafetyShield`, every algo)."""
-    from .transforms import MOBILSafetyMask, SafetyShield, make_kddrl_transforms
+    from .transforms import MOBILCriteria, MOBILSafetyMask, SafetyShield, make_kddrl_transforms
 
     stack = []
-    learning = isinstance(algo, HierarchicalAlgo)
+    learning = isinstance(algo, LearningAlgo)
     if learning:
         options = asdict(algo.transforms)
+        mobil_criteria = options.pop("mobil_criteria")
         if options.pop("enabled"):
             stack.append(make_kddrl_transforms(**options, seed=seed, num_lanes=highway.num_lanes, compile=compile))
+        if mobil_criteria:
+            stack.append(MOBILCriteria(num_lanes=highway.num_lanes))
     if getattr(algo, "mobil_safety_mask", False):  # any algo schema that has the option
         stack.append(MOBILSafetyMask(num_lanes=highway.num_lanes))
     if learning:
@@ -127,7 +137,7 @@ def make_transforms(algo: HierarchicalAlgo | RuleAlgo, seed: int, highway: Highw
     return Compose(*stack)
 
 
-def make_env(env: EnvNode, algo: HierarchicalAlgo | RuleAlgo, seed: int, compile: bool | str = False,
+def make_env(env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bool | str = False,
              fake: bool = False) -> EnvBase:
     """``SumoHighwayEnv`` (``FakeHighwayEnv`` with ``fake=True``) of ``env.num_roads`` roads on the composed
     highway config, with :func:`make_transforms` (built first: no simulator starts before every option is
@@ -142,16 +152,15 @@ def make_env(env: EnvNode, algo: HierarchicalAlgo | RuleAlgo, seed: int, compile
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
 
-def make_learner(algo: HierarchicalAlgo, compile: bool | str = False) -> HierarchicalLearner:
-    """The :class:`HierarchicalLearner` of ``algo.learner`` (``compile``: its update, the learner's one compile
-    site)."""
-    return HierarchicalLearner(**asdict(algo.learner), compile=compile)
+def make_learner(algo: LearningAlgo, compile: bool | str = False) -> Learner:
+    """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` (``compile``: its update, the
+    learner's one compile site)."""
+    return LEARNERS[algo.kind](**asdict(algo.learner), compile=compile)
 
 
-def make_policy(algo: HierarchicalAlgo | RuleAlgo, highway: HighwayConfig,
-                learner: HierarchicalLearner | None = None):
+def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: Learner | None = None):
     """The acting policy with exploration off: MOBIL + IDM with ``algo.idm`` / ``algo.mobil`` for a rule-based
-    algo; the trained ``learner`` 's greedy two-clock policy for a learning algo."""
+    algo; the trained ``learner`` 's greedy policy for a learning algo."""
     if isinstance(algo, RuleAlgo):
         from .baselines import IDMMobilPolicy
         from .physics import IDMParams, MOBILParams
@@ -164,15 +173,16 @@ def make_policy(algo: HierarchicalAlgo | RuleAlgo, highway: HighwayConfig,
 
 
 def make_buffers(train: TrainConfig, seed: int) -> tuple[TensorDictReplayBuffer, TensorDictReplayBuffer]:
-    """Buffer L (frames, TD3) and buffer H (macro-transitions, D3QN) with the ``train`` sizes."""
+    """Buffer L (frames: TD3, DDPG, a unified agent) and buffer H (macro-transitions, D3QN) with the ``train``
+    sizes."""
     return (make_buffer(train.buffer_cf, train.batch_size_cf, seed),
             make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1))
 
 
-def make_collector(env: EnvBase, learner: HierarchicalLearner, buffers: tuple, train: TrainConfig,
+def make_collector(env: EnvBase, learner: Learner, buffers: tuple, train: TrainConfig,
                    lc_reward: str = "frames", highway: HighwayConfig | None = None) -> MultiTimescaleCollector:
     """``train.frames_per_env`` frames per road per iteration with the exploring policy, into ``buffers``
-    (restricted to the keys the learner reads). ``lc_reward`` (``algo.lc_reward``): ``frames`` sums the per-frame
+    (restricted to the keys the learner reads; buffer H only for a learner that ``learns_from_decisions``). ``lc_reward`` (``algo.lc_reward``): ``frames`` sums the per-frame
     lane-change rewards of a macro-transition (Algorithm 1 line 35); ``decision`` counts the efficiency term of
     ``highway`` 's reward variant once per decision (§III.G, :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
     from .collectors import MacroTransitionWriter
@@ -188,7 +198,8 @@ def make_collector(env: EnvBase, learner: HierarchicalLearner, buffers: tuple, t
     elif lc_reward != "frames":
         raise ValueError(f"make_collector: lc_reward must be frames or decision, got {lc_reward!r}")
     return MultiTimescaleCollector.from_env(env, learner.policy(explore=True), frames_per_env=train.frames_per_env,
-                                            frame_buffer=buffers[0], macro_buffer=buffers[1],
+                                            frame_buffer=buffers[0],
+                                            macro_buffer=buffers[1] if learner.learns_from_decisions else None,
                                             frame_keys=learner.buffer_keys(),
                                             macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],
                                             writer=MacroTransitionWriter(efficiency=efficiency))
@@ -211,12 +222,12 @@ def make_evaluator(job: TrainJob):
 
 
 def load_trained_learner(run: Path, checkpoint: str = "latest"
-                         ) -> tuple[HierarchicalAlgo, HierarchicalLearner, Path, DictConfig]:
+                         ) -> tuple[LearningAlgo, Learner, Path, DictConfig]:
     """(algo, learner with the weights of its ``latest`` or ``best`` checkpoint, that checkpoint, the run's saved
     config) of a training run folder. The learner only acts: it is not compiled."""
     saved = OmegaConf.load(trained_run(run) / "config.yaml")
     algo = algo_from_node(saved.algo)
-    if not isinstance(algo, HierarchicalAlgo):
+    if not isinstance(algo, LearningAlgo):
         raise ValueError(f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "
                          f"python -m kddrl_trl.train algo={algo.name} +scenario=...")
     if checkpoint == "latest":  # the newest that loads (a damaged one falls back to the previous, with a warning)

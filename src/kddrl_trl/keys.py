@@ -80,12 +80,15 @@ PRIOR_P_MOBIL = ("prior", "p_mobil")      # [3]     P_MOBIL over (left, keep, ri
 PRIOR_P_LCGAN = ("prior", "p_lcgan")      # [3]     P_lcGAN over (left, keep, right), Eq. 16
 PRIOR_P_LC = ("prior", "p_lc")            # [d]     fused prior, Eq. 23
 EMBED_S_E = ("embed", "s_e")              # [d]     shared embedding, Eq. 24
+MOBIL_INCENTIVE = ("prior", "mobil_incentive")  # [3] MOBIL utilities U_left, U_keep, U_right (m/s², Eq. 21-22)
+MOBIL_SAFE = ("prior", "mobil_safe")            # [3] bool, MOBIL safety criterion per direction (Eq. 20-21)
 
 # ------------------------------------------------------------------------- agent states (modules/)
 # Written by the state builders of ``kddrl_trl.modules.state`` from raw keys (scaled to ~unit range) and,
 # when present, ``EMBED_S_E``. Not stored in replay buffers: recomputed at update time because s_e is trained.
 LC_OBS = ("lc", "obs")    # [33 + d] D3QN state s_D3QN = [s_AV, Δs_i, mask, s_e], Eq. 24 (d = 0 without s_e)
 CF_OBS = ("cf", "obs")    # [37 + d] TD3 state s_TD3 = [s_AV, Δs_i, mask, s_e, a_D3QN, a_TD3^{t-1}], Eq. 30
+JOINT_OBS = ("joint", "obs")  # [37] state of a unified agent = [s_AV, Δs_i, mask, a_lc^{t-1}, a^{t-1}]
 
 # --------------------------------------------------------------------------------- actions, rewards
 LC_ACTION = ("lc", "action")    # [3] one-hot (left, keep, right), held between decisions
@@ -95,6 +98,9 @@ LC_REWARD = ("lc", "reward")    # [1] paper Eq. 26-29
 CF_REWARD = ("cf", "reward")    # [1] paper Eq. 32-33
 CF_SHIELD = ("cf", "shield")    # [1] bool, the car-following shield lowered the command in this frame (under "next";
 #                                     transforms.SafetyShield, algo.shield; absent without a shield)
+JOINT_ACTION = ("joint", "action")  # [3 x levels] one-hot joint (lane command, acceleration level) of d3qn_unified
+JOINT_ACTION_MASK = ("joint", "action_mask")  # [3 x levels] bool, LC_ACTION_MASK repeated over the levels
+JOINT_REWARD = ("joint", "reward")  # [1] reward of a unified agent: LC_REWARD + CF_REWARD (under "next")
 
 # ------------------------------------------------------------------------- clocks (collectors/)
 LC_HELD = ("lc", "held")                # [3] one-hot lane-change action in force (executed last frame; keep at reset)
@@ -103,4 +109,10 @@ LC_MACRO_FRAMES = ("lc", "macro_frames")  # [1] int64, frames a macro-transition
 # -------------------------------------------------------------------------- learner outputs (objectives/)
 LC_ACTION_VALUE = ("lc", "action_value")          # [3] Q(s, ·) of D3QN, Eq. 3
 LC_CHOSEN_VALUE = ("lc", "chosen_action_value")   # [1] Q(s, a) of the taken action
-CF_STATE_ACTION_VALUE = ("cf", "state_action_value")  # [1] TD3 critic value Q_k(s, a), Eq. 7
+CF_STATE_ACTION_VALUE = ("cf", "state_action_value")  # [1] TD3 / DDPG critic value Q_k(s, a), Eq. 7
+JOINT_ACTION_VALUE = ("joint", "action_value")          # [3 x levels] Q(s, ·) of d3qn_unified
+JOINT_CHOSEN_VALUE = ("joint", "chosen_action_value")   # [1] Q(s, a) of the taken joint action
+PASAC_LOGITS = ("pasac", "logits")      # [3] lane-choice logits of the PASAC policy (invalid commands masked)
+PASAC_LOC = ("pasac", "loc")            # [1] mean of the pre-tanh Gaussian of the PASAC acceleration
+PASAC_SCALE = ("pasac", "scale")        # [1] its standard deviation
+PASAC_STATE_ACTION_VALUE = ("pasac", "state_action_value")  # [1] soft Q(s, lane, accel)

@@ -2,8 +2,8 @@
 
 Wires the parts of :mod:`kddrl_trl.factories` and holds no algorithm:
 
-- learning algos (``algo.kind: hierarchical``: ``kddrl`` by default, ``d3qn_td3``, ``d3qn_td3_lg``,
-  ``kddrl_same_clock``, ``ni``): train for ``episodes`` episodes (:class:`~kddrl_trl.training.Trainer`,
+- learning algos (``kddrl`` by default, ``d3qn_td3``, ``d3qn_td3_lg``, ``kddrl_same_clock``, ``ni``, ``peng``,
+  ``d3qn_unified``, ``pasac_unified``): train for ``episodes`` episodes (:class:`~kddrl_trl.training.Trainer`,
   checkpoints every ``train.checkpoint_every`` episodes, periodic validation every ``train.eval_every``,
   ``resume=true`` continues), then evaluate ``eval_episodes`` episodes with exploration off on a fresh env;
 - rule-based algos (``algo=idm_mobil``): evaluate ``eval_episodes`` episodes.
@@ -27,7 +27,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
-from .conf.schema import HierarchicalAlgo, TrainJob
+from .conf.schema import LearningAlgo, TrainJob
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol, test_seed
 from .factories import (
@@ -89,7 +89,7 @@ def main(cfg: DictConfig) -> dict:
         write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
 
     extra, learner = {}, None
-    if isinstance(job.algo, HierarchicalAlgo):
+    if isinstance(job.algo, LearningAlgo):
         learner, extra["training"] = train(job, run_dir, logger, resuming)
     env = make_env(job.env, job.algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
     policy = make_policy(job.algo, job.env, learner)

@@ -3,7 +3,7 @@
 Importing this module registers in Hydra's ConfigStore:
 
 * the typed schemas of :mod:`kddrl_trl.conf.schema` (``env/highway_schema``, ``algo/hierarchical_schema``,
-  ``algo/rule_schema``, ``logger/logger_schema``, ``train_job``, ``evaluate_job``, ``report_job``), so a misspelt key or a
+  ``algo/joint_d3qn_schema``, ``algo/pasac_schema``, ``algo/rule_schema``, ``logger/logger_schema``, ``train_job``, ``evaluate_job``, ``report_job``), so a misspelt key or a
   wrong type fails at composition, naming the key;
 * the ``scenario`` group: one option per preset of :data:`kddrl_trl.envs.config.SCENARIOS` (the same
   presets ``SumoHighwayEnv(scenario=...)`` applies), an ``env:`` block in the global package, appended with
@@ -14,13 +14,17 @@ from hydra.core.config_store import ConfigStore
 
 from ..envs.config import SCENARIOS
 from . import resolvers
-from .schema import EnvNode, EvaluateJob, HierarchicalAlgo, LoggerConfig, ReportJob, RuleAlgo, TrainJob
+from .schema import (
+    EnvNode, EvaluateJob, HierarchicalAlgo, JointD3QNAlgo, LoggerConfig, PASACAlgo, ReportJob, RuleAlgo, TrainJob,
+)
 
 
 def register() -> None:
     store = ConfigStore.instance()
     store.store(group="env", name="highway_schema", node=EnvNode)
     store.store(group="algo", name="hierarchical_schema", node=HierarchicalAlgo)
+    store.store(group="algo", name="joint_d3qn_schema", node=JointD3QNAlgo)
+    store.store(group="algo", name="pasac_schema", node=PASACAlgo)
     store.store(group="algo", name="rule_schema", node=RuleAlgo)
     store.store(group="logger", name="logger_schema", node=LoggerConfig)
     store.store(name="train_job", node=TrainJob)

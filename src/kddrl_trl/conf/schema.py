@@ -7,16 +7,18 @@ composed config into these objects (``OmegaConf.to_object``), before any simulat
 
 =====================  =================================================================================
 ``env``                :class:`EnvNode`: every :class:`~kddrl_trl.envs.config.HighwayConfig` field + ``num_roads``
-``algo`` (learning)    :class:`HierarchicalAlgo`: ``lc_period``, ``transforms``, ``learner{d3qn, td3, ...}``
+``algo`` (learning)    :class:`HierarchicalAlgo`: ``lc_period``, ``transforms``, ``learner{d3qn, td3 | ddpg, ...}``;
+                       :class:`JointD3QNAlgo` (``d3qn_unified``), :class:`PASACAlgo` (``pasac_unified``): one agent
+                       acting every frame (``lc_period`` 1), ``learner{...}``
 ``algo`` (rule-based)  :class:`RuleAlgo`: ``idm``, ``mobil`` (fields of the physics parameter dataclasses)
 ``train``              :class:`TrainConfig`: the Algorithm 1 loop of :class:`~kddrl_trl.training.Trainer`
 ``logger``             :class:`LoggerConfig`
 ``train.py`` job       :class:`TrainJob`; ``evaluate.py`` job: :class:`EvaluateJob`
 =====================  =================================================================================
 
-Each option of the ``algo`` group names its schema first in its defaults list (``hierarchical_schema`` or
-``rule_schema``), so one group types both kinds of algos; the algo's ``kind`` says which it is, also in a
-run's saved ``config.yaml`` (:func:`algo_from_node`).
+Each option of the ``algo`` group names its schema first in its defaults list (``hierarchical_schema``,
+``joint_d3qn_schema``, ``pasac_schema`` or ``rule_schema``), so one group types every kind of algo; the algo's
+``kind`` says which it is, also in a run's saved ``config.yaml`` (:func:`algo_from_node`).
 """
 from __future__ import annotations
 
@@ -51,13 +53,13 @@ class EnvNode(HighwayConfig):
         return HighwayConfig(**{f.name: getattr(self, f.name) for f in fields(HighwayConfig)})
 
 
-def _node(name: str, doc: str, check=None, defaults: dict | None = None, **types: type) -> type:
-    """A schema whose fields take their values from the YAML (``field=type`` pairs, no defaults, except those of
-    ``defaults``: keys added after runs were saved, whose default is the behaviour those runs had); ``check``
-    (the range checks) runs when the composed config becomes objects."""
+def _node(name: str, doc: str, check=None, optional: dict | None = None, **types: type) -> type:
+    """A schema whose fields all take their values from the YAML (``field=type`` pairs, no defaults), but those of
+    ``optional`` (``{field: (type, default)}``: keys added after runs were saved without them); ``check`` (the range
+    checks) runs when the composed config becomes objects."""
     namespace = {"__doc__": doc} if check is None else {"__doc__": doc, "__post_init__": check}
-    defaults = defaults or {}
-    return make_dataclass(name, [(key, kind, field(default=defaults.get(key, MISSING))) for key, kind in types.items()],
+    optional = [(key, kind, field(default=default)) for key, (kind, default) in (optional or {}).items()]
+    return make_dataclass(name, [(key, kind, field(default=MISSING)) for key, kind in types.items()] + optional,
                           namespace=namespace)
 
 
@@ -79,19 +81,54 @@ TrainConfig = _node("TrainConfig", "The ``train`` node (``conf/config.yaml``): c
                     batch_size_lc=int, buffer_cf=int, buffer_lc=int, updates_per_frame=int, updates_per_decision=int,
                     checkpoint_every=int, keep_buffers=bool, eval_every=int, eval_episodes=int, best_metric=str)
 TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
-                         ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none).",
-                         enabled=bool, trajgan=bool, priors=bool, num_samples=int, reduce=str,
-                         trajgan_checkpoint=Optional[str], lcgan_checkpoint=Optional[str])
+                         ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
+                         "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.).",
+                         optional={"mobil_criteria": (bool, False)}, enabled=bool, trajgan=bool, priors=bool,
+                         num_samples=int, reduce=str, trajgan_checkpoint=Optional[str], lcgan_checkpoint=Optional[str])
 D3QNConfig = _node("D3QNConfig", "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the "
-                   "learning rate.", defaults={"semi_mdp": False}, hidden=list[int], dueling=bool, double=bool,
-                   gamma=float, tau=float, lr=float, eps_init=float, eps_end=float, eps_decisions=int, semi_mdp=bool)
+                   "learning rate.", optional={"semi_mdp": (bool, False)}, hidden=list[int], dueling=bool,
+                   double=bool, gamma=float, tau=float, lr=float, eps_init=float, eps_end=float, eps_decisions=int)
 TD3Config = _node("TD3Config", "``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the "
-                  "learning rates.", defaults={"exploration_clip": None}, hidden=list[int], gamma=float, tau=float,
-                  actor_lr=float, critic_lr=float, policy_noise=float, noise_clip=float, policy_delay=int,
-                  exploration_sigma=float, exploration_clip=Optional[float])
+                  "learning rates.", optional={"exploration_clip": (Optional[float], None)}, hidden=list[int],
+                  gamma=float, tau=float, actor_lr=float, critic_lr=float, policy_noise=float, noise_clip=float,
+                  policy_delay=int, exploration_sigma=float)
+DDPGConfig = _node("DDPGConfig", "``algo.learner.ddpg``: :func:`~kddrl_trl.objectives.make_ddpg` options and the "
+                   "learning rates.", optional={"exploration_clip": (Optional[float], None)}, hidden=list[int],
+                   gamma=float, tau=float, actor_lr=float, critic_lr=float, exploration_sigma=float)
+
+
+def _check_learner(learner) -> None:
+    from ..training.learner import CF_AGENTS
+
+    if learner.cf_agent not in CF_AGENTS:
+        raise ValueError(f"algo.learner.cf_agent={learner.cf_agent!r}: known agents are {', '.join(CF_AGENTS)}")
+    if getattr(learner, learner.cf_agent) is None:
+        raise ValueError(f"algo.learner.cf_agent={learner.cf_agent}: the algo.learner.{learner.cf_agent} node is "
+                         "missing")
+
+
 LearnerConfig = _node("LearnerConfig", "``algo.learner``: keyword arguments of "
-                      ":class:`~kddrl_trl.training.HierarchicalLearner`.", priors=bool, key_gaps=bool, embed_dim=int,
-                      embed_hidden=int, embed_lr=float, d3qn=D3QNConfig, td3=TD3Config)
+                      ":class:`~kddrl_trl.training.HierarchicalLearner`.", _check_learner,
+                      optional={"td3": (Optional[TD3Config], None), "cf_agent": (str, "td3"),
+                                "ddpg": (Optional[DDPGConfig], None), "mobil_criteria": (bool, False)},
+                      priors=bool, key_gaps=bool, embed_dim=int, embed_hidden=int, embed_lr=float, d3qn=D3QNConfig)
+
+
+def _check_levels(learner) -> None:
+    _at_least("algo.learner.", learner, 2, "num_levels")
+    if not learner.high > learner.low:
+        raise ValueError(f"algo.learner: low < high needed, got [{learner.low}, {learner.high}]")
+
+
+JointD3QNLearnerConfig = _node("JointD3QNLearnerConfig", "``algo.learner`` of ``d3qn_unified``: keyword arguments of "
+                               ":class:`~kddrl_trl.training.JointD3QNLearner`.", _check_levels, num_levels=int,
+                               low=float, high=float, d3qn=D3QNConfig)
+PASACConfig = _node("PASACConfig", "``algo.learner.pasac``: :func:`~kddrl_trl.objectives.make_pasac` options and the "
+                    "learning rates.", hidden=list[int], gamma=float, tau=float, actor_lr=float, critic_lr=float,
+                    alpha_lr=float, alpha_init=float, target_entropy_lane=float, target_entropy_param=float,
+                    low=float, high=float)
+PASACLearnerConfig = _node("PASACLearnerConfig", "``algo.learner`` of ``pasac_unified``: keyword arguments of "
+                           ":class:`~kddrl_trl.training.PASACLearner`.", pasac=PASACConfig)
 
 
 #: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound
@@ -118,22 +155,52 @@ class SafetyOptions:
 
 
 @dataclass
-class HierarchicalAlgo(SafetyOptions):
-    """A learning algo (KDDRL and its configuration-only comparison systems)."""
+class LearningAlgo(SafetyOptions):
+    """What every learning algo has: a lane-change clock, the env's transforms and the safety and learning-signal
+    options of issue 14 (``kind`` picks the learner)."""
 
     name: str = MISSING
-    kind: str = "hierarchical"
+    kind: str = MISSING
     lc_period: int = MISSING
     mobil_safety_mask: bool = False  # AND MOBIL's safety check (Eq. 20-21) into ("lc","action_mask") (§III.C.2)
     lc_reward: str = "frames"        # D3QN macro reward: frames (Algorithm 1 line 35) | decision (§III.G)
     transforms: TransformsConfig = MISSING
-    learner: LearnerConfig = MISSING
 
     def __post_init__(self) -> None:
         _at_least("algo.", self, 1, "lc_period")
         self._check_safety()
         if self.lc_reward not in LC_REWARDS:
             raise ValueError(f"algo.lc_reward={self.lc_reward!r}: known readings are {', '.join(LC_REWARDS)}")
+
+
+def _learning_algo(name: str, doc: str, parent: type, kind: str, learner: type) -> type:
+    """A learning algo schema: ``parent`` 's fields, its ``kind`` and its ``learner`` node."""
+    return make_dataclass(name, [("kind", str, field(default=kind)), ("learner", learner, field(default=MISSING))],
+                          bases=(parent,), namespace={"__doc__": doc})
+
+
+HierarchicalAlgo = _learning_algo("HierarchicalAlgo", "A hierarchical learning algo: KDDRL and its configuration-only "
+                                  "comparison systems (ni, peng, ablations).", LearningAlgo, "hierarchical",
+                                  LearnerConfig)
+
+
+@dataclass
+class UnifiedAlgo(LearningAlgo):
+    """One agent choosing both actions on every frame (the paper's unified frameworks): ``lc_period`` is 1."""
+
+    lc_period: int = 1
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.lc_period != 1:
+            raise ValueError(f"algo.lc_period must be 1 for algo={self.name} (one agent deciding both actions every "
+                             f"frame), got {self.lc_period!r}")
+
+
+JointD3QNAlgo = _learning_algo("JointD3QNAlgo", "``algo=d3qn_unified``: one D3QN over (lane command x acceleration "
+                               "level).", UnifiedAlgo, "joint_d3qn", JointD3QNLearnerConfig)
+PASACAlgo = _learning_algo("PASACAlgo", "``algo=pasac_unified``: one parameterised-action SAC agent.", UnifiedAlgo,
+                           "pasac", PASACLearnerConfig)
 
 
 #: ``algo.idm`` / ``algo.mobil``: the fields of the physics parameters, as floats (defaults: paper Table A.1)
@@ -156,14 +223,14 @@ class RuleAlgo(SafetyOptions):
 
 
 #: the algo schema of each ``algo.kind``
-ALGO_SCHEMAS = {"hierarchical": HierarchicalAlgo, "rule": RuleAlgo}
+ALGO_SCHEMAS = {"hierarchical": HierarchicalAlgo, "joint_d3qn": JointD3QNAlgo, "pasac": PASACAlgo, "rule": RuleAlgo}
 
 
 #: per-algo compile options of runs saved before the single top-level ``compile`` key (ignored on reading)
 LEGACY_ALGO_KEYS = (("transforms", "compile"), ("transforms", "aot"), ("learner", "compile"))
 
 
-def algo_from_node(node: DictConfig) -> HierarchicalAlgo | RuleAlgo:
+def algo_from_node(node: DictConfig) -> LearningAlgo | RuleAlgo:
     """The typed algo of an ``algo`` node read back from a run's saved ``config.yaml`` (a run saved by an earlier
     version may still hold :data:`LEGACY_ALGO_KEYS`: how it was compiled does not change what it learned)."""
     node = OmegaConf.create(OmegaConf.to_container(node))
@@ -203,7 +270,7 @@ class TrainJob(Job):
     episodes: int = MISSING
     resume: Any = MISSING  # false | true | a run folder
     train: TrainConfig = MISSING
-    algo: Any = MISSING    # HierarchicalAlgo | RuleAlgo, typed by the option's own schema
+    algo: Any = MISSING    # a LearningAlgo or RuleAlgo, typed by the option's own schema
 
     def __post_init__(self) -> None:
         super().__post_init__()

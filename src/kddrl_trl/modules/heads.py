@@ -1,5 +1,6 @@
 """Networks of the two agents on top of their states (paper §II.E): the D3QN dueling Q head (Eq. 1-3), the
-TD3 actor (Eq. 8, action bounds of Eq. 31) and critic (Eq. 7). Plain ``nn.Module`` s; the TorchRL wrappers
+TD3 actor (Eq. 8, action bounds of Eq. 31) and critic (Eq. 7), and the hybrid actor / critic of the PASAC comparison
+system (discrete lane command + continuous acceleration). Plain ``nn.Module`` s; the TorchRL wrappers
 (``QValueActor``, ``TensorDictModule``) are made in :mod:`kddrl_trl.objectives`."""
 from __future__ import annotations
 
@@ -74,3 +75,40 @@ class StateActionCritic(nn.Module):
 
     def forward(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat([obs, action / self.action_scale], dim=-1))
+
+
+#: logit of a lane command that cannot be executed (``keys.LC_ACTION_MASK`` False): probability exactly 0, and
+#: ``p log p`` exactly 0 (a finite number, unlike -inf, so no NaN reaches the entropy or the soft values)
+MASKED_LOGIT = -1.0e9
+
+
+class HybridActor(nn.Module):
+    """Policy of a parameterised-action agent (PASAC, ``algo=pasac_unified``): from one torso, the logits of a
+    categorical over ``num_choices`` lane commands (invalid ones masked to :data:`MASKED_LOGIT`) and the mean
+    and standard deviation of the pre-tanh Gaussian of ``param_dim`` continuous parameters (the acceleration).
+    ``log_std`` is clamped to [``log_std_min``, ``log_std_max``] (SAC's usual [-5, 2])."""
+
+    def __init__(self, in_features: int, num_choices: int = 3, param_dim: int = 1, hidden: Sequence[int] = (256, 256),
+                 log_std_min: float = -5.0, log_std_max: float = 2.0):
+        super().__init__()
+        self.num_choices, self.param_dim = int(num_choices), int(param_dim)
+        self.net = mlp(in_features, self.num_choices + 2 * self.param_dim, hidden)
+        self.log_std_min, self.log_std_max = float(log_std_min), float(log_std_max)
+
+    def forward(self, obs: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        logits, loc, log_std = self.net(obs).split([self.num_choices, self.param_dim, self.param_dim], dim=-1)
+        logits = logits.masked_fill(~mask.bool(), MASKED_LOGIT)
+        return logits, loc, log_std.clamp(self.log_std_min, self.log_std_max).exp()
+
+
+class HybridCritic(nn.Module):
+    """Soft ``Q(s, k, x)`` of a parameterised action: an MLP on ``[s, one-hot k, x / param_scale]``."""
+
+    def __init__(self, in_features: int, num_choices: int = 3, param_dim: int = 1, hidden: Sequence[int] = (256, 256),
+                 param_scale: float = 5.0):
+        super().__init__()
+        self.net = mlp(in_features + num_choices + param_dim, 1, hidden)
+        self.param_scale = float(param_scale)
+
+    def forward(self, obs: torch.Tensor, choice: torch.Tensor, param: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([obs, choice.to(obs.dtype), param / self.param_scale], dim=-1))

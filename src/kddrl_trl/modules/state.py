@@ -12,6 +12,10 @@ features  content                                                scaling
           by slot from ``keys.NEIGHBORS_REL``; absent slots = 0   Δv_x / lat. speed, Δv_y / speed
 6         presence of a..f from ``keys.NEIGHBORS_MASK``           0 / 1
 d         s_e from ``keys.EMBED_S_E`` (only when ``embed``)       none (tanh output, already in [-1, 1])
+6         MOBIL criteria (only ``lc_state(mobil=True)``,          U / accel, flags 0 / 1
+          ``algo=peng``): utilities U_left, U_keep, U_right
+          (``keys.MOBIL_INCENTIVE``, Eq. 21-22) and safety flags
+          (``keys.MOBIL_SAFE``, Eq. 20-21)
 ========  =====================================================  ========================================
 
 ``cf_state`` (Eq. 30) appends the held lane-change action a_D3QN^t (``keys.LC_ACTION``, one-hot, 3) and
@@ -63,9 +67,14 @@ class StateScale:
     clip: float = 5.0                # every scaled feature is clipped to ±clip
 
 
-def lc_obs_dim(embed_dim: int = 0) -> int:
-    """Size of ``keys.LC_OBS`` (Eq. 24) for an embedding of ``embed_dim`` (0 = no ``s_e``)."""
-    return BASE_DIM + embed_dim
+#: size of the MOBIL criteria block of ``lc_state(mobil=True)``: 3 utilities, 3 safety flags
+MOBIL_DIM = 3 + 3
+
+
+def lc_obs_dim(embed_dim: int = 0, mobil: bool = False) -> int:
+    """Size of ``keys.LC_OBS`` (Eq. 24) for an embedding of ``embed_dim`` (0 = no ``s_e``), with the MOBIL
+    criteria of Peng et al. when ``mobil``."""
+    return BASE_DIM + embed_dim + (MOBIL_DIM if mobil else 0)
 
 
 def cf_obs_dim(embed_dim: int = 0) -> int:
@@ -76,9 +85,9 @@ def cf_obs_dim(embed_dim: int = 0) -> int:
 class _StateNet(nn.Module):
     """Concatenates the scaled state features; the input order is that of the builder's ``in_keys``."""
 
-    def __init__(self, scale: StateScale, embed: bool, detach_s_e: bool, actions: bool):
+    def __init__(self, scale: StateScale, embed: bool, detach_s_e: bool, actions: bool, mobil: bool = False):
         super().__init__()
-        self.scale, self.embed, self.detach_s_e, self.actions = scale, embed, detach_s_e, actions
+        self.scale, self.embed, self.detach_s_e, self.actions, self.mobil = scale, embed, detach_s_e, actions, mobil
         s = scale
         self.register_buffer("ego_scale", torch.tensor([s.position, s.speed, s.lateral_speed]), persistent=False)
         # REL_FEATURES order: dx (lateral), dy (longitudinal), dvx (lateral), dvy (longitudinal)
@@ -94,6 +103,10 @@ class _StateNet(nn.Module):
         if self.embed:
             s_e = rest.pop(0)
             parts.append(s_e.detach() if self.detach_s_e else s_e)
+        if self.mobil:
+            incentive, safe = rest.pop(0), rest.pop(0)
+            parts.append((incentive.to(ego.dtype) / self.scale.accel).clamp(-c, c))
+            parts.append(safe.to(ego.dtype))
         if self.actions:
             lc_action, accel = rest
             parts.append(lc_action.to(ego.dtype))
@@ -101,7 +114,7 @@ class _StateNet(nn.Module):
         return torch.cat(parts, dim=-1)
 
 
-def lc_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale = StateScale(),
+def lc_state(embed: bool = True, *, mobil: bool = False, detach_s_e: bool = False, scale: StateScale = StateScale(),
              out_key: NestedKey = K.LC_OBS) -> TensorDictModule:
     """D3QN state ``s_D3QN = [s_AV, Δs_i, s_e]`` — paper Eq. 24 — as a TensorDict module.
 
@@ -113,6 +126,9 @@ def lc_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale 
         embed (bool): include ``s_e``; ``False`` for the pure D3QN+TD3 state. Defaults to ``True``.
 
     Keyword Args:
+        mobil (bool): append MOBIL's safety-efficiency criteria (``keys.MOBIL_INCENTIVE``, ``keys.MOBIL_SAFE``,
+            written by :class:`~kddrl_trl.transforms.MOBILCriteria`): the lane-change state of Peng et al. (2022).
+            Defaults to ``False``.
         detach_s_e (bool): use ``s_e.detach()``. Defaults to ``False`` (the D3QN TD loss trains the
             embedding, see :mod:`kddrl_trl.modules.sharing`).
         scale (StateScale): input scales. Defaults to ``StateScale()``.
@@ -128,12 +144,14 @@ def lc_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale 
         >>> lc_state(embed=False)(td)[K.LC_OBS][:3]
         tensor([2.0000, 0.6000, 0.0000])
     """
-    in_keys = [K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
-    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=False), in_keys=in_keys, out_keys=[out_key])
+    in_keys = ([K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
+               + ([K.MOBIL_INCENTIVE, K.MOBIL_SAFE] if mobil else []))
+    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=False, mobil=mobil), in_keys=in_keys,
+                            out_keys=[out_key])
 
 
 def cf_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale = StateScale(),
-             out_key: NestedKey = K.CF_OBS) -> TensorDictModule:
+             out_key: NestedKey = K.CF_OBS, lc_action_key: NestedKey = K.LC_ACTION) -> TensorDictModule:
     """TD3 state ``s_TD3 = [s_AV, Δs_i, s_e, a_D3QN^t, a_TD3^{t-1}]`` — paper Eq. 30 — as a TensorDict module.
 
     Reads the inputs of :func:`lc_state` plus ``keys.LC_ACTION`` ``[*B, 3]`` (the held one-hot lane-change
@@ -150,7 +168,10 @@ def cf_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale 
             separate actor state with ``detach_s_e=True``).
         scale (StateScale): input scales. Defaults to ``StateScale()``.
         out_key (NestedKey): defaults to ``keys.CF_OBS``.
+        lc_action_key (NestedKey): the lane-change action read. Defaults to ``keys.LC_ACTION`` (the command in
+            force now); the unified agents, which choose both actions at once, read ``keys.LC_HELD`` (the command
+            of the previous frame) into ``keys.JOINT_OBS``.
     """
     in_keys = ([K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
-               + [K.LC_ACTION, K.EGO_ACCEL])
+               + [lc_action_key, K.EGO_ACCEL])
     return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=True), in_keys=in_keys, out_keys=[out_key])

@@ -1,5 +1,9 @@
-"""Loss factories of the two agents (TorchRL losses, target updaters and exploration modules)."""
+"""Loss factories of the agents (TorchRL losses, target updaters and exploration modules), and the PASAC loss
+TorchRL lacks."""
 from .d3qn import D3QNParts, make_d3qn
+from .ddpg import DDPGParts, make_ddpg
+from .pasac import HybridActionSampler, PASACLoss, PASACParts, make_pasac
 from .td3 import TD3Parts, make_td3
 
-__all__ = ["D3QNParts", "TD3Parts", "make_d3qn", "make_td3"]
+__all__ = ["D3QNParts", "DDPGParts", "HybridActionSampler", "PASACLoss", "PASACParts", "TD3Parts", "make_d3qn",
+           "make_ddpg", "make_pasac", "make_td3"]

@@ -33,14 +33,49 @@ class ClippedGaussianModule(AdditiveGaussianModule):
         return self.spec[self.action_key].project(action + noise.clamp(-self.noise_clip, self.noise_clip))
 
 
+class CarFollowingLosses:
+    """The two losses and the critic parameters of a car-following agent's TorchRL loss ``self.loss``, under one
+    name whatever the loss calls them (:class:`TD3Parts`; ``DDPGParts`` of :mod:`.ddpg`)."""
+
+    _value, _actor, _critic = "value_loss", "actor_loss", "qvalue_network_params"  # TD3Loss's names
+
+    def critic_params(self):
+        """The critics' parameters (the critic optimiser's)."""
+        return getattr(self.loss, self._critic)
+
+    def value_loss(self, td):
+        """Critic loss (TD3: twin critics, Eq. 6-7) of a batch holding the agent's states."""
+        return getattr(self.loss, self._value)(td)[0]
+
+    def actor_loss(self, td):
+        """Deterministic policy-gradient loss ``-Q(s, mu(s))`` (Eq. 8), critic parameters detached."""
+        return getattr(self.loss, self._actor)(td)[0]
+
+
 @dataclass
-class TD3Parts:
+class TD3Parts(CarFollowingLosses):
     actor: TensorDictModule          # mu(s; φ), Eq. 8
     explore: AdditiveGaussianModule  # a = mu(s) + clip(N(0, σ), -c, c), then the bounds (Algorithm 1 line 32)
     critic: TensorDictModule         # Q_k(s, a; φ_k), Eq. 7 (TD3Loss makes the twin copies and targets)
     loss: TD3Loss                    # Eq. 6-8
     target_updater: SoftUpdate       # Eq. 9-10
     policy_delay: int                # actor and targets updated every ``policy_delay`` critic updates
+
+
+def car_following_heads(obs_dim: int, low: float, high: float, hidden: Sequence[int], exploration_sigma: float,
+                        obs_key=K.CF_OBS, exploration_clip: float | None = None,
+                        ) -> tuple[TensorDictModule, TensorDictModule, AdditiveGaussianModule]:
+    """Actor ``mu(s)`` -> ``keys.CF_ACTION`` in [low, high], critic ``Q(s, a)`` -> ``keys.CF_STATE_ACTION_VALUE`` and
+    Gaussian exploration of σ = ``exploration_sigma`` m/s², its noise clipped to ``±exploration_clip`` when given
+    (:class:`ClippedGaussianModule`, Algorithm 1 line 32): the heads TD3 and DDPG (:mod:`.ddpg`) share."""
+    spec = Composite(cf=Composite(action=Bounded(low, high, shape=(1,), dtype=torch.float32)))
+    actor = TensorDictModule(BoundedActor(obs_dim, 1, hidden, low, high), in_keys=[obs_key], out_keys=[K.CF_ACTION])
+    critic = TensorDictModule(StateActionCritic(obs_dim, 1, hidden, action_scale=max(abs(low), abs(high))),
+                              in_keys=[obs_key, K.CF_ACTION], out_keys=[K.CF_STATE_ACTION_VALUE])
+    noise = dict(sigma_init=exploration_sigma, sigma_end=exploration_sigma, action_key=K.CF_ACTION)
+    explore = (AdditiveGaussianModule(spec, **noise) if exploration_clip is None
+               else ClippedGaussianModule(spec, noise_clip=exploration_clip, **noise))
+    return actor, critic, explore
 
 
 def make_td3(obs_dim: int, *, low: float = -5.0, high: float = 5.0, hidden: Sequence[int] = (256, 256),
@@ -54,13 +89,8 @@ def make_td3(obs_dim: int, *, low: float = -5.0, high: float = 5.0, hidden: Sequ
     ``clip(ε, -c, c)``; ``None``: unclipped, TorchRL's ``AdditiveGaussianModule``, this project's behaviour before
     issue 14), ``policy_noise`` clipped to ``±noise_clip`` for target smoothing (Eq. 6).
     """
-    spec = Composite(cf=Composite(action=Bounded(low, high, shape=(1,), dtype=torch.float32)))
-    actor = TensorDictModule(BoundedActor(obs_dim, 1, hidden, low, high), in_keys=[obs_key], out_keys=[K.CF_ACTION])
-    critic = TensorDictModule(StateActionCritic(obs_dim, 1, hidden, action_scale=max(abs(low), abs(high))),
-                              in_keys=[obs_key, K.CF_ACTION], out_keys=[K.CF_STATE_ACTION_VALUE])
-    noise = dict(sigma_init=exploration_sigma, sigma_end=exploration_sigma, action_key=K.CF_ACTION)
-    explore = (AdditiveGaussianModule(spec, **noise) if exploration_clip is None
-               else ClippedGaussianModule(spec, noise_clip=exploration_clip, **noise))
+    actor, critic, explore = car_following_heads(obs_dim, low, high, hidden, exploration_sigma, obs_key,
+                                                 exploration_clip=exploration_clip)
     loss = TD3Loss(actor, critic, bounds=(low, high), num_qvalue_nets=2,
                    policy_noise=policy_noise, noise_clip=noise_clip, loss_function=loss_function)
     loss.set_keys(action=K.CF_ACTION, state_action_value=K.CF_STATE_ACTION_VALUE, reward=K.CF_REWARD,

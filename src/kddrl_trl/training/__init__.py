@@ -1,16 +1,23 @@
-"""Learning: the two agents and their updates (:class:`HierarchicalLearner`), the Algorithm 1 loop
+"""Learning: the learners (:class:`Learner`: :class:`HierarchicalLearner` of KDDRL and the hierarchical comparison
+systems, :class:`JointD3QNLearner` and :class:`PASACLearner` of the unified ones), the Algorithm 1 loop
 (:class:`Trainer`), atomic checkpoints with resume, training curves. Built from the config by
 :mod:`kddrl_trl.factories`."""
+from .base import Learner
 from .checkpoint import (
     CheckpointError, load_latest_training_checkpoint, load_training_checkpoint, save_training_checkpoint,
 )
 from .curves import plot_training_curves
+from .joint_d3qn import JointD3QNLearner
 from .learner import HierarchicalLearner
+from .pasac import PASACLearner
 from .trainer import Trainer, make_buffer
 
 __all__ = [
     "CheckpointError",
     "HierarchicalLearner",
+    "JointD3QNLearner",
+    "Learner",
+    "PASACLearner",
     "Trainer",
     "load_latest_training_checkpoint",
     "load_training_checkpoint",

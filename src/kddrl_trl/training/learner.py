@@ -2,8 +2,9 @@
 27-29, 38-43), around one shared embedding (Eq. 23-24, trained as :mod:`kddrl_trl.modules.sharing` decides).
 
 One class serves KDDRL and the configuration-only comparison systems of DESIGN.md (``d3qn_td3``,
-``d3qn_td3_lg``, ``kddrl_same_clock``, ``ni``): which embedding inputs exist, dueling or not, and the decision
-period are options. Everything that touches a tensor is a TorchRL loss / module or a TensorDict module.
+``d3qn_td3_lg``, ``kddrl_same_clock``, ``ni``, ``peng``): which embedding inputs exist, dueling or not, the
+car-following agent (TD3, or DDPG for Peng et al.), MOBIL's criteria in the lane-change state (Peng et al.) and the
+decision period are options. Everything that touches a tensor is a TorchRL loss / module or a TensorDict module.
 """
 from __future__ import annotations
 
@@ -14,11 +15,9 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictSequential
-from torch import nn
 
 from .. import keys as K
 from ..collectors import MultiRatePolicy
-from ..compiling import resolve_compile
 from ..modules import (
     build_agent_states,
     cf_obs_dim,
@@ -31,30 +30,30 @@ from ..modules import (
     make_target_embedding,
     soft_update_embedding_,
 )
-from ..objectives import make_d3qn, make_td3
+from ..objectives import make_d3qn, make_ddpg, make_td3
+from .base import STATE_KEYS, Learner, adam, transition_keys
 
 log = logging.getLogger(__name__)
 
-#: keys a learner reads from a replay-buffer sample besides those of its embedding (root and "next")
-STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK, K.LC_DECIDE)
-DONE_KEYS = ("done", "terminated", "truncated")
+#: car-following agents of a hierarchical learner: their loss factories (TD3: KDDRL; DDPG: Peng et al.)
+CF_AGENTS = {"td3": make_td3, "ddpg": make_ddpg}
+#: besides the base's state keys, the decision flag: the TD3 target's next lane-change action is the D3QN's choice
+#: where the next frame is a decision frame (F6 of issue 14, ``modules/sharing.py::build_agent_states``)
+HIERARCHICAL_STATE_KEYS = (*STATE_KEYS, K.LC_DECIDE)
 
 
-def adam(params, lr: float) -> torch.optim.Adam:
-    """Adam with the fused kernel (one call per step for all tensors; on a CPU PyTorch's default is a
-    per-tensor loop)."""
-    params = [p for p in params if p.requires_grad]
-    return torch.optim.Adam(params, lr=lr, fused=True)
-
-
-class HierarchicalLearner(nn.Module):
-    """D3QN (lane change, buffer H) + TD3 (car following, buffer L) + the shared embedding.
+class HierarchicalLearner(Learner):
+    """D3QN (lane change, buffer H) + TD3 or DDPG (car following, buffer L) + the shared embedding.
 
     Args (all from the ``algo`` config node, see ``conf/algo/kddrl.yaml``):
         priors, key_gaps: inputs of the shared embedding (both False: no embedding, plain D3QN+TD3 states).
         embed_dim, embed_hidden: size of s_e and width of the embedding MLPs.
         d3qn, td3: keyword arguments of :func:`~kddrl_trl.objectives.make_d3qn` /
             :func:`~kddrl_trl.objectives.make_td3` (``lr`` is taken out for the optimisers).
+        cf_agent: ``"td3"`` (KDDRL) or ``"ddpg"`` (Peng et al., :func:`~kddrl_trl.objectives.make_ddpg` with the
+            keyword arguments ``ddpg``).
+        mobil_criteria: the lane-change state carries MOBIL's utilities and safety flags (Peng et al.;
+            the env must carry :class:`~kddrl_trl.transforms.MOBILCriteria`).
         embed_lr: learning rate of the embedding's own optimiser.
         compile: ``torch.compile`` :meth:`loss` (the learner's one compile site; optimiser steps stay eager):
             removes most of TensorDict's per-call overhead, after a one-off compile of ~30 s; ``"auto"``: when a
@@ -66,15 +65,21 @@ class HierarchicalLearner(nn.Module):
     Updates (one call = one gradient step):
 
     - :meth:`update_cf`: TD3 critic (``value_loss``, trains the embedding too), and every ``policy_delay``
-      critic updates the actor (``actor_loss`` on detached s_e) and the soft target updates (Eq. 9-10).
+      critic updates the actor (``actor_loss`` on detached s_e) and the soft target updates (Eq. 9-10); DDPG:
+      the same with one critic and ``policy_delay`` 1.
     - :meth:`update_lc`: D3QN double-DQN loss (Eq. 4, trains the embedding too), soft target update (Eq. 5).
     """
 
+    learns_from_decisions = True  # buffer H: the D3QN's macro-transitions
+
     def __init__(self, *, priors: bool = True, key_gaps: bool = True, embed_dim: int = 16, embed_hidden: int = 64,
                  d3qn: Mapping[str, Any] | None = None, td3: Mapping[str, Any] | None = None,
-                 embed_lr: float = 3e-4, tau: float | None = None, compile: bool | str = False):
+                 embed_lr: float = 3e-4, tau: float | None = None, compile: bool | str = False,
+                 cf_agent: str = "td3", ddpg: Mapping[str, Any] | None = None, mobil_criteria: bool = False):
         super().__init__()
-        d3qn_kw, td3_kw = dict(d3qn or {}), dict(td3 or {})
+        if cf_agent not in CF_AGENTS:
+            raise ValueError(f"cf_agent={cf_agent!r}: known car-following agents are {', '.join(CF_AGENTS)}")
+        d3qn_kw, td3_kw = dict(d3qn or {}), dict((td3 if cf_agent == "td3" else ddpg) or {})
         self.lr_lc = float(d3qn_kw.pop("lr", 1e-4))
         self.lr_actor = float(td3_kw.pop("actor_lr", 3e-4))
         self.lr_critic = float(td3_kw.pop("critic_lr", 3e-4))
@@ -82,10 +87,12 @@ class HierarchicalLearner(nn.Module):
         self.target_embedding = make_target_embedding(self.embedding)
         self.embed_tau = float(tau if tau is not None else td3_kw.get("tau", 0.005))
         d = embed_dim if self.embedding is not None else 0
-        self.lc_state = lc_state(embed=self.embedding is not None)
+        self.mobil_criteria = bool(mobil_criteria)
+        self.lc_state = lc_state(embed=self.embedding is not None, mobil=self.mobil_criteria)
         self.cf_state = cf_state(embed=self.embedding is not None)
-        self.d3qn = make_d3qn(lc_obs_dim(d), **d3qn_kw)
-        self.td3 = make_td3(cf_obs_dim(d), **td3_kw)
+        self.d3qn = make_d3qn(lc_obs_dim(d, mobil=self.mobil_criteria), **d3qn_kw)
+        #: the car-following agent's parts (``TD3Parts`` or ``DDPGParts``; the attribute keeps its KDDRL name)
+        self.td3 = CF_AGENTS[cf_agent](cf_obs_dim(d), **td3_kw)
         # registered so that state_dict() holds every network, target and exploration schedule
         self.lc_loss, self.cf_loss = self.d3qn.loss, self.td3.loss
         self.lc_explore, self.cf_explore = self.d3qn.explore, self.td3.explore
@@ -95,15 +102,12 @@ class HierarchicalLearner(nn.Module):
         # lc actor's, already registered)
         self.__dict__["next_lc_policy"] = TensorDictSequential(self.lc_state, self.lc_actor)
         self.opt_lc = adam(self.lc_loss.parameters(), self.lr_lc)
-        self.opt_critic = adam(self.cf_loss.qvalue_network_params.flatten_keys().values(), self.lr_critic)
+        self.opt_critic = adam(self.td3.critic_params().flatten_keys().values(), self.lr_critic)
         self.opt_actor = adam(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor)
         emb = embedding_parameters(self.embedding)
         self.opt_embed = adam(emb, float(embed_lr)) if emb else None
         self.register_buffer("counters", torch.zeros(3, dtype=torch.long))  # lc updates, cf updates, actor updates
-        self.compiled = resolve_compile(compile)
-        # the learner's one compile site (measured gain: ``compile`` above); fixed minibatch shapes, one graph
-        # per loss name
-        self._loss = torch.compile(self.loss, dynamic=False) if self.compiled else self.loss
+        self._compile(compile)  # the learner's one compile site (measured gain: ``compile`` above)
 
     # --------------------------------------------------------------------------------- acting
     def policy(self, explore: bool = True) -> MultiRatePolicy:
@@ -119,10 +123,8 @@ class HierarchicalLearner(nn.Module):
     def buffer_keys(self) -> list:
         """Keys a replay-buffer entry must keep for the updates (root and under ``"next"``)."""
         emb = list(self.embedding.in_keys) if self.embedding is not None else []
-        obs = list(dict.fromkeys([*STATE_KEYS, *emb]))
-        rewards = [("next", K.LC_REWARD), ("next", K.CF_REWARD)] + [("next", k) for k in DONE_KEYS]
-        return [*obs, K.LC_ACTION, K.CF_ACTION, *[("next", *(k if isinstance(k, tuple) else (k,))) for k in obs],
-                *rewards]
+        mobil = [K.MOBIL_INCENTIVE, K.MOBIL_SAFE] if self.mobil_criteria else []
+        return transition_keys([*HIERARCHICAL_STATE_KEYS, *emb, *mobil], [K.LC_ACTION, K.CF_ACTION])
 
     def explore_step(self, decisions: int, frames: int) -> None:
         """Advances ε (per decision) and the Gaussian σ schedule (per frame)."""
@@ -131,16 +133,10 @@ class HierarchicalLearner(nn.Module):
         if frames:
             self.cf_explore.step(frames)
 
-    # ---------------------------------------------------------------------------------- updates
-    def _descend(self, loss: torch.Tensor, *optimizers: torch.optim.Optimizer | None) -> None:
-        """Zero the optimisers' gradients, back-propagate ``loss``, step them (None entries skipped)."""
-        opts = [o for o in optimizers if o is not None]
-        for o in opts:
-            o.zero_grad(set_to_none=True)
-        loss.backward()
-        for o in opts:
-            o.step()
+    def exploration(self) -> dict[str, float]:
+        return {"epsilon": float(self.lc_explore.eps)}
 
+    # ---------------------------------------------------------------------------------- updates
     def loss(self, name: str, batch: TensorDictBase) -> torch.Tensor:
         """The loss ``name`` of a replay-buffer sample, on the agents' states (s_e of Eq. 23-24 inside):
 
@@ -154,10 +150,10 @@ class HierarchicalLearner(nn.Module):
         if name == "cf_value":
             states = build_agent_states(batch, self.embedding, self.cf_state, target_embedding=self.target_embedding,
                                         next_lc_policy=self.next_lc_policy)
-            return self.cf_loss.value_loss(states)[0]
+            return self.td3.value_loss(states)
         if name == "cf_actor":
             states = build_agent_states(batch.exclude("next"), self.embedding, self.cf_state)
-            return self.cf_loss.actor_loss(detach_embedding(states))[0]
+            return self.td3.actor_loss(detach_embedding(states))
         if name == "lc":
             states = build_agent_states(batch, self.embedding, self.lc_state, target_embedding=self.target_embedding)
             return self.lc_loss(states)["loss"]
@@ -178,6 +174,14 @@ class HierarchicalLearner(nn.Module):
             out["loss_actor"] = float(actor_loss.detach())
         return out
 
+    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
+        """Buffer L: :meth:`update_cf`."""
+        return self.update_cf(batch)
+
+    def update_decision(self, batch: TensorDictBase) -> dict[str, float]:
+        """Buffer H: :meth:`update_lc`."""
+        return self.update_lc(batch)
+
     def update_lc(self, batch: TensorDictBase) -> dict[str, float]:
         """One D3QN step on a buffer-H sample of macro-transitions (Algorithm 1 lines 27-29)."""
         loss = self._loss("lc", batch)
@@ -193,12 +197,3 @@ class HierarchicalLearner(nn.Module):
         if self.opt_embed is not None:
             opts["embed"] = self.opt_embed
         return opts
-
-    def full_state_dict(self) -> dict:
-        """Networks, targets, exploration schedules, counters and optimiser states."""
-        return {"modules": self.state_dict(), "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()}}
-
-    def load_full_state_dict(self, state: Mapping) -> None:
-        self.load_state_dict(state["modules"])
-        for name, opt in self.optimizers().items():
-            opt.load_state_dict(state["optimizers"][name])

@@ -7,7 +7,9 @@ Per collection batch of ``frames_per_env`` frames from each of the B environment
 2. one TD3 update per collected frame (lines 38-43) once ``warmup_frames`` frames are in; one D3QN update
    per decision taken (lines 27-29) once buffer H holds ``batch_size_lc`` macro-transitions. The counts per
    frame / per decision are the paper's; they are run after each batch instead of between two frames, so
-   the acting policy lags by at most ``frames_per_env`` frames (the usual collector trade-off);
+   the acting policy lags by at most ``frames_per_env`` frames (the usual collector trade-off). Any
+   :class:`~kddrl_trl.training.Learner` trains here: its ``update_frame`` is the buffer-L update (TD3, DDPG, or
+   a unified agent's only one), its ``update_decision`` the buffer-H one (only ``learns_from_decisions``);
 3. finished episodes are logged (``train/`` and ``time/``), the progress bar moves, and every
    ``checkpoint_every`` episodes a checkpoint is written (:mod:`kddrl_trl.training.checkpoint`);
 4. every ``eval_every`` episodes (0: never) the greedy policy drives ``eval_episodes`` validation episodes
@@ -29,8 +31,8 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
 from ..collectors import MultiTimescaleCollector
 from ..eval.tracker import EpisodeTracker
+from .base import Learner
 from .checkpoint import load_latest_training_checkpoint, save_best_checkpoint, save_training_checkpoint
-from .learner import HierarchicalLearner
 
 if TYPE_CHECKING:
     from ..conf.schema import TrainConfig
@@ -50,7 +52,7 @@ def make_buffer(capacity: int, batch_size: int, seed: int) -> TensorDictReplayBu
 
 
 class Trainer:
-    """Trains a :class:`HierarchicalLearner` for ``episodes`` episodes (:meth:`run`, on a
+    """Trains a :class:`~kddrl_trl.training.Learner` for ``episodes`` episodes (:meth:`run`, on a
     :class:`~kddrl_trl.collectors.MultiTimescaleCollector` whose env carries the predictive-state transforms and
     a :class:`~kddrl_trl.collectors.DecisionClock`, and which fills ``buffers``).
 
@@ -62,7 +64,7 @@ class Trainer:
     come from :mod:`kddrl_trl.factories`.
     """
 
-    def __init__(self, learner: HierarchicalLearner, buffers: tuple[TensorDictReplayBuffer, TensorDictReplayBuffer],
+    def __init__(self, learner: Learner, buffers: tuple[TensorDictReplayBuffer, TensorDictReplayBuffer],
                  cfg: TrainConfig, run_dir: str | Path, logger, *, episodes: int, progress: bool = True,
                  evaluator=None):
         self.learner, self.cfg, self.episodes, self.evaluator = learner, cfg, int(episodes), evaluator
@@ -127,28 +129,29 @@ class Trainer:
         for k, v in out.items():
             if not math.isfinite(v):
                 raise FloatingPointError(
-                    f"{k} = {v} after {self.counters['cf_updates']} TD3 / {self.counters['lc_updates']} D3QN updates "
-                    f"({len(self.history)} episodes): training diverged. The last checkpoint in "
+                    f"{k} = {v} after {self.counters['cf_updates']} buffer-L / {self.counters['lc_updates']} buffer-H "
+                    f"updates ({len(self.history)} episodes): training diverged. The last checkpoint in "
                     f"{self.run_dir / 'checkpoints'} is from before; lower the learning rates (algo.learner.*) and "
                     "resume=true, or start again")
-            losses[k].append(v)
+            losses.setdefault(k, []).append(v)
 
     def _updates(self, frames: int, decisions: int, losses: dict[str, list[float]]) -> None:
         c, learner = self.cfg, self.learner
         if self.counters["frames"] >= c.warmup_frames and len(self.buffer_cf) >= c.batch_size_cf:
             for _ in range(frames * c.updates_per_frame):
-                self._record(learner.update_cf(self.buffer_cf.sample()), losses)
+                self._record(learner.update_frame(self.buffer_cf.sample()), losses)
                 self.counters["cf_updates"] += 1
-        if len(self.buffer_lc) >= c.batch_size_lc:
+        if learner.learns_from_decisions and len(self.buffer_lc) >= c.batch_size_lc:
             for _ in range(decisions * c.updates_per_decision):
-                self._record(learner.update_lc(self.buffer_lc.sample()), losses)
+                self._record(learner.update_decision(self.buffer_lc.sample()), losses)
                 self.counters["lc_updates"] += 1
 
     def _log_episode(self, ep: dict, losses: dict[str, list[float]], started: float) -> None:
         step = ep["index"]
         for key in EPISODE_FIELDS:
             self.logger.log_scalar(f"train/{key}", float(ep[key]), step=step)
-        self.logger.log_scalar("train/epsilon", float(self.learner.lc_explore.eps), step=step)
+        for key, value in self.learner.exploration().items():
+            self.logger.log_scalar(f"train/{key}", value, step=step)
         for key, values in losses.items():
             if values:
                 self.logger.log_scalar(f"train/{key}", float(np.mean(values)), step=step)

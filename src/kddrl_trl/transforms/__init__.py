@@ -13,6 +13,8 @@ transform              writes                               paper
 :class:`SafetyShield`   ``("cf", "action")`` (executed),     car-following shield (not in the paper; issue 14)
                         ``("next", "cf", "shield")`` [1]
 :class:`LeaderHistory`  ``("leaders", "history")`` [3, H, 2] the leaders' last H (y, v), for envs without it
+:class:`MOBILCriteria`  ``("prior", "mobil_incentive")`` [3], MOBIL utilities (Eq. 21-22) and safety flags
+                        ``("prior", "mobil_safe")`` [3]       (Eq. 20-21): the state of Peng et al. (``algo=peng``)
 =====================  ==================================  ================================================
 
 :func:`make_kddrl_transforms` builds the stack (and its ablations) as a :class:`PredictiveStack`: a ``Compose``
@@ -26,12 +28,12 @@ from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
 from .lcgan import LCGANPrior
 from .leader_history import LeaderHistory
-from .mobil_prior import MOBILPrior, MOBILSafetyMask
+from .mobil_prior import MOBILCriteria, MOBILPrior, MOBILSafetyMask
 from .shield import SafetyShield
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
-__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "LeaderHistory", "MOBILPrior", "MOBILSafetyMask",
-           "PredictiveStack", "SafetyShield",
+__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "LeaderHistory", "MOBILCriteria", "MOBILPrior",
+           "MOBILSafetyMask", "PredictiveStack", "SafetyShield",
            "TrajGANPrediction",
            "key_step_gaps", "make_kddrl_transforms"]

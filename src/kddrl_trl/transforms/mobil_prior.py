@@ -1,16 +1,17 @@
-"""``MOBILPrior``: the knowledge-driven lane-change prior P_MOBIL (paper Eq. 20-22, Algorithm 1 lines 19-20), and
-``MOBILSafetyMask``: MOBIL's safety check as a hard constraint on the lane-change commands (§III.C.2)."""
+"""MOBIL on the ego's observation: ``MOBILPrior``, the knowledge-driven lane-change prior P_MOBIL (paper Eq. 20-22,
+Algorithm 1 lines 19-20); ``MOBILSafetyMask``, MOBIL's safety check as a hard constraint on the lane-change commands
+(§III.C.2); and ``MOBILCriteria``, MOBIL's safety-efficiency criteria themselves (the utilities and safety flags that
+Peng et al. (2022) give their D3QN lane-change agent, ``algo=peng``)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
 
 import torch
-
-from .. import keys as K
 from torchrl.data import Categorical
 
+from .. import keys as K
 from ..physics import IDMParams, MOBILParams, mobil_prior, mobil_utilities
-from ._base import PredictiveTransform, as_params, finite_or_zero, probability_spec
+from ._base import PredictiveTransform, as_params, finite_or_zero, probability_spec, unbounded_spec
 from .idm_prior import as_idm_params
 
 
@@ -19,19 +20,28 @@ def as_mobil_params(mobil: MOBILParams | Mapping | None) -> MOBILParams:
     return as_params(MOBILParams, mobil)
 
 
-def _mobil_inputs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor) -> tuple:
-    """(ego y, ego v, kin, mask, lane) of the MOBIL functions from raw observation tensors (non-finite slots
-    absent)."""
+def _mobil_on_obs(fn, ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
+                  idm: IDMParams, mobil: MOBILParams):
+    """``fn`` (:func:`mobil_prior` or :func:`mobil_utilities`) on raw observation tensors: ego y and v from
+    ``EGO_STATE``, the lane from ``EGO_LANE``, neighbours with non-finite kinematics treated as absent."""
     ego, kin = ego.to(torch.float32), kin.to(torch.float32)
     mask = mask.bool() & torch.isfinite(kin).all(-1)
-    return ego[..., 0], ego[..., 1], kin, mask, lane[..., 0].long()
+    return fn(ego[..., 0], ego[..., 1], kin, mask, lane[..., 0].long(), num_lanes, idm, mobil)
 
 
 def mobil_prior_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
                          idm: IDMParams, mobil: MOBILParams) -> torch.Tensor:
     """``P_MOBIL`` ``[*B, 3]`` from raw observation tensors (a simplex, never NaN)."""
-    p = mobil_prior(*_mobil_inputs(ego, lane, kin, mask), num_lanes, idm, mobil)
+    p = _mobil_on_obs(mobil_prior, ego, lane, kin, mask, num_lanes, idm, mobil)
     return finite_or_zero(p.to(torch.float32)).clamp(0.0, 1.0)
+
+
+def mobil_criteria_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor,
+                            num_lanes: int, idm: IDMParams, mobil: MOBILParams) -> tuple[torch.Tensor, torch.Tensor]:
+    """MOBIL's utilities ``U`` ``[*B, 3]`` (m/s², Eq. 21-22, never NaN) and safety flags ``[*B, 3]`` (bool, Eq. 20-21;
+    False where the lane does not exist) from raw observation tensors, ordered (left, keep, right)."""
+    u, safe = _mobil_on_obs(mobil_utilities, ego, lane, kin, mask, num_lanes, idm, mobil)
+    return finite_or_zero(u.to(torch.float32)), safe
 
 
 def mobil_safe_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
@@ -39,7 +49,7 @@ def mobil_safe_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor
     """MOBIL's safety flags ``[*B, 3]`` (bool, left / keep / right) from raw observation tensors: the target lane
     exists, the gaps to its leader and follower exceed ``y_safe`` (Eq. 20) and the new follower brakes less than
     ``b_safe`` (Eq. 21, ``a_TF_new > -b_safe``); keep is always safe."""
-    return mobil_utilities(*_mobil_inputs(ego, lane, kin, mask), num_lanes, idm, mobil)[1]
+    return mobil_criteria_from_obs(ego, lane, kin, mask, num_lanes, idm, mobil)[1]
 
 
 class MOBILPrior(PredictiveTransform):
@@ -117,3 +127,31 @@ class MOBILSafetyMask(PredictiveTransform):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(num_lanes={self.num_lanes}, mobil={self.mobil}, idm={self.idm})"
+
+
+class MOBILCriteria(MOBILPrior):
+    """MOBIL's safety-efficiency criteria -> ``keys.MOBIL_INCENTIVE`` ``[*B, 3]`` (utilities U_left, U_keep, U_right,
+    m/s², Eq. 21-22) and ``keys.MOBIL_SAFE`` ``[*B, 3]`` (bool: the direction passes the safety criterion, Eq. 20 and
+    ``a_TF_new > -b_safe``; keep is always safe, a missing lane never is).
+
+    The lane-change state of Peng et al. (2022) (``algo=peng``, :func:`~kddrl_trl.modules.lc_state` with
+    ``mobil=True``). Same inputs and parameters as :class:`MOBILPrior`, computed by the same
+    :func:`kddrl_trl.physics.mobil_utilities` (MOBILPrior normalises them into P_MOBIL; this transform hands the
+    agent the criteria themselves). It writes state features only: masking unsafe commands out of
+    ``keys.LC_ACTION_MASK`` is :class:`MOBILSafetyMask`'s job (``algo.mobil_safety_mask``), not this transform's.
+    """
+
+    def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
+                 num_lanes: int = 3):
+        super().__init__(mobil, idm, num_lanes)
+        self.out_keys = [K.MOBIL_INCENTIVE, K.MOBIL_SAFE]
+
+    def frame(self, values, noise=None) -> dict:
+        u, safe = mobil_criteria_from_obs(values[K.EGO_STATE], values[K.EGO_LANE], values[K.NEIGHBORS_KIN],
+                                          values[K.NEIGHBORS_MASK], num_lanes=self.num_lanes, idm=self.idm,
+                                          mobil=self.mobil)
+        return {K.MOBIL_INCENTIVE: u, K.MOBIL_SAFE: safe}
+
+    def out_specs(self, batch, device) -> dict:
+        return {K.MOBIL_INCENTIVE: unbounded_spec(batch, (3,), device),
+                K.MOBIL_SAFE: Categorical(2, shape=(*batch, 3), dtype=torch.bool, device=device)}

@@ -1,0 +1,298 @@
+"""PASAC, parameterised-action soft actor-critic (``algo=pasac_unified``; the paper's "PASAC (Unit)", Table I,
+§II.B): one agent choosing a discrete lane command and a continuous acceleration every 0.1 s. TorchRL has no loss
+for it: :class:`PASACLoss` is one, written the way ``torchrl/objectives/sac.py`` (``SACLoss``, ``DiscreteSACLoss``)
+is. :func:`make_pasac` wires it to the keys of :mod:`kddrl_trl.keys`.
+
+The policy factorises, ``π(k, x | s) = π_d(k | s) π_c(x | s)``: a categorical over the lane commands k (left,
+keep, right; invalid commands have probability 0) and a tanh-Gaussian over the acceleration x, scaled to
+[low, high] (Eq. 31). Its entropy is the sum of the two parts, each with its own temperature (α_d, α_c), each
+auto-tuned towards its own target entropy (Delalleau et al. 2019, "hybrid SAC"; Haarnoja et al. 2018 for the
+continuous part, Christodoulou 2019 for the discrete one). With twin soft critics ``Q_i(s, k, x)`` and target
+copies ``Q'_i``:
+
+- soft value of a next state, exact over k and one sample x' ~ π_c(·|s'):
+  ``V(s') = Σ_k π_d(k|s') [min_i Q'_i(s', k, x') - α_d log π_d(k|s')] - α_c log π_c(x'|s')``;
+- critic loss: ``Σ_i E[(Q_i(s, k, x) - r - γ (1 - terminated) V(s'))²]`` (the target through the TorchRL value
+  estimator made by :meth:`~PASACLoss.make_value_estimator`, TD(0) by default);
+- actor loss, x reparameterised, critics detached:
+  ``E_s[Σ_k π_d(k|s) (α_d log π_d(k|s) - min_i Q_i(s, k, x)) + α_c log π_c(x|s)]``;
+- temperatures: ``-log α_c (log π_c + H̄_c)`` and ``log α_d (H_d - H̄_d)``, so each α falls while its part's
+  entropy is above its target H̄ and rises below it.
+
+``log π_c`` is the density of the tanh-squashed action in [-1, 1] (before the affine scaling to [low, high]), SAC's
+usual convention, so ``target_entropy_param = -1`` (-dim) is the usual target.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase, TensorDictParams
+from tensordict.nn import TensorDictModule, TensorDictModuleBase
+from tensordict.utils import NestedKey, unravel_key
+from torch import Tensor
+from torchrl.envs.utils import ExplorationType, exploration_type
+from torchrl.objectives import LossModule, SoftUpdate
+from torchrl.objectives.utils import ValueEstimators, _vmap_func, default_value_kwargs, distance_loss
+from torchrl.objectives.value import TD0Estimator, TD1Estimator, TDLambdaEstimator
+
+from .. import keys as K
+from ..modules.heads import HybridActor, HybridCritic
+
+
+def tanh_gaussian(loc: Tensor, scale: Tensor, noise: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """A reparameterised sample ``u = tanh(loc + scale ε)`` in [-1, 1] (``noise`` = ε, drawn when None) and its
+    log-density, summed over the last dimension (change of variables of the tanh)."""
+    eps = torch.randn_like(loc) if noise is None else noise
+    pre = loc + scale * eps
+    u = torch.tanh(pre)
+    log_prob = torch.distributions.Normal(loc, scale).log_prob(pre) - torch.log1p(-u.pow(2) + 1e-6)
+    return u, log_prob.sum(-1, keepdim=True)
+
+
+class PASACLoss(LossModule):
+    """Loss of a parameterised-action SAC agent (module docstring for the equations).
+
+    Args:
+        actor_network (TensorDictModule): reads the state (and the valid-command mask), writes the ``logits``, ``loc``
+            and ``scale`` keys (:class:`~kddrl_trl.modules.heads.HybridActor`).
+        qvalue_network (TensorDictModule): reads the state, the one-hot ``action`` and the continuous ``param``,
+            writes ``state_action_value`` (:class:`~kddrl_trl.modules.heads.HybridCritic`). Its last two ``in_keys``
+            must be the ``action`` and ``param`` keys.
+
+    Keyword Args:
+        num_choices (int): discrete choices (3 lane commands).
+        num_qvalue_nets (int): twin critics by default.
+        low, high (float): bounds of the continuous parameter (the tanh sample is scaled to them).
+        alpha_init (float): initial value of both temperatures.
+        target_entropy_lane (float): target entropy H̄_d of the lane choice, in nats (≤ log of the number of commands).
+        target_entropy_param (float): target entropy H̄_c of the tanh-squashed parameter (SAC: ``-dim``).
+        loss_function (str): critic distance, ``"l2"`` (default) or ``"smooth_l1"``.
+
+    Returns (``forward``): a TensorDict with ``loss_qvalue``, ``loss_actor``, ``loss_alpha_lane``,
+    ``loss_alpha_param`` (each trains disjoint parameters: summing them and stepping one optimiser per part is
+    the SAC update) and the detached diagnostics ``alpha_lane``, ``alpha_param``, ``entropy_lane``,
+    ``log_prob_param``, ``state_action_value``, ``target_value``.
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Keys a :class:`PASACLoss` reads and writes; change them with ``set_keys``.
+
+        Attributes:
+            action: one-hot discrete choice (the lane command). Defaults to ``keys.LC_ACTION``.
+            param: continuous parameter (the acceleration). Defaults to ``keys.CF_ACTION``.
+            action_mask: valid discrete choices. Defaults to ``keys.LC_ACTION_MASK``.
+            logits, loc, scale: outputs of the actor network. Default to ``keys.PASAC_*``.
+            state_action_value: output of the critic. Defaults to ``keys.PASAC_STATE_ACTION_VALUE``.
+            value: the soft value of the next state, written under ``"next"`` for the value estimator.
+                Defaults to ``"state_value"``.
+            reward, done, terminated: read under ``"next"``. Default to ``keys.JOINT_REWARD``, ``"done"``,
+                ``"terminated"``.
+        """
+
+        action: NestedKey = K.LC_ACTION
+        param: NestedKey = K.CF_ACTION
+        action_mask: NestedKey = K.LC_ACTION_MASK
+        logits: NestedKey = K.PASAC_LOGITS
+        loc: NestedKey = K.PASAC_LOC
+        scale: NestedKey = K.PASAC_SCALE
+        state_action_value: NestedKey = K.PASAC_STATE_ACTION_VALUE
+        value: NestedKey = "state_value"
+        reward: NestedKey = K.JOINT_REWARD
+        done: NestedKey = "done"
+        terminated: NestedKey = "terminated"
+
+    tensor_keys: _AcceptedKeys
+    actor_network: TensorDictModule
+    qvalue_network: TensorDictModule
+    actor_network_params: TensorDictParams
+    qvalue_network_params: TensorDictParams
+    target_actor_network_params: TensorDictParams
+    target_qvalue_network_params: TensorDictParams
+    default_keys = _AcceptedKeys
+    default_value_estimator = ValueEstimators.TD0
+    out_keys = ["loss_qvalue", "loss_actor", "loss_alpha_lane", "loss_alpha_param", "alpha_lane", "alpha_param",
+                "entropy_lane", "log_prob_param", "state_action_value", "target_value"]
+
+    def __init__(self, actor_network: TensorDictModule, qvalue_network: TensorDictModule, *, num_choices: int = 3,
+                 num_qvalue_nets: int = 2, low: float = -5.0, high: float = 5.0, alpha_init: float = 1.0,
+                 target_entropy_lane: float = 0.33,
+                 target_entropy_param: float = -1.0, loss_function: str = "l2"):
+        super().__init__()
+        self._in_keys = None
+        self.num_choices, self.num_qvalue_nets = int(num_choices), int(num_qvalue_nets)
+        self.loss_function = loss_function
+        self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
+        self.convert_to_functional(qvalue_network, "qvalue_network", expand_dim=self.num_qvalue_nets,
+                                   create_target_params=True, compare_against=list(actor_network.parameters()))
+        # every critic on one batch in one call (the critics' parameters stacked along dim 0), as SACLoss does
+        self._vmap_q = _vmap_func(self.qvalue_network, (None, 0), randomness="error")
+        self.register_buffer("param_loc", torch.tensor((high + low) / 2.0))
+        self.register_buffer("param_half", torch.tensor((high - low) / 2.0))
+        self.log_alpha_lane = torch.nn.Parameter(torch.tensor(math.log(alpha_init)))
+        self.log_alpha_param = torch.nn.Parameter(torch.tensor(math.log(alpha_init)))
+        self.register_buffer("target_entropy_lane", torch.tensor(float(target_entropy_lane)))
+        self.register_buffer("target_entropy_param", torch.tensor(float(target_entropy_param)))
+
+    # ---------------------------------------------------------------------------------- TorchRL API
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        if self._value_estimator is not None:
+            self._value_estimator.set_keys(value=self.tensor_keys.value, reward=self.tensor_keys.reward,
+                                           done=self.tensor_keys.done, terminated=self.tensor_keys.terminated)
+        self._set_in_keys()
+
+    def _set_in_keys(self) -> None:
+        keys = list(dict.fromkeys([*self.actor_network.in_keys, *self.qvalue_network.in_keys]))
+        t = self.tensor_keys
+        nxt = [unravel_key(("next", k)) for k in [*self.actor_network.in_keys, t.reward, t.done, t.terminated]]
+        self._in_keys = list(dict.fromkeys([*keys, *nxt]))
+
+    @property
+    def in_keys(self):
+        if self._in_keys is None:
+            self._set_in_keys()
+        return self._in_keys
+
+    def make_value_estimator(self, value_type: ValueEstimators | None = None, **hyperparams):
+        """The estimator of the critic target (TD(0) by default; ``gamma`` among ``hyperparams``)."""
+        if value_type is None:
+            value_type = self.default_value_estimator
+        self.value_type = value_type
+        hp = dict(default_value_kwargs(value_type))
+        hp.update(hyperparams)
+        estimators = {ValueEstimators.TD0: TD0Estimator, ValueEstimators.TD1: TD1Estimator,
+                      ValueEstimators.TDLambda: TDLambdaEstimator}
+        if value_type not in estimators:
+            raise NotImplementedError(f"PASACLoss: value estimator {value_type} is not supported")
+        self._value_estimator = estimators[value_type](value_network=None, **hp)
+        self._value_estimator.set_keys(value=self.tensor_keys.value, reward=self.tensor_keys.reward,
+                                       done=self.tensor_keys.done, terminated=self.tensor_keys.terminated)
+        return self
+
+    # -------------------------------------------------------------------------------------- pieces
+    @property
+    def alpha_lane(self) -> Tensor:
+        return self.log_alpha_lane.detach().exp()
+
+    @property
+    def alpha_param(self) -> Tensor:
+        return self.log_alpha_param.detach().exp()
+
+    def _policy(self, td: TensorDictBase) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """(π_d [*, K], log π_d [*, K], a reparameterised parameter in [low, high] [*, P], its log π_c [*, 1])."""
+        td = td.select(*self.actor_network.in_keys, strict=False).clone(False)
+        with self.actor_network_params.to_module(self.actor_network):
+            self.actor_network(td)
+        log_p = torch.log_softmax(td.get(self.tensor_keys.logits), dim=-1)
+        u, log_prob = tanh_gaussian(td.get(self.tensor_keys.loc), td.get(self.tensor_keys.scale))
+        return log_p.exp(), log_p, self.param_loc + self.param_half * u, log_prob
+
+    def _q(self, td: TensorDictBase, choice: Tensor, param: Tensor, params: TensorDictBase) -> Tensor:
+        """``Q_i(s, choice, param)`` of every critic i: ``[num_qvalue_nets, *batch]``."""
+        obs_keys = self.qvalue_network.in_keys[:-2]
+        x = td.select(*obs_keys).clone(False)
+        x.set(self.tensor_keys.action, choice)
+        x.set(self.tensor_keys.param, param)
+        return self._vmap_q(x, params).get(self.tensor_keys.state_action_value).squeeze(-1)
+
+    def _q_every_choice(self, td: TensorDictBase, param: Tensor, params: TensorDictBase) -> Tensor:
+        """``min_i Q_i(s, k, param)`` for every choice k: ``[*batch, K]``."""
+        n, batch = self.num_choices, td.batch_size
+        expanded = td.select(*self.qvalue_network.in_keys[:-2]).unsqueeze(-1).expand(*batch, n)
+        choice = torch.eye(n, dtype=param.dtype, device=param.device).expand(*batch, n, n)
+        return self._q(expanded, choice, param.unsqueeze(-2).expand(*batch, n, param.shape[-1]), params).min(0).values
+
+    # ---------------------------------------------------------------------------------------- losses
+    def qvalue_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
+        """Twin soft-critic loss and the detached target (module docstring)."""
+        with torch.no_grad():
+            nxt = tensordict.get("next")
+            p, log_p, param, log_prob = self._policy(nxt)
+            q_next = self._q_every_choice(nxt, param, self.target_qvalue_network_params)
+            value = (p * (q_next - self.alpha_lane * log_p)).sum(-1, keepdim=True) - self.alpha_param * log_prob
+            td = tensordict.clone(False)
+            td.set(("next", self.tensor_keys.value), value)
+            target = self.value_estimator.value_estimate(td).squeeze(-1)
+        pred = self._q(tensordict, tensordict.get(self.tensor_keys.action), tensordict.get(self.tensor_keys.param),
+                       self.qvalue_network_params)
+        loss = distance_loss(pred, target.expand_as(pred), loss_function=self.loss_function).sum(0).mean()
+        return loss, {"state_action_value": pred.detach().mean(), "target_value": target.detach().mean()}
+
+    def actor_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
+        """Policy loss of both heads (critics detached) and the entropies the temperatures are tuned on."""
+        p, log_p, param, log_prob = self._policy(tensordict)
+        q = self._q_every_choice(tensordict, param, self.qvalue_network_params.detach())
+        loss = ((p * (self.alpha_lane * log_p - q)).sum(-1, keepdim=True) + self.alpha_param * log_prob).mean()
+        entropy = -(p * log_p).sum(-1)
+        return loss, {"entropy_lane": entropy.detach(), "log_prob_param": log_prob.detach().squeeze(-1)}
+
+    def alpha_loss(self, entropy_lane: Tensor, log_prob_param: Tensor) -> tuple[Tensor, Tensor]:
+        """Temperature losses of the lane choice and the parameter (module docstring)."""
+        lane = (self.log_alpha_lane * (entropy_lane - self.target_entropy_lane)).mean()
+        param = -(self.log_alpha_param * (log_prob_param + self.target_entropy_param)).mean()
+        return lane, param
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        loss_q, meta_q = self.qvalue_loss(tensordict)
+        loss_actor, meta_a = self.actor_loss(tensordict)
+        loss_lane, loss_param = self.alpha_loss(meta_a["entropy_lane"], meta_a["log_prob_param"])
+        return TensorDict({"loss_qvalue": loss_q, "loss_actor": loss_actor, "loss_alpha_lane": loss_lane,
+                           "loss_alpha_param": loss_param, "alpha_lane": self.alpha_lane,
+                           "alpha_param": self.alpha_param, "entropy_lane": meta_a["entropy_lane"].mean(),
+                           "log_prob_param": meta_a["log_prob_param"].mean(), **meta_q}, batch_size=[])
+
+
+class HybridActionSampler(TensorDictModuleBase):
+    """Acting with a PASAC policy: reads the actor's ``logits``, ``loc``, ``scale`` and writes the one-hot lane
+    command (``keys.LC_ACTION``) and the acceleration (``keys.CF_ACTION``, in [low, high]). With ``explore`` and under
+    TorchRL's ``ExplorationType.RANDOM`` (a collector's default) it samples both; otherwise it takes the modes
+    (most probable valid command, ``tanh(loc)`` scaled)."""
+
+    def __init__(self, low: float = -5.0, high: float = 5.0, explore: bool = True):
+        super().__init__()
+        self.in_keys = [K.PASAC_LOGITS, K.PASAC_LOC, K.PASAC_SCALE]
+        self.out_keys = [K.LC_ACTION, K.CF_ACTION]
+        self.loc, self.half, self.explore = (high + low) / 2.0, (high - low) / 2.0, bool(explore)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        logits, loc, scale = (tensordict.get(k) for k in self.in_keys)
+        if self.explore and exploration_type() in (ExplorationType.RANDOM, None):
+            choice = torch.distributions.Categorical(logits=logits).sample()
+            u, _ = tanh_gaussian(loc, scale)
+        else:
+            choice, u = logits.argmax(-1), torch.tanh(loc)
+        tensordict.set(K.LC_ACTION, torch.nn.functional.one_hot(choice, logits.shape[-1]).to(loc.dtype))
+        tensordict.set(K.CF_ACTION, self.loc + self.half * u)
+        return tensordict
+
+
+@dataclass
+class PASACParts:
+    actor: TensorDictModule  # state -> logits, loc, scale
+    critic: TensorDictModule  # Q(s, k, x) (PASACLoss makes the twin copies and targets)
+    loss: PASACLoss
+    target_updater: SoftUpdate
+
+    def sampler(self, explore: bool) -> HybridActionSampler:
+        return HybridActionSampler(float(self.loss.param_loc - self.loss.param_half),
+                                   float(self.loss.param_loc + self.loss.param_half), explore)
+
+
+def make_pasac(obs_dim: int, *, num_choices: int = 3, low: float = -5.0, high: float = 5.0,
+               hidden: Sequence[int] = (256, 256), gamma: float = 0.99, tau: float = 0.005, alpha_init: float = 1.0,
+               target_entropy_lane: float = 0.33, target_entropy_param: float = -1.0, loss_function: str = "l2",
+               obs_key=K.JOINT_OBS) -> PASACParts:
+    """The PASAC agent on ``obs_key``: lane command (``keys.LC_ACTION``, masked by ``keys.LC_ACTION_MASK``) and
+    acceleration (``keys.CF_ACTION`` in [low, high] m/s², Eq. 31), rewarded with ``keys.JOINT_REWARD``."""
+    actor = TensorDictModule(HybridActor(obs_dim, num_choices, 1, hidden), in_keys=[obs_key, K.LC_ACTION_MASK],
+                             out_keys=[K.PASAC_LOGITS, K.PASAC_LOC, K.PASAC_SCALE])
+    critic = TensorDictModule(HybridCritic(obs_dim, num_choices, 1, hidden, param_scale=max(abs(low), abs(high))),
+                              in_keys=[obs_key, K.LC_ACTION, K.CF_ACTION], out_keys=[K.PASAC_STATE_ACTION_VALUE])
+    loss = PASACLoss(actor, critic, num_choices=num_choices, low=low, high=high, alpha_init=alpha_init,
+                     target_entropy_lane=target_entropy_lane, target_entropy_param=target_entropy_param,
+                     loss_function=loss_function)
+    loss.make_value_estimator(gamma=gamma)
+    return PASACParts(actor, critic, loss, SoftUpdate(loss, tau=tau))

@@ -1,0 +1,124 @@
+"""The learners of the comparison systems Peng et al. (D3QN + DDPG + MOBIL criteria), unified D3QN and PASAC:
+their pieces (joint action, MOBIL criteria), which parameters each update moves, and their policies' masks."""
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs.utils import check_env_specs
+
+from kddrl_trl import keys as K
+from kddrl_trl.collectors import DecisionClock, MultiTimescaleCollector
+from kddrl_trl.envs import FakeHighwayEnv
+from kddrl_trl.modules import lc_obs_dim, lc_state
+from kddrl_trl.modules.joint import accel_levels, joint_action_mask, joint_action_split, joint_reward
+from kddrl_trl.physics import mobil_utilities
+from kddrl_trl.training import HierarchicalLearner, JointD3QNLearner, PASACLearner, make_buffer
+from kddrl_trl.transforms import MOBILCriteria
+
+PENG = {"priors": False, "key_gaps": False, "mobil_criteria": True, "cf_agent": "ddpg",
+        "d3qn": {"hidden": [32, 32]}, "ddpg": {"hidden": [32, 32]}}
+
+
+def collect(learner, transforms, frames=30):
+    """(buffer-L sample, buffer-H sample or None) of ``learner`` 's exploring policy on the fake env."""
+    torch.manual_seed(0)
+    env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), Compose(*transforms, DecisionClock(1)))
+    rb_l, rb_h = make_buffer(5000, 32, 0), make_buffer(5000, 16, 0)
+    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=frames, frame_buffer=rb_l,
+                                           macro_buffer=rb_h, frame_keys=learner.buffer_keys())
+    batch = next(iter(mtc)).frames
+    mtc.shutdown()
+    return batch, rb_l.sample(), rb_h.sample()
+
+
+def snapshot(module):
+    return {n: t.detach().clone() for n, t in module.state_dict().items() if t.is_floating_point() and t.dim() > 0}
+
+
+def moved(before, module, prefix):
+    return {n for n, t in snapshot(module).items() if n.startswith(prefix) and not torch.equal(before[n], t)}
+
+
+# ------------------------------------------------------------------------------------------ pieces
+def test_joint_action_split_mask_and_reward_by_hand():
+    levels = accel_levels(7)
+    torch.testing.assert_close(levels, torch.tensor([-5.0, -10 / 3, -5 / 3, 0.0, 5 / 3, 10 / 3, 5.0]))
+    index = torch.tensor([0, 6, 7 + 3, 20])  # left -5, left +5, keep 0, right +5
+    td = TensorDict({K.JOINT_ACTION: torch.nn.functional.one_hot(index, 21).float(),
+                     K.LC_ACTION_MASK: torch.tensor([[True, True, False]] * 4)}, [4])
+    joint_action_split(levels)(td)
+    assert td[K.LC_ACTION].argmax(-1).tolist() == [K.LEFT, K.LEFT, K.KEEP, K.RIGHT]
+    torch.testing.assert_close(td[K.CF_ACTION].squeeze(-1), torch.tensor([-5.0, 5.0, 0.0, 5.0]))
+    mask = joint_action_mask(7)(td)[K.JOINT_ACTION_MASK]
+    assert mask.shape == (4, 21) and mask[:, :14].all() and not mask[:, 14:].any()
+    td["next"] = TensorDict({K.LC_REWARD: torch.ones(4, 1), K.CF_REWARD: torch.full((4, 1), 0.5)}, [4])
+    assert joint_reward()(td)["next", *K.JOINT_REWARD].eq(1.5).all()
+    with pytest.raises(ValueError, match="num_levels"):
+        accel_levels(1)
+
+
+def test_mobil_criteria_transform_specs_and_values():
+    env = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=1), MOBILCriteria())
+    check_env_specs(env)
+    td = env.rollout(4)["next"]
+    u, safe = mobil_utilities(td[K.EGO_STATE][..., 0], td[K.EGO_STATE][..., 1], td[K.NEIGHBORS_KIN],
+                              td[K.NEIGHBORS_MASK], td[K.EGO_LANE][..., 0])
+    torch.testing.assert_close(td[K.MOBIL_INCENTIVE], u)
+    assert torch.equal(td[K.MOBIL_SAFE], safe) and td[K.MOBIL_SAFE][..., K.KEEP].all()
+    # the lane-change state of Peng et al. appends the criteria (scaled utilities, flags)
+    obs = lc_state(embed=False, mobil=True)(td.clone())[K.LC_OBS]
+    assert obs.shape[-1] == lc_obs_dim(0, mobil=True) == lc_obs_dim(0) + 6
+    torch.testing.assert_close(obs[..., -3:], safe.float())
+
+
+# ------------------------------------------------------------------------------------------- peng
+def test_peng_ddpg_and_d3qn_updates_move_their_own_networks():
+    learner = HierarchicalLearner(**PENG)
+    frames, sample_l, sample_h = collect(learner, [MOBILCriteria()])
+    assert frames[K.LC_DECIDE].all()  # lc_period 1: a decision on every frame
+    assert K.MOBIL_INCENTIVE in learner.buffer_keys() and ("next", *K.MOBIL_SAFE) in learner.buffer_keys()
+    assert type(learner.cf_loss).__name__ == "DDPGLoss" and learner.td3.policy_delay == 1
+    before = snapshot(learner)
+    out = learner.update_frame(sample_l)  # DDPG: critic, actor and both targets in one step
+    assert set(out) == {"loss_qvalue", "loss_actor"}
+    assert moved(before, learner, "cf_loss.value_network_params")
+    assert moved(before, learner, "cf_loss.actor_network_params")
+    assert moved(before, learner, "cf_loss.target_actor_network_params")
+    assert moved(before, learner, "cf_loss.target_value_network_params")
+    assert not moved(before, learner, "lc_loss.")
+    before = snapshot(learner)
+    learner.update_decision(sample_h)
+    assert moved(before, learner, "lc_loss.value_network_params") and not moved(before, learner, "cf_loss.")
+
+
+# ----------------------------------------------------------------------------------- unified D3QN
+def test_unified_d3qn_acts_on_valid_joint_actions_and_learns():
+    learner = JointD3QNLearner(num_levels=5, d3qn={"hidden": [32], "eps_decisions": 10})
+    frames, sample_l, _ = collect(learner, [])
+    assert frames[K.JOINT_ACTION].shape[-1] == 15 and not learner.learns_from_decisions
+    lane = frames[K.JOINT_ACTION].argmax(-1) // 5
+    torch.testing.assert_close(frames[K.LC_ACTION].argmax(-1), lane)
+    assert frames[K.LC_ACTION_MASK].gather(-1, lane.unsqueeze(-1)).all()  # never an invalid command
+    assert set(frames[K.CF_ACTION].unique().tolist()) <= set(accel_levels(5).tolist())
+    before = snapshot(learner)
+    assert torch.isfinite(torch.tensor(learner.update_frame(sample_l)["loss_joint"]))
+    assert moved(before, learner, "q_loss.value_network_params") and moved(before, learner, "q_loss.target_")
+    with pytest.raises(NotImplementedError):
+        learner.update_decision(sample_l)
+
+
+# ------------------------------------------------------------------------------------------- PASAC
+def test_pasac_learner_acts_on_valid_commands_and_one_step_moves_every_part():
+    learner = PASACLearner(pasac={"hidden": [32]})
+    frames, sample_l, _ = collect(learner, [])
+    assert frames[K.LC_ACTION_MASK].gather(-1, frames[K.LC_ACTION].argmax(-1, keepdim=True)).all()
+    assert ((frames[K.CF_ACTION] >= -5) & (frames[K.CF_ACTION] <= 5)).all()
+    alphas = learner.exploration()
+    before = snapshot(learner)
+    out = learner.update_frame(sample_l)
+    assert set(out) == {"loss_qvalue", "loss_actor", "loss_alpha_lane", "loss_alpha_param"}
+    for part in ("sac_loss.qvalue_network_params", "sac_loss.actor_network_params", "sac_loss.target_qvalue"):
+        assert moved(before, learner, part), part
+    assert learner.exploration() != alphas

@@ -1,0 +1,152 @@
+"""PASACLoss (parameterised-action SAC), tested as TorchRL tests its losses: a batch built by hand with a "next"
+subtree, which parameters each loss reaches, frozen targets, the temperatures, the value estimator."""
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch.nn.functional import one_hot
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from kddrl_trl import keys as K
+from kddrl_trl.objectives import make_pasac
+
+B, D = 16, 6
+
+
+def _state(gen: torch.Generator) -> dict:
+    mask = torch.ones(B, 3, dtype=torch.bool)
+    mask[::2, K.LEFT] = False  # half the rows cannot turn left
+    return {K.JOINT_OBS: torch.randn(B, D, generator=gen), K.LC_ACTION_MASK: mask}
+
+
+def batch(terminated: bool = False, seed: int = 0) -> TensorDict:
+    gen = torch.Generator().manual_seed(seed)
+    flags = torch.full((B, 1), terminated)
+    nxt = TensorDict({**_state(gen), K.JOINT_REWARD: torch.randn(B, 1, generator=gen), "done": flags.clone(),
+                      "terminated": flags.clone()}, [B])
+    return TensorDict({**_state(gen), K.LC_ACTION: one_hot(torch.randint(1, 3, (B,), generator=gen), 3).float(),
+                       K.CF_ACTION: torch.rand(B, 1, generator=gen) * 10 - 5, "next": nxt}, [B])
+
+
+@pytest.fixture
+def parts():
+    torch.manual_seed(0)
+    return make_pasac(D, hidden=[32, 32], gamma=0.9, alpha_init=0.5)
+
+
+def grads(loss_module, loss: torch.Tensor) -> set[str]:
+    """Names of the loss module's parameters that ``loss`` sends a non-zero gradient to."""
+    loss_module.zero_grad(set_to_none=True)
+    loss.backward()
+    return {n for n, p in loss_module.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
+
+
+def test_forward_returns_losses_and_detached_diagnostics(parts):
+    out = parts.loss(batch())
+    for key in ("loss_qvalue", "loss_actor", "loss_alpha_lane", "loss_alpha_param"):
+        assert out[key].shape == () and torch.isfinite(out[key]) and out[key].requires_grad, key
+    for key in ("alpha_lane", "alpha_param", "entropy_lane", "log_prob_param", "state_action_value", "target_value"):
+        assert torch.isfinite(out[key]) and not out[key].requires_grad, key
+    assert out["alpha_lane"] == pytest.approx(0.5) and out["alpha_param"] == pytest.approx(0.5)
+    assert 0.0 <= float(out["entropy_lane"]) <= torch.log(torch.tensor(3.0))
+
+
+def test_each_loss_reaches_only_its_own_parameters(parts):
+    loss = parts.loss
+    names = {n for n, _ in loss.named_parameters()}
+    critic = {n for n in names if n.startswith("qvalue_network_params")}
+    actor = {n for n in names if n.startswith("actor_network_params")}
+    assert critic and actor and not any(n.startswith("target_") for n in names)  # targets are buffers
+    assert grads(loss, loss(batch())["loss_qvalue"]) == critic
+    assert grads(loss, loss(batch())["loss_actor"]) == actor  # both heads: categorical and tanh-Gaussian
+    assert grads(loss, loss(batch())["loss_alpha_lane"]) == {"log_alpha_lane"}
+    assert grads(loss, loss(batch())["loss_alpha_param"]) == {"log_alpha_param"}
+
+
+def test_both_actor_heads_get_gradients(parts):
+    loss = parts.loss
+    loss.zero_grad(set_to_none=True)
+    loss(batch())["loss_actor"].backward()
+    last = [p for n, p in loss.named_parameters() if n.startswith("actor_network_params") and n.endswith("weight")][-1]
+    rows = last.grad.abs().sum(-1)  # output rows: 3 logits, loc, log_std
+    assert (rows[:3] > 0).all() and rows[3] > 0 and rows[4] > 0
+
+
+def test_targets_stay_frozen_and_follow_the_soft_update(parts):
+    loss = parts.loss
+    target = {n: t.clone() for n, t in loss.target_qvalue_network_params.flatten_keys().items()}
+    assert not any(t.requires_grad for t in loss.target_qvalue_network_params.flatten_keys().values())
+    opt = torch.optim.SGD(loss.parameters(), lr=0.1)
+    out = loss(batch())
+    (out["loss_qvalue"] + out["loss_actor"] + out["loss_alpha_lane"] + out["loss_alpha_param"]).backward()
+    opt.step()
+    for n, t in loss.target_qvalue_network_params.flatten_keys().items():
+        assert torch.equal(t, target[n]), n  # a gradient step leaves the targets alone
+    parts.target_updater.step()
+    online = loss.qvalue_network_params.flatten_keys()
+    for n, t in loss.target_qvalue_network_params.flatten_keys().items():
+        torch.testing.assert_close(t, target[n] + 0.005 * (online[n].detach() - target[n]))
+
+
+@pytest.mark.parametrize("part", ["lane", "param"])
+def test_each_temperature_moves_toward_its_target_entropy(parts, part):
+    """Entropy below the target: α rises; above it: α falls; the other temperature stays."""
+    loss = parts.loss
+    other = "param" if part == "lane" else "lane"
+    for target, direction in ((50.0, 1), (-50.0, -1)):  # unreachable targets: the sign of the step is known
+        getattr(loss, f"target_entropy_{part}").fill_(target)
+        before = {p: float(getattr(loss, f"log_alpha_{p}")) for p in ("lane", "param")}
+        opt = torch.optim.SGD([getattr(loss, f"log_alpha_{part}")], lr=0.01)
+        opt.zero_grad()
+        loss(batch())[f"loss_alpha_{part}"].backward()
+        opt.step()
+        moved = float(getattr(loss, f"log_alpha_{part}")) - before[part]
+        assert moved * direction > 0, (part, target, moved)
+        assert float(getattr(loss, f"log_alpha_{other}")) == before[other]
+
+
+def test_target_of_a_terminal_transition_is_the_reward(parts):
+    td = batch(terminated=True)
+    out = parts.loss(td)
+    assert out["target_value"] == pytest.approx(float(td["next", *K.JOINT_REWARD].mean()), abs=1e-6)
+
+
+def test_soft_value_by_hand(parts):
+    """V(s') of the module docstring, recomputed from the networks, with the value estimator's γ."""
+    loss = parts.loss
+    td = batch()
+    torch.manual_seed(3)
+    out = loss(td)
+    torch.manual_seed(3)
+    with torch.no_grad():
+        nxt = td["next"]
+        p, log_p, param, log_prob = loss._policy(nxt)
+        q = loss._q_every_choice(nxt, param, loss.target_qvalue_network_params)
+        v = (p * (q - loss.alpha_lane * log_p)).sum(-1, keepdim=True) - loss.alpha_param * log_prob
+    expected = (nxt[K.JOINT_REWARD] + 0.9 * v).mean()
+    assert float(out["target_value"]) == pytest.approx(float(expected), rel=1e-5)
+    assert torch.isfinite(log_p).all() and (p[::2, K.LEFT] == 0).all()  # masked commands: probability 0, no NaN
+
+
+def test_set_keys_and_unknown_keys(parts):
+    loss = parts.loss
+    with pytest.raises(ValueError):
+        loss.set_keys(not_a_key="x")
+    loss.set_keys(reward=K.LC_REWARD)
+    assert loss.tensor_keys.reward == K.LC_REWARD and loss.value_estimator.tensor_keys.reward == K.LC_REWARD
+    assert ("next", *K.LC_REWARD) in loss.in_keys
+
+
+def test_sampler_respects_the_mask_and_is_greedy_without_exploration(parts):
+    td = batch().exclude(K.LC_ACTION, K.CF_ACTION, "next")
+    td[K.LC_ACTION_MASK][:, K.RIGHT] = False
+    for explore in (True, False):
+        out = parts.sampler(explore)(parts.actor(td.clone()))
+        assert out[K.LC_ACTION].sum(-1).eq(1).all()
+        assert td[K.LC_ACTION_MASK].gather(1, out[K.LC_ACTION].argmax(-1, keepdim=True)).all()
+        assert ((out[K.CF_ACTION] >= -5) & (out[K.CF_ACTION] <= 5)).all()
+    greedy = [parts.sampler(True)(parts.actor(td.clone())) for _ in range(2)]
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        greedy = [parts.sampler(True)(parts.actor(td.clone())) for _ in range(2)]
+    assert torch.equal(greedy[0][K.CF_ACTION], greedy[1][K.CF_ACTION])
