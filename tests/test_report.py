@@ -111,6 +111,9 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
     assert rows["kddrl"]["paper"]["mean_speed_kmh"] == [159.4, 22.5]
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "idm_mobil is lower" in md and "125.0 [" in md and "paper: 159.4 ± 22.5" in md
+    two = build_report(find_runs([tmp_path / "runs" / "k0", tmp_path / "runs" / "k1", tmp_path / "runs" / "i0",
+                                  tmp_path / "runs" / "i1"]), tmp_path / "rep2")
+    assert two["rows"] and "too few seeds for a verdict (2 vs 2" in (tmp_path / "rep2" / "report.md").read_text()
     assert out["figures"]["Figs. 9 / 15: evaluation returns"]
 
 

@@ -35,6 +35,8 @@ METRICS = {
 TABLE_METRICS = ("mean_speed_kmh", "mean_accel", "lane_changes_per_episode", "lane_changes_per_1000_episodes",
                  "collision_rate")
 REFERENCE = "kddrl"
+#: fewer seeds than this on a side: no verdict (a percentile bootstrap over 2 seeds only spans the two values seen)
+MIN_SEEDS_FOR_VERDICT = 3
 #: scenario order of the paper's tables
 SCENARIO_ORDER = ("baseline", "congested", "congested_text", "braking")
 
@@ -94,7 +96,9 @@ def _table(scenario: str, table_rows: list[dict]) -> list[str]:
                                                           for m in TABLE_METRICS]
     lines = [f"### {scenario} (paper {TABLES.get(scenario, 'no table')})", "",
              "Each cell: the mean over seeds [95 % bootstrap CI over seeds]; below it, the paper's value (mean ± its "
-             "unexplained ±) where it published one.", "",
+             "unexplained ±) where it published one. A row of 2 seeds has no real interval: its bracket is the range of "
+             "the two seeds' values (the percentile bootstrap cannot reach beyond them); intervals mean something "
+             f"from {MIN_SEEDS_FOR_VERDICT} seeds on, and are still narrow at 3-5.", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in table_rows:
         n = row["episodes_per_seed"]
@@ -110,6 +114,9 @@ def _table(scenario: str, table_rows: list[dict]) -> list[str]:
 def _verdict(diff: dict, metric: str, algo: str, n: tuple[int, int]) -> str:
     if diff["ci_low"] is None:
         return "one seed on a side: no interval"
+    if min(n) < MIN_SEEDS_FOR_VERDICT:
+        return (f"too few seeds for a verdict ({n[0]} vs {n[1]}; with 2 seeds the bootstrap interval is only the "
+                "range of the two values seen)")
     if diff["ci_low"] > 0:
         return f"{algo} is higher"
     if diff["ci_high"] < 0:
