@@ -189,7 +189,7 @@ def test_a_nan_from_sumo_is_refused_naming_the_key(monkeypatch, no_sumo_open):
         env.close()
 
 
-@pytest.mark.slow  # ~45 s alone: a full KDDRL trainer; the fallback itself is tested on files above
+@pytest.mark.slow  # a full KDDRL trainer (136 s in a contended full run); the fallback itself is tested on files above
 def test_a_trainer_resumes_from_the_previous_checkpoint_when_the_newest_is_truncated(tmp_path, caplog):
     from test_train import compose_job, fake_trainer
 
