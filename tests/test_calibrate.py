@@ -149,6 +149,7 @@ def test_segments_split_at_lane_and_leader_changes():
 
 
 # ----------------------------------------------------------------------------------------- IDM fit
+@pytest.mark.slow
 def test_class_fit_recovers_identifiable_parameters(synthetic, segments):
     """Class centres: median of per-vehicle fits within 5 % (T, s0, a); pooled class fit within 15 % (T, s0).
 
@@ -187,6 +188,7 @@ def test_class_fit_recovers_identifiable_parameters(synthetic, segments):
             assert row["rmse"] < 0.5 * row["rmse_init"]
 
 
+@pytest.mark.slow
 def test_vehicle_fit_beats_table_a1(synthetic, segments):
     _, truth = synthetic
     res = fit_idm(segments, steps=40)
@@ -297,6 +299,7 @@ def test_calibrate_and_write_loads_with_make_config(synthetic, tmp_path):
     assert not list(path.parent.glob(".calibration-*"))  # no temp file left behind
 
 
+@pytest.mark.slow
 def test_sumo_recordings_recover_desired_speed_and_headway_per_class(tmp_path):
     """On our own SUMO recordings the generating parameters are known. In steady highway following only
     v0 and T are identifiable (s0, a and b barely change the spacing; see the closing note of the data

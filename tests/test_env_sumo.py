@@ -185,6 +185,7 @@ def test_braking_event_distance_and_durations():
         env.close()
 
 
+@pytest.mark.slow
 def test_congested_carries_half_more_vehicles():
     counts = {}
     for scenario in ("baseline", "congested"):

@@ -98,6 +98,7 @@ def _latest_episodes(run) -> int:
     return int(pointer.read_text().strip()[2:8]) if pointer.is_file() else 0
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     import signal
     import time
