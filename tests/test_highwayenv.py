@@ -141,13 +141,14 @@ def test_highwayenv_config_is_typed_and_checked_before_any_simulator_starts():
 
 @pytest.mark.slow
 def test_kddrl_trains_on_highwayenv_as_typed(tmp_path):
-    cmd = [sys.executable, "-m", "kddrl_trl.train", "env=highwayenv", "episodes=2", "eval_episodes=2",
-           "env.num_roads=2", "env.highwayenv.vehicles_count=12", "env.highwayenv.observed_vehicles=10",
+    cmd = [sys.executable, "-m", "kddrl_trl.train", "env=highwayenv", "episodes=2", "eval_episodes=1",
+           "env.num_roads=2", "env.max_steps=150", "env.highwayenv.vehicles_count=12",
+           "env.highwayenv.observed_vehicles=10",
            "progress=false", "train.warmup_frames=50", "train.batch_size_cf=32", "train.batch_size_lc=8",
            "train.eval_every=0", "compile=false", "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]"]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
     (run,) = list((tmp_path / "runs").glob("highwayenv__kddrl__0__*"))
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["scenario"] == "highwayenv" and summary["episodes"] == 2
+    assert summary["scenario"] == "highwayenv" and summary["episodes"] == 1
     assert summary["training"]["episodes"] == 2 and summary["training"]["cf_updates"] > 0
