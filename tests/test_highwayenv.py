@@ -152,3 +152,17 @@ def test_kddrl_trains_on_highwayenv_as_typed(tmp_path):
     summary = json.loads((run / "summary.json").read_text())
     assert summary["scenario"] == "highwayenv" and summary["episodes"] == 1
     assert summary["training"]["episodes"] == 2 and summary["training"]["cf_updates"] > 0
+
+
+def test_same_seed_same_traffic_other_seed_other_traffic():
+    def ego_and_leaders(seed):
+        env = HighwayEnvAdapter(num_roads=2, seed=seed, **SMALL)
+        try:
+            td = env.rollout(8, lambda td: td.update(command(env, K.KEEP, 0.5)), break_when_any_done=False)
+        finally:
+            env.close()
+        return td["next", "neighbors", "kin"]
+
+    first = ego_and_leaders(0)
+    assert torch.equal(first, ego_and_leaders(0))
+    assert not torch.equal(first, ego_and_leaders(1))
