@@ -113,7 +113,7 @@ def test_episodes_end_as_on_sumo_and_are_evaluated():
     """Past the 420 m section (terminated), or a collision; the episode metrics of the SUMO env come out."""
     from kddrl_trl.baselines import IDMMobilPolicy
 
-    env = HighwayEnvAdapter(num_roads=2, seed=0, **SMALL)
+    env = HighwayEnvAdapter(num_roads=2, seed=0, section_length=120.0, **SMALL)  # short episodes: a fast test
     try:
         episodes = evaluate_policy(env, IDMMobilPolicy(num_lanes=3, lane_width=4.0), episodes=3, seed=5,
                                    progress=False)
@@ -122,7 +122,7 @@ def test_episodes_end_as_on_sumo_and_are_evaluated():
     assert len(episodes) == 3
     for ep in episodes:
         assert ep["outcome"] in ("left_section", "collision", "max_steps")
-        assert 40 < ep["mean_speed_kmh"] < 180 and ep["frames"] > 50
+        assert 40 < ep["mean_speed_kmh"] < 180 and ep["frames"] > 10
     assert env.stats["episodes"] >= 3
 
 
