@@ -10,7 +10,7 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 :func:`make_run_dir`           the folder Hydra made for this run, and whether it resumes
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
 :func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
-:func:`make_env`               the batched highway env (SUMO, or the fake) with the algo's transforms
+:func:`make_env`               the batched highway env (SUMO, HighwayEnv or the fake) with the algo's transforms
 :func:`make_learner`           the :class:`~kddrl_trl.training.Learner` of a learning algo (by ``algo.kind``)
 :func:`make_policy`            the acting policy of any algo, exploration off
 :func:`make_buffers`           replay buffers L (frames) and H (macro-transitions)
@@ -139,16 +139,22 @@ def make_transforms(algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayCo
 
 def make_env(env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bool | str = False,
              fake: bool = False) -> EnvBase:
-    """``SumoHighwayEnv`` (``FakeHighwayEnv`` with ``fake=True``) of ``env.num_roads`` roads on the composed
-    highway config, with :func:`make_transforms` (built first: no simulator starts before every option is
+    """The env of ``env.simulator`` with ``env.num_roads`` roads on the composed highway config: ``SumoHighwayEnv``
+    (``sumo``; ``FakeHighwayEnv`` with ``fake=True``) or ``HighwayEnvAdapter`` (``highwayenv``, the optional extra
+    ``.[highway]``), with :func:`make_transforms` (built first: no simulator starts before every option is
     checked; a rule-based algo without a shield gets the bare env)."""
     highway = env.highway()
     transforms = make_transforms(algo, seed, highway, compile)
+    options = {}
     if fake:
         from .envs.fake import FakeHighwayEnv as Env
+    elif env.simulator == "highwayenv":
+        from .envs.highwayenv import HighwayEnvAdapter as Env
+
+        options = {"options": env.highwayenv}
     else:
         from .envs.highway import SumoHighwayEnv as Env
-    base = Env(highway, num_roads=env.num_roads, seed=seed)
+    base = Env(highway, num_roads=env.num_roads, seed=seed, **options)
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
 
