@@ -70,7 +70,7 @@ class Observer:
 
     One call per frame for all the roads (:meth:`observe`): a lean per-road loop asks libsumo only what SUMO alone
     knows (the ego's and its neighbours' kinematics, SUMO's leader / follower / neighbour search: about 35 calls per
-    road, each on the raw ``_libsumo`` function), keeps the answers as Python floats, and then writes every raw key
+    road), keeps the answers as Python floats, and then writes every raw key
     of all the roads with one numpy assignment per key. Relative kinematics are computed in float64 and rounded to
     the arrays' float32 once, as the per-road code before it did, so the output is bit-for-bit the same
     (``tests/test_env_reference.py``).
@@ -96,11 +96,10 @@ class Observer:
         treated as not seen; a road whose ego SUMO cannot answer for is left as it was and returned, road -> the
         error (the simulator truncates it as lost)."""
         ls = _libsumo()
-        raw = ls._libsumo
-        position, speed, lat_speed, accel = (raw.vehicle_getPosition, raw.vehicle_getSpeed,
-                                             raw.vehicle_getLateralSpeed, raw.vehicle_getAcceleration)
-        lane_index, leader, follower, neighbors = (raw.vehicle_getLaneIndex, raw.vehicle_getLeader,
-                                                   raw.vehicle_getFollower, raw.vehicle_getNeighbors)
+        vmod = ls.vehicle  # looked up per call: the fault-injection tests patch its functions
+        position, speed, lat_speed, accel = vmod.getPosition, vmod.getSpeed, vmod.getLateralSpeed, vmod.getAcceleration
+        lane_index, leader, follower, neighbors = (vmod.getLaneIndex, vmod.getLeader, vmod.getFollower,
+                                                   vmod.getNeighbors)
         error = ls.TraCIException
         cfg, o = self.cfg, self.obs
         rng_, entry, h = cfg.sensing_range, cfg.entry_length, cfg.history_len
@@ -114,7 +113,7 @@ class Observer:
         hist_at, hist_rows = [], []                          # (row, slot), [h, 2]
         for r, ego, lc_on in zip(roads, egos, lc_active):
             try:
-                px, py = position(ego, False)
+                px, py = position(ego)
                 ego_kin = (px - entry, py, speed(ego), lat_speed(ego))
                 lane = lane_index(ego)
                 found: list[str | None] = [None] * 6
@@ -142,7 +141,7 @@ class Observer:
                 if nid is None:
                     continue
                 try:
-                    nx_, nlat = position(nid, False)
+                    nx_, nlat = position(nid)
                     ny = nx_ - entry
                     kin = (ny, nlat, speed(nid), lat_speed(nid), accel(nid))
                 except error:  # SUMO cannot answer for this neighbour (gone mid-query): not seen
@@ -162,7 +161,7 @@ class Observer:
                 try:
                     nxt = leader(nid, rng_)
                     if nxt and nxt[0]:
-                        ahead_rows.append((position(nxt[0], False)[0] - entry, speed(nxt[0])))
+                        ahead_rows.append((position(nxt[0])[0] - entry, speed(nxt[0])))
                         ahead_at.append((i, slot))
                 except error:  # the vehicle ahead of this leader cannot be queried: none seen
                     pass
