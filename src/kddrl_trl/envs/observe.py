@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import keys as K
 from .config import HighwayConfig
+from .network import road_y
 from .specs import observation_spec
 
 
@@ -136,6 +137,7 @@ class Observer:
             if slot < 3:
                 self._remember(hist, nid, ny, nv, t)
         self.slots[r] = found
+        self._lane_offsets(r, px_lat)
         # vehicles ahead of the leaders, and the leaders' history
         ahead, history = o[K.LEADERS_AHEAD][r], o[K.LEADERS_HISTORY][r]
         ahead[:] = 0.0
@@ -156,6 +158,19 @@ class Observer:
         am[K.KEEP] = True
         am[K.LEFT] = (not lc_active) and lane < cfg.num_lanes - 1
         am[K.RIGHT] = (not lc_active) and lane > 0
+
+    def _lane_offsets(self, r: int, px_lat: float) -> None:
+        """``EGO_LANE_OFFSET`` and ``NEIGHBORS_LANE_OFFSET`` of road ``r`` from the lateral positions already
+        read (the ego's network ``px_lat`` and ``NEIGHBORS_REL``'s dx): each vehicle's offset from the centre
+        of the lane holding its centre (SUMO's lane, see ``data/recorder.py``), + = left; 0 for absent slots.
+        No extra SUMO query."""
+        cfg, o = self.cfg, self.obs
+        w, n = cfg.lane_width, cfg.num_lanes
+        x = px_lat - road_y(r) + n * w  # the ego centre's distance from the right road edge
+        lat = x + np.r_[0.0, o[K.NEIGHBORS_REL][r][:, 0]]
+        offset = lat - (np.clip(np.floor(lat / w), 0, n - 1) + 0.5) * w
+        o[K.EGO_LANE_OFFSET][r, 0] = offset[0]
+        o[K.NEIGHBORS_LANE_OFFSET][r] = np.where(o[K.NEIGHBORS_MASK][r], offset[1:], 0.0)
 
     def _remember(self, hist: dict, vid: str, y: float, v: float, t: int) -> None:
         d = hist.get(vid)
