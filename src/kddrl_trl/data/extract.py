@@ -122,7 +122,7 @@ __all__ = [
 
 SPLITS = ("train", "val", "test")
 KINDS = ("leaders", "lane_changes")
-SCHEMA_VERSION = 2  # 2: lane offsets in C, the window label option
+SCHEMA_VERSION = 1
 _IDM_CHUNK = 1 << 18
 
 _LEADER_COLS = ("left_preceding_id", "preceding_id", "right_preceding_id")
@@ -356,7 +356,12 @@ def _num_lanes_per_row(ix: _Index, tracks: pd.DataFrame, rows: np.ndarray, num_l
     return values.astype(np.int64)
 
 
-LABELS = ("within", "end")
+#: the lcGAN window labels (``label=``), as stated in the metrics shipped with the weights
+LABELS = {
+    "within": "direction of the first lane change (lane-index switch) in the window of `window` frames after t; "
+              "keep if none",
+    "end": "sign of lane(t + window) - lane(t) (the net change over the window)",
+}
 
 
 def _check_label(label) -> str:
