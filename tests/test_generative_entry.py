@@ -95,7 +95,7 @@ def test_pretrain_runs_as_typed_and_exports(tmp_path):
         assert load_predictor(kind, tmp_path / f"{kind}.pt") is not None
         shipped = json.loads((tmp_path / f"{kind}.metrics.json").read_text())
         assert shipped["dataset_hash"] == read_checkpoint(tmp_path / f"{kind}.pt")["dataset_hash"]
-        assert shipped["test"][key] == metrics[key] and f"gan={kind}" in shipped["command"]
+        assert str(shipped["test"][key]) == str(metrics[key]) and f"gan={kind}" in shipped["command"]  # NaN-safe
     # evaluate=PATH re-measures shipped weights without training, and refuses weights of another dataset
     (tmp_path / "lcgan.metrics.json").unlink()
     done = run("kddrl_trl.pretrain", ["gan=lcgan", f"evaluate={tmp_path}/lcgan.pt", f"hydra.run.dir={tmp_path}/ev"],
