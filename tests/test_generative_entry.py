@@ -62,6 +62,9 @@ def test_shipped_metrics_belong_to_the_shipped_weights(kind):
         counts = torch.tensor(test["confusion_counts"])
         assert counts.shape == (3, 3) and counts.sum(1).tolist() == test["n_per_class"]
         assert abs(counts.diagonal().sum().item() / counts.sum().item() - test["accuracy"]) < 1e-9
+        from kddrl_trl.report import SHIPPED_LCGAN_METRICS, read_lcgan_metrics
+
+        assert read_lcgan_metrics(SHIPPED_LCGAN_METRICS) == test  # what the report draws Figs. 16-17 from
     else:
         for part in ("braking", "normal"):
             assert test[part]["n"] > 0 and test[part]["trajgan"]["mae_step20"] > 0
