@@ -309,6 +309,21 @@ def report(out_dir: Path, episodes: list[dict], title: str, reference: dict | No
 
 #: which sample kind each generative model learns from (``kddrl_trl.data.extract``)
 GAN_DATA_KIND = {"trajgan": "leaders", "lcgan": "lane_changes"}
+#: extraction parameters that do not shape a model's samples, left out of its dataset hash (the lcGAN window label
+#: does not change the trajGAN leader samples, so it does not invalidate trajGAN weights)
+_OTHER_KIND_PARAMS = {"trajgan": ("label",), "lcgan": ()}
+
+
+def dataset_description(data_dir: Path) -> dict:
+    """The extraction parameters of the dataset in ``data_dir`` and, in words, its lcGAN window label."""
+    import json
+
+    from .data.extract import LABELS
+
+    params = json.loads((Path(data_dir) / "meta.json").read_text())["params"]
+    label = params.get("label", "end")  # datasets extracted before the option had the net change
+    return {"params": params, "label_definition": f"{label}: {LABELS[label]} (window = {params['window']} frames "
+                                                  f"at {params['hz']} Hz)"}
 
 
 def make_gan_data(kind: str, data_dir: Path, highway: HighwayConfig, recordings_dir: Path, seed: int,
@@ -328,5 +343,6 @@ def make_gan_data(kind: str, data_dir: Path, highway: HighwayConfig, recordings_
         meta = synthetic_dataset(highway, data_dir, recordings_dir, seed=seed, progress=progress)
     splits = {s: load_dataset(data_dir, GAN_DATA_KIND[kind], s).to_tensordict().to(device)
               for s in ("train", "val", "test")}
-    digest = hashlib.sha256(json.dumps([meta["input_hash"], meta["params"], kind], sort_keys=True).encode()).hexdigest()
+    params = {k: v for k, v in meta["params"].items() if k not in _OTHER_KIND_PARAMS[kind]}
+    digest = hashlib.sha256(json.dumps([meta["input_hash"], params, kind], sort_keys=True).encode()).hexdigest()
     return splits, digest

@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import keys as K
 from .config import HighwayConfig
+from .network import road_y
 from .specs import observation_spec
 
 
@@ -190,6 +191,7 @@ class Observer:
             rel[r, slot] = np.stack((n[:, 1] - e[:, 1], n[:, 0] - e[:, 0], n[:, 3] - e[:, 3], n[:, 2] - e[:, 2]), -1)
             kin[r, slot] = n[:, (0, 2, 4)]
             mask[r, slot] = True
+        self._lane_offsets(rows, ego[:, 1])
         ahead, history = o[K.LEADERS_AHEAD], o[K.LEADERS_HISTORY]
         ahead[rows] = 0.0
         history[rows] = 0.0
@@ -205,6 +207,19 @@ class Observer:
         am[rows, K.KEEP] = True
         am[rows, K.LEFT] = ~active & (lanes < cfg.num_lanes - 1)
         am[rows, K.RIGHT] = ~active & (lanes > 0)
+
+    def _lane_offsets(self, rows: np.ndarray, ego_lat: np.ndarray) -> None:
+        """``EGO_LANE_OFFSET`` and ``NEIGHBORS_LANE_OFFSET`` of ``rows`` from the lateral positions already
+        read (the egos' network lateral positions ``ego_lat`` and ``NEIGHBORS_REL``'s dx): each vehicle's offset
+        from the centre of the lane holding its centre (SUMO's lane, see ``data/recorder.py``), + = left; 0 for
+        absent slots. No extra SUMO query."""
+        cfg, o = self.cfg, self.obs
+        w, n = cfg.lane_width, cfg.num_lanes
+        x = ego_lat - np.array([road_y(int(r)) for r in rows]) + n * w  # ego centres' distance from the right edge
+        lat = x[:, None] + np.concatenate((np.zeros((len(rows), 1)), o[K.NEIGHBORS_REL][rows][:, :, 0]), 1)
+        offset = lat - (np.clip(np.floor(lat / w), 0, n - 1) + 0.5) * w
+        o[K.EGO_LANE_OFFSET][rows, 0] = offset[:, 0]
+        o[K.NEIGHBORS_LANE_OFFSET][rows] = np.where(o[K.NEIGHBORS_MASK][rows], offset[:, 1:], 0.0)
 
     def _remember(self, hist: dict, vid: str, y: float, v: float, t: int) -> None:
         d = hist.get(vid)
