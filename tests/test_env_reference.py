@@ -9,6 +9,10 @@ from env_reference import CASES, FIXTURE, rollout
 
 pytest.importorskip("libsumo")
 
+#: keys the env gained after the fixture was made (issue 18: lane offsets for the lcGAN condition); every other key
+#: must match the fixture exactly
+ADDED_SINCE_FIXTURE = {f"{pre}{key}" for pre in ("", "next/") for key in ("ego/lane_offset", "neighbors/lane_offset")}
+
 
 @pytest.fixture(scope="module")
 def reference():
@@ -20,7 +24,7 @@ def test_rollout_matches_reference(case, reference):
     scenario = case[0]
     new = rollout(*case)
     expected = {name.split(":", 1)[1]: arr for name, arr in reference.items() if name.startswith(f"{scenario}:")}
-    assert sorted(new) == sorted(expected)
+    assert sorted(set(new) - ADDED_SINCE_FIXTURE) == sorted(expected)
     assert expected["next/done"].any() and expected["next/lc/started"].any()  # the case exercises resets
     for name, arr in expected.items():
         assert new[name].dtype == arr.dtype, name

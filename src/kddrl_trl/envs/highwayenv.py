@@ -301,6 +301,7 @@ class HighwayEnvAdapter(HighwayEnvBase):
         rel = np.stack([nlat - lat[:, :1] * has, ny - y[:, :1] * has, nvlat - vlat[:, :1] * has,
                         nv - v[:, :1] * has], -1)
         kin = np.stack([ny, nv, nacc], -1)
+        offset = lat - (lane + 0.5) * w                          # from the centre of the lane holding the centre
         ahead = np.zeros((b, 3, 3))
         for i in range(3):  # the vehicle ahead of leader a, b, c
             gap = y - ny[:, i:i + 1]
@@ -316,6 +317,7 @@ class HighwayEnvAdapter(HighwayEnvBase):
         return {
             K.EGO_STATE: f32(np.stack([y[:, 0], v[:, 0], vlat[:, 0]], -1)),
             K.EGO_LANE: torch.as_tensor(ego_lane[:, None]),
+            K.EGO_LANE_OFFSET: f32(offset[:, :1]), K.NEIGHBORS_LANE_OFFSET: f32(take(offset)),
             K.NEIGHBORS_REL: f32(rel), K.NEIGHBORS_MASK: torch.as_tensor(has), K.NEIGHBORS_KIN: f32(kin),
             K.LEADERS_AHEAD: f32(ahead), K.LC_ACTION_MASK: torch.as_tensor(mask),
             K.LC_ACTIVE: torch.as_tensor(self._active[:, None].copy()),
