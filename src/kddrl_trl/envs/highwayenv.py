@@ -78,6 +78,7 @@ from tensordict import TensorDict, TensorDictBase
 
 from .. import keys as K
 from .config import HighwayConfig
+from .observe import lane_and_offset
 from .rewards import car_following_reward, lane_change_reward
 from .specs import HighwayEnvBase, lc_command
 
@@ -283,7 +284,7 @@ class HighwayEnvAdapter(HighwayEnvBase):
         y = obs[..., 1] - self._x0[:, None]                      # longitudinal, from the ego's start
         lat = (lanes - 0.5) * w - obs[..., 2]                    # from the right edge, growing to the left
         v, vlat = obs[..., 3], -obs[..., 4]
-        lane = np.clip(np.floor(lat / w), 0, lanes - 1).astype(np.int64)
+        lane, offset = lane_and_offset(lat, w, lanes)            # offset from the lane's centre, + = left
         ego_lane = lane[:, 0]
         dy = y - y[:, :1]
         others = present.copy()
@@ -301,7 +302,6 @@ class HighwayEnvAdapter(HighwayEnvBase):
         rel = np.stack([nlat - lat[:, :1] * has, ny - y[:, :1] * has, nvlat - vlat[:, :1] * has,
                         nv - v[:, :1] * has], -1)
         kin = np.stack([ny, nv, nacc], -1)
-        offset = lat - (lane + 0.5) * w                          # from the centre of the lane holding the centre
         ahead = np.zeros((b, 3, 3))
         for i in range(3):  # the vehicle ahead of leader a, b, c
             gap = y - ny[:, i:i + 1]

@@ -5,7 +5,8 @@ section, ``x`` lateral).
 Per ego (paper §III.G, Fig. 6, Eq. 24-25): its state and lane; the six neighbours a-f (leader and follower in
 the left, current and right lanes) within ``sensing_range``, as relative and absolute kinematics; for the leaders
 a-c, the vehicle ahead of each and their last ``history_len`` positions and speeds (the trajGAN inputs); and the
-lane-change action mask (a command is executed only between manoeuvres and toward an existing lane).
+lane-change action mask (a command is executed only between manoeuvres and toward an existing lane); the
+lateral offsets of the ego and the neighbours from their lanes' centres (lcGAN's condition C, Eq. 16).
 """
 from __future__ import annotations
 
@@ -29,6 +30,15 @@ def _libsumo():
 def longitudinal(vid: str, cfg: HighwayConfig) -> float:
     """Front-bumper position of ``vid`` along its road, metres from the start of the study section."""
     return _libsumo().vehicle.getPosition(vid)[0] - cfg.entry_length
+
+
+def lane_and_offset(lat, lane_width: float, num_lanes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lane holding a lateral position and the offset from that lane's centre (``keys.EGO_LANE_OFFSET``,
+    ``keys.NEIGHBORS_LANE_OFFSET``): ``lat`` in metres from the right edge of the carriageway, growing to the left
+    -> (lane index, 0 = rightmost, int64; offset in m, + = left of the centre). Positions beyond the edges count
+    to the outer lanes."""
+    lane = np.clip(np.floor(lat / lane_width), 0, num_lanes - 1)
+    return lane.astype(np.int64), lat - (lane + 0.5) * lane_width
 
 
 def observation_arrays(cfg: HighwayConfig, num_roads: int) -> dict:
@@ -90,6 +100,7 @@ class Observer:
         self.cfg, self.obs = cfg, obs
         self.history: list[dict[str, deque]] = [{} for _ in range(num_roads)]
         self.slots: list[list[str | None]] = [[None] * len(K.NEIGHBOR_SLOTS) for _ in range(num_roads)]
+        self.road_y = np.array([road_y(r) for r in range(num_roads)])  # each road's lateral network coordinate
 
     def observe(self, roads, egos, t: int, lc_active) -> dict[int, str]:
         """Fill the raw observation of ``egos[i]`` on road ``roads[i]`` at simulation step ``t``; ``lc_active[i]``:
@@ -209,15 +220,14 @@ class Observer:
         am[rows, K.RIGHT] = ~active & (lanes > 0)
 
     def _lane_offsets(self, rows: np.ndarray, ego_lat: np.ndarray) -> None:
-        """``EGO_LANE_OFFSET`` and ``NEIGHBORS_LANE_OFFSET`` of ``rows`` from the lateral positions already
-        read (the egos' network lateral positions ``ego_lat`` and ``NEIGHBORS_REL``'s dx): each vehicle's offset
-        from the centre of the lane holding its centre (SUMO's lane, see ``data/recorder.py``), + = left; 0 for
-        absent slots. No extra SUMO query."""
+        """``EGO_LANE_OFFSET`` and ``NEIGHBORS_LANE_OFFSET`` of ``rows`` (:func:`lane_and_offset`) from the lateral
+        positions already read (the egos' network lateral positions ``ego_lat`` and ``NEIGHBORS_REL``'s dx): each
+        vehicle's offset from the centre of the lane holding its centre (SUMO's lane, see ``data/recorder.py``);
+        0 for absent slots. No extra SUMO query."""
         cfg, o = self.cfg, self.obs
-        w, n = cfg.lane_width, cfg.num_lanes
-        x = ego_lat - np.array([road_y(int(r)) for r in rows]) + n * w  # ego centres' distance from the right edge
+        x = ego_lat - self.road_y[rows] + cfg.num_lanes * cfg.lane_width  # ego centres' distance from the right edge
         lat = x[:, None] + np.concatenate((np.zeros((len(rows), 1)), o[K.NEIGHBORS_REL][rows][:, :, 0]), 1)
-        offset = lat - (np.clip(np.floor(lat / w), 0, n - 1) + 0.5) * w
+        _, offset = lane_and_offset(lat, cfg.lane_width, cfg.num_lanes)
         o[K.EGO_LANE_OFFSET][rows, 0] = offset[:, 0]
         o[K.NEIGHBORS_LANE_OFFSET][rows] = np.where(o[K.NEIGHBORS_MASK][rows], offset[:, 1:], 0.0)
 
