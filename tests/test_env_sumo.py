@@ -126,7 +126,8 @@ def test_lane_change_lasts_20_frames_and_masks_commands():
         td = env.reset()
         assert env.stats["insert_steps"] > 0  # an empty road needs an inserted ego
         assert td[K.LC_ACTION_MASK].tolist() == [[True, True, True]]
-        obs, active, lanes, vx, started = td, [], [], [], 0
+        obs, active, lanes, vx, started, offset = td, [], [], [], 0, []
+        assert abs(td[K.EGO_LANE_OFFSET].item()) < 1e-3  # centred in its lane before the manoeuvre
         for k in range(26):  # LEFT commanded at the first frame and then held: ignored once started
             if k > 0:
                 expected = [False, True, False] if obs[K.LC_ACTIVE].item() else [False, True, True]
@@ -138,12 +139,18 @@ def test_lane_change_lasts_20_frames_and_masks_commands():
             active.append(obs[K.LC_ACTIVE].item())
             lanes.append(obs[K.EGO_LANE].item())
             vx.append(obs[K.EGO_STATE][0, 2].item())
+            offset.append(obs[K.EGO_LANE_OFFSET].item())
         # the ego moves sideways at 3.2 m / 2 s during exactly 20 frames; the manoeuvre is complete (and a
         # new command accepted) in the observation after the 20th frame
         assert vx[:20] == pytest.approx([3.2 / 2.0] * 20) and vx[20:] == [0.0] * 6
         assert active == [True] * 19 + [False] * 7
         assert lanes[0] == 1 and lanes[-1] == 2
         assert started == 1  # the held command did not start a second manoeuvre
+        # the offset from the lane centre: +0.16 m per frame in lane 1, then from the centre of lane 2 (-1.6 m at
+        # the switch), back to 0 at the end
+        moved = [o + 3.2 * (lane - 1) for o, lane in zip(offset, lanes)]
+        assert moved == pytest.approx([0.16 * min(k + 1, 20) for k in range(26)], abs=1e-3)
+        assert all(-1.6 - 1e-3 <= o <= 1.6 + 1e-3 for o in offset)
     finally:
         env.close()
 

@@ -20,6 +20,7 @@ from kddrl_trl.data.extract import (
     leader_samples,
     load_dataset,
     split_by_vehicle,
+    window_labels,
 )
 from kddrl_trl.data.tracks import TRACKS10_COLUMNS, TRACKS10_DTYPES, longitudinal_tracks, vehicle_num_lanes
 from kddrl_trl.physics.idm import IDMParams, idm_rollout
@@ -249,7 +250,8 @@ def test_tracks10_other_rate_and_num_lanes(rec):
 def test_lane_change_samples_schema(changes, tracks):
     n = changes.batch_size[0]
     assert n > 0
-    shapes = {"label": [n], "s_av": [n, 3], "rel": [n, 6, 4], "mask": [n, 6], "key_gaps": [n, 3, 2],
+    shapes = {"label": [n], "s_av": [n, 4], "rel": [n, 6, 4], "lane_offset": [n, 6], "mask": [n, 6],
+              "key_gaps": [n, 3, 2],
               "key_gaps_mask": [n, 3], "num_lanes": [n], "recording_id": [n], "vehicle_id": [n], "frame": [n],
               "driver": [n]}
     assert set(changes.keys()) == set(shapes)
@@ -261,6 +263,15 @@ def test_lane_change_samples_schema(changes, tracks):
     end = _at(tracks, changes["vehicle_id"].numpy(), changes["frame"].numpy() + 20, "y")
     assert np.isfinite(end).all()
     assert (changes["rel"][~changes["mask"]] == 0).all()
+    assert (changes["lane_offset"][~changes["mask"]] == 0).all()
+    # the ego's lane offset (S_AV[3]) is the tracks' one; the current leader's is its own at the same frame
+    np.testing.assert_allclose(changes["s_av"][:, 3].numpy(),
+                               _at(tracks, changes["vehicle_id"].numpy(), changes["frame"].numpy(), "lane_offset"),
+                               atol=1e-5)
+    has_b = changes["mask"][:, 1].numpy()
+    pid = _at(tracks, changes["vehicle_id"].numpy()[has_b], changes["frame"].numpy()[has_b], "preceding_id")
+    np.testing.assert_allclose(changes["lane_offset"][has_b, 1].numpy(),
+                               _at(tracks, pid, changes["frame"].numpy()[has_b], "lane_offset"), atol=1e-5)
     assert (changes["key_gaps"][~changes["key_gaps_mask"]] == 0).all()
     assert not (changes["key_gaps_mask"] & ~changes["mask"][:, :3]).any()
     names = [DRIVER_TYPES[i] for i in changes["driver"].tolist()]
@@ -536,3 +547,25 @@ def test_extraction_speed(tmp_path):
     print(f"\n{meta['counts']['vehicles']} vehicles, {len(r.tracks)} 25 Hz rows -> {n} samples in {dt:.2f} s "
           f"({n / dt:,.0f} samples/s)")
     assert dt < 60.0
+
+
+def test_tracks10_lane_offset_is_from_the_lane_centre(tracks):
+    """lane_offset = x_lat minus the centre of the row's lane (uniform lanes of width W here), within +-W/2
+    up to the 25 Hz lane lag at a crossing."""
+    centre = (tracks["lane"].to_numpy() + 0.5) * W
+    np.testing.assert_allclose(tracks["lane_offset"], tracks["x_lat"] - centre, atol=1e-9)
+    assert (tracks["lane_offset"].abs() <= W / 2 + 0.2).all()
+
+
+def test_window_labels_within_and_end():
+    """'within' takes the first lane change in the window, 'end' the net change: they differ on a window with
+    a change and a change back (left then right: within says left, end says keep)."""
+    now = np.array([1, 1, 1, 1])
+    after = np.array([[1, 2, 2, 1],    # left and back
+                      [1, 1, 0, 0],    # right
+                      [1, 1, 1, 1],    # keep
+                      [2, 2, 2, 2]])   # left at the first step
+    np.testing.assert_array_equal(window_labels(now, after, "within"), [0, 2, 1, 0])
+    np.testing.assert_array_equal(window_labels(now, after, "end"), [1, 2, 1, 0])
+    with pytest.raises(ValueError, match="label must be one of"):
+        window_labels(now, after, "middle")

@@ -11,6 +11,7 @@ import torch
 from kddrl_trl import keys as K
 from kddrl_trl.envs import FakeHighwayEnv
 from kddrl_trl.generative import default_checkpoint, load_predictor, read_checkpoint
+from kddrl_trl.generative.shipped import metrics_path, read_shipped_metrics
 from kddrl_trl.transforms import IDMPrior, KeyGapsFromPrior
 
 
@@ -45,6 +46,31 @@ def test_shipped_weights_load_and_match_their_declared_shapes(kind):
     assert read_checkpoint(path)["architecture"]
 
 
+@pytest.mark.parametrize("kind", ["trajgan", "lcgan"])
+def test_shipped_metrics_belong_to_the_shipped_weights(kind):
+    """``weights/<kind>.metrics.json`` ships beside the weights, names the dataset the weights were trained on
+    (their own recorded hash) and the command that made it, and holds the test metrics the issue asks for."""
+    data = read_shipped_metrics(kind)
+    assert data is not None, f"{metrics_path(default_checkpoint(kind))} is missing"
+    assert data["dataset_hash"] == read_checkpoint(default_checkpoint(kind))["dataset_hash"]
+    for field in ("command", "weights_command"):
+        assert data[field].startswith("python -m kddrl_trl.pretrain") and f"gan={kind}" in data[field]
+    test = data["test"]
+    if kind == "lcgan":
+        for name in K.LC_ACTIONS:
+            assert 0.0 <= test[f"recall_{name}"] <= 1.0 and 0.0 <= test[f"precision_{name}"] <= 1.0
+        counts = torch.tensor(test["confusion_counts"])
+        assert counts.shape == (3, 3) and counts.sum(1).tolist() == test["n_per_class"]
+        assert abs(counts.diagonal().sum().item() / counts.sum().item() - test["accuracy"]) < 1e-9
+        from kddrl_trl.report import SHIPPED_LCGAN_METRICS, read_lcgan_metrics
+
+        assert read_lcgan_metrics(SHIPPED_LCGAN_METRICS) == test  # what the report draws Figs. 16-17 from
+    else:
+        for part in ("braking", "normal"):
+            assert test[part]["n"] > 0 and test[part]["trajgan"]["mae_step20"] > 0
+        assert test["braking"]["n"] + test["normal"]["n"] == test["n"]
+
+
 def test_rl_runtime_does_not_import_the_data_layer():
     """The transforms, the generative models and the modules load without ``kddrl_trl.data`` (and pandas)."""
     code = ("import sys; import kddrl_trl.transforms, kddrl_trl.generative, kddrl_trl.modules; "
@@ -70,6 +96,18 @@ def test_pretrain_runs_as_typed_and_exports(tmp_path):
         key = "mae_step20" if kind == "trajgan" else "recall_left"
         assert key in metrics and (tmp_path / f"{kind}.pt").is_file()
         assert load_predictor(kind, tmp_path / f"{kind}.pt") is not None
+        shipped = json.loads((tmp_path / f"{kind}.metrics.json").read_text())
+        assert shipped["dataset_hash"] == read_checkpoint(tmp_path / f"{kind}.pt")["dataset_hash"]
+        assert str(shipped["test"][key]) == str(metrics[key]) and f"gan={kind}" in shipped["command"]  # NaN-safe
+    # evaluate=PATH re-measures shipped weights without training, and refuses weights of another dataset
+    (tmp_path / "lcgan.metrics.json").unlink()
+    done = run("kddrl_trl.pretrain", ["gan=lcgan", f"evaluate={tmp_path}/lcgan.pt", f"hydra.run.dir={tmp_path}/ev"],
+               tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "evaluate=" in json.loads((tmp_path / "lcgan.metrics.json").read_text())["command"]
+    other = run("kddrl_trl.pretrain", ["gan=lcgan", f"evaluate={default_checkpoint('lcgan')}",
+                                       f"hydra.run.dir={tmp_path}/ev2"], tmp_path)
+    assert other.returncode != 0 and "another dataset" in other.stderr
     bad = run("kddrl_trl.pretrain", ["gan=trajgan", "device=cuda"], tmp_path) if not torch.cuda.is_available() else None
     if bad is not None:
         assert bad.returncode != 0 and "no CUDA device" in bad.stderr

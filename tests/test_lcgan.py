@@ -50,8 +50,11 @@ def samples(n: int, seed: int, rare: float = 0.04) -> TensorDict:
     gaps = rel[:, :3, 1:2] + (v.reshape(n, 1, 1) + rel[:, :3, 3:4]) * t_key
     key_mask = mask[:, :3].clone()
     gaps = torch.where(key_mask.unsqueeze(-1), gaps, torch.zeros_like(gaps))
+    offset = torch.where(label == K.LEFT, 0.8, torch.where(label == K.RIGHT, -0.8, 0.0))
+    nb_offset = torch.where(mask, 0.2 * torch.randn(n, 6, generator=g), torch.zeros(n, 6))
     return TensorDict({
-        "label": label, "s_av": torch.stack([v, lat, lane.float()], -1), "rel": rel, "mask": mask,
+        "label": label, "s_av": torch.stack([v, lat, lane.float(), offset], -1), "rel": rel, "mask": mask,
+        "lane_offset": nb_offset,
         "key_gaps": gaps, "key_gaps_mask": key_mask, "num_lanes": torch.full((n,), 3),
         "recording_id": torch.zeros(n, dtype=torch.int64), "vehicle_id": torch.arange(n), "frame": torch.zeros(
             n, dtype=torch.int64), "driver": torch.zeros(n, dtype=torch.int64)}, batch_size=[n])
@@ -209,6 +212,8 @@ def observation(batch: tuple[int, ...], seed: int = 0) -> TensorDict:
             *batch, 1, generator=g), torch.randn(*batch, 1, generator=g)], -1),
         K.EGO_LANE: torch.randint(0, 3, (*batch, 1), generator=g),
         K.NEIGHBORS_REL: rel, K.NEIGHBORS_MASK: mask,
+        K.EGO_LANE_OFFSET: 0.5 * torch.randn(*batch, 1, generator=g),
+        K.NEIGHBORS_LANE_OFFSET: torch.where(mask, 0.5 * torch.randn(*batch, 6, generator=g), float("nan")),
         K.PRED_KEY_GAPS: torch.where(mask[..., :3, None], 30 * torch.rand(*batch, 3, 2, generator=g),
                                      torch.zeros(*batch, 3, 2)),
     }, batch_size=batch)
@@ -240,11 +245,13 @@ def test_predictor_matches_task_on_samples(data):
     obs = TensorDict({
         K.EGO_STATE: torch.stack([torch.zeros(n), s["s_av"][:, 0], s["s_av"][:, 1]], -1),
         K.EGO_LANE: s["s_av"][:, 2:3].long(), K.NEIGHBORS_REL: s["rel"], K.NEIGHBORS_MASK: s["mask"],
+        K.EGO_LANE_OFFSET: s["s_av"][:, 3:4], K.NEIGHBORS_LANE_OFFSET: s["lane_offset"],
         K.PRED_KEY_GAPS: s["key_gaps"]}, batch_size=[n])
     pred = LCGANPredictor.from_task(task, draws=1)
     c_task, a_task = task._condition(s)
     fields = lane_change_condition(obs[K.EGO_STATE][:, 1], obs[K.EGO_STATE][:, 2], obs[K.EGO_LANE][:, 0],
-                                   obs[K.NEIGHBORS_REL], obs[K.NEIGHBORS_MASK], obs[K.PRED_KEY_GAPS])
+                                   obs[K.EGO_LANE_OFFSET][:, 0], obs[K.NEIGHBORS_REL], obs[K.NEIGHBORS_MASK],
+                                   obs[K.NEIGHBORS_LANE_OFFSET], obs[K.PRED_KEY_GAPS])
     c_pred, a_pred = pred.net.condition(**fields, num_lanes=3)
     assert torch.allclose(c_task, c_pred) and torch.equal(a_task, a_pred)
     p = pred(obs)[K.PRIOR_P_LCGAN]
@@ -257,8 +264,11 @@ def test_condition_marks_unknown_key_gaps_absent():
     mask = torch.tensor([[True, True, False, True, False, False]])
     gaps = torch.tensor([[[10.0, 20.0], [float("nan"), 5.0], [1.0, 2.0]]])
     rel = torch.where(mask.unsqueeze(-1), 1.0, float("nan")).expand(1, 6, 4)  # garbage where absent
-    f = lane_change_condition(torch.tensor([25.0]), torch.tensor([0.5]), torch.tensor([1]), rel, mask, gaps)
+    nb_offset = torch.where(mask, 0.3, float("nan"))
+    f = lane_change_condition(torch.tensor([25.0]), torch.tensor([0.5]), torch.tensor([1]), torch.tensor([-0.4]),
+                              rel, mask, nb_offset, gaps)
     assert f["key_gaps_mask"].tolist() == [[True, False, False]] and torch.equal(f["mask"], mask)
     assert f["key_gaps"].tolist() == [[[10.0, 20.0], [0.0, 0.0], [0.0, 0.0]]]
     assert torch.equal(f["rel"], mask.unsqueeze(-1).float().expand(1, 6, 4))
-    assert f["s_av"].tolist() == [[25.0, 0.5, 1.0]]
+    assert torch.allclose(f["lane_offset"], torch.where(mask, 0.3, 0.0))
+    assert torch.allclose(f["s_av"], torch.tensor([[25.0, 0.5, 1.0, -0.4]]))

@@ -51,6 +51,7 @@ def raw_obs(batch=(), history_len=10) -> TensorDict:
         K.EGO_STATE: torch.zeros(*b, 3), K.EGO_LANE: torch.ones(*b, 1, dtype=torch.long),
         K.EGO_ACCEL: torch.zeros(*b, 1), K.NEIGHBORS_REL: torch.zeros(*b, 6, 4),
         K.NEIGHBORS_MASK: torch.zeros(*b, 6, dtype=torch.bool), K.NEIGHBORS_KIN: torch.zeros(*b, 6, 3),
+        K.EGO_LANE_OFFSET: torch.zeros(*b, 1), K.NEIGHBORS_LANE_OFFSET: torch.zeros(*b, 6),
         K.LEADERS_AHEAD: torch.zeros(*b, 3, 3), K.LEADERS_HISTORY: torch.zeros(*b, 3, history_len, 2),
     }, batch_size=b)
 
@@ -492,9 +493,10 @@ class ToyRoadEnv(EnvBase):
         super().__init__(batch_size=torch.Size([num_envs]))
         b, self.h = (num_envs,), history_len
         self.observation_spec = Composite(
-            ego=Composite(state=Unbounded((*b, 3)), lane=Bounded(0, 2, (*b, 1), dtype=torch.int64), shape=b),
+            ego=Composite(state=Unbounded((*b, 3)), lane=Bounded(0, 2, (*b, 1), dtype=torch.int64),
+                          lane_offset=Unbounded((*b, 1)), shape=b),
             neighbors=Composite(rel=Unbounded((*b, 6, 4)), mask=Categorical(2, (*b, 6), dtype=torch.bool),
-                                kin=Unbounded((*b, 6, 3)), shape=b),
+                                kin=Unbounded((*b, 6, 3)), lane_offset=Unbounded((*b, 6)), shape=b),
             leaders=Composite(ahead=Unbounded((*b, 3, 3)), history=Unbounded((*b, 3, history_len, 2)), shape=b),
             shape=b)
         self.action_spec = Bounded(-3.0, 3.0, (*b, 1))
@@ -536,6 +538,7 @@ class ToyRoadEnv(EnvBase):
             K.NEIGHBORS_KIN: torch.stack(kin, 1), K.NEIGHBORS_MASK: torch.stack(mask, 1),
             K.NEIGHBORS_REL: torch.stack(rel, 1), K.LEADERS_AHEAD: torch.stack(ahead, 1),
             K.LEADERS_HISTORY: torch.stack(hist, 1),
+            K.EGO_LANE_OFFSET: torch.zeros(n, 1), K.NEIGHBORS_LANE_OFFSET: torch.zeros(n, 6),
         }, batch_size=self.batch_size)
 
     def _reset(self, tensordict=None, **kwargs):

@@ -10,7 +10,7 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 :func:`make_run_dir`           the folder Hydra made for this run, and whether it resumes
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
 :func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
-:func:`make_env`               the batched highway env (SUMO, or the fake) with the algo's transforms
+:func:`make_env`               the batched highway env (SUMO, HighwayEnv or the fake) with the algo's transforms
 :func:`make_learner`           the :class:`~kddrl_trl.training.Learner` of a learning algo (by ``algo.kind``)
 :func:`make_policy`            the acting policy of any algo, exploration off
 :func:`make_buffers`           replay buffers L (frames) and H (macro-transitions)
@@ -149,16 +149,22 @@ def make_transforms(algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayCo
 
 def make_env(env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bool | str = False,
              fake: bool = False) -> EnvBase:
-    """``SumoHighwayEnv`` (``FakeHighwayEnv`` with ``fake=True``) of ``env.num_roads`` roads on the composed
-    highway config, with :func:`make_transforms` (built first: no simulator starts before every option is
+    """The env of ``env.simulator`` with ``env.num_roads`` roads on the composed highway config: ``SumoHighwayEnv``
+    (``sumo``; ``FakeHighwayEnv`` with ``fake=True``) or ``HighwayEnvAdapter`` (``highwayenv``, the optional extra
+    ``.[highway]``), with :func:`make_transforms` (built first: no simulator starts before every option is
     checked; a rule-based algo without a shield gets the bare env)."""
     highway = env.highway()
     transforms = make_transforms(algo, seed, highway, compile)
+    options = {}
     if fake:
         from .envs.fake import FakeHighwayEnv as Env
+    elif env.simulator == "highwayenv":
+        from .envs.highwayenv import HighwayEnvAdapter as Env
+
+        options = {"options": env.highwayenv}
     else:
         from .envs.highway import SumoHighwayEnv as Env
-    base = Env(highway, num_roads=env.num_roads, seed=seed)
+    base = Env(highway, num_roads=env.num_roads, seed=seed, **options)
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
 
@@ -315,6 +321,21 @@ def report(out_dir: Path, episodes: list[dict], title: str, reference: dict | No
 
 #: which sample kind each generative model learns from (``kddrl_trl.data.extract``)
 GAN_DATA_KIND = {"trajgan": "leaders", "lcgan": "lane_changes"}
+#: extraction parameters that do not shape a model's samples, left out of its dataset hash (the lcGAN window label
+#: does not change the trajGAN leader samples, so it does not invalidate trajGAN weights)
+_OTHER_KIND_PARAMS = {"trajgan": ("label",), "lcgan": ()}
+
+
+def dataset_description(data_dir: Path) -> dict:
+    """The extraction parameters of the dataset in ``data_dir`` and, in words, its lcGAN window label."""
+    import json
+
+    from .data.extract import LABELS
+
+    params = json.loads((Path(data_dir) / "meta.json").read_text())["params"]
+    label = params.get("label", "end")  # datasets extracted before the option had the net change
+    return {"params": params, "label_definition": f"{label}: {LABELS[label]} (window = {params['window']} frames "
+                                                  f"at {params['hz']} Hz)"}
 
 
 def make_gan_data(kind: str, data_dir: Path, highway: HighwayConfig, recordings_dir: Path, seed: int,
@@ -334,5 +355,6 @@ def make_gan_data(kind: str, data_dir: Path, highway: HighwayConfig, recordings_
         meta = synthetic_dataset(highway, data_dir, recordings_dir, seed=seed, progress=progress)
     splits = {s: load_dataset(data_dir, GAN_DATA_KIND[kind], s).to_tensordict().to(device)
               for s in ("train", "val", "test")}
-    digest = hashlib.sha256(json.dumps([meta["input_hash"], meta["params"], kind], sort_keys=True).encode()).hexdigest()
+    params = {k: v for k, v in meta["params"].items() if k not in _OTHER_KIND_PARAMS[kind]}
+    digest = hashlib.sha256(json.dumps([meta["input_hash"], params, kind], sort_keys=True).encode()).hexdigest()
     return splits, digest

@@ -32,9 +32,11 @@ HISTORY_FEATURES = ("y", "v")
 EGO_STATE = ("ego", "state")            # [3]  y, v_y, v_x
 EGO_LANE = ("ego", "lane")              # [1]  int64, 0 = rightmost
 EGO_ACCEL = ("ego", "accel")            # [1]  acceleration executed in the last frame (m/s²)
+EGO_LANE_OFFSET = ("ego", "lane_offset")  # [1]  lateral offset from the centre of the ego's lane (m, + = left)
 NEIGHBORS_REL = ("neighbors", "rel")    # [6, 4]
 NEIGHBORS_MASK = ("neighbors", "mask")  # [6]  bool, neighbour present within sensing range
 NEIGHBORS_KIN = ("neighbors", "kin")    # [6, 3]
+NEIGHBORS_LANE_OFFSET = ("neighbors", "lane_offset")  # [6] each neighbour's offset from its lane's centre (m, + left)
 LEADERS_AHEAD = ("leaders", "ahead")    # [3, 3]
 LEADERS_HISTORY = ("leaders", "history")  # [3, H, 2], oldest first, last entry = current frame
 LC_ACTION_MASK = ("lc", "action_mask")  # [3]  bool, which lane-change commands would be executed now
@@ -69,6 +71,7 @@ BRAKING_DISTANCE = ("braking", "distance")      # [1]  gap (m) to the braking le
 RAW_OBSERVATION_KEYS = (
     EGO_STATE, EGO_LANE, EGO_ACCEL, NEIGHBORS_REL, NEIGHBORS_MASK, NEIGHBORS_KIN,
     LEADERS_AHEAD, LEADERS_HISTORY, LC_ACTION_MASK, LC_ACTIVE, LC_STARTED, COLLISION,
+    EGO_LANE_OFFSET, NEIGHBORS_LANE_OFFSET,
     OUTCOME, COLLISION_KIND, COLLISION_SLOT, BRAKING_PHASE, BRAKING_DISTANCE,
 )
 

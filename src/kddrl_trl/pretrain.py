@@ -1,5 +1,9 @@
 """Pretrain trajGAN or lcGAN: ``python -m kddrl_trl.pretrain gan=trajgan|lcgan [key=value ...]``.
 
+``export=PATH`` copies the best weights to PATH and writes their test metrics beside them
+(``PATH`` -> ``<stem>.metrics.json``, :mod:`kddrl_trl.generative.shipped`); ``evaluate=PATH`` trains nothing and
+(re)writes that metrics file for the weights at PATH (they must have been trained on this dataset).
+
 Wires parts together: the naturalistic dataset (built first if missing), the model's task
 (:mod:`kddrl_trl.generative`), the generic loop (:func:`~kddrl_trl.generative.pretraining.run_pretraining`:
 validation each epoch, early stopping, atomic checkpoints, resume) and the report. Runs on a GPU when
@@ -16,9 +20,10 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
-from .factories import make_device, make_gan_data, make_logger, seed_everything
+from .factories import dataset_description, make_device, make_gan_data, make_logger, seed_everything
 from .generative import TASKS, format_metrics
 from .generative.pretraining import PretrainConfig, run_pretraining
+from .generative.shipped import evaluate_checkpoint, write_shipped_metrics
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="pretrain")
@@ -35,6 +40,14 @@ def main(cfg: DictConfig) -> dict:
     splits, dataset_hash = make_gan_data(kind, data_dir, OmegaConf.to_object(cfg.env).highway(),
                                          Path(cfg.recordings_dir), int(cfg.seed), device, progress=bool(cfg.progress))
     task = TASKS[kind](OmegaConf.to_container(cfg.gan.model, resolve=True), splits["train"], device=device)
+    command = " ".join(["python -m kddrl_trl.pretrain", *HydraConfig.get().overrides.task])
+    dataset = {"data_dir": str(data_dir), "recordings_dir": str(cfg.recordings_dir), "seed": int(cfg.seed),
+               **dataset_description(data_dir)}
+    if cfg.evaluate:
+        metrics = evaluate_checkpoint(task, cfg.evaluate, splits["test"], run_dir, dataset_hash)
+        print(format_metrics(kind, metrics))
+        print(f"metrics of {cfg.evaluate} written to {write_shipped_metrics(cfg.evaluate, metrics, command, dataset, trained=False)}")
+        return metrics
     train = PretrainConfig(**OmegaConf.to_container(cfg.gan.train, resolve=True), seed=int(cfg.seed),
                            resume=bool(cfg.resume))
     metrics = run_pretraining(task, splits["train"], splits["val"], splits["test"], train, run_dir, dataset_hash,
@@ -46,7 +59,8 @@ def main(cfg: DictConfig) -> dict:
     if cfg.export:
         Path(cfg.export).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(run_dir / "best.pt", cfg.export)
-        print(f"exported best weights to {cfg.export}")
+        print(f"exported best weights to {cfg.export} and their test metrics to "
+              f"{write_shipped_metrics(cfg.export, metrics, command, dataset)}")
     print(f"results in {run_dir}")
     return metrics
 

@@ -21,8 +21,17 @@ from .conf.schema import ReportJob
 from .eval.records import find_runs
 from .eval.report import build_report
 
-#: the lcGAN test metrics shipped beside the weights, when there are any
-SHIPPED_LCGAN_METRICS = Path(__file__).parent / "generative" / "weights" / "lcgan_metrics.json"
+#: the lcGAN test metrics shipped beside the weights (``generative/shipped.py``), when there are any
+SHIPPED_LCGAN_METRICS = Path(__file__).parent / "generative" / "weights" / "lcgan.metrics.json"
+
+
+def read_lcgan_metrics(path: Path) -> dict | None:
+    """Test metrics for Figs. 16-17 from a shipped ``<kind>.metrics.json`` (metrics under ``"test"``) or a
+    pretraining run's ``metrics.json``; ``None`` if the file does not exist."""
+    if not path.is_file():
+        return None
+    data = json.loads(path.read_text())
+    return data["test"] if "test" in data and "dataset_hash" in data else data
 
 
 def folders_as_override(argv: list[str]) -> list[str]:
@@ -38,7 +47,7 @@ def folders_as_override(argv: list[str]) -> list[str]:
 def main(cfg: DictConfig) -> dict:
     job: ReportJob = OmegaConf.to_object(cfg)
     metrics_path = Path(job.lcgan_metrics) if job.lcgan_metrics else SHIPPED_LCGAN_METRICS
-    lcgan = json.loads(metrics_path.read_text()) if metrics_path.is_file() else None
+    lcgan = read_lcgan_metrics(metrics_path)
     if job.lcgan_metrics and lcgan is None:
         raise SystemExit(f"lcgan_metrics={job.lcgan_metrics}: no such file")
     runs = find_runs(job.runs)

@@ -20,8 +20,12 @@ class MultiRatePolicy(TensorDictModuleBase):
 
     1. ``shared`` (optional, e.g. the shared embedding of Eq. 23-24) runs once on a shallow copy;
     2. rows with ``decide_key`` True get the lane-change policy's action (Algorithm 1 lines 23-24) — the
-       lane-change policy runs **only on those rows**; the other rows keep ``held_key`` (the action in force,
-       written by :class:`~kddrl_trl.collectors.DecisionClock`);
+       lane-change policy runs **only on those rows** (on a sub-batch of its own in-keys); the other rows keep
+       ``held_key`` (the action in force, written by :class:`~kddrl_trl.collectors.DecisionClock`). Running it on
+       all rows and keeping the decision rows would draw the ε-greedy coin for every row, so the random stream,
+       and with it every later exploring action, would differ; measured with the KDDRL policy on a 2-core CPU it
+       is hardly faster (K = 8, 2 of 8 rows deciding, machine under load: the D3QN policy 5.3 ms on the
+       sub-batch vs 5.0 ms on all rows, plus 0.37 ms to index the sub-batch);
     3. the car-following policy runs on all rows, reading the lane-change action just set (Eq. 30: the held
        a_D3QN is part of s_TD3; lines 31-32).
 
@@ -51,6 +55,7 @@ class MultiRatePolicy(TensorDictModuleBase):
         self.in_keys = list(dict.fromkeys([decide_key, held_key] + [k for k in needed if k not in produced]))
         self.out_keys = [lc_action_key, cf_action_key, *extra_out_keys]
         self.extra_out_keys = tuple(extra_out_keys)
+        self.lc_in_keys = _keys(lc_policy)
 
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -62,10 +67,11 @@ class MultiRatePolicy(TensorDictModuleBase):
         held = work.get(self.held_key)
         if bool(decide.all()):
             action = self.lc_policy(work.clone(False)).get(self.lc_action_key).to(held.dtype)
-        elif bool(decide.any()):
-            sub = self.lc_policy(work[decide])
+        elif bool(decide.any()):  # only the lane-change policy's inputs, by integer index: 0.37 ms vs 0.88 ms
+            rows = decide.nonzero(as_tuple=True)
+            sub = self.lc_policy(work.select(*self.lc_in_keys, strict=False)[rows])
             action = held.clone()
-            action[decide] = sub.get(self.lc_action_key).to(held.dtype)
+            action[rows] = sub.get(self.lc_action_key).to(held.dtype)
         else:
             action = held
         work.set(self.lc_action_key, action)

@@ -6,7 +6,8 @@ misspelt key or a value of the wrong type while it composes the config, naming t
 composed config into these objects (``OmegaConf.to_object``), before any simulator starts.
 
 =====================  =================================================================================
-``env``                :class:`EnvNode`: every :class:`~kddrl_trl.envs.config.HighwayConfig` field + ``num_roads``
+``env``                :class:`EnvNode`: every :class:`~kddrl_trl.envs.config.HighwayConfig` field + ``num_roads``,
+                       ``simulator`` (``sumo`` | ``highwayenv``), ``highwayenv`` (HighwayEnv's own options)
 ``algo`` (learning)    :class:`HierarchicalAlgo`: ``lc_period``, ``transforms``, ``learner{d3qn, td3 | ddpg, ...}``;
                        :class:`JointD3QNAlgo` (``d3qn_unified``), :class:`PASACAlgo` (``pasac_unified``): one agent
                        acting every frame (``lc_period`` 1), ``learner{...}``
@@ -29,6 +30,7 @@ from typing import Any, Optional
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from ..envs.config import HighwayConfig
+from ..envs.highwayenv import HighwayEnvOptions, check_config
 from ..physics import IDMParams, MOBILParams
 
 
@@ -39,15 +41,28 @@ def _at_least(prefix: str, node, low: int, *names: str) -> None:
             raise ValueError(f"{prefix}{name} must be >= {low}, got {value!r}")
 
 
+#: ``env.simulator`` values: our SUMO highway (``conf/env/highway.yaml``), HighwayEnv (``conf/env/highwayenv.yaml``,
+#: the optional extra ``.[highway]``, :mod:`kddrl_trl.envs.highwayenv`)
+SIMULATORS = ("sumo", "highwayenv")
+
+
 @dataclass
 class EnvNode(HighwayConfig):
-    """The ``env`` node: the highway config plus the number of roads simulated side by side."""
+    """The ``env`` node: the highway config plus the number of roads simulated side by side, the simulator and, for
+    HighwayEnv, its own options (:class:`~kddrl_trl.envs.highwayenv.HighwayEnvOptions`; checked here, before any
+    simulator starts, with the :class:`HighwayConfig` values HighwayEnv cannot honour)."""
 
     num_roads: int = 8
+    simulator: str = "sumo"
+    highwayenv: Optional[HighwayEnvOptions] = None
 
     def __post_init__(self) -> None:
         _at_least("env.", self, 1, "num_roads")
+        if self.simulator not in SIMULATORS:
+            raise ValueError(f"env.simulator={self.simulator!r}: known simulators are {', '.join(SIMULATORS)}")
         self.validate()
+        if self.simulator == "highwayenv":
+            self.highwayenv = check_config(self, self.highwayenv)
 
     def highway(self) -> HighwayConfig:
         """This node's :class:`HighwayConfig` (its scenario preset was applied by Hydra: no preset applies again)."""

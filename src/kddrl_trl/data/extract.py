@@ -36,16 +36,29 @@ leader_driver     [N]              int64    index of the leader's driver_type in
 ``lane_changes`` (:func:`lane_change_samples`, lcGAN, paper §III.C.1, Eq. 16-19): one sample per ego
 vehicle and 10 Hz frame ``t`` (every ``stride`` frames) whose track covers ``t .. t + window``.
 
+The label (paper §IV.F: "we extracted lane-changing maneuvers using a 2-second sliding time window"): the
+window is the ``window`` frames (2 s) *after* the observation time ``t``, because ``P_lcGAN^t`` is the prior
+of the lane-change decision taken at ``t`` for the next 2 s (the D3QN's decision period, §III.D).
+``label="within"`` (default, the reading the paper's text supports: a window is a lane-changing sample when
+it contains a lane-changing manoeuvre) is the direction of the FIRST lane change (lane-index switch) in
+``t+1 .. t+window``, keep if there is none; ``label="end"`` is the net change ``sign(lane(t+window) -
+lane(t))``. The two differ only on windows holding two changes (e.g. left and back: "within" says left,
+"end" says keep); on our default recordings none of the 7,603 lane-change windows differ (SUMO never
+changes twice within 2 s), so the choice matters only for naturalistic data such as HighD.
+
 ================  ===============  =======  ==========================================================
 field             shape            dtype    meaning
 ================  ===============  =======  ==========================================================
-label             [N]              int64    0 left / 1 keep / 2 right = sign of lane(t+window) - lane(t)
-                                            (lane 0 = rightmost, left = lane + 1); ``keys.LC_ACTIONS``
-s_av              [N, 3]           float32  S_AV: ego (v m/s, vx_lat m/s + = left, lane index as float)
+label             [N]              int64    0 left / 1 keep / 2 right (see above; lane 0 = rightmost,
+                                            left = lane + 1); ``keys.LC_ACTIONS``
+s_av              [N, 4]           float32  S_AV: ego (v m/s, vx_lat m/s + = left, lane index as float,
+                                            lane_offset m from its lane's centre, + = left)
 rel               [N, 6, 4]        float32  S_SV: slots a..f (left/current/right leader, left/current/
                                             right follower) x (dx lateral m, dy longitudinal m, dvx
                                             lateral m/s, dvy longitudinal m/s), neighbour minus ego, as
                                             ``keys.NEIGHBORS_REL``; zeros where absent
+lane_offset       [N, 6]           float32  each neighbour's offset from its own lane's centre (m, + =
+                                            left), as ``keys.NEIGHBORS_LANE_OFFSET``; zeros where absent
 mask              [N, 6]           bool     slot present within sensing_range (``keys.NEIGHBORS_MASK``)
 key_gaps          [N, 3, 2]        float32  true y of leaders a, b, c at t+10 and t+20 minus ego y at t
                                             (m); the real-data counterpart of ``keys.PRED_KEY_GAPS``
@@ -100,6 +113,8 @@ __all__ = [
     "driver_codes",
     "leader_samples",
     "lane_change_samples",
+    "LABELS",
+    "window_labels",
     "split_by_vehicle",
     "extract_dataset",
     "load_dataset",
@@ -174,7 +189,7 @@ class _Index:
         self.veh = np.repeat(np.arange(len(self.starts)), self.lens)  # vehicle index of each row
         self.pos = np.arange(len(rec)) - self.starts[self.veh]  # position of each row in its vehicle
         self.cols = {}
-        for c in ("y", "v", "x_lat", "vx_lat", "length"):
+        for c in ("y", "v", "x_lat", "vx_lat", "lane_offset", "length"):
             values = tracks[c].to_numpy(dtype=np.float64)
             bad = ~np.isfinite(values)
             if bad.any():
@@ -341,18 +356,47 @@ def _num_lanes_per_row(ix: _Index, tracks: pd.DataFrame, rows: np.ndarray, num_l
     return values.astype(np.int64)
 
 
+#: the lcGAN window labels (``label=``), as stated in the metrics shipped with the weights
+LABELS = {
+    "within": "direction of the first lane change (lane-index switch) in the window of `window` frames after t; "
+              "keep if none",
+    "end": "sign of lane(t + window) - lane(t) (the net change over the window)",
+}
+
+
+def _check_label(label) -> str:
+    if label not in LABELS:
+        raise ValueError(f"label must be one of {list(LABELS)}, got {label!r}")
+    return label
+
+
+def window_labels(lane_now: np.ndarray, lanes_after: np.ndarray, label: str = "within") -> np.ndarray:
+    """0 left / 1 keep / 2 right of windows: ``lane_now [N]`` at ``t`` and ``lanes_after [N, window]`` at
+    ``t+1 .. t+window``; ``label`` "within" (first change in the window) or "end" (net change), module doc."""
+    diff = lanes_after - lane_now[:, None]
+    if _check_label(label) == "end":
+        change = diff[:, -1]
+    else:
+        first = (diff != 0).argmax(axis=1)
+        change = diff[np.arange(len(diff)), first] if len(diff) else np.zeros(0, dtype=np.int64)
+    return (1 - np.sign(change)).astype(np.int64)  # +1 (left) -> 0, 0 -> 1, -1 (right) -> 2
+
+
 def lane_change_samples(
     tracks: pd.DataFrame,
     window: int = 20,
     stride: int = 1,
     sensing_range: float = 200.0,
     num_lanes=None,
+    label: str = "within",
 ) -> TensorDict:
     """lcGAN samples: 2 s sliding windows labelled left / keep / right, with the condition C of Eq. 16.
 
     ``num_lanes``: an int, or a Series / mapping keyed by ``(recording_id, vehicle_id)``; by default
-    ``tracks.attrs["num_lanes"]`` if set, else the number of lanes seen in each recording.
+    ``tracks.attrs["num_lanes"]`` if set, else the number of lanes seen in each recording. ``label``:
+    "within" (first lane change in the window) or "end" (net change over it), see the module docstring.
     """
+    _check_label(label)
     window = _positive_int("window", window)
     stride = _positive_int("stride", stride)
     sensing_range = _positive_float("sensing_range", sensing_range)
@@ -360,10 +404,10 @@ def lane_change_samples(
     c = ix.cols
     egos = np.flatnonzero((ix.frame % stride == 0) & ix.covers(np.arange(len(ix.frame)), 0, window))
     n = len(egos)
-    diff = c["lane"][egos + window] - c["lane"][egos]
-    label = (1 - np.sign(diff)).astype(np.int64)  # +1 (left) -> 0, 0 -> 1, -1 (right) -> 2
+    labels = window_labels(c["lane"][egos], c["lane"][egos[:, None] + np.arange(1, window + 1)], label)
 
     rel = np.zeros((n, 6, 4))
+    nb_offset = np.zeros((n, 6))
     mask = np.zeros((n, 6), dtype=bool)
     key_gaps = np.full((n, 3, 2), np.nan)  # NaN: the leader's track ends before the key step
     ey = c["y"][egos]
@@ -373,15 +417,17 @@ def lane_change_samples(
         mask[:, s] = (rows >= 0) & (np.abs(c["y"][r] - ey) <= sensing_range)
         rel[:, s] = np.stack([c["x_lat"][r] - c["x_lat"][egos], c["y"][r] - ey,
                               c["vx_lat"][r] - c["vx_lat"][egos], c["v"][r] - c["v"][egos]], -1).reshape(n, 4)
+        nb_offset[:, s] = c["lane_offset"][r]
         if s < 3:
             reach = ix.covers(rows, 0, max(KEY_STEPS))
             for j, step in enumerate(KEY_STEPS):
                 key_gaps[reach, s, j] = c["y"][r[reach] + step] - ey[reach]
     condition = lane_change_condition(_f32(c["v"][egos]), _f32(c["vx_lat"][egos]), _i64(c["lane"][egos]),
-                                      _f32(rel), torch.as_tensor(mask), _f32(key_gaps))
+                                      _f32(c["lane_offset"][egos]), _f32(rel), torch.as_tensor(mask),
+                                      _f32(nb_offset), _f32(key_gaps))
     return TensorDict(
         {
-            "label": _i64(label),
+            "label": _i64(labels),
             **condition,
             "num_lanes": _i64(_num_lanes_per_row(ix, tracks, egos, num_lanes)),
             "recording_id": _i64(ix.rec[egos]),
@@ -485,6 +531,7 @@ def extract_dataset(
     history: int = 10,
     horizon: int = 20,
     window: int = 20,
+    label: str = "within",
     sensing_range: float = 200.0,
     idm: IDMParams = IDMParams(),
     fractions: Sequence[float] = (0.8, 0.1, 0.1),
@@ -513,10 +560,12 @@ def extract_dataset(
     history, horizon, window = (_positive_int(n, v) for n, v in
                                 (("history", history), ("horizon", horizon), ("window", window)))
     sensing_range = _positive_float("sensing_range", sensing_range)
+    _check_label(label)
     _check_idm(idm)
     out_dir = Path(out_dir)
     params = _params_json(seed=seed, stride=stride, hz=float(hz), history=history, horizon=horizon,
-                          window=window, sensing_range=float(sensing_range), idm=idm, fractions=fractions,
+                          window=window, label=label, sensing_range=float(sensing_range), idm=idm,
+                          fractions=fractions,
                           key_steps=KEY_STEPS, schema_version=SCHEMA_VERSION)
     digest = _hash_recordings(recordings)
     meta_path = out_dir / "meta.json"
@@ -537,7 +586,7 @@ def extract_dataset(
         leaders.append(leader_samples(tracks, history=history, horizon=horizon, stride=stride, idm=idm,
                                       sensing_range=sensing_range))
         changes.append(lane_change_samples(tracks, window=window, stride=stride, sensing_range=sensing_range,
-                                           num_lanes=lanes))
+                                           num_lanes=lanes, label=label))
         vehicles.append(np.unique(_vehicle_keys(tracks["recording_id"], tracks["vehicle_id"])))
         changers.append(int((tracks.groupby("vehicle_id")["lane"].nunique() > 1).sum()))
     data = {"leaders": torch.cat(leaders), "lane_changes": torch.cat(changes)}

@@ -172,7 +172,7 @@ def main(cfg: DictConfig) -> dict:
     ids = recording_ids(rec_dir)
     recordings = [read_recording(rec_dir, i) for i in tqdm(ids, desc="read", unit="rec", disable=not cfg.progress)]
     out_dir = Path(cfg.out_dir)
-    meta = extract_dataset(recordings, out_dir, seed=int(cfg.seed), stride=int(cfg.stride),
+    meta = extract_dataset(recordings, out_dir, seed=int(cfg.seed), stride=int(cfg.stride), label=str(cfg.label),
                            progress=bool(cfg.progress), force=bool(cfg.force))
     hours = sum(float(r.meta["duration"]) for r in recordings) / 3600.0
     print_dataset(meta, hours)

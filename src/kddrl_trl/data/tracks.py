@@ -39,7 +39,7 @@ NEIGHBOR_ID_COLUMNS = {
 TRACKS10_DTYPES = {
     "recording_id": "int64", "vehicle_id": "int64", "frame": "int64", "t": "float64", "y": "float64",
     "v": "float64", "a": "float64", "x_lat": "float64", "vx_lat": "float64", "lane": "int64",
-    "length": "float64", "driver_type": "str", **{c: "int64" for c in NEIGHBOR_ID_COLUMNS},
+    "lane_offset": "float64", "length": "float64", "driver_type": "str", **{c: "int64" for c in NEIGHBOR_ID_COLUMNS},
 }
 TRACKS10_COLUMNS = tuple(TRACKS10_DTYPES)
 
@@ -73,7 +73,8 @@ def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataF
     Kinematics (``y, v, a, x_lat, vx_lat``) are linearly interpolated at ``t = frame / hz`` inside each
     vehicle's own first..last 25 Hz timestamps; ``lane`` and the neighbour ids come from the last 25 Hz row
     at or before ``t``. ``x_lat`` is the box centre measured from the right edge of the carriageway in the
-    direction of travel (the outermost lane marking), growing to the left; ``vx_lat`` is + to the left.
+    direction of travel (the outermost lane marking), growing to the left; ``vx_lat`` is + to the left;
+    ``lane_offset`` is ``x_lat`` minus the centre of ``lane`` (from the lane markings), + = left of the centre.
 
     Raises:
         ValueError: ``hz`` not finite and > 0, no vehicles in the recording, a vehicle with repeated 25 Hz
@@ -119,7 +120,7 @@ def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataF
 
     # ---- sort by (vehicle, frame) and find each vehicle's block of rows
     order = np.lexsort((frames25, ids25))
-    ids25, frames25, lane25 = ids25[order], frames25[order], lane25[order]
+    ids25, frames25, lane25, dir25 = ids25[order], frames25[order], lane25[order], direction[order]
     cols25 = {k: v[order] for k, v in cols25.items()}
     nb25 = {k: v[order] for k, v in nb25.items()}
     new_vehicle = np.r_[True, ids25[1:] != ids25[:-1]]
@@ -172,6 +173,7 @@ def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataF
         v = cols25[name]
         out[name] = v[lo] + w * (v[hi] - v[lo])
     out["lane"] = lane25[lo]
+    out["lane_offset"] = out["x_lat"] - _lane_centres(recording, dir25[lo], out["lane"])
     out["length"] = length[veh]
     out["driver_type"] = driver[veh]
     for c in NEIGHBOR_ID_COLUMNS:
@@ -182,6 +184,19 @@ def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataF
     tracks = tracks.astype({c: d for c, d in TRACKS10_DTYPES.items()})
     tracks.attrs["hz"] = float(hz)
     return tracks
+
+
+def _lane_centres(recording: HighDRecording, direction: np.ndarray, lane: np.ndarray) -> np.ndarray:
+    """Centre of lane ``lane`` (0 = rightmost) of driving ``direction``, in ``x_lat`` coordinates (m from the
+    right edge of the carriageway), from the recording's lane markings."""
+    out = np.zeros(len(lane), dtype=np.float64)
+    for d in (1, 2):
+        marks = recording.markings(d)
+        marks = marks - marks[0] if d == 1 else marks[-1] - marks[::-1]  # distances from the right edge
+        centres = (marks[1:] + marks[:-1]) / 2.0
+        rows = direction == d
+        out[rows] = centres[np.clip(lane[rows], 0, len(centres) - 1)]
+    return out
 
 
 def _check_finite(values: np.ndarray, column: str, rid: int, vehicle: np.ndarray, frame: np.ndarray) -> None:

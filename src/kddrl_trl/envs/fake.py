@@ -101,8 +101,12 @@ class FakeHighwayEnv(HighwayEnvBase):
         back = torch.arange(h - 1, -1, -1, dtype=torch.float32) * cfg.step_length
         hist_y = ly[..., None] - nv[:, :3, None] * back
         history = torch.stack([hist_y, nv[:, :3, None].expand(b, 3, h)], -1) * pm[:, :3, None]
+        done = 1.0 - self.lc_left.float() / self.lc_frames  # share of the manoeuvre done; lane switched at 0.5
+        offset = torch.where(active, self.lc_dir.float() * cfg.lane_width * (done - (done >= 0.5).float()),
+                             torch.zeros(b))
         return {
             K.EGO_STATE: torch.stack([self.ego_y, self.ego_v, vx], -1), K.EGO_LANE: self.ego_lane[:, None].clone(),
+            K.EGO_LANE_OFFSET: offset[:, None], K.NEIGHBORS_LANE_OFFSET: zeros.clone(),  # background: centred
             K.EGO_ACCEL: self.accel[:, None].clone(),
             K.NEIGHBORS_REL: rel * pm, K.NEIGHBORS_MASK: present, K.NEIGHBORS_KIN: kin * pm,
             K.LEADERS_AHEAD: ahead, K.LEADERS_HISTORY: history,

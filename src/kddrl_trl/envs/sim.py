@@ -353,13 +353,10 @@ class HighwaySim:
     def _observe(self, roads) -> None:
         """Observe the egos of ``roads``; a road whose observation SUMO cannot answer (a ``TraCIException``: a
         vehicle gone mid-query, ...) is truncated as lost (:meth:`_lose`), the others go on."""
-        ls = _libsumo()
-        for r in roads:
-            if self.ego[r] is not None:
-                try:
-                    self.observer.observe(r, self.ego[r], self.t, bool(self.lc_left[r] > 0))
-                except ls.TraCIException as err:
-                    self._lose(r, f"observation: {err}")
+        roads = [r for r in roads if self.ego[r] is not None]
+        failed = self.observer.observe(roads, [self.ego[r] for r in roads], self.t, self.lc_left[roads] > 0)
+        for r, why in failed.items():
+            self._lose(r, why)
 
     def _is_terminated(self, collided: bool, y: float | None) -> int:
         """``COLLIDED`` on a collision, ``LEFT_SECTION`` once the ego is past the study section, else

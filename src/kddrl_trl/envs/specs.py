@@ -19,11 +19,13 @@ def observation_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
             state=Unbounded(shape=(*b, 3), dtype=f32),        # y (m), v_y (m/s), v_x (m/s)
             lane=Bounded(0, cfg.num_lanes - 1, shape=(*b, 1), dtype=torch.int64),
             accel=Bounded(cfg.accel_low, cfg.accel_high, shape=(*b, 1), dtype=f32),  # m/s²
+            lane_offset=Unbounded(shape=(*b, 1), dtype=f32),  # m from the lane's centre, + = left
             shape=b),
         neighbors=Composite(
             rel=Unbounded(shape=(*b, 6, 4), dtype=f32),       # dx, dy (m), dvx, dvy (m/s)
             mask=Categorical(2, shape=(*b, 6), dtype=torch.bool),
             kin=Unbounded(shape=(*b, 6, 3), dtype=f32),       # y (m), v (m/s), a (m/s²)
+            lane_offset=Unbounded(shape=(*b, 6), dtype=f32),  # m from each one's lane centre, + = left; 0 absent
             shape=b),
         leaders=Composite(
             ahead=Unbounded(shape=(*b, 3, 3), dtype=f32),     # y (m), v (m/s), present (0/1)

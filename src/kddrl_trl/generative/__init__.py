@@ -4,7 +4,8 @@ One subpackage per model (``trajgan/``, ``lcgan/``: model / training task / figu
 generic training loop (``pretraining.py``), checkpoints (``checkpoint.py``) and the base of both RL-time
 predictors (``predictor.py``). No RL code and no ``kddrl_trl.data`` (pandas) is imported here. Default weights
 ship with the package (:func:`default_checkpoint`), made by
-``python -m kddrl_trl.pretrain gan=<kind> export=src/kddrl_trl/generative/weights/<kind>.pt``.
+``python -m kddrl_trl.pretrain gan=<kind> export=src/kddrl_trl/generative/weights/<kind>.pt``, with their test
+metrics beside them (``weights/<kind>.metrics.json``, :mod:`.shipped`).
 """
 from __future__ import annotations
 

@@ -17,7 +17,7 @@ class LCGANPrior(FrozenPredictorTransform):
     Wraps the frozen :class:`~kddrl_trl.generative.LCGANPredictor` (default: the shipped weights, or
     ``checkpoint``), or any TensorDict module ``predictor`` writing ``PRIOR_P_LCGAN``. The condition
     ``C^t = {S_AV, S_SV, y_lv^pre}`` is read from the raw observation (``EGO_STATE``, ``EGO_LANE``,
-    ``NEIGHBORS_REL``, ``NEIGHBORS_MASK``) and the key-step gaps ``PRED_KEY_GAPS`` written by the transform before
+    ``NEIGHBORS_REL``, ``NEIGHBORS_MASK``, ``EGO_LANE_OFFSET``, ``NEIGHBORS_LANE_OFFSET``) and the key-step gaps ``PRED_KEY_GAPS`` written by the transform before
     it (:class:`TrajGANPrediction`, or :class:`KeyGapsFromPrior` in the stacks without trajGAN). One generator
     call for all environments, under ``no_grad`` with ``requires_grad=False`` weights.
 
@@ -43,7 +43,8 @@ class LCGANPrior(FrozenPredictorTransform):
                          in_keys=[], out_keys=[K.PRIOR_P_LCGAN])
 
     def predict_inputs(self, values) -> tuple:
-        return tuple(values[k] for k in (K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.PRED_KEY_GAPS))
+        return tuple(values[k] for k in (K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK,
+                                         K.EGO_LANE_OFFSET, K.NEIGHBORS_LANE_OFFSET, K.PRED_KEY_GAPS))
 
     def frame(self, values, noise=None) -> dict:
         return {K.PRIOR_P_LCGAN: finite_or_zero(self.prediction(values, noise).to(torch.float32)).clamp(0.0, 1.0)}

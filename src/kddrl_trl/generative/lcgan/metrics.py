@@ -24,8 +24,8 @@ def mobil_probabilities(samples: TensorDict) -> Tensor:
 
 
 def classification_metrics(pred: Tensor, true: Tensor) -> dict:
-    """Accuracy, per-class recall, balanced accuracy, row-normalised confusion (rows = true class),
-    true / predicted class shares and counts, for class indices ordered (left, keep, right)."""
+    """Accuracy, per-class recall and precision, balanced accuracy, row-normalised confusion (rows = true class)
+    and its counts, true / predicted class shares and counts, for class indices ordered (left, keep, right)."""
     pred, true = pred.long().flatten(), true.long().flatten()
     counts = torch.zeros(NUM_ACTIONS, NUM_ACTIONS, dtype=torch.float64)
     counts.index_put_((true, pred), torch.ones_like(true, dtype=torch.float64), accumulate=True)
@@ -37,8 +37,11 @@ def classification_metrics(pred: Tensor, true: Tensor) -> dict:
     out = {"accuracy": float(counts.diagonal().sum()) / total}
     for i, name in enumerate(K.LC_ACTIONS):
         out[f"recall_{name}"] = float(recall[i]) if present[i] else float("nan")
+        predicted = float(counts[:, i].sum())
+        out[f"precision_{name}"] = float(counts[i, i]) / predicted if predicted > 0 else float("nan")
     out["balanced_accuracy"] = float(recall[present].mean()) if present.any() else float("nan")
     out["confusion"] = conf.tolist()
+    out["confusion_counts"] = [[int(x) for x in row] for row in counts.tolist()]
     out["true_shares"] = (n / total).tolist()
     out["pred_shares"] = (counts.sum(0) / total).tolist()
     out["n_per_class"] = [int(x) for x in n]

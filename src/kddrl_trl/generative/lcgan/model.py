@@ -18,7 +18,7 @@ _MASKED_LOGIT = -1e4  # exp(-1e4) == 0 in float32: impossible directions get pro
 
 def condition_size() -> int:
     """Length of the assembled condition vector C (see the module docstring)."""
-    return 3 + 2 + 6 * 4 + 6 + 3 * 2 + 3
+    return 4 + 2 + 6 * 4 + 6 + 6 + 3 * 2 + 3
 
 
 def lane_availability(lane: Tensor, num_lanes: int | Tensor) -> Tensor:
@@ -51,10 +51,12 @@ class LCGenerator(nn.Module):
         super().__init__()
         self.noise_dim = noise_dim
         self.net = _mlp(condition_size() + noise_dim, hidden, layers, NUM_ACTIONS)
-        self.register_buffer("s_av_mean", torch.zeros(3))
-        self.register_buffer("s_av_std", torch.ones(3))
+        self.register_buffer("s_av_mean", torch.zeros(4))
+        self.register_buffer("s_av_std", torch.ones(4))
         self.register_buffer("rel_mean", torch.zeros(6, 4))
         self.register_buffer("rel_std", torch.ones(6, 4))
+        self.register_buffer("offset_mean", torch.zeros(6, 1))
+        self.register_buffer("offset_std", torch.ones(6, 1))
         self.register_buffer("gap_mean", torch.zeros(3, 2))
         self.register_buffer("gap_std", torch.ones(3, 2))
 
@@ -64,14 +66,15 @@ class LCGenerator(nn.Module):
         s_av = samples["s_av"].float()
         self.s_av_mean.copy_(s_av.mean(0))
         self.s_av_std.copy_(s_av.std(0).nan_to_num(1.0).clamp(min=_STD_FLOOR))
-        for name, x, m in (("rel", samples["rel"], samples["mask"]), ("gap", samples["key_gaps"],
-                                                                       samples["key_gaps_mask"])):
+        for name, x, m in (("rel", samples["rel"], samples["mask"]),
+                           ("offset", samples["lane_offset"].unsqueeze(-1), samples["mask"]),
+                           ("gap", samples["key_gaps"], samples["key_gaps_mask"])):
             mean, std = _masked_moments(x, m.bool())
             getattr(self, f"{name}_mean").copy_(mean)
             getattr(self, f"{name}_std").copy_(std)
 
-    def condition(self, s_av: Tensor, rel: Tensor, mask: Tensor, key_gaps: Tensor, key_gaps_mask: Tensor,
-                  num_lanes: int | Tensor) -> tuple[Tensor, Tensor]:
+    def condition(self, s_av: Tensor, rel: Tensor, lane_offset: Tensor, mask: Tensor, key_gaps: Tensor,
+                  key_gaps_mask: Tensor, num_lanes: int | Tensor) -> tuple[Tensor, Tensor]:
         """Assemble and normalise C; returns ``(C [..., condition_size()], available [..., 3] bool)``.
 
         Absent slots (mask False) contribute zeros whatever their raw values (even NaN)."""
@@ -79,9 +82,11 @@ class LCGenerator(nn.Module):
         avail = lane_availability(s_av[..., 2].round(), num_lanes)
         z_s = (s_av - self.s_av_mean) / self.s_av_std
         z_rel = torch.where(mask.unsqueeze(-1), (rel - self.rel_mean) / self.rel_std, torch.zeros_like(rel))
+        z_off = torch.where(mask, (lane_offset - self.offset_mean[:, 0]) / self.offset_std[:, 0],
+                            torch.zeros_like(lane_offset))
         z_gap = torch.where(key_gaps_mask.unsqueeze(-1), (key_gaps - self.gap_mean) / self.gap_std,
                             torch.zeros_like(key_gaps))
-        c = torch.cat([z_s, avail[..., [0, 2]].to(z_s.dtype), z_rel.flatten(-2), mask.to(z_s.dtype),
+        c = torch.cat([z_s, avail[..., [0, 2]].to(z_s.dtype), z_rel.flatten(-2), mask.to(z_s.dtype), z_off,
                        z_gap.flatten(-2), key_gaps_mask.to(z_s.dtype)], dim=-1)
         return c, avail
 

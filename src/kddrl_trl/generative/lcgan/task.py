@@ -214,6 +214,7 @@ class LCGANTask:
     def _condition(self, samples: TensorDict) -> tuple[Tensor, Tensor]:
         dev = self.device
         return self.generator.condition(samples["s_av"].float().to(dev), samples["rel"].float().to(dev),
+                                        samples["lane_offset"].float().to(dev),
                                         samples["mask"].to(dev), samples["key_gaps"].float().to(dev),
                                         samples["key_gaps_mask"].to(dev), samples["num_lanes"].to(dev))
 

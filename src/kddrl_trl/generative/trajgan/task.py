@@ -27,6 +27,9 @@ from .model import FEATURES_VERSION, KIND, TrajDiscriminator, TrajGenerator, con
 #: ``PretrainConfig`` values for one hour of traffic (340k samples: ~5-8 s per epoch on a 2-core CPU)
 RECOMMENDED_PRETRAIN = {"epochs": 20, "batch_size": 256, "max_train_samples": 0, "patience": 5}
 _LAST = KEY_STEPS[-1]  # the last key step (20): the per-driver and spread metrics are taken there
+#: a test sample is a braking event when its leader decelerates at BRAKING_DECEL m/s² or harder at some step of
+#: the true 2 s future (acceleration from second differences of the positions, the last history point included)
+BRAKING_DECEL = 3.0
 
 
 @dataclass
@@ -262,12 +265,24 @@ class TrajGANTask:
                     f"min_of_k_mae_step{_LAST}": float(best_err[sel, last].mean()),
                     f"spread_step{_LAST}": float(spread[sel].mean())}
         metrics["per_driver"] = per_driver
+        braking = braking_events(history[:, -1, 0], future, cfg.dt)
+        metrics["braking_decel_threshold"] = BRAKING_DECEL
+        for name, sel in (("braking", braking), ("normal", ~braking)):
+            metrics[name] = {"n": int(sel.sum()), **{k: _error_metrics(e[sel]) for k, e in err.items()}}
         metrics["n"] = len(future)
         metrics["mae_per_step"] = {name: e.abs().mean(0).tolist() for name, e in err.items()}
         plot_errors(metrics["mae_per_step"], out_dir / "trajgan_errors.png")
         plot_samples(history, prior, many, future, cfg.num_figure_cases, cfg.dt, cfg.seed,
                      out_dir / "trajgan_samples.png")
         return metrics
+
+
+def braking_events(y0: Tensor, future: Tensor, dt: float) -> Tensor:
+    """``[N]`` bool: the leader's deceleration reaches :data:`BRAKING_DECEL` (m/s²) within ``future [N, T]``
+    (positions after ``y0 [N]``; speeds and accelerations by differences, as SUMO's Euler update makes them)."""
+    y = torch.cat([y0.unsqueeze(-1), future], dim=-1)
+    accel = torch.diff(y, n=2, dim=-1) / dt**2
+    return (accel <= -BRAKING_DECEL).any(-1)
 
 
 def _error_metrics(err: Tensor) -> dict[str, float]:
