@@ -22,7 +22,13 @@
 (c) ``train_1000_episodes_s``: read from a finished run's ``summary.json`` (``--full-run RUN_DIR``), the
     training wall time of ``python -m kddrl_trl.train`` (1000 episodes, baseline) — goal <= 900 s.
 
-    python benchmarks/train_throughput.py [--roads 8] [--updates 200] [--frames 2000] [--clock wall|cpu] [--full-run runs/...]
+    python benchmarks/train_throughput.py [--roads 8] [--updates 200] [--frames 2000] [--clock wall|cpu]
+                                          [--full-run runs/...] [--device cpu|cuda] [--skip-collect]
+
+``--device cuda`` runs (a) on the GPU: the learner (compiled arm: compiled update functions in
+``CudaGraphModule``, capturable Adam), the plain reference's networks and the batches moved there, and writes a
+``gpu`` entry (device name, TD3 / D3QN updates per second of ours and of the plain reference) besides the CPU
+ratios of a CPU run. ``--skip-collect`` measures (a) only.
 
 Prints a table and writes ``benchmarks/results/train_throughput.json``.
 """
@@ -76,10 +82,12 @@ def transform_kwargs() -> dict:
 
 # ------------------------------------------------------------------------------------ plain reference
 class PlainKDDRL:
-    """The same update as ``HierarchicalLearner`` in plain PyTorch on tensors (no TensorDict, no TorchRL)."""
+    """The same update as ``HierarchicalLearner`` in plain PyTorch on tensors (no TensorDict, no TorchRL), on the
+    learner's device (all its network copies and optimisers there)."""
 
     def __init__(self, learner: HierarchicalLearner):
         L = learner
+        device = L.device
         self.fusion = copy.deepcopy(L.embedding[0].module)          # PriorFusion net (Eq. 23)
         self.embed = copy.deepcopy(L.embedding[1].module)           # SharedEmbedding net (Eq. 24)
         self.t_fusion, self.t_embed = copy.deepcopy(self.fusion), copy.deepcopy(self.embed)
@@ -91,6 +99,9 @@ class PlainKDDRL:
         self.actor_t = copy.deepcopy(self.actor)
         self.critics = [copy.deepcopy(L.td3.critic.module) for _ in range(2)]
         self.critics_t = [copy.deepcopy(c) for c in self.critics]
+        for m in (self.fusion, self.embed, self.t_fusion, self.t_embed, self.lc_state, self.cf_state, self.q,
+                  self.q_t, self.actor, self.actor_t, *self.critics, *self.critics_t):
+            m.to(device)
         for m in (self.t_fusion, self.t_embed, self.q_t, self.actor_t, *self.critics_t):
             m.requires_grad_(False)
         td3, d3 = L.cf_loss, L.lc_loss
@@ -100,10 +111,10 @@ class PlainKDDRL:
         self.low, self.high = -5.0, 5.0
         self.delay, self.tau = L.td3.policy_delay, L.embed_tau
         emb_params = [*self.fusion.parameters(), *self.embed.parameters()]
-        self.opt_embed = adam(emb_params, 3e-4)  # the learner's optimiser settings (fused Adam)
-        self.opt_q = adam(self.q.parameters(), 1e-4)
-        self.opt_actor = adam(self.actor.parameters(), 3e-4)
-        self.opt_critic = adam([p for c in self.critics for p in c.parameters()], 3e-4)
+        self.opt_embed = adam(emb_params, 3e-4, device)  # the learner's optimiser settings (fused Adam)
+        self.opt_q = adam(self.q.parameters(), 1e-4, device)
+        self.opt_actor = adam(self.actor.parameters(), 3e-4, device)
+        self.opt_critic = adam([p for c in self.critics for p in c.parameters()], 3e-4, device)
         self.pairs_cf = [(t, s) for a, b in [(self.actor_t, self.actor), *zip(self.critics_t, self.critics),
                                              (self.t_fusion, self.fusion), (self.t_embed, self.embed)]
                          for t, s in zip(a.parameters(), b.parameters())]
@@ -167,7 +178,9 @@ class PlainKDDRL:
         self._soft(self.pairs_lc)
 
 
-def tensors(td) -> tuple[dict, dict]:
+def tensors(td, device: torch.device | str = "cpu") -> tuple[dict, dict]:
+    td = td.to(device)
+
     def one(t):
         return {"ego": t[K.EGO_STATE], "rel": t[K.NEIGHBORS_REL], "mask": t[K.NEIGHBORS_MASK],
                 "accel": t[K.EGO_ACCEL], "p_lcgan": t[K.PRIOR_P_LCGAN], "p_mobil": t[K.PRIOR_P_MOBIL],
@@ -194,27 +207,38 @@ def sample_batches(n_frames: int, seed: int, keys: list):
     return rb_cf, rb_lc
 
 
-def time_updates(update_cf, update_lc, cf_batches, lc_batches, lc_period: int) -> tuple[float, float, float]:
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def time_updates(update_cf, update_lc, cf_batches, lc_batches, lc_period: int,
+                 device: torch.device = torch.device("cpu")) -> tuple[float, float, float]:
     """Seconds per TD3 update, per D3QN update, and per frame (TD3 + D3QN / lc_period)."""
     n = len(cf_batches)
     for b in cf_batches[:10]:
         update_cf(b)
     for b in lc_batches[:5]:
         update_lc(b)
+    _sync(device)
     t0 = time.perf_counter()
     for b in cf_batches:
         update_cf(b)
+    _sync(device)
     t_cf = (time.perf_counter() - t0) / n
     t0 = time.perf_counter()
     for b in lc_batches:
         update_lc(b)
+    _sync(device)
     t_lc = (time.perf_counter() - t0) / len(lc_batches)
     return t_cf, t_lc, t_cf + t_lc / lc_period
 
 
-def measure_update(updates: int, seed: int, repeats: int) -> dict:
+def measure_update(updates: int, seed: int, repeats: int, device: torch.device = torch.device("cpu")) -> dict:
     """The three arms (plain reference, eager learner, compiled learner) on the same batches, taking turns
-    ``repeats`` times (the drifts of a shared machine hit all alike); medians over the turns."""
+    ``repeats`` times (the drifts of a shared machine hit all alike); medians over the turns. On ``device``
+    (CUDA: the compiled arm is also CUDA-graphed; the learners' batches are moved there by the learner, as in
+    training, the plain reference's beforehand)."""
     torch.manual_seed(seed)
     kw, lc_period = learner_kwargs(False)
     probe = HierarchicalLearner(**kw)
@@ -223,18 +247,20 @@ def measure_update(updates: int, seed: int, repeats: int) -> dict:
     lc_batches = [rb_lc.sample() for _ in range(max(updates // 4, 20))]
     arms = {}
     for name in ("plain", "eager", "compiled"):
-        learner = HierarchicalLearner(**learner_kwargs(name == "compiled")[0])
+        compiled = name == "compiled"
+        learner = HierarchicalLearner(**learner_kwargs(compiled)[0], device=device,
+                                      cudagraphs=compiled and device.type == "cuda")
         if name == "plain":
             ref = PlainKDDRL(learner)
             arms[name] = (lambda b: ref.update_cf(*b), lambda b: ref.update_lc(*b),
-                          [tensors(b) for b in cf_batches], [tensors(b) for b in lc_batches])
+                          [tensors(b, device) for b in cf_batches], [tensors(b, device) for b in lc_batches])
         else:
             arms[name] = (learner.update_cf, learner.update_lc, cf_batches, lc_batches)
     runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
     for _ in range(repeats):
         for name, fns in arms.items():
             t0 = time.perf_counter()
-            runs[name].append(time_updates(*fns, lc_period))
+            runs[name].append(time_updates(*fns, lc_period, device))
             wall[name] += time.perf_counter() - t0
     rows = {}
     for name in arms:
@@ -244,7 +270,7 @@ def measure_update(updates: int, seed: int, repeats: int) -> dict:
                       "wall_s_incl_compile": wall[name]}
         print(f"  update {name}: {1 / rows[name]['td3_update_s']:.0f} TD3 updates/s, "
               f"{1 / rows[name]['d3qn_update_s']:.0f} D3QN updates/s", flush=True)
-    return {"lc_period": lc_period, "batch_size_cf": int(cf_batches[0].numel()),
+    return {"device": str(device), "lc_period": lc_period, "batch_size_cf": int(cf_batches[0].numel()),
             "batch_size_lc": int(lc_batches[0].numel()), **rows}
 
 
@@ -296,17 +322,39 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--full-run", type=Path, default=None, help="run dir of a finished 1000-episode training")
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "train_throughput.json")
+    p.add_argument("--device", default="cpu", help="where (a) runs: cpu | cuda (cuda adds the 'gpu' entry)")
+    p.add_argument("--skip-collect", action="store_true", help="measure (a) only")
     args = p.parse_args(argv)
 
-    update = measure_update(args.updates, args.seed, args.repeats)
-    collect = [measure_collect(k, args.frames, args.seed, args.clock) for k in args.roads]
+    device = torch.device(args.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise SystemExit(f"--device {args.device}: no CUDA device is available here")
+    update = measure_update(args.updates, args.seed, args.repeats, device)
+    collect = [] if args.skip_collect else [measure_collect(k, args.frames, args.seed, args.clock) for k in args.roads]
     for c in collect:
         c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "update": update,
-              "collect": collect,
-              "update_ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"],
-              "update_ratio_vs_plain_eager": update["plain"]["per_frame_s"] / update["eager"]["per_frame_s"],
-              "collect_ratio_vs_sim": min(c["collect_ratio_vs_sim"] for c in collect)}
+              "collect": collect}
+    if device.type == "cuda":
+        result["gpu"] = {"device_name": torch.cuda.get_device_name(device),
+                         **{f"{arm}_{agent}_updates_per_s": 1.0 / update[arm][f"{agent}_update_s"]
+                            for arm in ("compiled", "eager", "plain") for agent in ("td3", "d3qn")},
+                         "td3_updates_per_s": 1.0 / update["compiled"]["td3_update_s"],
+                         "d3qn_updates_per_s": 1.0 / update["compiled"]["d3qn_update_s"],
+                         "ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]}
+    else:
+        result["update_ratio_vs_plain"] = update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]
+        result["update_ratio_vs_plain_eager"] = update["plain"]["per_frame_s"] / update["eager"]["per_frame_s"]
+    if collect:
+        result["collect_ratio_vs_sim"] = min(c["collect_ratio_vs_sim"] for c in collect)
+    if args.out.is_file():  # keep what this run did not measure (a CPU run keeps the gpu entry and vice versa)
+        previous = json.loads(args.out.read_text())
+        kept = [k for k in ("update_ratio_vs_plain", "update_ratio_vs_plain_eager", "gpu", "collect",
+                            "collect_ratio_vs_sim", "train_1000_episodes_s", "full_run")
+                if k in previous and not result.get(k)]
+        result.update({k: previous[k] for k in kept})
+        if kept:
+            result["kept_from_previous_run"] = kept
     if args.full_run is not None:
         summary = json.loads((args.full_run / "summary.json").read_text())
         result["train_1000_episodes_s"] = summary["training"]["elapsed_s"]
@@ -315,13 +363,14 @@ def main(argv=None) -> int:
 
     print(f"\n{'learner (per collected frame)':<34}{'TD3 upd/s':>10}{'D3QN upd/s':>11}{'frame cost ms':>14}"
           f"{'ratio vs plain':>15}")
+    print(f"(device {update['device']})")
     for name in ("plain", "eager", "compiled"):
         r = update[name]
         print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}{1e3 * r['per_frame_s']:>14.2f}"
               f"{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")
     print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}{'ratio':>8}"
           f"{'compiled learner saves':>24}")
-    for c in collect:
+    for c in result.get("collect", []):
         print(f"{'':<38}{c['num_roads']:>3}{c['sim_limit_fps']:>15.0f}{c['collect_fps']:>13.0f}"
               f"{c['collect_ratio_vs_sim']:>8.2f}{100 * c['learner_compile_gain']:>17.1f}% of wall")
     if "train_1000_episodes_s" in result:

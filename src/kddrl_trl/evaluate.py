@@ -26,7 +26,7 @@ from .factories import (
 def main(cfg: DictConfig) -> dict:
     job: EvaluateJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    algo, learner, ckpt, saved = load_trained_learner(Path(job.run), job.checkpoint)
+    algo, learner, ckpt, saved = load_trained_learner(Path(job.run), job.checkpoint, job.torch_device)
     env_seed, trained_on = test_seed(job.seed, job.eval_seed), str(saved.env.scenario)
     check_disjoint("eval_seed", env_seed, int(saved.seed), int(saved.episodes))  # the run's own training traffic
     seed_everything(job.seed)

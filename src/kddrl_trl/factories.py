@@ -22,7 +22,9 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 
 ``compile`` (the top-level ``compile: true | false | auto`` key) reaches the two compile sites: the fused
 transform stack (:func:`make_transforms`) and the learner's update (:func:`make_learner`); a learner that
-only acts is built with ``compile=False``.
+only acts is built with ``compile=False``. ``device`` (``auto | cpu | cuda``) places the learner
+(:func:`make_learner`, :func:`load_trained_learner`), ``cudagraphs`` graphs its compiled updates on CUDA; the
+env, SUMO and the transforms stay on the CPU.
 """
 from __future__ import annotations
 
@@ -58,20 +60,28 @@ def seed_everything(seed: int) -> None:
 
 
 def make_device(name: str) -> torch.device:
-    """``auto``: CUDA when available, else the CPU; ``cuda`` fails clearly without a CUDA device."""
+    """``auto``: CUDA when available, else the CPU; ``cuda`` (``cuda:N``) fails at once, clearly, without a CUDA
+    device."""
+    name = str(name)
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise SystemExit("device=cuda but no CUDA device is available (use device=auto or device=cpu)")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise SystemExit(f"device={name} but no CUDA device is available here (torch {torch.__version__}, "
+                         "torch.cuda.is_available() is False): use device=auto or device=cpu")
     return torch.device(name)
 
 
 def make_job(cfg: DictConfig):
     """The typed job of a composed entry-point config (``OmegaConf.to_object``: types and ranges checked once,
     before any simulator starts). A refused config raises, naming the key, and removes the output folder Hydra
-    already made for it (:func:`kddrl_trl.runs.no_folder_if_refused`): a bad value leaves no empty run folder."""
+    already made for it (:func:`kddrl_trl.runs.no_folder_if_refused`): a bad value leaves no empty run folder.
+    A job's ``device`` is resolved here too (:func:`make_device`), so ``device=cuda`` without a GPU stops at
+    once; the resolved device is ``job.torch_device``."""
     with no_folder_if_refused():
-        return OmegaConf.to_object(cfg)
+        job = OmegaConf.to_object(cfg)
+        if hasattr(job, "device"):
+            job.torch_device = make_device(job.device)
+        return job
 
 
 def make_run_dir(resume) -> tuple[Path, bool]:
@@ -158,10 +168,11 @@ def make_env(env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bo
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
 
-def make_learner(algo: LearningAlgo, compile: bool | str = False) -> Learner:
-    """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` (``compile``: its update, the
-    learner's one compile site)."""
-    return LEARNERS[algo.kind](**asdict(algo.learner), compile=compile)
+def make_learner(algo: LearningAlgo, compile: bool | str = False, device: torch.device | str | None = None,
+                 cudagraphs: bool | str = False) -> Learner:
+    """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` on ``device`` (None: the CPU;
+    ``compile``: its update functions, the learner's one compile site; ``cudagraphs``: CUDA-graph them)."""
+    return LEARNERS[algo.kind](**asdict(algo.learner), compile=compile, device=device, cudagraphs=cudagraphs)
 
 
 def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: Learner | None = None):
@@ -227,10 +238,11 @@ def make_evaluator(job: TrainJob):
                              job.train.eval_episodes, seed, job.train.best_metric)
 
 
-def load_trained_learner(run: Path, checkpoint: str = "latest"
+def load_trained_learner(run: Path, checkpoint: str = "latest", device: torch.device | str | None = None
                          ) -> tuple[LearningAlgo, Learner, Path, DictConfig]:
-    """(algo, learner with the weights of its ``latest`` or ``best`` checkpoint, that checkpoint, the run's saved
-    config) of a training run folder. The learner only acts: it is not compiled."""
+    """(algo, learner on ``device`` with the weights of its ``latest`` or ``best`` checkpoint, that checkpoint,
+    the run's saved config) of a training run folder. The learner only acts: it is not compiled. Checkpoints are
+    read onto the CPU and then copied to the learner's device, so a run trained on either loads on either."""
     saved = OmegaConf.load(trained_run(run) / "config.yaml")
     algo = algo_from_node(saved.algo)
     if not isinstance(algo, LearningAlgo):
@@ -244,7 +256,7 @@ def load_trained_learner(run: Path, checkpoint: str = "latest"
             raise FileNotFoundError(f"run={run}: no {checkpoint} checkpoint in {checkpoint_dir(run)}"
                                     " (train.eval_every=0 writes no best.pt)")
         payload = load_training_checkpoint(path)
-    learner = make_learner(algo, compile=False)
+    learner = make_learner(algo, compile=False, device=device)
     learner.load_full_state_dict(payload["learner"])
     return algo, learner, path, saved
 

@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     """Trains the learner of ``job.algo`` (continuing ``run_dir``'s latest checkpoint when ``resuming``);
     returns it and the summary of its training."""
-    learner = make_learner(job.algo, compile=job.compile)
+    learner = make_learner(job.algo, compile=job.compile, device=job.torch_device, cudagraphs=job.cudagraphs)
     buffers = make_buffers(job.train, job.seed)
     trainer = Trainer(learner, buffers, job.train, run_dir, logger, episodes=job.episodes, progress=job.progress,
                       evaluator=make_evaluator(job))

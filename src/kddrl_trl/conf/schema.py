@@ -23,6 +23,7 @@ Each option of the ``algo`` group names its schema first in its defaults list (`
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, fields, make_dataclass
 from typing import Any, Optional
 
@@ -258,6 +259,13 @@ def algo_from_node(node: DictConfig) -> LearningAlgo | RuleAlgo:
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(ALGO_SCHEMAS[kind]), node))
 
 
+def check_device(device: str) -> None:
+    """``device`` must be ``auto``, ``cpu``, ``cuda`` or ``cuda:N`` (whether a GPU is there is checked by
+    :func:`kddrl_trl.factories.make_device`)."""
+    if not (device in ("auto", "cpu", "cuda") or re.fullmatch(r"cuda:\d+", str(device))):
+        raise ValueError(f"device must be auto, cpu, cuda or cuda:N, got {device!r}")
+
+
 @dataclass
 class Job:
     """What every entry point that runs a policy has: seed, evaluation size, the env, logging, compiling."""
@@ -271,11 +279,18 @@ class Job:
     compile: Any = MISSING  # true | false | auto: torch.compile the fused transform stack and the learner update
     env: EnvNode = MISSING
     logger: LoggerConfig = MISSING
+    device: str = "auto"     # auto | cpu | cuda (cuda:N): the learner's networks, sampled batches and updates
+    cudagraphs: Any = "auto"  # true | false | auto (on with a CUDA learner): CudaGraphModule around the updates
 
     def __post_init__(self) -> None:
         _at_least("", self, 1, "eval_episodes", "video_episodes")
         if self.compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or auto, got {self.compile!r}")
+        check_device(self.device)
+        if self.cudagraphs not in (True, False, "auto"):
+            raise ValueError(f"cudagraphs must be true, false or auto, got {self.cudagraphs!r}")
+        if self.cudagraphs is True and not str(self.device).startswith(("cuda", "auto")):
+            raise ValueError(f"cudagraphs=true needs device=cuda (or auto on a GPU machine), got device={self.device}")
 
 
 @dataclass

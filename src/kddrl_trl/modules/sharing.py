@@ -129,8 +129,8 @@ def soft_update_embedding_(target: nn.Module | None, source: nn.Module | None, t
     """Polyak update ``target <- (1 - tau) target + tau source`` of a target embedding, in place."""
     if target is None or source is None:
         return
-    for t, s in zip(target.parameters(), source.parameters(), strict=True):
-        t.lerp_(s, tau)
+    pairs = list(zip(target.parameters(), source.parameters(), strict=True))
+    torch._foreach_lerp_([t for t, _ in pairs], [s for _, s in pairs], tau)
     for t, s in zip(target.buffers(), source.buffers(), strict=True):
         t.copy_(s)
 

@@ -15,6 +15,20 @@ one gradient step per call of :meth:`Learner.update_frame` (a buffer-L sample, o
 when :attr:`Learner.learns_from_decisions`, of :meth:`Learner.update_decision` (a buffer-H sample of
 macro-transitions, once per lane-change decision), and saves everything in one dict
 (:meth:`Learner.full_state_dict`).
+
+Device and update functions (issue 15)
+--------------------------------------
+A learner lives on one ``device`` (``device=auto|cpu|cuda``, :func:`kddrl_trl.factories.make_device`): its
+networks, targets, optimiser states, the sampled batches (moved there by :meth:`Learner._run`) and its updates.
+The env, SUMO and the transforms stay on the CPU; the acting policy runs on the learner's device, the env's
+TensorDicts moved there and its actions moved back (:class:`DevicePolicy`; on a CPU learner nothing is wrapped).
+
+Each learner names its gradient steps as update functions (:meth:`Learner.update_functions`), as TorchRL's
+``sota-implementations`` (td3, dqn) write ``update(batch)``: loss, backward, optimiser steps and soft target
+updates (:class:`~kddrl_trl.objectives.PolyakUpdate`, one ``torch._foreach_lerp_`` per group of targets) in one
+function of a sampled batch that returns its detached losses. :meth:`Learner._compile` is the learner's one compile
+site: each function is ``torch.compile`` d (``compile``), then, on CUDA with ``cudagraphs``, wrapped in
+``tensordict.nn.CudaGraphModule`` (optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed).
 """
 from __future__ import annotations
 
@@ -22,6 +36,7 @@ from collections.abc import Mapping, Sequence
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import nn
 
@@ -33,11 +48,49 @@ STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_
 DONE_KEYS = ("done", "terminated", "truncated")
 
 
-def adam(params, lr: float) -> torch.optim.Adam:
+def adam(params, lr: float, device: torch.device | str | None = None) -> torch.optim.Adam:
     """Adam with the fused kernel (one call per step for all tensors; on a CPU PyTorch's default is a
-    per-tensor loop)."""
+    per-tensor loop); on CUDA also ``capturable`` (its step counters stay on the GPU, so that a CUDA graph can
+    capture the step)."""
     params = [p for p in params if p.requires_grad]
-    return torch.optim.Adam(params, lr=lr, fused=True)
+    capturable = device is not None and torch.device(device).type == "cuda"
+    return torch.optim.Adam(params, lr=lr, fused=True, capturable=capturable)
+
+
+def resolve_cudagraphs(cudagraphs: bool | str, device: torch.device) -> bool:
+    """A ``cudagraphs`` option (true | false | auto) -> bool: ``auto`` is on for a CUDA learner, off on the CPU;
+    ``true`` on a CPU learner is refused (CUDA graphs exist on CUDA only)."""
+    if isinstance(cudagraphs, str):
+        if cudagraphs.lower() not in ("true", "false", "auto"):
+            raise ValueError(f"cudagraphs must be true, false or auto, got {cudagraphs!r}")
+        if cudagraphs.lower() == "auto":
+            return device.type == "cuda"
+        cudagraphs = cudagraphs.lower() == "true"
+    if not isinstance(cudagraphs, bool):
+        raise ValueError(f"cudagraphs must be true, false or auto, got {cudagraphs!r}")
+    if cudagraphs and device.type != "cuda":
+        raise ValueError(f"cudagraphs=true needs device=cuda (the learner is on {device}); use cudagraphs=auto")
+    return cudagraphs
+
+
+class DevicePolicy(TensorDictModuleBase):
+    """An acting policy on another device than the env: the policy's ``in_keys`` of the env's TensorDict go to
+    ``device``, its ``out_keys`` come back to the env's device (what TorchRL collectors do with ``policy_device``;
+    here for the collector and the evaluation loops alike)."""
+
+    def __init__(self, policy: TensorDictModuleBase, device: torch.device):
+        super().__init__()
+        self.policy, self.device = policy, torch.device(device)
+        self.in_keys, self.out_keys = list(policy.in_keys), list(policy.out_keys)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        out = self.policy(tensordict.select(*self.in_keys, strict=False).to(self.device, non_blocking=True))
+        back = tensordict.device if tensordict.device is not None else torch.device("cpu")
+        for key in self.out_keys:
+            value = out.get(key, None)
+            if value is not None:
+                tensordict.set(key, value.to(back, non_blocking=False))
+        return tensordict
 
 
 def transition_keys(obs: Sequence[NestedKey], actions: Sequence[NestedKey]) -> list:
@@ -55,15 +108,51 @@ class Learner(nn.Module):
     #: whether :meth:`update_decision` learns from buffer H (the lane-change agent's macro-transitions)
     learns_from_decisions: bool = False
 
-    def _compile(self, compile: bool | str) -> None:
-        """The learner's one compile site: ``torch.compile`` of :meth:`loss` (fixed minibatch shapes, one graph
-        per loss name); optimiser steps stay eager. ``"auto"``: when a C++ compiler is found."""
+    def _place(self, device: torch.device | str | None) -> torch.device:
+        """Moves the learner (networks, targets, exploration schedules, counters) to ``device`` (None: the CPU)
+        and returns it. Call it before building optimisers and target updates (they hold the moved tensors)."""
+        self.device = torch.device(device if device is not None else "cpu")
+        self.to(self.device)
+        return self.device
+
+    def _compile(self, compile: bool | str, cudagraphs: bool | str = False) -> None:
+        """The learner's one compile site (module docstring): each of :meth:`update_functions` is
+        ``torch.compile`` d (fixed minibatch shapes, ``dynamic=False``) when ``compile`` (``"auto"``: when a C++
+        compiler is found), then wrapped in ``CudaGraphModule`` when ``cudagraphs`` (``"auto"``: on CUDA)."""
         self.compiled = resolve_compile(compile)
-        self._loss = torch.compile(self.loss, dynamic=False) if self.compiled else self.loss
+        self.cudagraphs = resolve_cudagraphs(cudagraphs, self.device)
+        fns = {}
+        for name, fn in self.update_functions().items():
+            if self.compiled:
+                fn = torch.compile(fn, dynamic=False)
+            if self.cudagraphs:
+                from tensordict.nn import CudaGraphModule
+
+                fn = CudaGraphModule(fn, warmup=3, in_keys=[], out_keys=[], device=self.device)
+            fns[name] = fn
+        self.__dict__["_update_fns"] = fns  # not submodules (compiled wrappers hold the learner's own modules)
+
+    def _run(self, name: str, batch: TensorDictBase) -> list[float]:
+        """Runs the update function ``name`` on a sampled ``batch`` (moved to the learner's device); its losses
+        as floats."""
+        if batch.device != self.device:
+            batch = batch.to(self.device, non_blocking=True)
+        return self._update_fns[name](batch).tolist()
+
+    def policy(self, explore: bool = True) -> TensorDictModuleBase:
+        """The acting policy (exploration modules act only under ``ExplorationType.RANDOM``) for env TensorDicts
+        on the CPU: :meth:`_policy`, on a non-CPU learner wrapped in :class:`DevicePolicy`."""
+        policy = self._policy(explore)
+        return policy if self.device.type == "cpu" else DevicePolicy(policy, self.device)
 
     # ------------------------------------------------------------------------------- to implement
-    def policy(self, explore: bool = True):
-        """The acting policy (exploration modules act only under ``ExplorationType.RANDOM``)."""
+    def _policy(self, explore: bool = True) -> TensorDictModuleBase:
+        """The acting policy on the learner's device."""
+        raise NotImplementedError
+
+    def update_functions(self) -> dict:
+        """Name -> ``update(batch) -> detached losses (1-d tensor)``: one gradient step (loss, backward, optimiser
+        steps, soft target updates), what :meth:`_compile` compiles and graphs."""
         raise NotImplementedError
 
     def buffer_keys(self) -> list:

@@ -26,7 +26,7 @@ from tensordict.nn import TensorDictSequential
 from .. import keys as K
 from ..modules import build_agent_states, cf_obs_dim, cf_state
 from ..modules.joint import accel_levels, joint_action_mask, joint_action_split, joint_reward
-from ..objectives import make_d3qn
+from ..objectives import PolyakUpdate, make_d3qn, soft_update_tensors
 from .base import STATE_KEYS, Learner, adam, transition_keys
 
 
@@ -46,11 +46,13 @@ class JointD3QNLearner(Learner):
         num_levels, low, high: acceleration levels, evenly spaced in [low, high] m/s².
         d3qn: keyword arguments of :func:`~kddrl_trl.objectives.make_d3qn` and ``lr``; ``eps_decisions`` counts
             decisions, i.e. frames here.
-        compile: ``torch.compile`` :meth:`loss` (the learner's one compile site).
+        compile: ``torch.compile`` the update function (the learner's one compile site).
+        device, cudagraphs: as :class:`~kddrl_trl.training.HierarchicalLearner`'s.
     """
 
     def __init__(self, *, num_levels: int = 7, low: float = -5.0, high: float = 5.0,
-                 d3qn: Mapping[str, Any] | None = None, compile: bool | str = False):
+                 d3qn: Mapping[str, Any] | None = None, compile: bool | str = False,
+                 device: torch.device | str | None = None, cudagraphs: bool | str = False):
         super().__init__()
         kw = dict(d3qn or {})
         self.lr = float(kw.pop("lr", 1e-4))
@@ -65,11 +67,12 @@ class JointD3QNLearner(Learner):
         self.split = joint_action_split(levels)
         # registered so that state_dict() holds the network, its target and the ε schedule
         self.q_loss, self.q_explore, self.q_actor = self.d3qn.loss, self.d3qn.explore, self.d3qn.actor
-        self.opt = adam(self.q_loss.parameters(), self.lr)
         self.register_buffer("counters", torch.zeros(1, dtype=torch.long))
-        self._compile(compile)
+        self.opt = adam(self.q_loss.parameters(), self.lr, self._place(device))
+        self._soft = PolyakUpdate(soft_update_tensors(self.d3qn.target_updater))  # Eq. 5
+        self._compile(compile, cudagraphs)
 
-    def policy(self, explore: bool = True) -> TensorDictSequential:
+    def _policy(self, explore: bool = True) -> TensorDictSequential:
         """State -> valid joint actions -> greedy Q (+ ε-greedy) -> lane command and acceleration."""
         modules = [self.state, self.mask, self.q_actor] + ([self.q_explore] if explore else []) + [self.split]
         return TensorDictSequential(*modules, selected_out_keys=[K.JOINT_ACTION, K.LC_ACTION, K.CF_ACTION])
@@ -92,12 +95,20 @@ class JointD3QNLearner(Learner):
         states = build_agent_states(batch, None, self.state, self.mask)
         return self.q_loss(self.reward(states))["loss"]
 
-    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
-        loss = self._loss("joint", batch)
+    def update_functions(self) -> dict:
+        return {"joint": self._step}
+
+    def _step(self, batch: TensorDictBase) -> torch.Tensor:
+        """The double-DQN step (Eq. 4), then the soft target update (Eq. 5)."""
+        loss = self.loss("joint", batch)
         self._descend(loss, self.opt)
-        self.d3qn.target_updater.step()
+        self._soft()
+        return loss.detach().reshape(1)
+
+    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
+        loss = self._run("joint", batch)[0]
         self.counters[0] += 1
-        return {"loss_joint": float(loss.detach())}
+        return {"loss_joint": loss}
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
         return {"joint": self.opt}

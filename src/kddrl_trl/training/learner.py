@@ -28,9 +28,8 @@ from ..modules import (
     lc_state,
     make_shared_embedding,
     make_target_embedding,
-    soft_update_embedding_,
 )
-from ..objectives import make_d3qn, make_ddpg, make_td3
+from ..objectives import PolyakUpdate, make_d3qn, make_ddpg, make_td3, module_tensors, soft_update_tensors
 from .base import STATE_KEYS, Learner, adam, transition_keys
 
 log = logging.getLogger(__name__)
@@ -55,19 +54,21 @@ class HierarchicalLearner(Learner):
         mobil_criteria: the lane-change state carries MOBIL's utilities and safety flags (Peng et al.;
             the env must carry :class:`~kddrl_trl.transforms.MOBILCriteria`).
         embed_lr: learning rate of the embedding's own optimiser.
-        compile: ``torch.compile`` :meth:`loss` (the learner's one compile site; optimiser steps stay eager):
-            removes most of TensorDict's per-call overhead, after a one-off compile of ~30 s; ``"auto"``: when a
-            C++ compiler is found. Measured gain: updates per collected frame (TD3 + D3QN / ``lc_period``)
-            15.9 -> 8.2 ms (0.49 -> 0.94 of plain PyTorch), **45 %** of the training wall time (collection +
-            updates) saved at K = 8 and 46 % at K = 32, from ``python benchmarks/train_throughput.py``
-            (``benchmarks/results/train_throughput.json``, 2-core CPU).
+        compile: ``torch.compile`` the update functions (the learner's one compile site,
+            :meth:`~kddrl_trl.training.base.Learner._compile`): removes most of TensorDict's per-call overhead,
+            after a one-off compile; ``"auto"``: when a C++ compiler is found. Measured gain: see
+            ``benchmarks/results/train_throughput.json`` (``python benchmarks/train_throughput.py``).
+        device: where the networks, the sampled batches and the updates live (None: the CPU).
+        cudagraphs: wrap the update functions in ``CudaGraphModule`` (``"auto"``: on CUDA; refused on the CPU).
 
-    Updates (one call = one gradient step):
+    Updates (one call = one gradient step), three update functions (:meth:`update_functions`):
 
-    - :meth:`update_cf`: TD3 critic (``value_loss``, trains the embedding too), and every ``policy_delay``
-      critic updates the actor (``actor_loss`` on detached s_e) and the soft target updates (Eq. 9-10); DDPG:
-      the same with one critic and ``policy_delay`` 1.
-    - :meth:`update_lc`: D3QN double-DQN loss (Eq. 4, trains the embedding too), soft target update (Eq. 5).
+    - :meth:`update_cf`: TD3 critic (``value_loss``, trains the embedding too: ``"cf_value"``), and every
+      ``policy_delay`` critic updates the same step followed by the actor (``actor_loss`` on detached s_e) and the
+      soft target updates of the critics, the actor and the embedding (Eq. 9-10: ``"cf_full"``); DDPG: the same
+      with one critic and ``policy_delay`` 1.
+    - :meth:`update_lc`: D3QN double-DQN loss (Eq. 4, trains the embedding too), soft target updates of the
+      Q network (Eq. 5) and the embedding (``"lc"``).
     """
 
     learns_from_decisions = True  # buffer H: the D3QN's macro-transitions
@@ -75,7 +76,8 @@ class HierarchicalLearner(Learner):
     def __init__(self, *, priors: bool = True, key_gaps: bool = True, embed_dim: int = 16, embed_hidden: int = 64,
                  d3qn: Mapping[str, Any] | None = None, td3: Mapping[str, Any] | None = None,
                  embed_lr: float = 3e-4, tau: float | None = None, compile: bool | str = False,
-                 cf_agent: str = "td3", ddpg: Mapping[str, Any] | None = None, mobil_criteria: bool = False):
+                 cf_agent: str = "td3", ddpg: Mapping[str, Any] | None = None, mobil_criteria: bool = False,
+                 device: torch.device | str | None = None, cudagraphs: bool | str = False):
         super().__init__()
         if cf_agent not in CF_AGENTS:
             raise ValueError(f"cf_agent={cf_agent!r}: known car-following agents are {', '.join(CF_AGENTS)}")
@@ -101,16 +103,23 @@ class HierarchicalLearner(Learner):
         # target, modules/sharing.py::build_agent_states); kept out of the module tree (its parameters are the
         # lc actor's, already registered)
         self.__dict__["next_lc_policy"] = TensorDictSequential(self.lc_state, self.lc_actor)
-        self.opt_lc = adam(self.lc_loss.parameters(), self.lr_lc)
-        self.opt_critic = adam(self.td3.critic_params().flatten_keys().values(), self.lr_critic)
-        self.opt_actor = adam(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor)
-        emb = embedding_parameters(self.embedding)
-        self.opt_embed = adam(emb, float(embed_lr)) if emb else None
         self.register_buffer("counters", torch.zeros(3, dtype=torch.long))  # lc updates, cf updates, actor updates
-        self._compile(compile)  # the learner's one compile site (measured gain: ``compile`` above)
+        dev = self._place(device)  # then the optimisers and target updates, on the moved tensors
+        self.opt_lc = adam(self.lc_loss.parameters(), self.lr_lc, dev)
+        self.opt_critic = adam(self.td3.critic_params().flatten_keys().values(), self.lr_critic, dev)
+        self.opt_actor = adam(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor, dev)
+        emb = embedding_parameters(self.embedding)
+        self.opt_embed = adam(emb, float(embed_lr), dev) if emb else None
+        embed_targets = module_tensors(self.target_embedding, self.embedding, self.embed_tau)
+        embed_buffers = ([] if self.embedding is None else
+                         list(zip(self.target_embedding.buffers(), self.embedding.buffers(), strict=True)))
+        # Eq. 9-10 (+ the target embedding) and Eq. 5 (+ the target embedding), as TorchRL's SoftUpdate computes them
+        self._soft_cf = PolyakUpdate(soft_update_tensors(self.td3.target_updater), embed_targets, copies=embed_buffers)
+        self._soft_lc = PolyakUpdate(soft_update_tensors(self.d3qn.target_updater), embed_targets, copies=embed_buffers)
+        self._compile(compile, cudagraphs)  # the learner's one compile site
 
     # --------------------------------------------------------------------------------- acting
-    def policy(self, explore: bool = True) -> MultiRatePolicy:
+    def _policy(self, explore: bool = True) -> MultiRatePolicy:
         """The acting policy: D3QN on decision frames (held action otherwise), TD3 every frame.
 
         ``explore=True`` adds ε-greedy and Gaussian noise modules; they act only under TorchRL's
@@ -159,20 +168,41 @@ class HierarchicalLearner(Learner):
             return self.lc_loss(states)["loss"]
         raise ValueError(f"HierarchicalLearner.loss: unknown loss {name!r}; known: cf_value, cf_actor, lc")
 
+    def update_functions(self) -> dict:
+        """``"cf_value"``: the TD3 critic step; ``"cf_full"``: the critic step, then the actor step and the soft
+        target updates (the step of every ``policy_delay``-th critic update); ``"lc"``: the D3QN step."""
+        return {"cf_value": self._step_cf_value, "cf_full": self._step_cf_full, "lc": self._step_lc}
+
+    def _step_cf_value(self, batch: TensorDictBase) -> torch.Tensor:
+        """TD3 critic step (Eq. 6-7): the critics and the embedding (its own optimiser, ``modules/sharing.py``)."""
+        value_loss = self.loss("cf_value", batch)
+        self._descend(value_loss, self.opt_critic, self.opt_embed)
+        return value_loss.detach().reshape(1)
+
+    def _step_cf_full(self, batch: TensorDictBase) -> torch.Tensor:
+        """The critic step, then the delayed actor step (Eq. 8, on detached s_e, after the critic moved) and the
+        soft target updates of the actor, the critics and the embedding (Eq. 9-10)."""
+        value_loss = self._step_cf_value(batch)
+        actor_loss = self.loss("cf_actor", batch)
+        self._descend(actor_loss, self.opt_actor)
+        self._soft_cf()
+        return torch.cat([value_loss, actor_loss.detach().reshape(1)])
+
+    def _step_lc(self, batch: TensorDictBase) -> torch.Tensor:
+        """D3QN step (Eq. 4, the embedding trained too), then the soft target updates (Eq. 5 and the embedding)."""
+        loss = self.loss("lc", batch)
+        self._descend(loss, self.opt_lc, self.opt_embed)
+        self._soft_lc()
+        return loss.detach().reshape(1)
+
     def update_cf(self, batch: TensorDictBase) -> dict[str, float]:
         """One TD3 step on a buffer-L sample (Algorithm 1 lines 38-43)."""
-        value_loss = self._loss("cf_value", batch)
-        self._descend(value_loss, self.opt_critic, self.opt_embed)
         self.counters[1] += 1
-        out = {"loss_qvalue": float(value_loss.detach())}
         if int(self.counters[1]) % self.td3.policy_delay == 0:
-            actor_loss = self._loss("cf_actor", batch)
-            self._descend(actor_loss, self.opt_actor)
-            self.td3.target_updater.step()
-            soft_update_embedding_(self.target_embedding, self.embedding, self.embed_tau)
+            value_loss, actor_loss = self._run("cf_full", batch)
             self.counters[2] += 1
-            out["loss_actor"] = float(actor_loss.detach())
-        return out
+            return {"loss_qvalue": value_loss, "loss_actor": actor_loss}
+        return {"loss_qvalue": self._run("cf_value", batch)[0]}
 
     def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
         """Buffer L: :meth:`update_cf`."""
@@ -184,12 +214,9 @@ class HierarchicalLearner(Learner):
 
     def update_lc(self, batch: TensorDictBase) -> dict[str, float]:
         """One D3QN step on a buffer-H sample of macro-transitions (Algorithm 1 lines 27-29)."""
-        loss = self._loss("lc", batch)
-        self._descend(loss, self.opt_lc, self.opt_embed)
-        self.d3qn.target_updater.step()
-        soft_update_embedding_(self.target_embedding, self.embedding, self.embed_tau)
+        loss = self._run("lc", batch)[0]
         self.counters[0] += 1
-        return {"loss_lc": float(loss.detach())}
+        return {"loss_lc": loss}
 
     # ------------------------------------------------------------------------------- checkpoints
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:

@@ -17,7 +17,7 @@ from tensordict.nn import TensorDictSequential
 from .. import keys as K
 from ..modules import build_agent_states, cf_obs_dim
 from ..modules.joint import joint_reward
-from ..objectives import make_pasac
+from ..objectives import PolyakUpdate, make_pasac, soft_update_tensors
 from .base import Learner, adam, transition_keys
 from .joint_d3qn import JOINT_STATE_KEYS, joint_state
 
@@ -32,10 +32,12 @@ class PASACLearner(Learner):
     Args (the ``algo.learner`` node of ``conf/algo/pasac_unified.yaml``):
         pasac: keyword arguments of :func:`~kddrl_trl.objectives.make_pasac` and the learning rates ``actor_lr``,
             ``critic_lr``, ``alpha_lr`` (both temperatures).
-        compile: ``torch.compile`` :meth:`loss` (the learner's one compile site).
+        compile: ``torch.compile`` the update function (the learner's one compile site).
+        device, cudagraphs: as :class:`~kddrl_trl.training.HierarchicalLearner`'s.
     """
 
-    def __init__(self, *, pasac: Mapping[str, Any] | None = None, compile: bool | str = False):
+    def __init__(self, *, pasac: Mapping[str, Any] | None = None, compile: bool | str = False,
+                 device: torch.device | str | None = None, cudagraphs: bool | str = False):
         super().__init__()
         kw = dict(pasac or {})
         lr_actor, lr_critic, lr_alpha = (float(kw.pop(k, 3e-4)) for k in ("actor_lr", "critic_lr", "alpha_lr"))
@@ -44,13 +46,15 @@ class PASACLearner(Learner):
         self.pasac = make_pasac(cf_obs_dim(0), obs_key=K.JOINT_OBS, **kw)
         self.sac_loss, self.sac_actor = self.pasac.loss, self.pasac.actor
         loss = self.sac_loss
-        self.opt_critic = adam(loss.qvalue_network_params.flatten_keys().values(), lr_critic)
-        self.opt_actor = adam(loss.actor_network_params.flatten_keys().values(), lr_actor)
-        self.opt_alpha = adam([loss.log_alpha_lane, loss.log_alpha_param], lr_alpha)
         self.register_buffer("counters", torch.zeros(1, dtype=torch.long))
-        self._compile(compile)
+        dev = self._place(device)
+        self.opt_critic = adam(loss.qvalue_network_params.flatten_keys().values(), lr_critic, dev)
+        self.opt_actor = adam(loss.actor_network_params.flatten_keys().values(), lr_actor, dev)
+        self.opt_alpha = adam([loss.log_alpha_lane, loss.log_alpha_param], lr_alpha, dev)
+        self._soft = PolyakUpdate(soft_update_tensors(self.pasac.target_updater))
+        self._compile(compile, cudagraphs)
 
-    def policy(self, explore: bool = True) -> TensorDictSequential:
+    def _policy(self, explore: bool = True) -> TensorDictSequential:
         """State -> categorical + tanh-Gaussian heads -> sampled (``explore``) or modal lane command and
         acceleration."""
         return TensorDictSequential(self.state, self.sac_actor, self.pasac.sampler(explore),
@@ -70,13 +74,20 @@ class PASACLearner(Learner):
         out = self.sac_loss(self.reward(build_agent_states(batch, None, self.state)))
         return torch.stack([out[k] for k in LOSS_ENTRIES])
 
-    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
+    def update_functions(self) -> dict:
+        return {"pasac": self._step}
+
+    def _step(self, batch: TensorDictBase) -> torch.Tensor:
         """One SAC step: critics, both policy heads and both temperatures, then the critics' soft target update."""
-        out = self._loss("pasac", batch)
+        out = self.loss("pasac", batch)
         self._descend(out[:4].sum(), self.opt_critic, self.opt_actor, self.opt_alpha)
-        self.pasac.target_updater.step()
+        self._soft()
+        return out[:4].detach()
+
+    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
+        out = self._run("pasac", batch)
         self.counters[0] += 1
-        return dict(zip(LOSS_ENTRIES[:4], out[:4].detach().tolist()))
+        return dict(zip(LOSS_ENTRIES[:4], out))
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
         return {"critic": self.opt_critic, "actor": self.opt_actor, "alpha": self.opt_alpha}
