@@ -107,10 +107,13 @@ class MultiTimescaleCollector:
             yield MultiTimescaleBatch(frames, macros)
 
     def update_policy_weights_(self) -> None:
-        """The acting policies take the policy's current weights and buffers (TorchRL's weight sync: with worker
-        processes, a shared-memory copy the workers load before their next frames; in this process, the policy is
-        the learner's own modules). The buffers include the exploration state (the ε of ε-greedy, the σ of the
-        Gaussian acting noise), so workers explore with the learner's current schedule."""
+        """The acting policies take the policy's current weights and buffers (TorchRL's weight sync), the
+        exploration state included (the ε of ε-greedy, the σ of the Gaussian acting noise: module buffers), so
+        the workers explore on the learner's current schedule. In this process the policy is the learner's own
+        modules. With the ``process`` backend and a CPU policy, TorchRL moves the policy's own tensors into shared
+        memory when the workers start, so the workers already read the learner's tensors (``sync=True`` keeps them
+        idle while the learner updates them) and this call only confirms it; where the weights are copies (Ray
+        actors, a CUDA learner's CPU staging copy) this call is what sends them."""
         self.collector.update_policy_weights_()
 
     def shutdown(self, close_env: bool = True) -> None:
