@@ -437,8 +437,9 @@ def main(argv=None) -> int:
             r = update[name]
             print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}"
                   f"{1e3 * r['per_frame_s']:>14.2f}{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")
-    print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}{'ratio':>8}"
-          f"{'compiled learner saves':>24}")
+    if result.get("collect"):
+        print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}"
+              f"{'ratio':>8}{'compiled learner saves':>24}")
     for c in result.get("collect", []):
         gain = f"{100 * c['learner_compile_gain']:>17.1f}% of wall" if "learner_compile_gain" in c else ""
         print(f"{'':<38}{c['num_roads']:>3}{c['sim_limit_fps']:>15.0f}{c['collect_fps']:>13.0f}"
