@@ -19,16 +19,24 @@
     too, measured back to back on the same machine. With (a), per K: ``learner_compile_gain`` = the share of the
     training wall time (collection + updates per ego-frame, eager learner) that compiling the learner saves
     (a compile site is kept only where it earns >= 5 %).
+(w) ``collect_scaling`` (``--workers 1,2``): the collection of (b) at K = ``--workers-roads`` (8) with N env
+    processes (``collector.workers=N``: :meth:`MultiTimescaleCollector.from_env` over N
+    :class:`~kddrl_trl.collectors.workers.WorkerEnv` factories; N = 1 is the single-process path), the learner's
+    weights synced to the workers after every batch as in training, in wall time; per N,
+    ``collect_scaling[N]`` = fps(N) / (N x fps(1)), both measured in this run (1.0: perfect scaling). It can only
+    approach 1.0 while the machine has a free core per worker beside the learner process.
 (c) ``train_1000_episodes_s``: read from a finished run's ``summary.json`` (``--full-run RUN_DIR``), the
     training wall time of ``python -m kddrl_trl.train`` (1000 episodes, baseline) — goal <= 900 s.
 
     python benchmarks/train_throughput.py [--roads 8] [--updates 200] [--frames 2000] [--clock wall|cpu]
                                           [--full-run runs/...] [--device cpu|cuda] [--skip-collect]
+                                          [--workers 1,2] [--skip-update] [--compile auto|true|false]
 
 ``--device cuda`` runs (a) on the GPU: the learner (compiled arm: compiled update functions in
 ``CudaGraphModule``, capturable Adam), the plain reference's networks and the batches moved there, and writes a
 ``gpu`` entry (device name, TD3 / D3QN updates per second of ours and of the plain reference) besides the CPU
-ratios of a CPU run. ``--skip-collect`` measures (a) only.
+ratios of a CPU run. ``--skip-collect`` measures (a) only (and (w) if asked); ``--skip-update`` leaves (a) out.
+``--compile`` overrides the transform stack's ``compile`` of conf/config.yaml in (b) and (w).
 
 Prints a table and writes ``benchmarks/results/train_throughput.json``.
 """
@@ -52,6 +60,8 @@ from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 
 from kddrl_trl import keys as K  # noqa: E402
 from kddrl_trl.collectors import DecisionClock, MultiTimescaleCollector  # noqa: E402
+from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
+from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.training.learner import adam  # noqa: E402
@@ -72,12 +82,22 @@ def batch_sizes() -> tuple[int, int]:
     return int(train["batch_size_cf"]), int(train["batch_size_lc"])
 
 
-def transform_kwargs() -> dict:
+def transform_kwargs(compile: bool | str | None = None) -> dict:
     """The transform options of ``conf/algo/kddrl.yaml`` with the ``compile`` of conf/config.yaml (as training
-    builds the stack)."""
+    builds the stack), or ``compile`` when given."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)["transforms"]
     cfg.pop("enabled", None)
-    return {**cfg, "compile": OmegaConf.load(CONF.parents[1] / "config.yaml")["compile"]}
+    if compile is None:
+        compile = OmegaConf.load(CONF.parents[1] / "config.yaml")["compile"]
+    return {**cfg, "compile": compile}
+
+
+def collect_env(k: int, compile: bool | str | None = None, *, seed: int) -> TransformedEnv:
+    """The env of (b): ``SumoHighwayEnv`` with ``k`` roads + the KDDRL transform stack + the decision clock."""
+    lc_period = learner_kwargs(False)[1]
+    return TransformedEnv(SumoHighwayEnv("baseline", num_roads=k, seed=seed),
+                          Compose(make_kddrl_transforms(seed=seed, **transform_kwargs(compile)),
+                                  DecisionClock(lc_period)))
 
 
 # ------------------------------------------------------------------------------------ plain reference
@@ -277,15 +297,13 @@ def measure_update(updates: int, seed: int, repeats: int, device: torch.device =
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 
 
-def measure_collect(k: int, frames: int, seed: int, clock: str = "wall") -> dict:
+def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile: bool | str | None = None) -> dict:
     """(b) at ``k`` roads; ``clock="cpu"`` times both arms in CPU seconds of this (single-threaded) process, which a
     shared, saturated machine does not distort as it does wall time."""
     timer = CLOCKS[clock]
     sim_fps, _ = measure_sim("baseline", k, seed, frames // k, 20, timer=timer)
-    kw, lc_period = learner_kwargs(False)
-    learner = HierarchicalLearner(**kw)
-    env = TransformedEnv(SumoHighwayEnv("baseline", num_roads=k, seed=seed),
-                         Compose(make_kddrl_transforms(seed=seed, **transform_kwargs()), DecisionClock(lc_period)))
+    learner = HierarchicalLearner(**learner_kwargs(False)[0])
+    env = collect_env(k, compile, seed=seed)
     rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
     mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=20, frame_buffer=rb_cf,
                                            macro_buffer=rb_lc, frame_keys=learner.buffer_keys())
@@ -302,6 +320,41 @@ def measure_collect(k: int, frames: int, seed: int, clock: str = "wall") -> dict
         env.close()
     return {"num_roads": k, "clock": clock, "sim_limit_fps": sim_fps, "collect_fps": fps,
             "collect_ratio_vs_sim": fps / sim_fps}
+
+
+def measure_collect_workers(k: int, workers: list[int], frames: int, seed: int,
+                            compile: bool | str | None = None) -> dict:
+    """(w): collection frames/s (wall clock) with each N of ``workers`` env processes at ``k`` roads each, and
+    ``collect_scaling`` per N = fps(N) / (N x fps(1))."""
+    from functools import partial
+
+    if 1 not in workers:
+        raise SystemExit(f"--workers {workers}: the scaling is measured against 1 worker, list it too")
+    rows = []
+    for n in workers:
+        learner = HierarchicalLearner(**learner_kwargs(False)[0])
+        make = partial(collect_env, k, compile)
+        envs = [WorkerEnv(make, worker_seed(seed, i), seed_torch=n > 1) for i in range(n)]
+        rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
+        mtc = MultiTimescaleCollector.from_env(envs, learner.policy(), frames_per_env=20, rows=k, frame_buffer=rb_cf,
+                                               macro_buffer=rb_lc, frame_keys=learner.buffer_keys())
+        try:
+            it = iter(mtc)
+            for _ in range(3):  # warm-up batches (and one-off compiles), untimed
+                next(it)
+                mtc.update_policy_weights_()
+            t0, got = time.perf_counter(), 0
+            while got < frames:
+                got += next(it).frames.numel()
+                mtc.update_policy_weights_()
+            fps = got / (time.perf_counter() - t0)
+        finally:
+            mtc.shutdown()
+        rows.append({"workers": n, "num_roads": k, "collect_fps": fps})
+        print(f"  collect with {n} worker(s), K={k}: {fps:.0f} frames/s", flush=True)
+    one = next(r["collect_fps"] for r in rows if r["workers"] == 1)
+    return {"clock": "wall", "runs": rows,
+            "collect_scaling": {str(r["workers"]): r["collect_fps"] / (r["workers"] * one) for r in rows}}
 
 
 def learner_compile_gain(update: dict, collect_fps: float) -> float:
@@ -323,34 +376,48 @@ def main(argv=None) -> int:
     p.add_argument("--full-run", type=Path, default=None, help="run dir of a finished 1000-episode training")
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "train_throughput.json")
     p.add_argument("--device", default="cpu", help="where (a) runs: cpu | cuda (cuda adds the 'gpu' entry)")
-    p.add_argument("--skip-collect", action="store_true", help="measure (a) only")
+    p.add_argument("--skip-collect", action="store_true", help="leave (b) out")
+    p.add_argument("--skip-update", action="store_true", help="leave (a) out")
+    p.add_argument("--workers", default="", help="(w): comma-separated worker counts, e.g. 1,2 (1 must be in)")
+    p.add_argument("--workers-roads", type=int, default=8, help="(w): roads per worker")
+    p.add_argument("--compile", default=None, choices=["auto", "true", "false"],
+                   help="the transform stack's compile in (b) and (w) (default: conf/config.yaml's)")
     args = p.parse_args(argv)
+    compile = {"true": True, "false": False}.get(args.compile, args.compile)
 
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise SystemExit(f"--device {args.device}: no CUDA device is available here")
-    update = measure_update(args.updates, args.seed, args.repeats, device)
-    collect = [] if args.skip_collect else [measure_collect(k, args.frames, args.seed, args.clock) for k in args.roads]
+    update = None if args.skip_update else measure_update(args.updates, args.seed, args.repeats, device)
+    collect = [] if args.skip_collect else [measure_collect(k, args.frames, args.seed, args.clock, compile)
+                                            for k in args.roads]
     for c in collect:
-        c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])
+        if update is not None:
+            c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "update": update,
               "collect": collect}
-    if device.type == "cuda":
+    if args.workers:
+        workers = measure_collect_workers(args.workers_roads, [int(n) for n in args.workers.split(",")], args.frames,
+                                          args.seed, compile)
+        result["collect_workers"] = workers["runs"]
+        result["collect_scaling"] = workers["collect_scaling"]
+    if update is not None and device.type == "cuda":
         result["gpu"] = {"device_name": torch.cuda.get_device_name(device),
                          **{f"{arm}_{agent}_updates_per_s": 1.0 / update[arm][f"{agent}_update_s"]
                             for arm in ("compiled", "eager", "plain") for agent in ("td3", "d3qn")},
                          "td3_updates_per_s": 1.0 / update["compiled"]["td3_update_s"],
                          "d3qn_updates_per_s": 1.0 / update["compiled"]["d3qn_update_s"],
                          "ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]}
-    else:
+    elif update is not None:
         result["update_ratio_vs_plain"] = update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]
         result["update_ratio_vs_plain_eager"] = update["plain"]["per_frame_s"] / update["eager"]["per_frame_s"]
     if collect:
         result["collect_ratio_vs_sim"] = min(c["collect_ratio_vs_sim"] for c in collect)
     if args.out.is_file():  # keep what this run did not measure (a CPU run keeps the gpu entry and vice versa)
         previous = json.loads(args.out.read_text())
-        kept = [k for k in ("update_ratio_vs_plain", "update_ratio_vs_plain_eager", "gpu", "collect",
-                            "collect_ratio_vs_sim", "train_1000_episodes_s", "full_run")
+        kept = [k for k in ("update", "update_ratio_vs_plain", "update_ratio_vs_plain_eager", "gpu", "collect",
+                            "collect_ratio_vs_sim", "collect_workers", "collect_scaling", "train_1000_episodes_s",
+                            "full_run")
                 if k in previous and not result.get(k)]
         result.update({k: previous[k] for k in kept})
         if kept:
@@ -361,18 +428,28 @@ def main(argv=None) -> int:
         result["full_run"] = {"dir": str(args.full_run), "episodes": summary["training"]["episodes"],
                               "frames": summary["training"]["frames"]}
 
-    print(f"\n{'learner (per collected frame)':<34}{'TD3 upd/s':>10}{'D3QN upd/s':>11}{'frame cost ms':>14}"
-          f"{'ratio vs plain':>15}")
-    print(f"(device {update['device']})")
-    for name in ("plain", "eager", "compiled"):
-        r = update[name]
-        print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}{1e3 * r['per_frame_s']:>14.2f}"
-              f"{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")
-    print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}{'ratio':>8}"
-          f"{'compiled learner saves':>24}")
+    update = result.get("update")
+    if update:
+        print(f"\n{'learner (per collected frame)':<34}{'TD3 upd/s':>10}{'D3QN upd/s':>11}{'frame cost ms':>14}"
+              f"{'ratio vs plain':>15}")
+        print(f"(device {update['device']})")
+        for name in ("plain", "eager", "compiled"):
+            r = update[name]
+            print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}"
+                  f"{1e3 * r['per_frame_s']:>14.2f}{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")
+    if result.get("collect"):
+        print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}"
+              f"{'ratio':>8}{'compiled learner saves':>24}")
     for c in result.get("collect", []):
+        gain = f"{100 * c['learner_compile_gain']:>17.1f}% of wall" if "learner_compile_gain" in c else ""
         print(f"{'':<38}{c['num_roads']:>3}{c['sim_limit_fps']:>15.0f}{c['collect_fps']:>13.0f}"
-              f"{c['collect_ratio_vs_sim']:>8.2f}{100 * c['learner_compile_gain']:>17.1f}% of wall")
+              f"{c['collect_ratio_vs_sim']:>8.2f}{gain}")
+    if result.get("collect_workers"):
+        print(f"\n{'collection with worker processes':<38}{'N':>3}{'K':>4}{'collect fps':>13}"
+              f"{'fps(N) / (N fps(1))':>21}")
+        for r in result["collect_workers"]:
+            print(f"{'':<38}{r['workers']:>3}{r['num_roads']:>4}{r['collect_fps']:>13.0f}"
+                  f"{result['collect_scaling'][str(r['workers'])]:>21.2f}")
     if "train_1000_episodes_s" in result:
         print(f"\nfull training run: {result['train_1000_episodes_s']:.0f} s for {result['full_run']['episodes']} "
               f"episodes ({result['full_run']['frames']} frames)")

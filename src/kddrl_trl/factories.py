@@ -11,10 +11,11 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
 :func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
 :func:`make_env`               the batched highway env (SUMO, HighwayEnv or the fake) with the algo's transforms
+:func:`make_env_factories`     one picklable env factory per collection worker (``collector.workers``), seeded
 :func:`make_learner`           the :class:`~kddrl_trl.training.Learner` of a learning algo (by ``algo.kind``)
 :func:`make_policy`            the acting policy of any algo, exploration off
 :func:`make_buffers`           replay buffers L (frames) and H (macro-transitions)
-:func:`make_collector`         the two-clock collector filling both buffers
+:func:`make_collector`         the two-clock collector filling both buffers (one env here, or N worker processes)
 :func:`make_evaluator`         the periodic evaluation during training (validation traffic, a worker process)
 :func:`load_trained_learner`   a training run's learner, from its latest (or best) checkpoint
 :func:`make_gan_data`          the dataset splits a generative model learns from
@@ -40,7 +41,8 @@ from torchrl.envs import Compose, EnvBase, TransformedEnv
 
 from . import keys as K
 from .collectors import DecisionClock, MultiTimescaleCollector
-from .conf.schema import EnvNode, Job, LearningAlgo, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
+from .collectors.workers import WorkerEnv
+from .conf.schema import CollectorConfig, EnvNode, Job, LearningAlgo, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
 from .envs.config import HighwayConfig
 from .loggers import MultiLogger
 from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
@@ -168,6 +170,23 @@ def make_env(env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bo
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
 
+def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[WorkerEnv]:
+    """One :class:`~kddrl_trl.collectors.workers.WorkerEnv` per collection worker of ``job.collector``: worker
+    ``i`` builds :func:`make_env` of the job's env, algo and ``compile`` with env seed
+    :func:`~kddrl_trl.eval.protocol.worker_seed` ``(seed, i)`` (``seed``: the run's env seed, ``job.seed`` plus the
+    episodes already done on resume) and seeds its process's torch generator with it. A single worker of the
+    ``process`` backend is the env of the learner process: its seed is ``seed`` and torch is left as the entry point
+    seeded it."""
+    from functools import partial
+
+    from .eval.protocol import worker_seed
+
+    workers = job.collector.workers
+    in_process = workers == 1 and job.collector.backend == "process"
+    make = partial(make_env, job.env, job.algo, compile=job.compile, fake=fake)
+    return [WorkerEnv(make, worker_seed(seed, i), seed_torch=not in_process) for i in range(workers)]
+
+
 def make_learner(algo: LearningAlgo, compile: bool | str = False, device: torch.device | str | None = None,
                  cudagraphs: bool | str = False) -> Learner:
     """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` on ``device`` (None: the CPU;
@@ -196,10 +215,14 @@ def make_buffers(train: TrainConfig, seed: int) -> tuple[TensorDictReplayBuffer,
             make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1))
 
 
-def make_collector(env: EnvBase, learner: Learner, buffers: tuple, train: TrainConfig,
-                   lc_reward: str = "frames", highway: HighwayConfig | None = None) -> MultiTimescaleCollector:
+def make_collector(env, learner: Learner, buffers: tuple, train: TrainConfig,
+                   lc_reward: str = "frames", highway: HighwayConfig | None = None, *,
+                   collector: CollectorConfig | None = None, rows: int | None = None) -> MultiTimescaleCollector:
     """``train.frames_per_env`` frames per road per iteration with the exploring policy, into ``buffers``
-    (restricted to the keys the learner reads; buffer H only for a learner that ``learns_from_decisions``). ``lc_reward`` (``algo.lc_reward``): ``frames`` sums the per-frame
+    (restricted to the keys the learner reads; buffer H only for a learner that ``learns_from_decisions``).
+    ``env``: a batched env (the caller closes it), or the env factories of :func:`make_env_factories` (``rows``:
+    ``env.num_roads``), run in this process or in ``collector.workers`` workers of ``collector.backend``
+    (:meth:`MultiTimescaleCollector.from_env`). ``lc_reward`` (``algo.lc_reward``): ``frames`` sums the per-frame
     lane-change rewards of a macro-transition (Algorithm 1 line 35); ``decision`` counts the efficiency term of
     ``highway`` 's reward variant once per decision (§III.G, :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
     from .collectors import MacroTransitionWriter
@@ -214,8 +237,9 @@ def make_collector(env: EnvBase, learner: Learner, buffers: tuple, train: TrainC
             return efficiency_term(nxt.get(K.EGO_STATE)[..., 1], highway)
     elif lc_reward != "frames":
         raise ValueError(f"make_collector: lc_reward must be frames or decision, got {lc_reward!r}")
+    backend = (collector or CollectorConfig()).backend
     return MultiTimescaleCollector.from_env(env, learner.policy(explore=True), frames_per_env=train.frames_per_env,
-                                            frame_buffer=buffers[0],
+                                            rows=rows, backend=backend, frame_buffer=buffers[0],
                                             macro_buffer=buffers[1] if learner.learns_from_decisions else None,
                                             frame_keys=learner.buffer_keys(),
                                             macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],

@@ -31,8 +31,8 @@ from .conf.schema import LearningAlgo, TrainJob
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol, test_seed
 from .factories import (
-    evaluate, make_buffers, make_collector, make_env, make_evaluator, make_job, make_learner, make_logger,
-    make_policy, make_run_dir, report, seed_everything,
+    evaluate, make_buffers, make_collector, make_env, make_env_factories, make_evaluator, make_job, make_learner,
+    make_logger, make_policy, make_run_dir, report, seed_everything,
 )
 from .io import write_text_atomic
 from .runs import config_differences
@@ -53,12 +53,10 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     if done:
         log.info("resuming %s", run_dir)
         trim_logs(run_dir, last_step=done - 1)
-    # a resumed run meets new traffic: the env's streams start from seed + episodes already done
-    env = make_env(job.env, job.algo, seed=job.seed + done, compile=job.compile)
-    try:
-        history = trainer.run(make_collector(env, learner, buffers, job.train, job.algo.lc_reward, job.env.highway()))
-    finally:
-        env.close()
+    # a resumed run meets new traffic: the envs (one per collection worker) start from seed + episodes already done
+    envs = make_env_factories(job, seed=job.seed + done)
+    history = trainer.run(make_collector(envs, learner, buffers, job.train, job.algo.lc_reward, job.env.highway(),
+                                         collector=job.collector, rows=job.env.num_roads))
     write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))
     if trainer.validations:
         write_text_atomic(run_dir / "validation.csv", pd.DataFrame(trainer.validations).to_csv(index=False))
@@ -97,7 +95,7 @@ def main(cfg: DictConfig) -> dict:
     reference = paper_reference(job.env.scenario, job.algo.name)
     return report(run_dir, episodes, f"{job.algo.name} on {job.env.scenario}, seed {job.seed}: evaluation, "
                   "exploration off", reference, scenario=job.env.scenario, algo=job.algo.name, seed=job.seed,
-                  protocol=protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes), env_stats=stats,
+                  protocol=protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes, job.collector.workers), env_stats=stats,
                   flow_vph=job.env.flow, run_dir=str(run_dir), wall_s=time.perf_counter() - started, **extra)
 
 

@@ -1,15 +1,30 @@
 """``MultiTimescaleCollector``: a TorchRL collector feeding two replay buffers on two clocks (DESIGN.md
-"Clocks"; paper Algorithm 1 lines 8-9, 25, 37)."""
+"Clocks"; paper Algorithm 1 lines 8-9, 25, 37), from one env in this process or from N worker processes."""
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Callable, Iterator, Sequence
 from typing import NamedTuple
 
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.data import ReplayBuffer
+from torchrl.envs import EnvBase
 
 from .macro import MacroTransitionWriter
+
+#: ``collector.backend`` values: TorchRL's local multi-process collector, or its Ray collector (the optional extra
+#: ``.[ray]``)
+BACKENDS = ("process", "ray")
+
+
+def check_backend(backend: str) -> None:
+    """``backend`` must be one of :data:`BACKENDS`; ``ray`` needs Ray installed (the ``.[ray]`` extra)."""
+    if backend not in BACKENDS:
+        raise ValueError(f"collector.backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if backend == "ray" and importlib.util.find_spec("ray") is None:
+        raise ValueError("collector.backend=ray needs Ray, which is not installed: pip install '.[ray]' (the optional "
+                         "extra), or use collector.backend=process")
 
 
 class MultiTimescaleBatch(NamedTuple):
@@ -26,37 +41,63 @@ class MultiTimescaleCollector:
     frame and ``macro_buffer`` (buffer H) every macro-transition, restricted to ``frame_keys`` /
     ``macro_keys`` when given (what the learner needs: keeps the buffers small).
 
-    Use :meth:`from_env` for the single-process case (TorchRL ``Collector`` over a batched env), or build a
-    ``MultiSyncCollector`` over several env factories yourself for more cores: its batches keep the same row
-    order from one iteration to the next, which is all the writer needs.
+    A multi-process collector's stacked batches ``[N, K, T]`` (N workers of K rows each, in worker order) are
+    flattened to ``[N * K, T]``: row ``w * K + k`` is road ``k`` of worker ``w`` in every iteration, the stable
+    row order the writer and the episode tracker need. Build it with :meth:`from_env` (one env in this process,
+    or N env factories run by TorchRL's multi-process collector); :meth:`update_policy_weights_` hands the
+    learner's current weights and exploration state to the acting policies.
     """
 
     def __init__(self, collector, *, frame_buffer: ReplayBuffer | None = None,
                  macro_buffer: ReplayBuffer | None = None, writer: MacroTransitionWriter | None = None,
-                 frame_keys: Sequence[NestedKey] | None = None, macro_keys: Sequence[NestedKey] | None = None):
+                 frame_keys: Sequence[NestedKey] | None = None, macro_keys: Sequence[NestedKey] | None = None,
+                 owns_envs: bool = False):
         self.collector = collector
         self.frame_buffer, self.macro_buffer = frame_buffer, macro_buffer
         self.writer = writer if writer is not None else MacroTransitionWriter()
         self.frame_keys = list(frame_keys) if frame_keys is not None else None
         self.macro_keys = list(macro_keys) if macro_keys is not None else self.frame_keys
+        self.owns_envs = bool(owns_envs)
 
     @classmethod
-    def from_env(cls, env, policy: Callable, *, frames_per_env: int, **kwargs) -> MultiTimescaleCollector:
-        """A TorchRL ``Collector`` over the batched ``env`` collecting ``frames_per_env`` consecutive frames per
-        environment of the batch per iteration (``[B, frames_per_env]``), endlessly."""
+    def from_env(cls, env: EnvBase | Sequence[Callable[[], EnvBase]], policy: Callable, *, frames_per_env: int,
+                 rows: int | None = None, backend: str = "process", **kwargs) -> MultiTimescaleCollector:
+        """A TorchRL ``Collector`` collecting ``frames_per_env`` consecutive frames per env row per iteration
+        (``[B, frames_per_env]``), endlessly, with ``policy`` (exploration on: TorchRL's default ``RANDOM``).
+
+        ``env``: a batched env (built by the caller, who closes it), or a sequence of N env factories
+        (picklable callables, e.g. :class:`~kddrl_trl.collectors.workers.WorkerEnv`), each building an env of
+        ``rows`` rows; the collector builds these envs and closes them on :meth:`shutdown`. One factory with
+        ``backend="process"`` is built and run in this process (the single-process path, the same as passing its
+        env); otherwise ``Collector(factories, policy, backend=backend, num_collectors=N, sync=True)``: each env in
+        its own worker process (``process``) or Ray actor (``ray``, :data:`BACKENDS`), every worker collecting
+        its ``frames_per_env * rows`` frames per iteration, batches ``[N * rows, frames_per_env]``."""
         from torchrl.collectors import Collector
 
         if int(frames_per_env) < 1:
             raise ValueError(f"frames_per_env must be >= 1, got {frames_per_env!r}")
-        collector = Collector(env, policy, frames_per_batch=int(frames_per_env) * env.batch_size.numel(),
-                              total_frames=-1, trust_policy=True,
-                              auto_register_policy_transforms=False)
-        return cls(collector, **kwargs)
+        check_backend(backend)
+        if isinstance(env, EnvBase):
+            factories, rows, owns = [env], env.batch_size.numel(), False
+        else:
+            factories, owns = list(env), True
+            if not factories or not all(callable(f) for f in factories):
+                raise ValueError(f"env must be an EnvBase or a non-empty sequence of env factories, got {env!r}")
+            if rows is None or int(rows) < 1:
+                raise ValueError(f"rows (the batch size of each factory's env) must be >= 1, got {rows!r}")
+        n = len(factories)
+        workers = {} if n == 1 and backend == "process" else {"backend": backend, "num_collectors": n, "sync": True}
+        collector = Collector(factories if workers else factories[0], policy,
+                              frames_per_batch=int(frames_per_env) * int(rows) * n, total_frames=-1,
+                              trust_policy=True, auto_register_policy_transforms=False, **workers)
+        return cls(collector, owns_envs=owns, **kwargs)
 
     def __iter__(self) -> Iterator[MultiTimescaleBatch]:
         for frames in self.collector:
             if frames.batch_dims == 1:  # unbatched env: [T] -> [1, T]
                 frames = frames.unsqueeze(0)
+            elif frames.batch_dims == 3:  # N workers stacked: [N, K, T] -> [N * K, T], worker-major
+                frames = frames.reshape(-1, frames.shape[-1])
             macros = self.writer(frames)
             if self.frame_buffer is not None:
                 flat = frames.reshape(-1)
@@ -65,5 +106,17 @@ class MultiTimescaleCollector:
                 self.macro_buffer.extend(macros.select(*self.macro_keys) if self.macro_keys else macros)
             yield MultiTimescaleBatch(frames, macros)
 
+    def update_policy_weights_(self) -> None:
+        """The acting policies take the policy's current weights and buffers (TorchRL's weight sync), the
+        exploration state included (the ε of ε-greedy, the σ of the Gaussian acting noise: module buffers), so
+        the workers explore on the learner's current schedule. In this process the policy is the learner's own
+        modules. With the ``process`` backend and a CPU policy, TorchRL moves the policy's own tensors into shared
+        memory when the workers start, so the workers already read the learner's tensors (``sync=True`` keeps them
+        idle while the learner updates them) and this call only confirms it; where the weights are copies (Ray
+        actors, a CUDA learner's CPU staging copy) this call is what sends them."""
+        self.collector.update_policy_weights_()
+
     def shutdown(self, close_env: bool = True) -> None:
-        self.collector.shutdown(close_env=close_env)
+        """Stops the collector. ``close_env=False`` leaves open an env the caller passed in; the envs the
+        collector built from factories (in this process or in its workers) are closed with it."""
+        self.collector.shutdown(close_env=close_env or self.owns_envs)

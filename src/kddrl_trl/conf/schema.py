@@ -14,6 +14,8 @@ composed config into these objects (``OmegaConf.to_object``), before any simulat
 ``algo`` (rule-based)  :class:`RuleAlgo`: ``idm``, ``mobil`` (fields of the physics parameter dataclasses)
 ``train``              :class:`TrainConfig`: the Algorithm 1 loop of :class:`~kddrl_trl.training.Trainer`
 ``logger``             :class:`LoggerConfig`
+``collector``          :class:`CollectorConfig`: how many env processes collect for ``train.py`` (``workers``), and
+                       through which TorchRL backend (``process`` | ``ray``)
 ``train.py`` job       :class:`TrainJob`; ``evaluate.py`` job: :class:`EvaluateJob`
 =====================  =================================================================================
 
@@ -294,6 +296,28 @@ class Job:
 
 
 @dataclass
+class CollectorConfig:
+    """The ``collector`` node of ``train.py``: ``workers`` env processes, each its own simulator, K roads
+    (``env.num_roads``) and transform stack, collecting through TorchRL's multi-process collector with ``backend``
+    (``process``: local processes; ``ray``: Ray actors, the optional extra ``.[ray]``; checked here, before any
+    simulator starts). ``workers=1`` with ``process`` runs the env in the learner process
+    (:meth:`kddrl_trl.collectors.MultiTimescaleCollector.from_env`); worker seeds: :mod:`kddrl_trl.eval.protocol`."""
+
+    workers: int = 1
+    backend: str = "process"
+
+    def __post_init__(self) -> None:
+        from ..collectors.collector import check_backend
+        from ..eval.protocol import MAX_WORKERS
+
+        _at_least("collector.", self, 1, "workers")
+        if self.workers > MAX_WORKERS:
+            raise ValueError(f"collector.workers must be <= {MAX_WORKERS} (each worker's env seeds stay below the "
+                             f"validation seed, kddrl_trl/eval/protocol.py), got {self.workers}")
+        check_backend(self.backend)
+
+
+@dataclass
 class TrainJob(Job):
     """``conf/config.yaml``: ``python -m kddrl_trl.train``."""
 
@@ -301,13 +325,15 @@ class TrainJob(Job):
     resume: Any = MISSING  # false | true | a run folder
     train: TrainConfig = MISSING
     algo: Any = MISSING    # a LearningAlgo or RuleAlgo, typed by the option's own schema
+    collector: CollectorConfig = field(default_factory=CollectorConfig)
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _at_least("", self, 1, "episodes")
         from ..eval.protocol import check_disjoint, test_seed
 
-        check_disjoint("eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes)
+        check_disjoint("eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes,
+                       self.collector.workers)
 
 
 @dataclass

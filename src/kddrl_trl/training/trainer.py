@@ -7,7 +7,9 @@ Per collection batch of ``frames_per_env`` frames from each of the B environment
 2. one TD3 update per collected frame (lines 38-43) once ``warmup_frames`` frames are in; one D3QN update
    per decision taken (lines 27-29) once buffer H holds ``batch_size_lc`` macro-transitions. The counts per
    frame / per decision are the paper's; they are run after each batch instead of between two frames, so
-   the acting policy lags by at most ``frames_per_env`` frames (the usual collector trade-off). Any
+   the acting policy lags by at most ``frames_per_env`` frames (the usual collector trade-off). After the updates
+   the acting policies take the learner's weights and exploration state (ε, σ; TorchRL's weight sync, which
+   reaches the collector's worker processes with ``collector.workers`` > 1). Any
    :class:`~kddrl_trl.training.Learner` trains here: its ``update_frame`` is the buffer-L update (TD3, DDPG, or
    a unified agent's only one), its ``update_decision`` the buffer-H one (only ``learns_from_decisions``);
 3. finished episodes are logged (``train/`` and ``time/``), the progress bar moves, and every
@@ -163,7 +165,8 @@ class Trainer:
 
     def run(self, collector: MultiTimescaleCollector) -> list[dict]:
         """Train on the batches of ``collector`` until ``episodes`` episodes have finished (counting those of a
-        resumed run); return the training-episode history. The collector is shut down, its env stays open."""
+        resumed run); return the training-episode history. The collector is shut down: an env passed in to it
+        stays open, the envs it built (its workers') are closed."""
         from tqdm.auto import tqdm
 
         learner, target = self.learner, self.episodes
@@ -184,6 +187,7 @@ class Trainer:
                 self.counters["decisions"] += decisions
                 learner.explore_step(decisions, frames)
                 self._updates(frames, decisions, losses)
+                self.collector.update_policy_weights_()
                 for ep in self.tracker(batch.frames):
                     if len(self.history) >= target:
                         break
