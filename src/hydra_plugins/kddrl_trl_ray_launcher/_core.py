@@ -76,7 +76,7 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
             ray.init(**kwargs)
         except TypeError as e:  # an unknown keyword of hydra.launcher.init
             raise ValueError(f"hydra.launcher.init={kwargs}: not arguments of ray.init ({e})") from e
-    log.info("Ray launcher (%s; %s CPUs and %s GPUs per run) is launching %d jobs, sweep output dir: %s",
+    log.info("Ray launcher (%s; %g CPUs and %g GPUs per run) is launching %d jobs, sweep output dir: %s",
              launcher.address or "local Ray", launcher.num_cpus, launcher.num_gpus, len(job_overrides), sweep_dir)
     for idx, overrides in enumerate(job_overrides):
         log.info("\t#%d : %s", initial_job_idx + idx, " ".join(filter_overrides(overrides)))
