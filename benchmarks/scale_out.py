@@ -1,0 +1,128 @@
+"""Scale-out on one machine: the same sweep run sequentially and on a local Ray, measured in one run (issue 16).
+
+``sweep``: a sweep of ``len(algos) x len(seeds)`` runs (default 2 algos x 2 seeds, tiny budgets), as a user types
+it (``python -m kddrl_trl.train -m ...``), timed from the command's start to its end: first with Hydra's basic
+launcher (one run after the other), then with ``hydra/launcher=ray`` on a local Ray of ``--ray-cpus`` CPUs (one run
+per CPU at once, each in its own worker process). ``sweep_time_ratio`` = Ray sweep wall time / sequential (issue
+16's goal on a 2-core machine: <= 0.6). Both include each launcher's own start (Hydra, and ``ray.init`` for Ray),
+as a user pays them. Every run's ``summary.json`` is checked and its own ``wall_s`` kept beside the sweep's. Both
+sweeps run each run with the same torch threads (``--threads``, default 1: ``OMP_NUM_THREADS``, which Ray also sets
+to a task's CPUs where it is unset), so that the ratio measures runs side by side, not a thread count: a smoke run on
+a busy 2-core machine took ~5x longer per run sequentially with torch's default threads (one per core) than on Ray
+with one (the machine's other load changing too: not isolated).
+
+Each measurement is one entry of :data:`MEASUREMENTS`: name -> (a function of the parsed arguments returning its
+details and its ratios, a function printing its table); ``--measure`` picks some. Not here yet: ``collect_scaling`` (frames/s of a 2-worker Ray
+collection / 1 worker, K = 8 roads), which needs collection workers; it is added as one more entry of
+:data:`MEASUREMENTS` and is absent from the JSON until it is measured.
+
+Prints a table and writes ``benchmarks/results/scale_out.json``. Needs the extra ``.[ray]``. Measure on an idle
+machine: a busy one shares its cores with the sweep.
+
+    python benchmarks/scale_out.py                       # 2 algos x 2 seeds, 20 training + 20 evaluation episodes
+    python benchmarks/scale_out.py --episodes 2 --eval-episodes 2 --set env.num_roads=2 compile=false \
+        train.eval_every=0 train.warmup_frames=50 env.max_steps=120 --out /tmp/scale_out.json    # a smoke run
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Callable
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from env_throughput import machine_info, write_json  # noqa: E402
+
+DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "scale_out.json"
+
+
+def sweep_command(args, launcher: list[str], sweep_dir: Path) -> list[str]:
+    """The sweep as a user types it, with ``launcher``'s overrides."""
+    return [sys.executable, "-m", "kddrl_trl.train", "-m", f"algo={','.join(args.algos)}",
+            f"seed={','.join(map(str, args.seeds))}", f"episodes={args.episodes}",
+            f"eval_episodes={args.eval_episodes}", "progress=false", *args.set, *launcher, f"hydra.sweep.dir={sweep_dir}"]
+
+
+def timed_sweep(args, name: str, launcher: list[str], root: Path) -> dict:
+    """Runs the sweep with ``launcher`` into ``root/name``; its wall time and every run's own ``wall_s``."""
+    sweep_dir = root / name
+    cmd = sweep_command(args, launcher, sweep_dir)
+    t0 = time.perf_counter()
+    env = {**os.environ, "OMP_NUM_THREADS": str(args.threads)} if args.threads else None
+    done = subprocess.run(cmd, cwd=root, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise SystemExit(f"the {name} sweep failed ({' '.join(cmd)}):\n{done.stderr[-4000:]}")
+    summaries = sorted(sweep_dir.glob("*/summary.json"))
+    expected = len(args.algos) * len(args.seeds)
+    if len(summaries) != expected:
+        raise SystemExit(f"the {name} sweep left {len(summaries)} finished runs of {expected} in {sweep_dir}")
+    runs = {p.parent.name: json.loads(p.read_text())["wall_s"] for p in summaries}
+    return {"wall_s": wall, "run_wall_s": runs, "runs_sum_s": sum(runs.values())}
+
+
+def measure_sweep(args) -> tuple[dict, dict]:
+    """The sweep sequentially (Hydra's basic launcher), then on a local Ray of ``args.ray_cpus`` CPUs."""
+    with tempfile.TemporaryDirectory(prefix="scale_out_") as tmp:
+        root = Path(tmp)
+        sequential = timed_sweep(args, "sequential", ["hydra/launcher=basic"], root)
+        ray = timed_sweep(args, "ray", ["hydra/launcher=ray", f"+hydra.launcher.init.num_cpus={args.ray_cpus}"], root)
+    details = {"runs": len(args.algos) * len(args.seeds), "algos": args.algos, "seeds": args.seeds,
+               "ray_cpus": args.ray_cpus, "sequential": sequential, "ray": ray}
+    return details, {"sweep_time_ratio": ray["wall_s"] / sequential["wall_s"]}
+
+
+def print_sweep(details: dict, ratios: dict) -> None:
+    seeds = " ".join(map(str, details["seeds"]))
+    title = f"sweep of {details['runs']} runs ({', '.join(details['algos'])} x seeds {seeds})"
+    print(f"\n{title:<52}{'wall s':>9}{'sum of runs s':>15}{'ratio':>8}")
+    for label, key, ratio in (("sequential (Hydra's basic launcher)", "sequential", 1.0),
+                              (f"local Ray, {details['ray_cpus']} CPUs (hydra/launcher=ray)", "ray",
+                               ratios["sweep_time_ratio"])):
+        r = details[key]
+        print(f"{label:<52}{r['wall_s']:>9.1f}{r['runs_sum_s']:>15.1f}{ratio:>8.2f}")
+
+
+#: name -> (measure: args -> (details, ratios), print: (details, ratios) -> None)
+MEASUREMENTS: dict[str, tuple[Callable, Callable]] = {"sweep": (measure_sweep, print_sweep)}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--measure", nargs="+", choices=sorted(MEASUREMENTS), default=sorted(MEASUREMENTS))
+    p.add_argument("--algos", nargs="+", default=["kddrl", "d3qn_td3"])
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--episodes", type=int, default=20, help="training episodes per run")
+    p.add_argument("--eval-episodes", type=int, default=20, help="final evaluation episodes per run")
+    p.add_argument("--ray-cpus", type=int, default=2, help="CPUs of the local Ray (runs at once)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch threads of every run, both sweeps (OMP_NUM_THREADS); 0: each launcher's default")
+    p.add_argument("--set", nargs="*", default=["train.eval_every=0"], metavar="KEY=VALUE",
+                   help="further overrides of every run (default: no periodic evaluation)")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    args = p.parse_args(argv)
+    try:
+        ray_version = version("ray")
+    except PackageNotFoundError:
+        raise SystemExit("benchmarks/scale_out.py needs Ray: python -m pip install '.[ray]'") from None
+
+    result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": {**machine_info(), "ray": ray_version}}
+    for name in args.measure:
+        measure, show = MEASUREMENTS[name]
+        details, ratios = measure(args)
+        result[name] = details
+        result.update(ratios)
+        show(details, ratios)
+    write_json(args.out, result)
+    print(f"\nwritten {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,6 @@
+"""``hydra/launcher=ray``: the runs of a Hydra multirun as Ray tasks, one fresh worker process per run.
+
+A thin launcher on ``ray.remote`` (:mod:`._core`), configured by :class:`.config.RayLauncherConf`. Ray is the
+optional extra ``.[ray]``; it is imported only when a sweep is launched, so Hydra's plugin scan (which imports
+this package for every entry point) never needs it.
+"""

@@ -1,0 +1,97 @@
+"""Sweeps on Ray (``hydra/launcher=ray``, ``src/hydra_plugins/kddrl_trl_ray_launcher``): a 2-run sweep on a local
+Ray, as typed, read by the report and resumed; and the launcher's refusals, which need no Ray.
+
+The sweep needs the optional extra ``.[ray]``: it is marked ``ray`` and skipped without Ray
+(``python -m pytest -m ray -n0 tests/test_ray.py``, as ``.ci/run`` does after installing the extra)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+#: one run of each kind: a rule-based one and a KDDRL one that trains, checkpoints and validates (in a process of
+#: its own, inside the Ray worker) with a tiny budget
+TINY = ["episodes=3", "eval_episodes=2", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
+        "train.batch_size_cf=32", "train.batch_size_lc=8", "compile=false", "train.eval_every=2",
+        "train.eval_episodes=1", "train.checkpoint_every=2", "env.max_steps=120"]
+
+
+def _run(cmd, cwd, timeout=900):
+    done = subprocess.run([sys.executable, "-m", *cmd], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    assert done.returncode == 0, done.stderr[-4000:]
+    return done
+
+
+@pytest.mark.ray
+def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_path):
+    pytest.importorskip("ray")
+    sweep = tmp_path / "sweep"
+    cmd = ["kddrl_trl.train", "-m", "algo=idm_mobil,kddrl", "+scenario=braking", "hydra/launcher=ray",
+           "+hydra.launcher.init.num_cpus=2", f"hydra.sweep.dir={sweep}", *TINY]
+    done = _run(cmd, tmp_path)
+    assert "Ray launcher (local Ray; 1 CPUs and 0 GPUs per run) is launching 2 jobs" in done.stdout + done.stderr
+    jobs = sorted(p.name for p in sweep.iterdir() if p.is_dir())
+    assert jobs == ["braking__idm_mobil__0", "braking__kddrl__0"]
+    for job in jobs:
+        summary = json.loads((sweep / job / "summary.json").read_text())
+        assert summary["scenario"] == "braking" and summary["seed"] == 0 and summary["episodes"] == 2
+        assert summary["run_dir"] == str(sweep / job)
+        assert len(pd.read_csv(sweep / job / "eval_episodes.csv")) == 2
+    kddrl = sweep / "braking__kddrl__0"
+    assert json.loads((kddrl / "summary.json").read_text())["training"]["episodes"] == 3
+    assert (kddrl / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
+    assert len(pd.read_csv(kddrl / "validation.csv")) >= 1  # the periodic evaluation's process ran in the worker
+
+    # the report reads the runs' folders unchanged
+    _run(["kddrl_trl.report", str(sweep), f"out={tmp_path / 'rep'}"], tmp_path)
+    rows = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert sorted((r["algo"], r["seeds"], r["episodes"]) for r in rows) == [("idm_mobil", [0], 2), ("kddrl", [0], 2)]
+
+    # resume=true on Ray as on any launcher: finished jobs are skipped, their records untouched
+    before = (kddrl / "eval_episodes.csv").stat().st_mtime_ns
+    done = _run(cmd + ["resume=true"], tmp_path)
+    assert (done.stdout + done.stderr).count("is finished (summary.json): skipped") == 2
+    assert (kddrl / "eval_episodes.csv").stat().st_mtime_ns == before
+
+
+# ------------------------------------------------------------------------- refusals (no Ray needed: default run)
+def _launcher(**kwargs):
+    from hydra_plugins.kddrl_trl_ray_launcher.ray_launcher import RayLauncher
+
+    return RayLauncher(**kwargs)
+
+
+def test_without_ray_the_launcher_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray fails, as where the extra is not installed
+    with pytest.raises(ImportError, match=r"\.\[ray\]"):
+        _launcher().setup(hydra_context=None, task_function=None, config=None)
+
+
+@pytest.mark.parametrize("kwargs, key", [({"num_cpus": 0}, "hydra.launcher.num_cpus=0"),
+                                         ({"num_gpus": -1}, "hydra.launcher.num_gpus=-1"),
+                                         ({"num_cpus": "two"}, "hydra.launcher.num_cpus='two'"),
+                                         ({"init": {"address": "auto"}}, "hydra.launcher.init.address='auto'")])
+def test_bad_launcher_values_are_refused_naming_the_key(kwargs, key):
+    from hydra_plugins.kddrl_trl_ray_launcher._core import init_kwargs
+
+    with pytest.raises(ValueError, match=key.replace(".", r"\.").replace("[", r"\[")):
+        init_kwargs(_launcher(**kwargs))
+
+
+def test_launcher_config_is_registered_and_reaches_ray_init():
+    from hydra import compose, initialize_config_module
+    from hydra_plugins.kddrl_trl_ray_launcher._core import init_kwargs
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["hydra/launcher=ray", "hydra.launcher.address=auto",
+                                                       "hydra.launcher.num_cpus=2", "+hydra.launcher.init.log_to_driver=false"],
+                      return_hydra_config=True)
+    launcher = cfg.hydra.launcher
+    assert launcher._target_ == "hydra_plugins.kddrl_trl_ray_launcher.ray_launcher.RayLauncher"
+    assert (launcher.num_cpus, launcher.num_gpus) == (2, 0)
+    ray_init = init_kwargs(_launcher(address=launcher.address, num_cpus=launcher.num_cpus, init=launcher.init))
+    assert ray_init == {"address": "auto", "log_to_driver": False}
+    assert init_kwargs(_launcher()) == {}  # no address: a local Ray
