@@ -140,14 +140,14 @@ def soak_evaluation(args) -> dict:
 
 def soak_training(args) -> dict:
     from hydra import compose, initialize_config_module
-    from omegaconf import OmegaConf
 
+    from kddrl_trl.factories import make_job
     from kddrl_trl.train import train
 
     overrides = [f"episodes={args.train_episodes}", f"seed={args.seed}", f"progress={str(args.progress).lower()}",
                  *args.set]
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
-        job = OmegaConf.to_object(compose(config_name="config", overrides=overrides))
+        job = make_job(compose(config_name="config", overrides=overrides))
     probe = MemoryProbe(args.every)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as run_dir:

@@ -222,6 +222,23 @@ def test_driver_classes_are_drawn_and_recorded():
         sim.close()
 
 
+def test_parameters_of_vehicles_that_left_are_forgotten():
+    """The per-vehicle parameters and release marks follow the vehicles in the simulation (plus those waiting
+    for insertion): a long run does not keep one entry per vehicle ever inserted (the soak's memory growth)."""
+    sim = HighwaySim(make_config("baseline", {"warmup_s": 300.0}), 2, seed=0)
+    try:
+        inserted = int(sim.arrivals.sum())
+        on_road = set(libsumo.vehicle.getIDList())
+        assert set(sim.vehicle_params) <= on_road | set(libsumo.simulation.getPendingVehicles())
+        assert {v for v in on_road if v.startswith("h")} <= set(sim.vehicle_params)  # the present ones stay
+        assert len(sim.vehicle_params) < 0.5 * inserted  # before: one entry per vehicle ever inserted
+        sim._released |= {"gone.1", next(iter(on_road))}
+        sim._forget_gone()
+        assert sim._released == {next(iter(on_road))}
+    finally:
+        sim.close()
+
+
 def _observations(seed, road2_random):
     env = SumoHighwayEnv("baseline", num_roads=3, seed=seed)
     rule, rand = IDMMobilPolicy(), RandomDrivingPolicy(generator=torch.Generator().manual_seed(5))

@@ -27,6 +27,11 @@ def check_backend(backend: str) -> None:
                          "extra), or use collector.backend=process")
 
 
+#: ``total_frames`` of an endless Ray collection (TorchRL 0.14.1's ``RayCollector`` iterates while its collected
+#: frames are below ``total_frames``, so its ``-1`` yields nothing)
+ENDLESS_RAY_FRAMES = 2**62
+
+
 class MultiTimescaleBatch(NamedTuple):
     frames: TensorDictBase           # [B, T] every frame (buffer L)
     macros: TensorDictBase | None    # [N] macro-transitions closed in this batch (buffer H), None if none
@@ -86,10 +91,18 @@ class MultiTimescaleCollector:
             if rows is None or int(rows) < 1:
                 raise ValueError(f"rows (the batch size of each factory's env) must be >= 1, got {rows!r}")
         n = len(factories)
-        workers = {} if n == 1 and backend == "process" else {"backend": backend, "num_collectors": n, "sync": True}
-        collector = Collector(factories if workers else factories[0], policy,
-                              frames_per_batch=int(frames_per_env) * int(rows) * n, total_frames=-1,
-                              trust_policy=True, auto_register_policy_transforms=False, **workers)
+        inner = {"auto_register_policy_transforms": False}  # the policy is ours: no transform registration
+        if n == 1 and backend == "process":
+            options = inner
+        elif backend == "process":
+            options = {"backend": backend, "num_collectors": n, "sync": True, **inner}
+        else:  # Ray: the actors' own collectors take the options of a single collector
+            options = {"backend": backend, "num_collectors": n, "sync": True, "collector_kwargs": inner}
+        # endless: -1, except for TorchRL 0.14's RayCollector, whose loop runs while collected < total_frames
+        endless = ENDLESS_RAY_FRAMES if backend == "ray" else -1
+        collector = Collector(factories if len(options) > 1 else factories[0], policy,
+                              frames_per_batch=int(frames_per_env) * int(rows) * n, total_frames=endless,
+                              trust_policy=True, **options)
         return cls(collector, owns_envs=owns, **kwargs)
 
     def __iter__(self) -> Iterator[MultiTimescaleBatch]:
@@ -119,4 +132,9 @@ class MultiTimescaleCollector:
     def shutdown(self, close_env: bool = True) -> None:
         """Stops the collector. ``close_env=False`` leaves open an env the caller passed in; the envs the
         collector built from factories (in this process or in its workers) are closed with it."""
-        self.collector.shutdown(close_env=close_env or self.owns_envs)
+        from torchrl.collectors.distributed import RayCollector
+
+        if isinstance(self.collector, RayCollector):  # its actors (and their envs) end with it
+            self.collector.shutdown()
+        else:
+            self.collector.shutdown(close_env=close_env or self.owns_envs)

@@ -266,13 +266,16 @@ def record_traffic(cfg: HighwayConfig, duration_s: float, num_roads: int = 4, se
         vid_road: list[int] = []
         vid_names: list[str] = []
         chunks: list[np.ndarray] = []      # per sample: [g, k, front, x_lat, v, v_lat, a, lane]
+        params: dict[str, dict] = {}       # drawn driver parameters of every recorded vehicle (the simulation
+                                           # forgets those of vehicles that left)
 
         def subscribe(ids) -> None:
             for vid in ids:
                 ls.vehicle.subscribe(vid, variables)
                 if vid not in vid_index:
-                    params = sim.vehicle_params.get(vid)
-                    road = int(params["road"]) if params else int(vid[1:].split(".")[0])
+                    if vid in sim.vehicle_params:
+                        params[vid] = sim.vehicle_params[vid]
+                    road = int(params[vid]["road"]) if vid in params else int(vid[1:].split(".")[0])
                     vid_index[vid] = len(vid_names)
                     vid_names.append(vid)
                     vid_road.append(road)
@@ -296,7 +299,6 @@ def record_traffic(cfg: HighwayConfig, duration_s: float, num_roads: int = 4, se
                 sample(k)
                 if k % 10 == 0 or k == num_steps:
                     bar.update(round(k * dt - bar.n, 6))
-        params = dict(sim.vehicle_params)
     finally:
         sim.close()
 

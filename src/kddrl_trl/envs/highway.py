@@ -55,7 +55,8 @@ class SumoHighwayEnv(HighwayEnvBase):
 
     Attributes:
         stats: counters (episodes, collisions, SUMO errors, braking events, ...).
-        vehicle_params: driver class and drawn IDM parameters of every background vehicle.
+        vehicle_params: driver class and drawn IDM parameters of every background vehicle in the simulation
+            (those of vehicles that left are dropped every 200 steps).
     """
 
     def __init__(self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, **overrides):

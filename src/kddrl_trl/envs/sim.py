@@ -156,11 +156,23 @@ class HighwaySim:
         self.t += 1
         if self.t % 200 == 0:
             self.observer.forget_old(self.t)
+            self._forget_gone()
         contacts: dict[str, tuple[str, bool]] = {}
         for c in ls.simulation.getCollisions():  # SUMO's collider is the vehicle behind, the victim the one ahead
             contacts.setdefault(c.collider, (c.victim, True))
             contacts.setdefault(c.victim, (c.collider, False))
         return contacts
+
+    def _forget_gone(self) -> None:
+        """Drop the parameters and the release marks of vehicles no longer in the simulation (arrived, removed
+        after a collision, teleported out): kept, they grow with every vehicle ever inserted (the soak measured
+        about 6 KB per evaluation episode, +13 % RSS over 10,000 episodes). Vehicles waiting for insertion stay."""
+        ls = _libsumo()
+        alive = set(ls.vehicle.getIDList())
+        alive.update(ls.simulation.getPendingVehicles())
+        for vid in [v for v in self.vehicle_params if v not in alive]:
+            del self.vehicle_params[vid]
+        self._released &= alive
 
     def _interarrival(self, r: int) -> float:
         """Poisson arrivals: exponential gaps with mean 3600 / flow seconds (inf when the flow is 0)."""
