@@ -11,10 +11,13 @@ to a task's CPUs where it is unset), so that the ratio measures runs side by sid
 a busy 2-core machine took ~5x longer per run sequentially with torch's default threads (one per core) than on Ray
 with one (the machine's other load changing too: not isolated).
 
+``collect``: the training collection (SUMO, the KDDRL transform stack, both policies, both buffers, the learner's
+weights synced to the workers after every batch) on Ray actors (``collector.backend=ray``), ``--collect-roads`` K = 8
+roads each, with 1 and with 2 actors, in wall time (``train_throughput.measure_collect_workers``).
+``collect_scaling`` = 2-actor frames/s / 1-actor frames/s (issue 16's goal on a 2-core machine: >= 1.6).
+
 Each measurement is one entry of :data:`MEASUREMENTS`: name -> (a function of the parsed arguments returning its
-details and its ratios, a function printing its table); ``--measure`` picks some. Not here yet: ``collect_scaling`` (frames/s of a 2-worker Ray
-collection / 1 worker, K = 8 roads), which needs collection workers; it is added as one more entry of
-:data:`MEASUREMENTS` and is absent from the JSON until it is measured.
+details and its ratios, a function printing its table); ``--measure`` picks some.
 
 Prints a table and writes ``benchmarks/results/scale_out.json``. Needs the extra ``.[ray]``. Measure on an idle
 machine: a busy one shares its cores with the sweep.
@@ -89,8 +92,29 @@ def print_sweep(details: dict, ratios: dict) -> None:
         print(f"{label:<52}{r['wall_s']:>9.1f}{r['runs_sum_s']:>15.1f}{ratio:>8.2f}")
 
 
+def measure_collect(args) -> tuple[dict, dict]:
+    """Collection frames/s on 1 and on 2 Ray actors of ``args.collect_roads`` roads each."""
+    from train_throughput import measure_collect_workers
+
+    os.environ.setdefault("OMP_NUM_THREADS", str(args.threads or 1))
+    compile = {"true": True, "false": False}.get(args.compile, args.compile)
+    details = measure_collect_workers(args.collect_roads, [1, 2], args.collect_frames, seed=0, compile=compile,
+                                      backend="ray")
+    fps = {r["workers"]: r["collect_fps"] for r in details["runs"]}
+    return details, {"collect_scaling": fps[2] / fps[1]}
+
+
+def print_collect(details: dict, ratios: dict) -> None:
+    print(f"\n{'collection on Ray actors':<52}{'frames/s':>9}{'ratio':>8}")
+    one = next(r["collect_fps"] for r in details["runs"] if r["workers"] == 1)
+    for r in details["runs"]:
+        label = f"{r['workers']} actor(s) x K={r['num_roads']} roads"
+        print(f"{label:<52}{r['collect_fps']:>9.0f}{r['collect_fps'] / one:>8.2f}")
+
+
 #: name -> (measure: args -> (details, ratios), print: (details, ratios) -> None)
-MEASUREMENTS: dict[str, tuple[Callable, Callable]] = {"sweep": (measure_sweep, print_sweep)}
+MEASUREMENTS: dict[str, tuple[Callable, Callable]] = {"sweep": (measure_sweep, print_sweep),
+                                                      "collect": (measure_collect, print_collect)}
 
 
 def main(argv=None) -> int:
@@ -105,6 +129,10 @@ def main(argv=None) -> int:
                    help="torch threads of every run, both sweeps (OMP_NUM_THREADS); 0: each launcher's default")
     p.add_argument("--set", nargs="*", default=["train.eval_every=0"], metavar="KEY=VALUE",
                    help="further overrides of every run (default: no periodic evaluation)")
+    p.add_argument("--collect-roads", type=int, default=8, help="collect: roads K of each Ray actor's env")
+    p.add_argument("--collect-frames", type=int, default=4000, help="collect: frames timed per arm")
+    p.add_argument("--compile", default="false", choices=["auto", "true", "false"],
+                   help="collect: torch.compile the transform stack in each actor")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = p.parse_args(argv)
     try:

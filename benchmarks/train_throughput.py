@@ -323,9 +323,10 @@ def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile
 
 
 def measure_collect_workers(k: int, workers: list[int], frames: int, seed: int,
-                            compile: bool | str | None = None) -> dict:
-    """(w): collection frames/s (wall clock) with each N of ``workers`` env processes at ``k`` roads each, and
-    ``collect_scaling`` per N = fps(N) / (N x fps(1))."""
+                            compile: bool | str | None = None, backend: str = "process") -> dict:
+    """(w): collection frames/s (wall clock) with each N of ``workers`` env processes (``backend="ray"``: Ray
+    actors, N = 1 included; ``benchmarks/scale_out.py``) at ``k`` roads each, and ``collect_scaling`` per N =
+    fps(N) / (N x fps(1))."""
     from functools import partial
 
     if 1 not in workers:
@@ -337,7 +338,7 @@ def measure_collect_workers(k: int, workers: list[int], frames: int, seed: int,
         envs = [WorkerEnv(make, worker_seed(seed, i), seed_torch=n > 1) for i in range(n)]
         rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
         mtc = MultiTimescaleCollector.from_env(envs, learner.policy(), frames_per_env=20, rows=k, frame_buffer=rb_cf,
-                                               macro_buffer=rb_lc, frame_keys=learner.buffer_keys())
+                                               macro_buffer=rb_lc, frame_keys=learner.buffer_keys(), backend=backend)
         try:
             it = iter(mtc)
             for _ in range(3):  # warm-up batches (and one-off compiles), untimed
@@ -350,8 +351,8 @@ def measure_collect_workers(k: int, workers: list[int], frames: int, seed: int,
             fps = got / (time.perf_counter() - t0)
         finally:
             mtc.shutdown()
-        rows.append({"workers": n, "num_roads": k, "collect_fps": fps})
-        print(f"  collect with {n} worker(s), K={k}: {fps:.0f} frames/s", flush=True)
+        rows.append({"workers": n, "num_roads": k, "backend": backend, "collect_fps": fps})
+        print(f"  collect with {n} {backend} worker(s), K={k}: {fps:.0f} frames/s", flush=True)
     one = next(r["collect_fps"] for r in rows if r["workers"] == 1)
     return {"clock": "wall", "runs": rows,
             "collect_scaling": {str(r["workers"]): r["collect_fps"] / (r["workers"] * one) for r in rows}}

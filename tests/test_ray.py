@@ -57,6 +57,22 @@ def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_p
     assert (kddrl / "eval_episodes.csv").stat().st_mtime_ns == before
 
 
+@pytest.mark.ray
+def test_training_collects_on_two_ray_actors(tmp_path):
+    """``collector.backend=ray collector.workers=2``: TorchRL's Ray collector, one SUMO per actor, both buffers and
+    the macro-transition writer in the learner process; the run trains, checkpoints and evaluates as any other."""
+    pytest.importorskip("ray")
+    tiny = [t for t in TINY if not t.startswith(("train.eval_every", "train.eval_episodes"))]
+    _run(["kddrl_trl.train", "collector.backend=ray", "collector.workers=2", "train.eval_every=0",
+          "hydra.run.dir=run", *tiny], tmp_path)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["training"]["episodes"] == 3 and summary["training"]["frames"] > 0
+    assert summary["training"]["decisions"] > 0 and summary["training"]["lc_updates"] > 0
+    assert len(summary["protocol"]["worker_seeds"]) == 2
+    assert len(pd.read_csv(tmp_path / "run" / "train_episodes.csv")) == 3
+    assert (tmp_path / "run" / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
+
+
 # ------------------------------------------------------------------------- refusals (no Ray needed: default run)
 def _launcher(**kwargs):
     from hydra_plugins.kddrl_trl_ray_launcher.ray_launcher import RayLauncher
