@@ -232,3 +232,21 @@ def test_kddrl_trains_with_two_sumo_workers_as_typed(tmp_path):
     roads = {int(line.split(",")[2]) for line in (run / "train_episodes.csv").read_text().split()[1:]}
     assert roads <= {0, 1, 2, 3}  # rows of both workers
     assert summary["episodes"] == 2 and (run / "checkpoints" / "latest").read_text().strip() == "ep000004.pt"
+
+
+def test_the_single_process_collector_closes_the_env_it_builds():
+    """One factory, in this process: the collector builds the env and ``shutdown`` closes it, so the run's final
+    evaluation can start its own SUMO (libsumo: one simulation per process; TorchRL's collector leaves a custom
+    ``EnvBase`` open)."""
+    from functools import partial
+
+    from kddrl_trl.baselines import IDMMobilPolicy
+    from kddrl_trl.collectors import MultiTimescaleCollector
+    from kddrl_trl.envs import SumoHighwayEnv
+
+    mtc = MultiTimescaleCollector.from_env([partial(SumoHighwayEnv, "baseline", num_roads=1, seed=0)],
+                                           IDMMobilPolicy(), frames_per_env=2, rows=1)
+    assert isinstance(mtc.local_env, SumoHighwayEnv)
+    mtc.shutdown(close_env=False)
+    assert mtc.local_env is None
+    SumoHighwayEnv("baseline", num_roads=1, seed=1).close()  # refused while the first simulation is open

@@ -56,13 +56,16 @@ class MultiTimescaleCollector:
     def __init__(self, collector, *, frame_buffer: ReplayBuffer | None = None,
                  macro_buffer: ReplayBuffer | None = None, writer: MacroTransitionWriter | None = None,
                  frame_keys: Sequence[NestedKey] | None = None, macro_keys: Sequence[NestedKey] | None = None,
-                 owns_envs: bool = False):
+                 owns_envs: bool = False, local_env: EnvBase | None = None):
         self.collector = collector
         self.frame_buffer, self.macro_buffer = frame_buffer, macro_buffer
         self.writer = writer if writer is not None else MacroTransitionWriter()
         self.frame_keys = list(frame_keys) if frame_keys is not None else None
         self.macro_keys = list(macro_keys) if macro_keys is not None else self.frame_keys
         self.owns_envs = bool(owns_envs)
+        #: an env built here from a factory (the single-process path), closed by :meth:`shutdown`: TorchRL's
+        #: collector does not close a custom ``EnvBase`` (its ``is_closed`` is True until a batched env starts)
+        self.local_env = local_env
 
     @classmethod
     def from_env(cls, env: EnvBase | Sequence[Callable[[], EnvBase]], policy: Callable, *, frames_per_env: int,
@@ -100,10 +103,13 @@ class MultiTimescaleCollector:
             options = {"backend": backend, "num_collectors": n, "sync": True, "collector_kwargs": inner}
         # endless: -1, except for TorchRL 0.14's RayCollector, whose loop runs while collected < total_frames
         endless = ENDLESS_RAY_FRAMES if backend == "ray" else -1
+        local = None
+        if len(options) == 1 and owns:  # one factory, in this process: built here, closed by shutdown()
+            local = factories[0] = factories[0]()
         collector = Collector(factories if len(options) > 1 else factories[0], policy,
                               frames_per_batch=int(frames_per_env) * int(rows) * n, total_frames=endless,
                               trust_policy=True, **options)
-        return cls(collector, owns_envs=owns, **kwargs)
+        return cls(collector, owns_envs=owns, local_env=local, **kwargs)
 
     def __iter__(self) -> Iterator[MultiTimescaleBatch]:
         for frames in self.collector:
@@ -138,3 +144,6 @@ class MultiTimescaleCollector:
             self.collector.shutdown()
         else:
             self.collector.shutdown(close_env=close_env or self.owns_envs)
+        if self.local_env is not None:
+            self.local_env.close(raise_if_closed=False)
+            self.local_env = None
