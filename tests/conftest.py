@@ -33,3 +33,29 @@ def no_sumo_open():
 
     yield
     assert sim._ACTIVE is None, "a test left a SUMO simulation open"
+
+
+#: a small hierarchical learner for the learner tests (test_learner.py, test_learner_update.py)
+SMALL = {"embed_dim": 8, "embed_hidden": 16, "d3qn": {"hidden": [32, 32], "eps_decisions": 50},
+         "td3": {"hidden": [32, 32]}}
+
+
+def fake_samples(n_frames: int, n_macros: int) -> tuple[list, list]:
+    """``n_frames`` buffer-L and ``n_macros`` buffer-H samples collected (one batch of 40 frames on 4 roads) from
+    the fake env with the full transform stack and a :data:`SMALL` learner's exploring policy."""
+    from torchrl.envs import Compose, TransformedEnv
+
+    from kddrl_trl.collectors import DecisionClock, MultiTimescaleCollector
+    from kddrl_trl.envs import FakeHighwayEnv
+    from kddrl_trl.training import HierarchicalLearner, make_buffer
+    from kddrl_trl.transforms import make_kddrl_transforms
+
+    torch.manual_seed(0)
+    env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), Compose(make_kddrl_transforms(), DecisionClock(5)))
+    learner = HierarchicalLearner(**SMALL)
+    rb_l, rb_h = make_buffer(5000, 32, 0), make_buffer(5000, 16, 0)
+    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=40, frame_buffer=rb_l,
+                                           macro_buffer=rb_h, frame_keys=learner.buffer_keys())
+    next(iter(mtc))
+    mtc.shutdown()
+    return [rb_l.sample() for _ in range(n_frames)], [rb_h.sample() for _ in range(n_macros)]

@@ -6,29 +6,16 @@ import io
 
 import pytest
 import torch
-from torchrl.envs import Compose, TransformedEnv
 
-from kddrl_trl.collectors import DecisionClock, MultiTimescaleCollector
-from kddrl_trl.envs import FakeHighwayEnv
-from kddrl_trl.training import HierarchicalLearner, make_buffer
-from kddrl_trl.transforms import make_kddrl_transforms
+from kddrl_trl.training import HierarchicalLearner
 
-SMALL = {"embed_dim": 8, "embed_hidden": 16, "d3qn": {"hidden": [32, 32], "eps_decisions": 50},
-         "td3": {"hidden": [32, 32]}}
+from conftest import SMALL, fake_samples
 
 
 @pytest.fixture(scope="module")
 def samples():
     """Buffer-L and buffer-H samples collected from the fake env with the full transform stack."""
-    torch.manual_seed(0)
-    env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), Compose(make_kddrl_transforms(), DecisionClock(5)))
-    learner = HierarchicalLearner(**SMALL)
-    rb_l, rb_h = make_buffer(5000, 32, 0), make_buffer(5000, 16, 0)
-    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=40, frame_buffer=rb_l,
-                                           macro_buffer=rb_h, frame_keys=learner.buffer_keys())
-    next(iter(mtc))
-    mtc.shutdown()
-    return [rb_l.sample() for _ in range(6)], [rb_h.sample() for _ in range(3)]
+    return fake_samples(6, 3)
 
 
 def reference_steps(learner: HierarchicalLearner, frames, macros) -> None:
