@@ -27,10 +27,11 @@ def _run(cmd, cwd, timeout=900):
 
 @pytest.mark.ray
 def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_path):
+    """On a local Ray of one CPU, so the second run takes the worker process (and libsumo) the first one left."""
     pytest.importorskip("ray")
     sweep = tmp_path / "sweep"
     cmd = ["kddrl_trl.train", "-m", "algo=idm_mobil,kddrl", "+scenario=braking", "hydra/launcher=ray",
-           "+hydra.launcher.init.num_cpus=2", f"hydra.sweep.dir={sweep}", *TINY]
+           "+hydra.launcher.init.num_cpus=1", f"hydra.sweep.dir={sweep}", *TINY]
     done = _run(cmd, tmp_path)
     assert "Ray launcher (local Ray; 1 CPUs and 0 GPUs per run) is launching 2 jobs" in done.stdout + done.stderr
     jobs = sorted(p.name for p in sweep.iterdir() if p.is_dir())
@@ -114,4 +115,5 @@ def test_launcher_config_is_registered_and_reaches_ray_init():
     assert (launcher.num_cpus, launcher.num_gpus) == (2, 0)
     ray_init = init_kwargs(_launcher(address=launcher.address, num_cpus=launcher.num_cpus, init=launcher.init))
     assert ray_init == {"address": "auto", "log_to_driver": False}
-    assert init_kwargs(_launcher()) == {}  # no address: a local Ray
+    assert init_kwargs(_launcher()) == {"include_dashboard": False}  # no address: a local Ray, no dashboard
+    assert init_kwargs(_launcher(init={"include_dashboard": True})) == {"include_dashboard": True}

@@ -1,6 +1,8 @@
-"""The jobs of a sweep as Ray tasks: one task per run, each in a fresh worker process (``max_calls=1``: libsumo
-holds one simulation per process), calling Hydra's ``run_job`` as Hydra's joblib launcher does. The runs write
-to ``hydra.sweep.dir`` as with any launcher, so resumed sweeps and ``kddrl_trl.report`` read them unchanged."""
+"""The jobs of a sweep as Ray tasks: one task per run, calling Hydra's ``run_job`` as Hydra's joblib launcher does.
+A run holds its worker process (and that process's one libsumo) from start to end; a worker then takes the next
+run, as Hydra's basic launcher runs one run after the other in one process, so a worker imports torch and
+kddrl_trl once, not once per run. The runs write to ``hydra.sweep.dir`` as with any launcher, so resumed sweeps
+and ``kddrl_trl.report`` read them unchanged."""
 from __future__ import annotations
 
 import logging
@@ -58,7 +60,11 @@ def init_kwargs(launcher) -> dict:
     init = OmegaConf.to_container(init, resolve=True) if isinstance(init, DictConfig) else dict(init)
     if "address" in init:
         raise ValueError(f"hydra.launcher.init.address={init['address']!r}: give the cluster as hydra.launcher.address")
-    return {"address": launcher.address, **init} if launcher.address is not None else init
+    if launcher.address is not None:
+        return {"address": launcher.address, **init}
+    # a local Ray for this sweep: without Ray's dashboard (its processes take a share of a small machine's CPUs and
+    # seconds of the start); hydra.launcher.init.include_dashboard=true brings it back
+    return {"include_dashboard": False, **init}
 
 
 def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
@@ -80,7 +86,8 @@ def launch(launcher, job_overrides: Sequence[Sequence[str]], initial_job_idx: in
              launcher.address or "local Ray", launcher.num_cpus, launcher.num_gpus, len(job_overrides), sweep_dir)
     for idx, overrides in enumerate(job_overrides):
         log.info("\t#%d : %s", initial_job_idx + idx, " ".join(filter_overrides(overrides)))
-    remote = ray.remote(num_cpus=launcher.num_cpus, num_gpus=launcher.num_gpus, max_calls=1)(execute_job)
+    remote = ray.remote(num_cpus=launcher.num_cpus, num_gpus=launcher.num_gpus)(execute_job)  # (Ray's default
+    # max_calls: CPU workers are reused, a GPU task's worker exits after it, handing its GPU memory back)
     shared = [ray.put(x) for x in (launcher.hydra_context, launcher.config, launcher.task_function,
                                    Singleton.get_state())]
     context, config, task_function, singleton_state = shared
