@@ -19,10 +19,15 @@ roads each, with 1 and with 2 actors, in wall time (``train_throughput.measure_c
 Each measurement is one entry of :data:`MEASUREMENTS`: name -> (a function of the parsed arguments returning its
 details and its ratios, a function printing its table); ``--measure`` picks some.
 
-Prints a table and writes ``benchmarks/results/scale_out.json``. Needs the extra ``.[ray]``. Measure on an idle
-machine: a busy one shares its cores with the sweep.
+``--repeats N`` runs every measurement N times, interleaved (sweep, collect, sweep, collect, ...), and writes each
+ratio as the median of its repeats beside every repeat's value (``<ratio>_repeats``) and details: on a 2-core VM
+single runs of the same code spread from 0.52 to 0.62 (``sweep_time_ratio``) and 1.54 to 2.18 (``collect_scaling``).
+
+Prints a table and writes ``benchmarks/results/scale_out.json`` (after each repeat). Needs the extra ``.[ray]``.
+Measure on an idle machine: a busy one shares its cores with the sweep.
 
     python benchmarks/scale_out.py                       # 2 algos x 2 seeds, 20 training + 20 evaluation episodes
+    python benchmarks/scale_out.py --repeats 3           # the figures of docs/scaling.md
     python benchmarks/scale_out.py --episodes 2 --eval-episodes 2 --set env.num_roads=2 compile=false \
         train.eval_every=0 train.warmup_frames=50 env.max_steps=120 --out /tmp/scale_out.json    # a smoke run
 """
@@ -31,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -112,6 +118,12 @@ def print_collect(details: dict, ratios: dict) -> None:
         print(f"{label:<52}{r['collect_fps']:>9.0f}{r['collect_fps'] / one:>8.2f}")
 
 
+def medians(per_ratio: dict[str, list[float]]) -> dict:
+    """Each ratio as the median of its repeats (the figure the issue's goal reads), and every repeat's value."""
+    return {**{key: statistics.median(values) for key, values in per_ratio.items()},
+            **{f"{key}_repeats": values for key, values in per_ratio.items()}}
+
+
 #: name -> (measure: args -> (details, ratios), print: (details, ratios) -> None)
 MEASUREMENTS: dict[str, tuple[Callable, Callable]] = {"sweep": (measure_sweep, print_sweep),
                                                       "collect": (measure_collect, print_collect)}
@@ -133,6 +145,8 @@ def main(argv=None) -> int:
     p.add_argument("--collect-frames", type=int, default=4000, help="collect: frames timed per arm")
     p.add_argument("--compile", default="false", choices=["auto", "true", "false"],
                    help="collect: torch.compile the transform stack in each actor")
+    p.add_argument("--repeats", type=int, default=1,
+                   help="every measurement this many times, interleaved; the ratios written are the medians")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = p.parse_args(argv)
     try:
@@ -141,13 +155,19 @@ def main(argv=None) -> int:
         raise SystemExit("benchmarks/scale_out.py needs Ray: python -m pip install '.[ray]'") from None
 
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": {**machine_info(), "ray": ray_version}}
-    for name in args.measure:
-        measure, show = MEASUREMENTS[name]
-        details, ratios = measure(args)
-        result[name] = details
-        result.update(ratios)
-        show(details, ratios)
-    write_json(args.out, result)
+    per_ratio: dict[str, list[float]] = {}
+    for repeat in range(args.repeats):  # the measurements interleaved, so a slow spell of the machine hits all
+        for name in args.measure:
+            measure, show = MEASUREMENTS[name]
+            details, ratios = measure(args)
+            result.setdefault(name, {"repeats": []})["repeats"].append(details)
+            for key, value in ratios.items():
+                per_ratio.setdefault(key, []).append(value)
+            print(f"\n(repeat {repeat + 1} of {args.repeats})", end="")
+            show(details, ratios)
+            write_json(args.out, {**result, **medians(per_ratio)})  # each finished repeat kept
+    print("\n" + "  ".join(f"{key} = {statistics.median(values):.2f} (median of {', '.join(f'{v:.2f}' for v in values)})"
+                           for key, values in per_ratio.items()))
     print(f"\nwritten {args.out}")
     return 0
 
