@@ -3,8 +3,8 @@
 ``sweep``: a sweep of ``len(algos) x len(seeds)`` runs (default 2 algos x 2 seeds, tiny budgets), as a user types
 it (``python -m kddrl_trl.train -m ...``), timed from the command's start to its end: first with Hydra's basic
 launcher (one run after the other), then with ``hydra/launcher=ray`` on a local Ray of ``--ray-cpus`` CPUs (one run
-per CPU at once, each in its own worker process). ``sweep_time_ratio`` = Ray sweep wall time / sequential (issue
-16's goal on a 2-core machine: <= 0.6). Both include each launcher's own start (Hydra, and ``ray.init`` for Ray),
+per CPU at once, each holding a worker process to itself). ``sweep_time_ratio`` = Ray sweep wall time / sequential
+(issue 16's goal on a 2-core machine: <= 0.6). Both include each launcher's own start (Hydra, and ``ray.init`` for Ray),
 as a user pays them. Every run's ``summary.json`` is checked and its own ``wall_s`` kept beside the sweep's. Both
 sweeps run each run with the same torch threads (``--threads``, default 1: ``OMP_NUM_THREADS``, which Ray also sets
 to a task's CPUs where it is unset), so that the ratio measures runs side by side, not a thread count: a smoke run on
@@ -149,6 +149,8 @@ def main(argv=None) -> int:
                    help="every measurement this many times, interleaved; the ratios written are the medians")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = p.parse_args(argv)
+    if args.repeats < 1:
+        p.error(f"--repeats {args.repeats}: at least 1")
     try:
         ray_version = version("ray")
     except PackageNotFoundError:
@@ -166,8 +168,8 @@ def main(argv=None) -> int:
             print(f"\n(repeat {repeat + 1} of {args.repeats})", end="")
             show(details, ratios)
             write_json(args.out, {**result, **medians(per_ratio)})  # each finished repeat kept
-    print("\n" + "  ".join(f"{key} = {statistics.median(values):.2f} (median of {', '.join(f'{v:.2f}' for v in values)})"
-                           for key, values in per_ratio.items()))
+    print("\n" + "  ".join(f"{key} = {statistics.median(values):.2f} "
+                           f"(median of {', '.join(f'{v:.2f}' for v in values)})" for key, values in per_ratio.items()))
     print(f"\nwritten {args.out}")
     return 0
 

@@ -14,7 +14,7 @@ class RayLauncherConf:
     # the Ray cluster: null starts a local Ray (ray.init()); else ray.init(address=...), e.g. "auto" on a node of a
     # running cluster or "ray://<head>:10001"
     address: Optional[str] = None
-    # resources of each run (one Ray task, in its own worker process): CPUs and GPUs Ray reserves for it
+    # resources of each run (one Ray task, holding a worker process to itself): CPUs and GPUs Ray reserves for it
     num_cpus: float = 1
     num_gpus: float = 0
     # further keyword arguments of ray.init, e.g. num_cpus (of a local Ray: the runs it holds at once)
