@@ -148,3 +148,37 @@ def compose_env(scenario: str, *overrides: str):
 
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
         return compose(config_name="config", overrides=[f"+scenario={scenario}", *overrides])
+
+
+LEARNING_ALGOS = ("kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni", "peng", "d3qn_unified", "pasac_unified")
+
+
+@pytest.mark.parametrize("name", LEARNING_ALGOS)
+def test_state_extras_reach_every_learner_and_default_off(name):
+    """``algo.state_extras`` (issue 14): off in every algo's config and in runs saved before the key; when set, the
+    learner of every algo builds its states (and networks) with the features; a bad name is refused."""
+    import torch
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from kddrl_trl.conf.schema import algo_from_node
+    from kddrl_trl.factories import make_learner
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        plain = compose(config_name="config", overrides=[f"algo={name}"])
+        extras = compose(config_name="config", overrides=[f"algo={name}", "algo.state_extras=[ttc,thw]"])
+    assert algo_from_node(plain.algo).state_extras == []
+    old = OmegaConf.create(OmegaConf.to_container(plain.algo))
+    del old["state_extras"]
+    assert algo_from_node(old).state_extras == []  # a run saved before the key: no extras, as it ran
+    bad = OmegaConf.create(OmegaConf.to_container(plain.algo))
+    bad.state_extras = ["headway"]
+    with pytest.raises(ValueError, match=r"algo.state_extras=\['headway'\]"):
+        algo_from_node(bad)
+    torch.manual_seed(0)
+    learners = [make_learner(algo_from_node(node.algo)) for node in (plain, extras)]
+    builders = [[m for m in (getattr(lr, "cf_state", None), getattr(lr, "state", None)) if m is not None][0]
+                for lr in learners]
+    assert [b.module.extras for b in builders] == [(), ("thw", "ttc")]
+    sizes = [sum(p.numel() for p in lr.parameters()) for lr in learners]
+    assert sizes[1] > sizes[0]  # the first layers take the two extra inputs

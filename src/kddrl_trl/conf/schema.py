@@ -190,11 +190,16 @@ class LearningAlgo(SafetyOptions):
     lc_period: int = MISSING
     mobil_safety_mask: bool = False  # AND MOBIL's safety check (Eq. 20-21) into ("lc","action_mask") (§III.C.2)
     lc_reward: str = "frames"        # D3QN macro reward: frames (Algorithm 1 line 35) | decision (§III.G)
+    # features appended to every agent's state (not in the paper): thw (time headway), ttc (time to collision)
+    state_extras: list[str] = field(default_factory=list)
     transforms: TransformsConfig = MISSING
 
     def __post_init__(self) -> None:
+        from ..modules.state import check_extras
+
         _at_least("algo.", self, 1, "lc_period")
         self._check_safety()
+        check_extras(self.state_extras)
         if self.lc_reward not in LC_REWARDS:
             raise ValueError(f"algo.lc_reward={self.lc_reward!r}: known readings are {', '.join(LC_REWARDS)}")
 
