@@ -122,3 +122,39 @@ def test_pasac_learner_acts_on_valid_commands_and_one_step_moves_every_part():
     for part in ("sac_loss.qvalue_network_params", "sac_loss.actor_network_params", "sac_loss.target_qvalue"):
         assert moved(before, learner, part), part
     assert learner.exploration() != alphas
+
+
+# ------------------------------------------------------------------- state extras (issue 14, every learner)
+EXTRAS = ("thw", "ttc")
+
+
+@pytest.mark.parametrize("system", ["peng", "d3qn_unified", "pasac_unified"])
+def test_every_comparison_learner_acts_and_learns_with_the_headway_and_ttc_extras(system):
+    """``algo.state_extras=[thw,ttc]``: the states grow by two features (the last two, :func:`headway_features` of the
+    raw keys), the networks take them, the policy acts and one update moves the networks."""
+    from kddrl_trl.modules import cf_obs_dim, headway_features
+
+    if system == "peng":
+        learner, transforms = HierarchicalLearner(**PENG, state_extras=EXTRAS), [MOBILCriteria()]
+        states = {K.LC_OBS: (learner.lc_state, lc_obs_dim(0, mobil=True) + 2),
+                  K.CF_OBS: (learner.cf_state, cf_obs_dim(0) + 2)}
+    elif system == "d3qn_unified":
+        learner, transforms = JointD3QNLearner(num_levels=5, d3qn={"hidden": [32]}, state_extras=EXTRAS), []
+        states = {K.JOINT_OBS: (learner.state, cf_obs_dim(0) + 2)}
+    else:
+        learner, transforms = PASACLearner(pasac={"hidden": [32]}, state_extras=EXTRAS), []
+        states = {K.JOINT_OBS: (learner.state, cf_obs_dim(0) + 2)}
+    frames, sample_l, sample_h = collect(learner, transforms)  # the policy acted on the grown states
+    expected = headway_features(frames[K.EGO_STATE], frames[K.NEIGHBORS_REL], frames[K.NEIGHBORS_MASK])
+    assert ((expected >= 0) & (expected <= 5)).all() and expected.std() > 0
+    for key, (builder, dim) in states.items():
+        obs = builder(frames.clone())[key]
+        assert obs.shape[-1] == dim
+        torch.testing.assert_close(obs[..., -2:], expected)
+    before = snapshot(learner)
+    learner.update_frame(sample_l)
+    if system == "peng":
+        learner.update_decision(sample_h)
+        assert moved(before, learner, "lc_loss.value_network_params")
+    assert moved(before, learner, "cf_loss." if system == "peng" else
+                 ("q_loss." if system == "d3qn_unified" else "sac_loss."))

@@ -22,6 +22,8 @@ from kddrl_trl.envs import sim
     ({"drivers": [{"name": "x", "colour": 1}]}, "colour"),
     ({"lc_duration": 1.25}, "'lc_duration'"),
     ({"section_length": 0.0}, "'section_length'"),
+    ({"scenario": "mixed", "braking": {"probability": 0.0}}, "'braking.probability' = 0.0 must be in"),
+    ({"scenario": "braking", "braking": {"probability": 1.5}}, "'braking.probability' = 1.5 must be in"),
 ])
 @pytest.mark.parametrize("env_cls", [SumoHighwayEnv, FakeHighwayEnv])
 def test_bad_input_names_the_key_before_sumo_starts(env_cls, kwargs, match):
@@ -40,7 +42,10 @@ def test_error_message_is_one_clear_line():
 
 
 def test_scenarios_and_overrides():
-    assert scenario_names() == ["baseline", "braking", "congested", "congested_text"]
+    assert scenario_names() == ["baseline", "braking", "congested", "congested_text", "mixed"]
+    assert make_config("braking").braking.probability == 1.0                # every episode, as the paper's
+    mixed = make_config("mixed").braking
+    assert mixed.enabled and mixed.probability == 0.5 and mixed.min_distance == 100.0
     assert make_config("congested").flow == pytest.approx(1.5 * 2325)       # Table A.1's flow + 50 % (default)
     assert make_config("congested_text").flow == pytest.approx(3 * 1329)    # §IV.D: 886 -> 1329 veh/h/lane
     assert make_config("braking").braking.enabled and not make_config("baseline").braking.enabled
@@ -112,3 +117,68 @@ def test_issue14_options_are_typed_and_checked():
     algo = algo_from_node(old)
     assert not algo.mobil_safety_mask and algo.lc_reward == "frames" and algo.shield == "none"
     assert algo.learner.td3.exploration_clip is None
+
+
+def test_a_mixed_run_is_evaluated_on_each_scenario_it_names():
+    """``+scenario=mixed eval_scenarios=[baseline,braking]``: the final evaluations' env nodes are the run's with the
+    other scenario's preset (only the keys the preset sets change); unknown or repeated scenarios are refused."""
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["+scenario=mixed", "eval_scenarios=[baseline,braking]",
+                                                       "env.num_roads=3", "env.flow_vph=2658"])
+        plain = compose(config_name="config")
+    job = OmegaConf.to_object(cfg)
+    assert job.env.scenario == "mixed" and job.env.braking.probability == 0.5
+    assert job.eval_scenarios == ["baseline", "braking"] and OmegaConf.to_object(plain).eval_scenarios == []
+    base, braking = job.env.with_scenario("baseline"), job.env.with_scenario("braking")
+    assert base.scenario == "baseline" and not base.braking.enabled and base.braking.probability == 1.0
+    assert braking.scenario == "braking" and braking.braking.enabled and braking.braking.probability == 1.0
+    assert base.num_roads == braking.num_roads == 3 and base.flow_vph == braking.flow_vph == 2658  # the run's own
+    congested = OmegaConf.to_object(compose_env("congested")).env.with_scenario("baseline")
+    assert congested.flow_scale == 1.0
+    for bad in ("[rainy]", "[braking,braking]"):
+        with pytest.raises(Exception, match=r"eval_scenarios=\['"):
+            OmegaConf.to_object(compose_env("mixed", f"eval_scenarios={bad}"))
+
+
+def compose_env(scenario: str, *overrides: str):
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        return compose(config_name="config", overrides=[f"+scenario={scenario}", *overrides])
+
+
+LEARNING_ALGOS = ("kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni", "peng", "d3qn_unified", "pasac_unified")
+
+
+@pytest.mark.parametrize("name", LEARNING_ALGOS)
+def test_state_extras_reach_every_learner_and_default_off(name):
+    """``algo.state_extras`` (issue 14): off in every algo's config and in runs saved before the key; when set, the
+    learner of every algo builds its states (and networks) with the features; a bad name is refused."""
+    import torch
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from kddrl_trl.conf.schema import algo_from_node
+    from kddrl_trl.factories import make_learner
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        plain = compose(config_name="config", overrides=[f"algo={name}"])
+        extras = compose(config_name="config", overrides=[f"algo={name}", "algo.state_extras=[ttc,thw]"])
+    assert algo_from_node(plain.algo).state_extras == []
+    old = OmegaConf.create(OmegaConf.to_container(plain.algo))
+    del old["state_extras"]
+    assert algo_from_node(old).state_extras == []  # a run saved before the key: no extras, as it ran
+    bad = OmegaConf.create(OmegaConf.to_container(plain.algo))
+    bad.state_extras = ["headway"]
+    with pytest.raises(ValueError, match=r"algo.state_extras=\['headway'\]"):
+        algo_from_node(bad)
+    torch.manual_seed(0)
+    learners = [make_learner(algo_from_node(node.algo)) for node in (plain, extras)]
+    builders = [[m for m in (getattr(lr, "cf_state", None), getattr(lr, "state", None)) if m is not None][0]
+                for lr in learners]
+    assert [b.module.extras for b in builders] == [(), ("thw", "ttc")]
+    sizes = [sum(p.numel() for p in lr.parameters()) for lr in learners]
+    assert sizes[1] > sizes[0]  # the first layers take the two extra inputs

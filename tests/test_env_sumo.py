@@ -373,3 +373,63 @@ def test_ego_starts_at_the_section_entry_by_default():
         starts[mode] = float(y.mean())
         env.close()
     assert starts["entry"] > starts["window"]
+
+
+# ------------------------------------------------------------------- mixed-traffic curriculum (issue 14)
+class _StubSim:
+    """What :class:`~kddrl_trl.envs.braking.BrakingEvents` reads of a simulator at an episode start (no SUMO)."""
+
+    def __init__(self, probability: float, seed: int, roads: int = 4):
+        self.cfg = make_config("mixed", {"braking": {"probability": probability}})
+        self.num_roads = roads
+        self.rngs = [np.random.default_rng([seed, r]) for r in range(roads)]
+        self.obs = {K.BRAKING_PHASE: np.zeros((roads, 1), np.int64), K.BRAKING_DISTANCE: np.zeros((roads, 1))}
+        self.stats = {"braking_skipped": 0, "braking_missed": 0}
+
+
+def _draws(probability: float, seed: int, episodes: int = 500) -> np.ndarray:
+    from kddrl_trl.envs.braking import BrakingEvents
+
+    sim = _StubSim(probability, seed)
+    events = BrakingEvents(sim)
+    out = np.zeros((episodes, sim.num_roads), bool)
+    for e in range(episodes):
+        for r in range(sim.num_roads):
+            events.start(r)
+            out[e, r] = events.state[r]["active"]
+            events.end(r, recorded=False)
+    assert sim.stats["braking_skipped"] == (~out).sum()
+    return out
+
+
+@pytest.mark.parametrize("p", [0.2, 0.5, 0.9])
+def test_braking_event_fires_in_about_p_of_the_episodes_reproducibly(p):
+    drawn = _draws(p, seed=3)
+    assert abs(drawn.mean() - p) < 0.05, drawn.mean()   # 2000 episodes: sd of the share <= 0.012
+    assert all(abs(drawn[:, r].mean() - p) < 0.1 for r in range(drawn.shape[1]))  # on every road
+    assert np.array_equal(drawn, _draws(p, seed=3))       # the seed gives the same mix
+    assert not np.array_equal(drawn, _draws(p, seed=4))
+
+
+def test_probability_one_draws_what_the_braking_scenario_always_drew():
+    """p = 1 (every run saved before the key) takes nothing extra from the road's stream: same targets as before."""
+    from kddrl_trl.envs.braking import BrakingEvents
+
+    sim = _StubSim(1.0, seed=0)
+    events = BrakingEvents(sim)
+    events.start(0)
+    assert events.state[0]["target"] == np.random.default_rng([0, 0]).uniform(100.0, 300.0)
+    assert sim.stats["braking_skipped"] == 0
+
+
+def test_mixed_scenario_has_braking_and_baseline_episodes_on_sumo():
+    env = SumoHighwayEnv("mixed", num_roads=8, seed=0, max_steps=120, warmup_s=20.0)
+    try:
+        eps = EpisodeTracker()(torch.stack(rollout(env, IDMMobilPolicy(), 250), 1))
+        with_event = [e for e in eps if e["braking_distance"] == e["braking_distance"]]  # not NaN
+        assert len(eps) >= 12 and 0 < len(with_event) < len(eps)
+        assert env.stats["braking_skipped"] > 0 and env.stats["braking_missed"] == 0
+        for e in with_event:
+            assert 100.0 <= e["braking_distance"] <= 300.0
+    finally:
+        env.close()

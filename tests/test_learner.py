@@ -115,6 +115,29 @@ def test_plain_states_without_embedding(batches):
     learner.update_lc(macros)
 
 
+def test_kddrl_and_its_ablations_learn_with_the_headway_and_ttc_extras(batches):
+    """``algo.state_extras=[thw,ttc]`` on KDDRL (embedding) and the plain D3QN+TD3 ablation: both agents' states
+    end with the two features, the networks take them, the policy acts and both updates run."""
+    from kddrl_trl.modules import cf_obs_dim, headway_features, lc_obs_dim
+
+    frames, macros = batches
+    for kw, d in ((SMALL, SMALL["embed_dim"]), ({**SMALL, "priors": False, "key_gaps": False}, 0)):
+        learner = HierarchicalLearner(**kw, state_extras=("thw", "ttc"))
+        lc = learner.lc_state(learner.embedding(frames.clone()) if d else frames.clone())[K.LC_OBS]
+        cf = learner.cf_state(learner.embedding(frames.clone()) if d else frames.clone())[K.CF_OBS]
+        assert lc.shape[-1] == lc_obs_dim(d) + 2 and cf.shape[-1] == cf_obs_dim(d) + 2
+        expected = headway_features(frames[K.EGO_STATE], frames[K.NEIGHBORS_REL], frames[K.NEIGHBORS_MASK])
+        torch.testing.assert_close(lc[..., -2:], expected)
+        torch.testing.assert_close(cf[..., -2:], expected)
+        obs = frames.exclude(K.CF_ACTION).clone().set(K.LC_HELD, frames[K.LC_ACTION])  # the decision clock's key
+        acted = learner.policy(explore=False)(obs)
+        assert acted[K.CF_ACTION].shape == frames[K.CF_ACTION].shape and acted[K.CF_ACTION].abs().le(5).all()
+        before = snapshot(learner)
+        learner.update_cf(frames)
+        learner.update_lc(macros)
+        assert changed(before, learner)
+
+
 def test_greedy_policy_masks_invalid_commands_and_exploring_policy_respects_mask(batches):
     frames, _ = batches
     learner = HierarchicalLearner(**SMALL)

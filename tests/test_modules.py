@@ -161,6 +161,44 @@ def test_state_scaling_and_absent_slots():
     torch.testing.assert_close(cf[-4:], torch.tensor([0.0, 1.0, 0.0, -0.5]))
 
 
+def test_headway_and_ttc_extras_by_hand():
+    """``algo.state_extras`` (issue 14): known gaps and speeds give known THW / TTC, scaled by 2 s, capped at 10 s."""
+    from kddrl_trl.modules import headway_features
+
+    # rows: closing in; leader faster; no leader; ego standing behind a standing leader; overlap; far and slow
+    ego_v = torch.tensor([20.0, 25.0, 30.0, 0.0, 10.0, 5.0])
+    dy = torch.tensor([35.0, 55.0, 40.0, 15.0, 3.0, 205.0])     # front to front: gap = dy - 5 m
+    dvy = torch.tensor([-5.0, 2.0, 0.0, 0.0, -1.0, -1.0])     # leader minus ego
+    present = torch.tensor([True, True, False, True, True, True])
+    ego = torch.stack([torch.zeros(6), ego_v, torch.zeros(6)], -1)
+    rel = torch.zeros(6, 6, 4)
+    rel[:, 1, 1], rel[:, 1, 3] = dy, dvy
+    mask = torch.zeros(6, 6, dtype=torch.bool)
+    mask[:, 1] = present
+    mask[:, 0] = True  # other slots do not matter
+    rel[:, 0, 1], rel[:, 0, 3] = 6.0, -30.0
+    thw, ttc = headway_features(ego, rel, mask).unbind(-1)
+    #                                  30/20   50/25  none    standing  0 gap  200/5 = 40 -> cap
+    torch.testing.assert_close(thw * 2, torch.tensor([1.5, 2.0, 10.0, 10.0, 0.0, 10.0]))
+    #                                  30/5  opening  none  not closing  0 gap  200/1 -> cap
+    torch.testing.assert_close(ttc * 2, torch.tensor([6.0, 10.0, 10.0, 10.0, 0.0, 10.0]))
+    td = TensorDict({K.EGO_STATE: ego, K.NEIGHBORS_REL: rel, K.NEIGHBORS_MASK: mask,
+                     K.LC_ACTION: torch.zeros(6, 3), K.EGO_ACCEL: torch.zeros(6, 1)}, [6])
+    for extras in (("thw", "ttc"), ("ttc", "thw")):  # always in STATE_EXTRAS order, appended last
+        lc = lc_state(embed=False, extras=extras)(td.clone())[K.LC_OBS]
+        cf = cf_state(embed=False, extras=extras)(td.clone())[K.CF_OBS]
+        assert lc.shape[-1] == lc_obs_dim(0, extras=extras) == BASE_DIM + 2
+        assert cf.shape[-1] == cf_obs_dim(0, extras=extras) == cf_obs_dim(0) + 2
+        torch.testing.assert_close(lc[:, :BASE_DIM], lc_state(embed=False)(td.clone())[K.LC_OBS])
+        torch.testing.assert_close(lc[:, -2:], torch.stack([thw, ttc], -1))
+        torch.testing.assert_close(cf[:, -2:], torch.stack([thw, ttc], -1))
+    only = lc_state(embed=False, extras=["ttc"])(td.clone())[K.LC_OBS]
+    assert only.shape[-1] == BASE_DIM + 1 and torch.equal(only[:, -1], ttc)
+    for bad in (["tth"], ["thw", "thw"]):
+        with pytest.raises(ValueError, match="algo.state_extras"):
+            lc_state(embed=False, extras=bad)
+
+
 def test_detach_flag_and_detach_embedding():
     emb = make_shared_embedding(d=D)
     td = emb(make_batch((4,), next_=False))

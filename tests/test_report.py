@@ -61,7 +61,8 @@ def test_bootstrap_intervals_over_seeds():
 
 
 # -------------------------------------------------------------------------------------------- records
-def _fake_run(folder, algo="kddrl", seed=0, speeds=(100.0, 110.0), collisions=(False, True)):
+def _fake_run(folder, algo="kddrl", seed=0, speeds=(100.0, 110.0), collisions=(False, True), scenario="baseline",
+              **fields):
     folder.mkdir(parents=True)
     n = len(speeds)
     pd.DataFrame({"mean_speed_kmh": speeds, "mean_speed": np.asarray(speeds) / 3.6, "mean_sq_speed": (np.asarray(speeds) / 3.6) ** 2,
@@ -71,7 +72,7 @@ def _fake_run(folder, algo="kddrl", seed=0, speeds=(100.0, 110.0), collisions=(F
                   "collision_kind": ["rear_end" if c else "none" for c in collisions],
                   "collision_with": ["b" if c else "" for c in collisions]}).to_csv(folder / "eval_episodes.csv",
                                                                                        index=False)
-    (folder / "summary.json").write_text(json.dumps({"algo": algo, "scenario": "baseline", "seed": seed}))
+    (folder / "summary.json").write_text(json.dumps({"algo": algo, "scenario": scenario, "seed": seed, **fields}))
     return folder
 
 
@@ -115,6 +116,37 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
                                   tmp_path / "runs" / "i1"]), tmp_path / "rep2")
     assert two["rows"] and "too few seeds for a verdict (2 vs 2" in (tmp_path / "rep2" / "report.md").read_text()
     assert out["figures"]["Figs. 9 / 15: evaluation returns"]
+
+
+def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
+    """A run trained on ``mixed`` (its ``final__*`` evaluations) and a ``kddrl_trl.evaluate`` folder named on the
+    command line are reported as "<algo> (trained on <scenario>)", beside, not inside, the runs trained there."""
+    from kddrl_trl.eval.records import find_runs
+    from kddrl_trl.eval.report import build_report
+
+    for seed in range(3):
+        _fake_run(tmp_path / "runs" / f"b{seed}", seed=seed, scenario="braking", speeds=(100.0, 100.0))
+        mixed = tmp_path / "runs" / f"m{seed}"
+        mixed.mkdir(parents=True)
+        (mixed / "summary.json").write_text(json.dumps({"algo": "kddrl", "scenario": "mixed", "seed": seed,
+                                                        "final_evaluations": ["final__baseline", "final__braking"]}))
+        for scenario in ("baseline", "braking"):
+            _fake_run(mixed / f"final__{scenario}", seed=seed, scenario=scenario, speeds=(130.0, 130.0),
+                      collisions=(False, False), trained_on="mixed", final=True)
+    evaluated = _fake_run(tmp_path / "runs" / "b0" / "eval__baseline__0__t", scenario="baseline", trained_on="braking")
+    runs = find_runs([tmp_path / "runs"])  # evaluate's eval__ folders are left out of a sweep's search
+    assert sorted((r.scenario, r.algo) for r in runs) == sorted(
+        [("braking", "kddrl")] * 3 + [("braking", "kddrl (trained on mixed)")] * 3
+        + [("baseline", "kddrl (trained on mixed)")] * 3)
+    build_report(runs, tmp_path / "rep")
+    rows = {(r["scenario"], r["algo"]): r for r in json.loads((tmp_path / "rep" / "report.json").read_text())}
+    assert rows[("braking", "kddrl")]["metrics"]["collision_rate"]["mean"] == 0.5
+    assert rows[("braking", "kddrl (trained on mixed)")]["metrics"]["collision_rate"]["mean"] == 0.0
+    assert rows[("braking", "kddrl (trained on mixed)")]["trained_on"] == "mixed"
+    assert rows[("braking", "kddrl (trained on mixed)")]["paper"] == {}  # the paper published nothing for it
+    assert "kddrl (trained on mixed) is higher" in (tmp_path / "rep" / "report.md").read_text()  # vs kddrl
+    named = find_runs([evaluated])
+    assert [(r.scenario, r.algo) for r in named] == [("baseline", "kddrl (trained on braking)")]
 
 
 def test_provenance_names_the_commit_and_a_changed_tree(tmp_path):

@@ -344,3 +344,29 @@ def test_scenarios_are_the_same_presets_through_hydra_and_python():
     for name in scenario_names():
         job = compose_job(f"+scenario={name}")
         assert asdict(job.env.highway()) == asdict(make_config(name))
+
+
+@pytest.mark.slow
+def test_a_mixed_traffic_run_is_evaluated_and_reported_per_scenario(tmp_path):
+    """``+scenario=mixed eval_scenarios=[baseline,braking]``: one final evaluation per scenario, each its own folder,
+    read by the report as its own row, never mixed with policies trained on the scenario evaluated."""
+    cmd = [sys.executable, "-m", "kddrl_trl.train", "+scenario=mixed", "algo=idm_mobil", "eval_episodes=4",
+           "env.num_roads=2", "progress=false", "eval_scenarios=[baseline,braking]"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    (run,) = list((tmp_path / "runs").glob("mixed__idm_mobil__0__*"))
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["final_evaluations"] == ["final__baseline", "final__braking"] and summary["scenario"] == "mixed"
+    import pandas as pd
+
+    for scenario, event in (("baseline", False), ("braking", True)):
+        final = json.loads((run / f"final__{scenario}" / "summary.json").read_text())
+        assert final["scenario"] == scenario and final["trained_on"] == "mixed" and final["episodes"] == 4
+        distances = pd.read_csv(run / f"final__{scenario}" / "eval_episodes.csv")["braking_distance"]
+        assert distances.notna().all() if event else distances.isna().all()  # every braking episode has the event
+    done = subprocess.run([sys.executable, "-m", "kddrl_trl.report", str(tmp_path / "runs"), f"out={tmp_path / 'rep'}"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = json.loads((tmp_path / "rep" / "report.json").read_text())
+    assert sorted((r["scenario"], r["algo"], r["trained_on"]) for r in rows) == [
+        ("baseline", "idm_mobil (trained on mixed)", "mixed"), ("braking", "idm_mobil (trained on mixed)", "mixed")]

@@ -189,9 +189,11 @@ def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[Wor
 
 def make_learner(algo: LearningAlgo, compile: bool | str = False, device: torch.device | str | None = None,
                  cudagraphs: bool | str = False) -> Learner:
-    """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` on ``device`` (None: the CPU;
-    ``compile``: its update functions, the learner's one compile site; ``cudagraphs``: CUDA-graph them)."""
-    return LEARNERS[algo.kind](**asdict(algo.learner), compile=compile, device=device, cudagraphs=cudagraphs)
+    """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` and ``algo.state_extras`` (every
+    learner's states) on ``device`` (None: the CPU; ``compile``: its update functions, the learner's one compile
+    site; ``cudagraphs``: CUDA-graph them)."""
+    return LEARNERS[algo.kind](**asdict(algo.learner), state_extras=tuple(algo.state_extras), compile=compile,
+                               device=device, cudagraphs=cudagraphs)
 
 
 def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: Learner | None = None):

@@ -12,13 +12,16 @@ The evaluation traffic never repeats training traffic (:mod:`kddrl_trl.eval.prot
 ``runs/<scenario>__<algo>__<seed>__<time>/`` (a sweep, ``-m``: ``runs/multirun__<time>/<scenario>__<algo>__<seed>``;
 ``-m ... resume=true`` continues the newest sweep job by job, skipping finished jobs): ``config.yaml``,
 ``train_episodes.csv``, ``validation.csv``, ``training_curves.png``, ``checkpoints/``, ``eval_episodes.csv``,
-``summary.json``, TorchRL CSV logs.
+``summary.json``, TorchRL CSV logs. With ``eval_scenarios=[...]`` (e.g. a run trained on ``+scenario=mixed``) the final
+evaluation runs once per listed scenario, each into ``<run>/final__<scenario>/`` (``summary.json`` with ``trained_on``,
+``eval_episodes.csv``, logs); the run folder's ``summary.json`` then holds the training summary and names them.
 """
 from __future__ import annotations
 
 import json
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import hydra
@@ -34,7 +37,8 @@ from .factories import (
     evaluate, make_buffers, make_collector, make_env, make_env_factories, make_evaluator, make_job, make_learner,
     make_logger, make_policy, make_run_dir, report, seed_everything,
 )
-from .io import write_text_atomic
+from .io import write_json_atomic, write_text_atomic
+from .provenance import provenance
 from .runs import config_differences
 from .loggers import trim_logs
 from .training import Trainer, plot_training_curves
@@ -89,14 +93,32 @@ def main(cfg: DictConfig) -> dict:
     extra, learner = {}, None
     if isinstance(job.algo, LearningAlgo):
         learner, extra["training"] = train(job, run_dir, logger, resuming)
+    seeds = protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes, job.collector.workers)
+    if not job.eval_scenarios:  # the final evaluation on the training traffic, into the run folder
+        return final_evaluation(job, learner, logger, run_dir, seed=job.seed, protocol=seeds, run_dir=str(run_dir),
+                                wall_s=time.perf_counter() - started, **extra)
+    # one final evaluation per scenario (a run trained on +scenario=mixed, evaluated on baseline and on braking)
+    finals = [f"final__{s}" for s in job.eval_scenarios]
+    for scenario, folder in zip(job.eval_scenarios, finals):
+        final_evaluation(replace(job, env=job.env.with_scenario(scenario)), learner,
+                         make_logger(job.logger, run_dir / folder), run_dir / folder, seed=job.seed, protocol=seeds,
+                         trained_on=job.env.scenario, final=True)
+    summary = {"scenario": job.env.scenario, "algo": job.algo.name, "seed": job.seed, "final_evaluations": finals,
+               "protocol": seeds, "run_dir": str(run_dir), "wall_s": time.perf_counter() - started, **extra,
+               **provenance()}
+    write_json_atomic(run_dir / "summary.json", summary)  # written last: marks the run finished
+    return summary
+
+
+def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, **fields) -> dict:
+    """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, written to ``out_dir``."""
     env = make_env(job.env, job.algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
-    policy = make_policy(job.algo, job.env, learner)
-    episodes, stats = evaluate(env, policy, job, logger, run_dir, job.algo.name)
-    reference = paper_reference(job.env.scenario, job.algo.name)
-    return report(run_dir, episodes, f"{job.algo.name} on {job.env.scenario}, seed {job.seed}: evaluation, "
-                  "exploration off", reference, scenario=job.env.scenario, algo=job.algo.name, seed=job.seed,
-                  protocol=protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes, job.collector.workers), env_stats=stats,
-                  flow_vph=job.env.flow, run_dir=str(run_dir), wall_s=time.perf_counter() - started, **extra)
+    episodes, stats = evaluate(env, make_policy(job.algo, job.env, learner), job, logger, out_dir, job.algo.name)
+    trained_on = fields.get("trained_on", job.env.scenario)
+    title = job.algo.name + ("" if trained_on == job.env.scenario else f" trained on {trained_on}")
+    return report(out_dir, episodes, f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",
+                  paper_reference(job.env.scenario, job.algo.name) if trained_on == job.env.scenario else None,
+                  scenario=job.env.scenario, algo=job.algo.name, env_stats=stats, flow_vph=job.env.flow, **fields)
 
 
 if __name__ == "__main__":

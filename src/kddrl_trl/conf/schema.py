@@ -70,6 +70,14 @@ class EnvNode(HighwayConfig):
         """This node's :class:`HighwayConfig` (its scenario preset was applied by Hydra: no preset applies again)."""
         return HighwayConfig(**{f.name: getattr(self, f.name) for f in fields(HighwayConfig)})
 
+    def with_scenario(self, scenario: str) -> "EnvNode":
+        """This node on the traffic of another ``scenario``
+        (:func:`~kddrl_trl.envs.config.switch_scenario`: the current preset's keys reset, ``scenario`` 's applied)."""
+        from ..envs.config import switch_scenario
+
+        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(EnvNode),
+                                                   switch_scenario(OmegaConf.structured(self), scenario)))
+
 
 def _node(name: str, doc: str, check=None, optional: dict | None = None, **types: type) -> type:
     """A schema whose fields all take their values from the YAML (``field=type`` pairs, no defaults), but those of
@@ -182,11 +190,16 @@ class LearningAlgo(SafetyOptions):
     lc_period: int = MISSING
     mobil_safety_mask: bool = False  # AND MOBIL's safety check (Eq. 20-21) into ("lc","action_mask") (§III.C.2)
     lc_reward: str = "frames"        # D3QN macro reward: frames (Algorithm 1 line 35) | decision (§III.G)
+    # features appended to every agent's state (not in the paper): thw (time headway), ttc (time to collision)
+    state_extras: list[str] = field(default_factory=list)
     transforms: TransformsConfig = MISSING
 
     def __post_init__(self) -> None:
+        from ..modules.state import check_extras
+
         _at_least("algo.", self, 1, "lc_period")
         self._check_safety()
+        check_extras(self.state_extras)
         if self.lc_reward not in LC_REWARDS:
             raise ValueError(f"algo.lc_reward={self.lc_reward!r}: known readings are {', '.join(LC_REWARDS)}")
 
@@ -326,10 +339,18 @@ class TrainJob(Job):
     train: TrainConfig = MISSING
     algo: Any = MISSING    # a LearningAlgo or RuleAlgo, typed by the option's own schema
     collector: CollectorConfig = field(default_factory=CollectorConfig)
+    # scenarios of the final evaluation ([]: the training scenario); each is written to <run>/final__<scenario>/
+    eval_scenarios: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _at_least("", self, 1, "episodes")
+        from ..envs.config import SCENARIOS
+
+        unknown = [s for s in self.eval_scenarios if s not in SCENARIOS]
+        if unknown or len(set(self.eval_scenarios)) != len(self.eval_scenarios):
+            raise ValueError(f"eval_scenarios={list(self.eval_scenarios)}: each must be one of "
+                             f"{', '.join(sorted(SCENARIOS))}, at most once")
         from ..eval.protocol import check_disjoint, test_seed
 
         check_disjoint("eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes,

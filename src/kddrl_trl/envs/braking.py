@@ -1,5 +1,6 @@
-"""Scenario 2 of the paper (§IV.D, ``conf/scenario/braking.yaml``): once per episode, a leader 100-300 m ahead in
-the ego's lane brakes to a stop at ``decel``, stands for ``stand_time`` and drives on.
+"""Scenario 2 of the paper (§IV.D, ``+scenario=braking``): once per episode, a leader 100-300 m ahead in
+the ego's lane brakes to a stop at ``decel``, stands for ``stand_time`` and drives on. With ``braking.probability``
+below 1 (``+scenario=mixed``, issue 14's curriculum) only that share of the episodes has the event.
 
 :class:`BrakingEvents` runs the event on every road of a :class:`~kddrl_trl.envs.sim.HighwaySim` and writes its
 phase (``keys.BRAKING_PHASE``, codes of ``keys.BRAKING_PHASES``) and the gap at which it started
@@ -34,15 +35,23 @@ class BrakingEvents:
             self.sim.obs[K.BRAKING_DISTANCE][r, 0] = distance
 
     def start(self, r: int) -> None:
-        """A new episode on road ``r``: draw the target distance (nothing to do if the scenario has no event)."""
-        self.state[r] = dict(phase=K.BRAKE_NONE, target=math.nan)
+        """A new episode on road ``r``: whether it has the event (``braking.probability``, drawn from the road's
+        stream only when below 1, so a scenario with the event in every episode draws exactly as before; episodes
+        drawn without it count in ``stats["braking_skipped"]``), then the target distance (nothing to do if the
+        scenario has no event)."""
+        self.state[r] = dict(phase=K.BRAKE_NONE, target=math.nan, active=False)
         self._write(r, K.BRAKE_NONE, 0.0)
-        if self.cfg.enabled:
-            self.state[r]["target"] = float(self.sim.rngs[r].uniform(self.cfg.min_distance, self.cfg.max_distance))
+        if not self.cfg.enabled:
+            return
+        if self.cfg.probability < 1.0 and not self.sim.rngs[r].random() < self.cfg.probability:
+            self.sim.stats["braking_skipped"] += 1
+            return
+        self.state[r].update(active=True,
+                             target=float(self.sim.rngs[r].uniform(self.cfg.min_distance, self.cfg.max_distance)))
 
     def update(self, r: int) -> None:
         """One frame of road ``r``'s running episode (called after the simulation step)."""
-        if not self.cfg.enabled:
+        if not self.state[r].get("active"):
             return
         br = self.state[r]
         if br["phase"] == K.BRAKE_NONE:
@@ -119,6 +128,6 @@ class BrakingEvents:
         (not cut short by a reset) without an event counts in ``stats["braking_missed"]``. The observation
         arrays keep the phase of the final frame."""
         self._release(r)
-        if recorded and self.cfg.enabled and "vid" not in self.state[r]:
+        if recorded and self.state[r].get("active") and "vid" not in self.state[r]:
             self.sim.stats["braking_missed"] += 1
         self.state[r] = dict(phase=K.BRAKE_NONE, target=math.nan)

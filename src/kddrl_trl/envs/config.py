@@ -5,7 +5,7 @@ model"). The same schema validates Hydra configs (``conf/env/highway.yaml``) and
 :class:`~kddrl_trl.envs.SumoHighwayEnv`, so a misspelt key or a malformed value fails before SUMO starts
 with a message naming the key.
 
-Scenarios (``baseline``, ``congested``, ``braking``) are the presets of :data:`SCENARIOS`, defined once here:
+Scenarios (``baseline``, ``congested``, ``congested_text``, ``braking``, ``mixed``) are the presets of :data:`SCENARIOS`, defined once here:
 ``SumoHighwayEnv(scenario="braking")`` / ``make_config("braking")`` apply them, and ``kddrl_trl.conf``
 registers each as the Hydra option ``+scenario=<name>`` (an ``env:`` block in the global package), which
 Hydra applies while composing; a config built from the composed ``env`` node is not given its preset again.
@@ -64,9 +64,16 @@ def default_drivers() -> list[DriverClass]:
 
 @dataclass
 class BrakingEvent:
-    """Scenario 2 (paper §IV.D): a leader in the ego's lane brakes hard to a stop, stands, then resumes."""
+    """Scenario 2 (paper §IV.D): a leader in the ego's lane brakes hard to a stop, stands, then resumes.
+
+    ``probability`` (issue 14's mixed-traffic curriculum, not in the paper, whose braking scenario has the event in
+    every episode): when ``enabled``, each episode has the event with this probability, drawn per episode and per
+    road from the road's seeded random stream (:class:`~kddrl_trl.envs.braking.BrakingEvents`), so a seed gives the
+    same mix every time. 1.0 draws nothing: the stream, and every run saved before the key existed, is unchanged.
+    """
 
     enabled: bool = False
+    probability: float = 1.0     # share of episodes with the event when enabled (scenario mixed: 0.5)
     min_distance: float = 100.0  # m ahead of the ego (front bumper to front bumper)
     max_distance: float = 300.0  # m
     decel: float = 8.0           # m/s², hard braking
@@ -162,6 +169,8 @@ class HighwayConfig:
         _check("braking.decel", br.decel, br.decel > 0, "must be > 0")
         _check("braking.stand_time", br.stand_time, br.stand_time >= 0, "must be >= 0")
         _check("braking.trigger_frames", br.trigger_frames, br.trigger_frames >= 1, "must be >= 1")
+        _check("braking.probability", br.probability, 0 < br.probability <= 1,
+               "must be in (0, 1] (the share of episodes with the event; braking.enabled=false for none)")
         return self
 
 
@@ -181,6 +190,10 @@ SCENARIOS: dict[str, dict[str, Any]] = {
     # scenario 2 (paper §IV.D): in every episode a leader 100-300 m ahead of the ego in its lane brakes hard
     # to a stop, stands 3 s, then resumes
     "braking": {"braking": {"enabled": True, "min_distance": 100.0, "max_distance": 300.0, "stand_time": 3.0}},
+    # training curriculum (issue 14, not in the paper): half of the episodes are scenario 2's, half the baseline's
+    # (drawn per episode and road from the seeded stream); evaluate on each with eval_scenarios=[baseline,braking]
+    "mixed": {"braking": {"enabled": True, "min_distance": 100.0, "max_distance": 300.0, "stand_time": 3.0,
+                          "probability": 0.5}},
 }
 
 
@@ -217,3 +230,26 @@ def make_config(scenario: str | HighwayConfig = "baseline", overrides: Mapping[s
     cfg: HighwayConfig = OmegaConf.to_object(merged)
     cfg.scenario = name
     return cfg.validate()
+
+
+def _preset_paths(preset: Mapping[str, Any], prefix: tuple = ()) -> list[tuple]:
+    out = []
+    for key, value in preset.items():
+        out += _preset_paths(value, (*prefix, key)) if isinstance(value, Mapping) else [(*prefix, key)]
+    return out
+
+
+def switch_scenario(values: Mapping[str, Any], scenario: str) -> dict:
+    """The env ``values`` (a dict or DictConfig of :class:`HighwayConfig` fields, e.g. a composed ``env`` node, whose
+    ``scenario`` preset is already applied) moved to another ``scenario``: every key the current scenario's preset
+    sets goes back to its schema default, then ``scenario`` 's preset applies; every other key (``num_roads``,
+    ``ego_start``, a ``flow_vph`` given on the command line, ...) is kept. How a run trained on one scenario
+    (``mixed``) is evaluated on others (``eval_scenarios`` of ``kddrl_trl.train``)."""
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; known scenarios: {', '.join(scenario_names())}")
+    out = OmegaConf.create(OmegaConf.to_container(OmegaConf.create(dict(values)), resolve=True))
+    defaults = OmegaConf.structured(HighwayConfig)
+    for path in _preset_paths(SCENARIOS.get(str(out.get("scenario", "baseline")), {})):
+        OmegaConf.update(out, ".".join(path), OmegaConf.select(defaults, ".".join(path)), merge=False)
+    out = OmegaConf.merge(out, SCENARIOS[scenario], {"scenario": scenario})
+    return OmegaConf.to_container(out)

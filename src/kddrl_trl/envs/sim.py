@@ -69,7 +69,7 @@ class HighwaySim:
         self.lc_frames = int(round(cfg.lc_duration / cfg.step_length))
         self.files = build_road_files(cfg, self.num_roads)
         self.stats = {"episodes": 0, "collisions": 0, "sumo_errors": 0, "insert_steps": 0,
-                      "braking_events": 0, "braking_missed": 0, "braking_inserted": 0,
+                      "braking_events": 0, "braking_missed": 0, "braking_inserted": 0, "braking_skipped": 0,
                       "designation_fallbacks": 0}
         self.vehicle_params: dict[str, dict] = {}  # per background vehicle: driver class and IDM draw
         self._started = False

@@ -3,7 +3,11 @@
 
 A run folder is any folder holding ``summary.json`` and ``eval_episodes.csv`` (written by
 :func:`kddrl_trl.factories.report`): a single run, a sweep job, or an evaluation of a trained run (whose
-``algo`` / ``scenario`` are those of the evaluation). Bad or missing files raise, naming the file and column.
+``algo`` / ``scenario`` are those of the evaluation). A training run with ``eval_scenarios`` names its final
+evaluations (``final_evaluations`` in its ``summary.json``: the folders ``final__<scenario>``), which are read in its
+place. A policy evaluated on another scenario than it was trained on (``trained_on`` in the summary) is reported under
+the algo name ``"<algo> (trained on <scenario>)"``, never with the runs trained on the scenario it was evaluated on.
+Bad or missing files raise, naming the file and column.
 """
 from __future__ import annotations
 
@@ -25,8 +29,8 @@ class RunRecord:
     """One run: where it is, what it ran, its evaluation episodes and (learning algos) its training history."""
 
     path: Path
-    algo: str
-    scenario: str
+    algo: str        # the algo's name, "<name> (trained on <scenario>)" when trained on another scenario
+    scenario: str    # the scenario evaluated
     seed: int
     summary: dict
     episodes: pd.DataFrame
@@ -78,29 +82,51 @@ def load_run(path: str | Path) -> RunRecord:
         raise ValueError(f"{path / 'eval_episodes.csv'}: non-numeric or empty values in column(s) {', '.join(bad)}")
     episodes["collision_with"] = episodes["collision_with"].astype(object).where(episodes["collision_with"].notna(),
                                                                                  "").astype(str)
-    training = _csv(path / "train_episodes.csv", ("return_lc", "return_cf")) \
-        if (path / "train_episodes.csv").is_file() else None
-    validation = _csv(path / "validation.csv") if (path / "validation.csv").is_file() else None
+    trained = path.parent if summary.get("final") else path  # a final__<scenario> folder: its run's training
+    training = _csv(trained / "train_episodes.csv", ("return_lc", "return_cf")) \
+        if (trained / "train_episodes.csv").is_file() else None
+    validation = _csv(trained / "validation.csv") if (trained / "validation.csv").is_file() else None
     # traces of its final evaluation, and of later evaluations of it on its own scenario (evaluate video=true)
     traces = sorted((path / "traces").glob("*.json")) + sorted(path.glob(f"eval__{summary['scenario']}__*/traces/*.json"))
-    return RunRecord(path, str(summary["algo"]), str(summary["scenario"]), int(summary["seed"]), summary, episodes,
+    return RunRecord(path, algo_label(summary), str(summary["scenario"]), int(summary["seed"]), summary, episodes,
                      training, validation, traces)
+
+
+def algo_label(summary: dict) -> str:
+    """The report's name of a run's policy: its algo, with the training scenario where that is not the scenario
+    evaluated (``trained_on``: ``kddrl_trl.evaluate``, ``kddrl_trl.train eval_scenarios=...``)."""
+    algo, trained_on = str(summary["algo"]), str(summary.get("trained_on", summary["scenario"]))
+    return algo if trained_on == str(summary["scenario"]) else f"{algo} (trained on {trained_on})"
+
+
+def _expand(summary_path: Path) -> list[Path]:
+    """A run folder's evaluation folders: itself, or the ``final_evaluations`` its summary names."""
+    try:
+        finals = json.loads(summary_path.read_text()).get("final_evaluations")
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"{summary_path}: not a readable summary ({err})") from err
+    if not finals:
+        return [summary_path.parent]
+    return [summary_path.parent / name for name in finals]
 
 
 def find_runs(paths) -> list[RunRecord]:
     """Every run folder at or under ``paths`` (run folders, sweep folders, or folders of those), sorted by
-    (scenario, algo, seed). Evaluations inside a training run (``eval__*``) are left out: the report compares
-    runs on their own scenario. Raises if a path does not exist or holds no run."""
+    (scenario, algo, seed). Evaluations inside a training run (``eval__*``, ``kddrl_trl.evaluate``) are left out
+    unless named themselves in ``paths``; a training run's final evaluations (``final__*``) are its records. Raises
+    if a path does not exist or holds no run."""
     found: dict[Path, RunRecord] = {}
     for p in map(Path, paths):
         if not p.exists():
             raise FileNotFoundError(f"{p}: no such run or sweep folder")
-        summaries = [p / "summary.json"] if (p / "summary.json").is_file() else sorted(p.rglob("summary.json"))
-        summaries = [s for s in summaries if not s.parent.name.startswith("eval__")]
+        summaries = [p / "summary.json"] if (p / "summary.json").is_file() else \
+            [s for s in sorted(p.rglob("summary.json")) if not s.parent.name.startswith("eval__")]
         if not summaries:
             raise FileNotFoundError(f"{p}: holds no run (no summary.json at or under it)")
         for s in summaries:
-            found.setdefault(s.parent.resolve(), load_run(s.parent))
+            for folder in _expand(s):
+                if folder.resolve() not in found:
+                    found[folder.resolve()] = load_run(folder)
     runs = sorted(found.values(), key=lambda r: (r.scenario, r.algo, r.seed, str(r.path)))
     seen: dict[tuple, Path] = {}
     for r in runs:

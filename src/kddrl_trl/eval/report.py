@@ -4,7 +4,10 @@ collision breakdown, the figures and a footer saying what produced them (``pytho
 The seed (run) is the unit of evidence: each run's evaluation episodes give one value per metric
 (:meth:`~kddrl_trl.eval.records.RunRecord.metrics`), and a row's value is the mean over its seeds with a
 percentile-bootstrap CI over seeds (:mod:`kddrl_trl.eval.stats`). ``report.json`` is the machine-readable form:
-a list of rows ``{"algo", "scenario", "seeds", "episodes", "metrics": {name: {"mean", "ci_low", "ci_high"}}}``.
+a list of rows ``{"algo", "scenario", "seeds", "episodes", "metrics": {name: {"mean", "ci_low", "ci_high"}}}``. A policy
+evaluated on another scenario than it was trained on (``+scenario=mixed`` with ``eval_scenarios``, or
+``kddrl_trl.evaluate``) is its own row, ``"<algo> (trained on <scenario>)"`` (:func:`~kddrl_trl.eval.records.algo_label`),
+compared with the reference trained on the scenario evaluated.
 """
 from __future__ import annotations
 
@@ -38,7 +41,7 @@ REFERENCE = "kddrl"
 #: fewer seeds than this on a side: no verdict (a percentile bootstrap over 2 seeds only spans the two values seen)
 MIN_SEEDS_FOR_VERDICT = 3
 #: scenario order of the paper's tables
-SCENARIO_ORDER = ("baseline", "congested", "congested_text", "braking")
+SCENARIO_ORDER = ("baseline", "congested", "congested_text", "braking", "mixed")
 
 
 def _fmt(metric: str, value) -> str:
@@ -78,7 +81,9 @@ def rows(runs: list[RunRecord]) -> list[dict]:
     for (scenario, algo), group in _groups(runs).items():
         per_seed = [r.metrics() for r in group]
         out.append({
-            "algo": algo, "scenario": scenario, "seeds": sorted(r.seed for r in group),
+            "algo": algo, "scenario": scenario,
+            "trained_on": str(group[0].summary.get("trained_on", scenario)),  # algo: "<name> (trained on ...)" if not
+            "seeds": sorted(r.seed for r in group),
             "episodes": int(sum(m["episodes"] for m in per_seed)),
             "episodes_per_seed": sorted({int(m["episodes"]) for m in per_seed}),
             "metrics": {name: {k: v for k, v in mean_ci([m[name] for m in per_seed]).items() if k != "n"}

@@ -25,10 +25,15 @@ from .sharing import (
     make_target_embedding,
     soft_update_embedding_,
 )
-from .state import BASE_DIM, StateScale, cf_obs_dim, cf_state, lc_obs_dim, lc_state
+from .state import (
+    BASE_DIM, STATE_EXTRAS, StateScale, cf_obs_dim, cf_state, check_extras, headway_features, lc_obs_dim, lc_state,
+)
 
 __all__ = [
     "BASE_DIM",
+    "STATE_EXTRAS",
+    "check_extras",
+    "headway_features",
     "EMBEDDING_KEYS",
     "KEY_GAP_CLIP",
     "KEY_GAP_SCALE",

@@ -22,6 +22,21 @@ d         s_e from ``keys.EMBED_S_E`` (only when ``embed``)       none (tanh out
 the acceleration executed in the last frame a_TD3^{t-1} (``keys.EGO_ACCEL`` / accel, 1). Every scaled
 feature is clipped to ±``StateScale.clip``.
 
+State extras (issue 14's option ``algo.state_extras``, **not in the paper**; none by default): appended last to the
+state of every agent of every learner (both hierarchical agents, the unified agents' ``keys.JOINT_OBS``), in the order
+of :data:`STATE_EXTRAS`, one feature each, computed by :func:`headway_features` from the raw keys the states already
+read (the current-lane leader, slot b: its gap ``Δy - vehicle_length`` bumper to bumper, its speed difference Δv_y),
+so no key is added and the replay buffers are unchanged:
+
+========  =====================================================  ========================================
+``thw``   time headway gap / v_AV,y (s), capped at               / ``StateScale.time``, in [0, clip]
+          ``time x clip`` = 10 s; the cap with no leader or the
+          ego standing
+``ttc``   time to collision gap / (v_AV,y - v_b) while closing   / ``StateScale.time``, in [0, clip]
+          in (s), capped at 10 s; the cap when not closing in or
+          with no leader
+========  =====================================================  ========================================
+
 Executed, not commanded (issue 14, F7): Eq. 30 reads "the continuous acceleration action executed at the previous
 time step", and Algorithm 1 line 33 executes a_TD3 in the env. The env executes the command (already within
 [-5, 5] m/s², Eq. 31) except where v + a dt would fall below 0 (v' = max(v + a dt, 0)), so the two differ only at
@@ -64,30 +79,78 @@ class StateScale:
     lateral_position: float = 10.0   # m, Δx
     lateral_speed: float = 5.0       # m/s, v_x and Δv_x
     accel: float = 5.0               # m/s², a_TD3^{t-1}
+    time: float = 2.0                # s, the state extras thw / ttc (capped at time x clip = 10 s)
+    vehicle_length: float = 5.0      # m, leader length in the extras' bumper-to-bumper gap (HighwayConfig default)
     clip: float = 5.0                # every scaled feature is clipped to ±clip
+
+
+#: the optional state features of ``algo.state_extras`` (issue 14, not in the paper), in state order
+STATE_EXTRAS = ("thw", "ttc")
+
+
+def check_extras(extras) -> tuple[str, ...]:
+    """``extras`` in :data:`STATE_EXTRAS` order; an unknown or repeated name raises ``ValueError`` naming it."""
+    extras = tuple(extras or ())
+    bad = [e for e in extras if e not in STATE_EXTRAS]
+    if bad or len(set(extras)) != len(extras):
+        raise ValueError(f"algo.state_extras={list(extras)}: each must be one of {', '.join(STATE_EXTRAS)}, at most "
+                         "once")
+    return tuple(e for e in STATE_EXTRAS if e in extras)
+
+
+def headway_features(ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, extras=STATE_EXTRAS,
+                     scale: StateScale = StateScale()) -> torch.Tensor:
+    """The state extras ``[*B, len(extras)]`` (issue 14's option, not in the paper; module docstring): the time
+    headway ``gap / v`` and the time to collision ``gap / (v - v_lead)`` to the current-lane leader (slot b), each
+    capped at ``scale.time * scale.clip`` seconds (the cap when there is no leader, when the ego stands (thw) or is not
+    closing in (ttc); 0 when the vehicles overlap) and divided by ``scale.time``.
+
+    ``ego``: ``keys.EGO_STATE`` ``[*B, 3]``; ``rel``: ``keys.NEIGHBORS_REL`` ``[*B, 6, 4]``; ``mask``:
+    ``keys.NEIGHBORS_MASK`` ``[*B, 6]``.
+
+    Examples:
+        >>> import torch
+        >>> rel = torch.zeros(6, 4); rel[1, 1], rel[1, 3] = 35.0, -5.0   # leader 35 m ahead (30 m gap), 5 m/s slower
+        >>> headway_features(torch.tensor([0.0, 20.0, 0.0]), rel, torch.ones(6, dtype=torch.bool))
+        tensor([0.7500, 3.0000])
+    """
+    cap = scale.time * scale.clip
+    lead = rel[..., 1, :]
+    gap = (lead[..., 1:2] - scale.vehicle_length).clamp(min=0.0)
+    v, closing = ego[..., 1:2], -lead[..., 3:4]
+    big = torch.full_like(gap, cap)
+    thw = torch.where(v > 0, gap / v.clamp(min=1e-6), big)
+    ttc = torch.where(closing > 0, gap / closing.clamp(min=1e-6), big)
+    present = mask[..., 1:2].bool()
+    values = {"thw": thw, "ttc": ttc}
+    out = [torch.where(present, values[e], big).clamp(max=cap) / scale.time for e in check_extras(extras)]
+    return torch.cat(out, dim=-1) if out else ego[..., :0]
 
 
 #: size of the MOBIL criteria block of ``lc_state(mobil=True)``: 3 utilities, 3 safety flags
 MOBIL_DIM = 3 + 3
 
 
-def lc_obs_dim(embed_dim: int = 0, mobil: bool = False) -> int:
+def lc_obs_dim(embed_dim: int = 0, mobil: bool = False, extras=()) -> int:
     """Size of ``keys.LC_OBS`` (Eq. 24) for an embedding of ``embed_dim`` (0 = no ``s_e``), with the MOBIL
-    criteria of Peng et al. when ``mobil``."""
-    return BASE_DIM + embed_dim + (MOBIL_DIM if mobil else 0)
+    criteria of Peng et al. when ``mobil`` and the state ``extras`` (:data:`STATE_EXTRAS`)."""
+    return BASE_DIM + embed_dim + (MOBIL_DIM if mobil else 0) + len(check_extras(extras))
 
 
-def cf_obs_dim(embed_dim: int = 0) -> int:
-    """Size of ``keys.CF_OBS`` (Eq. 30) for an embedding of ``embed_dim`` (0 = no ``s_e``)."""
-    return BASE_DIM + embed_dim + 3 + 1
+def cf_obs_dim(embed_dim: int = 0, extras=()) -> int:
+    """Size of ``keys.CF_OBS`` (Eq. 30) for an embedding of ``embed_dim`` (0 = no ``s_e``), with the state
+    ``extras`` (:data:`STATE_EXTRAS`); also the size of ``keys.JOINT_OBS`` with ``embed_dim`` 0."""
+    return BASE_DIM + embed_dim + 3 + 1 + len(check_extras(extras))
 
 
 class _StateNet(nn.Module):
     """Concatenates the scaled state features; the input order is that of the builder's ``in_keys``."""
 
-    def __init__(self, scale: StateScale, embed: bool, detach_s_e: bool, actions: bool, mobil: bool = False):
+    def __init__(self, scale: StateScale, embed: bool, detach_s_e: bool, actions: bool, mobil: bool = False,
+                 extras=()):
         super().__init__()
         self.scale, self.embed, self.detach_s_e, self.actions, self.mobil = scale, embed, detach_s_e, actions, mobil
+        self.extras = check_extras(extras)
         s = scale
         self.register_buffer("ego_scale", torch.tensor([s.position, s.speed, s.lateral_speed]), persistent=False)
         # REL_FEATURES order: dx (lateral), dy (longitudinal), dvx (lateral), dvy (longitudinal)
@@ -96,7 +159,7 @@ class _StateNet(nn.Module):
 
     def forward(self, ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
         c = self.scale.clip
-        present = mask.to(rel.dtype)
+        present, rel_raw = mask.to(rel.dtype), rel
         rel = torch.where(mask.bool().unsqueeze(-1), rel / self.rel_scale, torch.zeros((), dtype=rel.dtype))
         parts = [(ego / self.ego_scale).clamp(-c, c), rel.clamp(-c, c).flatten(-2), present]
         rest = list(rest)
@@ -111,11 +174,13 @@ class _StateNet(nn.Module):
             lc_action, accel = rest
             parts.append(lc_action.to(ego.dtype))
             parts.append((accel.to(ego.dtype) / self.scale.accel).clamp(-c, c))
+        if self.extras:
+            parts.append(headway_features(ego, rel_raw, mask, self.extras, self.scale).clamp(-c, c))
         return torch.cat(parts, dim=-1)
 
 
 def lc_state(embed: bool = True, *, mobil: bool = False, detach_s_e: bool = False, scale: StateScale = StateScale(),
-             out_key: NestedKey = K.LC_OBS) -> TensorDictModule:
+             out_key: NestedKey = K.LC_OBS, extras=()) -> TensorDictModule:
     """D3QN state ``s_D3QN = [s_AV, Δs_i, s_e]`` — paper Eq. 24 — as a TensorDict module.
 
     Reads ``keys.EGO_STATE`` ``[*B, 3]``, ``keys.NEIGHBORS_REL`` ``[*B, 6, 4]``, ``keys.NEIGHBORS_MASK``
@@ -133,6 +198,8 @@ def lc_state(embed: bool = True, *, mobil: bool = False, detach_s_e: bool = Fals
             embedding, see :mod:`kddrl_trl.modules.sharing`).
         scale (StateScale): input scales. Defaults to ``StateScale()``.
         out_key (NestedKey): defaults to ``keys.LC_OBS``.
+        extras (tuple of str): state extras of :data:`STATE_EXTRAS` appended last (``algo.state_extras``, issue 14,
+            not in the paper). Defaults to none.
 
     Examples:
         >>> import torch
@@ -146,12 +213,12 @@ def lc_state(embed: bool = True, *, mobil: bool = False, detach_s_e: bool = Fals
     """
     in_keys = ([K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
                + ([K.MOBIL_INCENTIVE, K.MOBIL_SAFE] if mobil else []))
-    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=False, mobil=mobil), in_keys=in_keys,
-                            out_keys=[out_key])
+    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=False, mobil=mobil, extras=extras),
+                            in_keys=in_keys, out_keys=[out_key])
 
 
 def cf_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale = StateScale(),
-             out_key: NestedKey = K.CF_OBS, lc_action_key: NestedKey = K.LC_ACTION) -> TensorDictModule:
+             out_key: NestedKey = K.CF_OBS, lc_action_key: NestedKey = K.LC_ACTION, extras=()) -> TensorDictModule:
     """TD3 state ``s_TD3 = [s_AV, Δs_i, s_e, a_D3QN^t, a_TD3^{t-1}]`` — paper Eq. 30 — as a TensorDict module.
 
     Reads the inputs of :func:`lc_state` plus ``keys.LC_ACTION`` ``[*B, 3]`` (the held one-hot lane-change
@@ -171,7 +238,10 @@ def cf_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale 
         lc_action_key (NestedKey): the lane-change action read. Defaults to ``keys.LC_ACTION`` (the command in
             force now); the unified agents, which choose both actions at once, read ``keys.LC_HELD`` (the command
             of the previous frame) into ``keys.JOINT_OBS``.
+        extras (tuple of str): state extras of :data:`STATE_EXTRAS` appended last (``algo.state_extras``, issue 14,
+            not in the paper). Defaults to none.
     """
     in_keys = ([K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
                + [lc_action_key, K.EGO_ACCEL])
-    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=True), in_keys=in_keys, out_keys=[out_key])
+    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=True, extras=extras), in_keys=in_keys,
+                            out_keys=[out_key])

@@ -30,9 +30,10 @@ from ..objectives import PolyakUpdate, make_d3qn, soft_update_tensors
 from .base import STATE_KEYS, Learner, adam, transition_keys
 
 
-def joint_state():
-    """``keys.JOINT_OBS`` of the unified agents: Eq. 30 without s_e, with the previous frame's lane command."""
-    return cf_state(embed=False, lc_action_key=K.LC_HELD, out_key=K.JOINT_OBS)
+def joint_state(extras=()):
+    """``keys.JOINT_OBS`` of the unified agents: Eq. 30 without s_e, with the previous frame's lane command (and the
+    state ``extras`` of ``algo.state_extras``, issue 14, not in the paper)."""
+    return cf_state(embed=False, lc_action_key=K.LC_HELD, out_key=K.JOINT_OBS, extras=extras)
 
 
 #: what a unified agent stores per frame: the raw state, the previous frame's command (LC_HELD, root and next)
@@ -47,20 +48,20 @@ class JointD3QNLearner(Learner):
         d3qn: keyword arguments of :func:`~kddrl_trl.objectives.make_d3qn` and ``lr``; ``eps_decisions`` counts
             decisions, i.e. frames here.
         compile: ``torch.compile`` the update function (the learner's one compile site).
-        device, cudagraphs: as :class:`~kddrl_trl.training.HierarchicalLearner`'s.
+        device, cudagraphs, state_extras: as :class:`~kddrl_trl.training.HierarchicalLearner`'s.
     """
 
     def __init__(self, *, num_levels: int = 7, low: float = -5.0, high: float = 5.0,
                  d3qn: Mapping[str, Any] | None = None, compile: bool | str = False,
-                 device: torch.device | str | None = None, cudagraphs: bool | str = False):
+                 device: torch.device | str | None = None, cudagraphs: bool | str = False, state_extras=()):
         super().__init__()
         kw = dict(d3qn or {})
         self.lr = float(kw.pop("lr", 1e-4))
         levels = accel_levels(num_levels, low, high)
-        self.state = joint_state()
+        self.state = joint_state(tuple(state_extras))
         self.mask = joint_action_mask(len(levels))
         self.reward = joint_reward()
-        self.d3qn = make_d3qn(cf_obs_dim(0), num_actions=3 * len(levels), obs_key=K.JOINT_OBS,
+        self.d3qn = make_d3qn(cf_obs_dim(0, extras=tuple(state_extras)), num_actions=3 * len(levels), obs_key=K.JOINT_OBS,
                               mask_key=K.JOINT_ACTION_MASK, action_key=K.JOINT_ACTION,
                               action_value_key=K.JOINT_ACTION_VALUE, chosen_value_key=K.JOINT_CHOSEN_VALUE,
                               reward_key=K.JOINT_REWARD, **kw)

@@ -53,6 +53,8 @@ class HierarchicalLearner(Learner):
             keyword arguments ``ddpg``).
         mobil_criteria: the lane-change state carries MOBIL's utilities and safety flags (Peng et al.;
             the env must carry :class:`~kddrl_trl.transforms.MOBILCriteria`).
+        state_extras: features appended to both agents' states (``algo.state_extras``: ``thw``, ``ttc``; issue 14,
+            not in the paper; :func:`~kddrl_trl.modules.state.headway_features`).
         embed_lr: learning rate of the embedding's own optimiser.
         compile: ``torch.compile`` the update functions (the learner's one compile site,
             :meth:`~kddrl_trl.training.base.Learner._compile`): removes most of TensorDict's per-call overhead,
@@ -77,7 +79,7 @@ class HierarchicalLearner(Learner):
                  d3qn: Mapping[str, Any] | None = None, td3: Mapping[str, Any] | None = None,
                  embed_lr: float = 3e-4, tau: float | None = None, compile: bool | str = False,
                  cf_agent: str = "td3", ddpg: Mapping[str, Any] | None = None, mobil_criteria: bool = False,
-                 device: torch.device | str | None = None, cudagraphs: bool | str = False):
+                 device: torch.device | str | None = None, cudagraphs: bool | str = False, state_extras=()):
         super().__init__()
         if cf_agent not in CF_AGENTS:
             raise ValueError(f"cf_agent={cf_agent!r}: known car-following agents are {', '.join(CF_AGENTS)}")
@@ -90,11 +92,12 @@ class HierarchicalLearner(Learner):
         self.embed_tau = float(tau if tau is not None else td3_kw.get("tau", 0.005))
         d = embed_dim if self.embedding is not None else 0
         self.mobil_criteria = bool(mobil_criteria)
-        self.lc_state = lc_state(embed=self.embedding is not None, mobil=self.mobil_criteria)
-        self.cf_state = cf_state(embed=self.embedding is not None)
-        self.d3qn = make_d3qn(lc_obs_dim(d, mobil=self.mobil_criteria), **d3qn_kw)
+        extras = tuple(state_extras)
+        self.lc_state = lc_state(embed=self.embedding is not None, mobil=self.mobil_criteria, extras=extras)
+        self.cf_state = cf_state(embed=self.embedding is not None, extras=extras)
+        self.d3qn = make_d3qn(lc_obs_dim(d, mobil=self.mobil_criteria, extras=extras), **d3qn_kw)
         #: the car-following agent's parts (``TD3Parts`` or ``DDPGParts``; the attribute keeps its KDDRL name)
-        self.td3 = CF_AGENTS[cf_agent](cf_obs_dim(d), **td3_kw)
+        self.td3 = CF_AGENTS[cf_agent](cf_obs_dim(d, extras=extras), **td3_kw)
         # registered so that state_dict() holds every network, target and exploration schedule
         self.lc_loss, self.cf_loss = self.d3qn.loss, self.td3.loss
         self.lc_explore, self.cf_explore = self.d3qn.explore, self.td3.explore

@@ -33,17 +33,17 @@ class PASACLearner(Learner):
         pasac: keyword arguments of :func:`~kddrl_trl.objectives.make_pasac` and the learning rates ``actor_lr``,
             ``critic_lr``, ``alpha_lr`` (both temperatures).
         compile: ``torch.compile`` the update function (the learner's one compile site).
-        device, cudagraphs: as :class:`~kddrl_trl.training.HierarchicalLearner`'s.
+        device, cudagraphs, state_extras: as :class:`~kddrl_trl.training.HierarchicalLearner`'s.
     """
 
     def __init__(self, *, pasac: Mapping[str, Any] | None = None, compile: bool | str = False,
-                 device: torch.device | str | None = None, cudagraphs: bool | str = False):
+                 device: torch.device | str | None = None, cudagraphs: bool | str = False, state_extras=()):
         super().__init__()
         kw = dict(pasac or {})
         lr_actor, lr_critic, lr_alpha = (float(kw.pop(k, 3e-4)) for k in ("actor_lr", "critic_lr", "alpha_lr"))
-        self.state = joint_state()
+        self.state = joint_state(tuple(state_extras))
         self.reward = joint_reward()
-        self.pasac = make_pasac(cf_obs_dim(0), obs_key=K.JOINT_OBS, **kw)
+        self.pasac = make_pasac(cf_obs_dim(0, extras=tuple(state_extras)), obs_key=K.JOINT_OBS, **kw)
         self.sac_loss, self.sac_actor = self.pasac.loss, self.pasac.actor
         loss = self.sac_loss
         self.register_buffer("counters", torch.zeros(1, dtype=torch.long))
