@@ -54,7 +54,7 @@ class HierarchicalLearner(Learner):
         mobil_criteria: the lane-change state carries MOBIL's utilities and safety flags (Peng et al.;
             the env must carry :class:`~kddrl_trl.transforms.MOBILCriteria`).
         embed_lr: learning rate of the embedding's own optimiser.
-        compile: ``torch.compile`` the update functions (the learner's one compile site,
+        compile: ``torch.compile`` the losses (the learner's one compile site,
             :meth:`~kddrl_trl.training.base.Learner._compile`): removes most of TensorDict's per-call overhead,
             after a one-off compile; ``"auto"``: when a C++ compiler is found. Measured gain: see
             ``benchmarks/results/train_throughput.json`` (``python benchmarks/train_throughput.py``).
