@@ -219,3 +219,22 @@ def test_benchmark_plain_reference_makes_the_learners_update(samples):
         for a, b, s in zip(ours[name], plain[name], start[name]):
             torch.testing.assert_close(a.detach(), b.detach(), rtol=1e-4, atol=1e-5, msg=name)
         assert any(not torch.equal(a.detach(), s) for a, s in zip(ours[name], start[name])), f"{name} never moved"
+
+
+def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_recompiles_on_a_new_shape():
+    """``WarmCompiled`` (the compiled loss of a CPU learner): every name first compiles with its guards; then the
+    names still pick their own graphs without the full guards, and an input of a new shape (a graph that does not
+    exist) is compiled and run with every guard instead of failing or reusing a wrong graph."""
+    from kddrl_trl.compiling import WarmCompiled
+
+    def loss(name, x):
+        return x * 2.0 if name == "double" else x + 1.0
+
+    fn = WarmCompiled(torch.compile(loss, dynamic=False, backend="eager"), warmup=1)
+    x = torch.arange(4.0)
+    assert torch.equal(fn("double", x), x * 2.0) and torch.equal(fn("inc", x), x + 1.0)
+    assert fn.calls == {"double": 1, "inc": 1}
+    for _ in range(2):  # warm: guards skipped, each name still runs its own graph
+        assert torch.equal(fn("inc", x), x + 1.0) and torch.equal(fn("double", x), x * 2.0)
+    y = torch.arange(6.0).reshape(2, 3)
+    assert torch.equal(fn("double", y), y * 2.0)
