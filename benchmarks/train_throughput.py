@@ -8,8 +8,8 @@
     modules (deep copies holding the losses' weights), the same batch tensors and the same arithmetic (double-DQN
     target with masked argmax, twin critics with clipped target smoothing, the D3QN's greedy next lane-change
     action on decision frames in the TD3 target, delayed actor on detached s_e, Polyak updates of every target
-    incl. the embedding's; :class:`PlainKDDRL`, proved equal by ``tests/test_learner_update.py``). ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs
-    nothing extra). Replay sampling is outside the timed part for both.
+    incl. the embedding's; :class:`PlainKDDRL`, proved equal by ``tests/test_learner_update.py``).
+    ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs nothing extra). Replay sampling is outside the timed part for both.
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
     ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is
     found) + DecisionClock + both exploring policies through
@@ -155,7 +155,8 @@ class PlainKDDRL:
         self.actor = _loaded(L.td3.actor.module, td3.actor_network_params, "module.")
         self.actor_t = _loaded(self.actor, td3.target_actor_network_params, "module.")
         self.critics = [_loaded(L.td3.critic.module, td3.qvalue_network_params[k], "module.") for k in range(2)]
-        self.critics_t = [_loaded(c, td3.target_qvalue_network_params[k], "module.") for k, c in enumerate(self.critics)]
+        self.critics_t = [_loaded(c, td3.target_qvalue_network_params[k], "module.")
+                          for k, c in enumerate(self.critics)]
         for m in (self.fusion, self.embed, self.t_fusion, self.t_embed, self.lc_state, self.cf_state, self.q,
                   self.q_t, self.actor, self.actor_t, *self.critics, *self.critics_t):
             m.to(device)

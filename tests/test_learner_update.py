@@ -75,7 +75,8 @@ def test_update_functions_give_the_parameters_of_the_torchrl_reference_loop(samp
 
 @pytest.mark.slow
 def test_compiled_update_functions_match_the_eager_ones(samples, monkeypatch):
-    """``compile=True`` (the one compile site: each update function through ``torch.compile``) gives the eager
+    """``compile=True`` (the one compile site: the learner's loss through ``torch.compile``, its guards skipped once
+    warm: ``WarmCompiled``) gives the eager
     parameters after the same updates, within float tolerance (Inductor's own RNG would draw other TD3 target
     noise than eager PyTorch: ``fallback_random`` makes it draw the same)."""
     import torch._inductor.config as inductor_config
