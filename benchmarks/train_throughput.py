@@ -5,10 +5,11 @@
     of :class:`kddrl_trl.training.HierarchicalLearner` (TorchRL ``TD3Loss`` / ``DQNLoss`` / ``SoftUpdate``,
     TensorDict states, shared embedding), eager and compiled (``compile=True``: the learner's one compile
     site, :meth:`HierarchicalLearner.loss`), against a **plain-PyTorch reference** with the *same* network
-    modules (deep copies), the same batch tensors and the same arithmetic (double-DQN target with masked
-    argmax, twin critics with clipped target smoothing, delayed actor on detached s_e, Polyak updates of
-    every target incl. the embedding's). ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs
-    nothing extra). Replay sampling is outside the timed part for both.
+    modules (deep copies holding the losses' weights), the same batch tensors and the same arithmetic (double-DQN
+    target with masked argmax, twin critics with clipped target smoothing, the D3QN's greedy next lane-change
+    action on decision frames in the TD3 target, delayed actor on detached s_e, Polyak updates of every target
+    incl. the embedding's; :class:`PlainKDDRL`, proved equal by ``tests/test_learner_update.py``).
+    ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs nothing extra). Replay sampling is outside the timed part for both.
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
     ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is
     found) + DecisionClock + both exploring policies through
@@ -102,45 +103,82 @@ def collect_env(k: int, compile: bool | str | None = None, *, seed: int) -> Tran
 
 
 # ------------------------------------------------------------------------------------ plain reference
+def _loaded(module: torch.nn.Module, params, prefix: str) -> torch.nn.Module:
+    """A deep copy of ``module`` holding copies of the weights in ``params`` (a TorchRL loss's ``TensorDictParams``,
+    its keys ``prefix`` + the module's ``state_dict`` names)."""
+    out = copy.deepcopy(module)
+    flat = params.flatten_keys(".")
+    out.load_state_dict({name: flat[prefix + name].detach().clone() for name in out.state_dict()})
+    return out
+
+
 class PlainKDDRL:
     """The same update as ``HierarchicalLearner`` in plain PyTorch on tensors (no TensorDict, no TorchRL), on the
-    learner's device (all its network copies and optimisers there)."""
+    learner's device (all its network copies and optimisers there). Item by item what the learner computes
+    (``tests/test_learner_update.py`` checks that both reach the same parameters from the same weights and batches):
+
+    - TD3 critic step (``TD3Loss.value_loss``, Eq. 6-7): the target action ``clip(mu'(s') + clip(eps, -c, c))``,
+      ``eps ~ N(0, policy_noise)`` drawn first (``randn_like`` of the action, as ``TD3Loss`` does), the min of the two
+      target critics, ``y = r_cf + gamma (1 - terminated) min Q'``; the loss is the sum over both critics of the
+      batch-mean squared error; it trains the critics and the shared embedding (their own optimisers).
+    - The next state's lane-change action in the TD3 target (F6 of issue 14, ``build_agent_states``): where the next
+      frame is a decision frame (``("next", "lc", "decide")``), the D3QN's greedy choice (online Q, next state
+      with the target s_e, next action mask, the one-hot of the max as TorchRL's ``QValueModule`` writes it); the
+      held root action elsewhere.
+    - Every ``policy_delay`` -th critic step: the actor step (``TD3Loss.actor_loss``, Eq. 8: ``-Q_1(s, mu(s))``,
+      the first critic after its step, critic parameters and s_e detached), then the Polyak updates of the actor,
+      both critics (TD3 tau) and the target embedding (embedding tau).
+    - D3QN step (``DQNLoss(double_dqn=True)``, Eq. 4): argmax of the online Q on the next state (target s_e, masked
+      by the next action mask), valued by the target Q; ``y = r_lc + gamma (1 - terminated) Q'(s', a*)``, the
+      mean squared error on ``Q(s, a)`` of the stored one-hot action; trains Q and the embedding; then the Polyak
+      updates of the target Q (D3QN tau) and the target embedding (every step).
+
+    The networks are deep copies of the learner's, the learning rates and taus the learner's, the optimisers the
+    learner's kind (:func:`kddrl_trl.training.base.adam`, fused)."""
 
     def __init__(self, learner: HierarchicalLearner):
         L = learner
         device = L.device
+        if L.embedding is None or len(L.embedding) != 2:
+            raise ValueError("PlainKDDRL mirrors the KDDRL learner (priors and key gaps on): got another embedding")
         self.fusion = copy.deepcopy(L.embedding[0].module)          # PriorFusion net (Eq. 23)
         self.embed = copy.deepcopy(L.embedding[1].module)           # SharedEmbedding net (Eq. 24)
-        self.t_fusion, self.t_embed = copy.deepcopy(self.fusion), copy.deepcopy(self.embed)
+        self.t_fusion = copy.deepcopy(L.target_embedding[0].module)
+        self.t_embed = copy.deepcopy(L.target_embedding[1].module)
         self.lc_state = copy.deepcopy(L.lc_state.module)
         self.cf_state = copy.deepcopy(L.cf_state.module)
-        self.q = copy.deepcopy(L.d3qn.actor.module[0].module)        # DuelingQNet
-        self.q_t = copy.deepcopy(self.q)
-        self.actor = copy.deepcopy(L.td3.actor.module)
-        self.actor_t = copy.deepcopy(self.actor)
-        self.critics = [copy.deepcopy(L.td3.critic.module) for _ in range(2)]
-        self.critics_t = [copy.deepcopy(c) for c in self.critics]
+        td3, d3 = L.cf_loss, L.lc_loss
+        # the losses hold the networks' weights (TD3Loss re-samples its two critics, and keeps the targets): copy
+        # the modules, then load every weight from the loss that owns it
+        self.q = _loaded(L.d3qn.actor.module[0].module, d3.value_network_params, "module.0.module.")  # DuelingQNet
+        self.q_t = _loaded(self.q, d3.target_value_network_params, "module.0.module.")
+        self.actor = _loaded(L.td3.actor.module, td3.actor_network_params, "module.")
+        self.actor_t = _loaded(self.actor, td3.target_actor_network_params, "module.")
+        self.critics = [_loaded(L.td3.critic.module, td3.qvalue_network_params[k], "module.") for k in range(2)]
+        self.critics_t = [_loaded(c, td3.target_qvalue_network_params[k], "module.")
+                          for k, c in enumerate(self.critics)]
         for m in (self.fusion, self.embed, self.t_fusion, self.t_embed, self.lc_state, self.cf_state, self.q,
                   self.q_t, self.actor, self.actor_t, *self.critics, *self.critics_t):
             m.to(device)
         for m in (self.t_fusion, self.t_embed, self.q_t, self.actor_t, *self.critics_t):
             m.requires_grad_(False)
-        td3, d3 = L.cf_loss, L.lc_loss
         self.gamma_cf = float(td3.value_estimator.gamma)
         self.gamma_lc = float(d3.value_estimator.gamma)
         self.policy_noise, self.noise_clip = float(td3.policy_noise), float(td3.noise_clip)
-        self.low, self.high = -5.0, 5.0
-        self.delay, self.tau = L.td3.policy_delay, L.embed_tau
+        self.low, self.high = float(td3.min_action), float(td3.max_action)
+        self.delay = L.td3.policy_delay
+        self.tau_cf = 1.0 - float(L.td3.target_updater.eps)
+        self.tau_lc = 1.0 - float(L.d3qn.target_updater.eps)
+        self.tau_embed = L.embed_tau
         emb_params = [*self.fusion.parameters(), *self.embed.parameters()]
-        self.opt_embed = adam(emb_params, 3e-4, device)  # the learner's optimiser settings (fused Adam)
-        self.opt_q = adam(self.q.parameters(), 1e-4, device)
-        self.opt_actor = adam(self.actor.parameters(), 3e-4, device)
-        self.opt_critic = adam([p for c in self.critics for p in c.parameters()], 3e-4, device)
-        self.pairs_cf = [(t, s) for a, b in [(self.actor_t, self.actor), *zip(self.critics_t, self.critics),
-                                             (self.t_fusion, self.fusion), (self.t_embed, self.embed)]
-                         for t, s in zip(a.parameters(), b.parameters())]
-        self.pairs_lc = [(t, s) for a, b in [(self.q_t, self.q), (self.t_fusion, self.fusion), (self.t_embed, self.embed)]
-                         for t, s in zip(a.parameters(), b.parameters())]
+        self.opt_embed = adam(emb_params, L.opt_embed.param_groups[0]["lr"], device)  # the learner's optimisers
+        self.opt_q = adam(self.q.parameters(), L.lr_lc, device)
+        self.opt_actor = adam(self.actor.parameters(), L.lr_actor, device)
+        self.opt_critic = adam([p for c in self.critics for p in c.parameters()], L.lr_critic, device)
+        emb_pairs = [(self.t_fusion, self.fusion), (self.t_embed, self.embed)]
+        self.soft_cf = [(self.tau_cf, [(self.actor_t, self.actor), *zip(self.critics_t, self.critics)]),
+                        (self.tau_embed, emb_pairs)]
+        self.soft_lc = [(self.tau_lc, [(self.q_t, self.q)]), (self.tau_embed, emb_pairs)]
         self.updates = 0
 
     def _s_e(self, x: dict, target: bool) -> torch.Tensor:
@@ -148,17 +186,27 @@ class PlainKDDRL:
         p_lc = fusion(x["p_lcgan"], x["p_mobil"])
         return embed(p_lc, x["gaps"])
 
-    def _soft(self, pairs) -> None:
-        with torch.no_grad():
-            torch._foreach_lerp_([t for t, _ in pairs], [s for _, s in pairs], self.tau)
+    @staticmethod
+    @torch.no_grad()
+    def _soft(groups) -> None:
+        for tau, modules in groups:
+            pairs = [(t, s) for a, b in modules for t, s in zip(a.parameters(), b.parameters())]
+            torch._foreach_lerp_([t for t, _ in pairs], [s for _, s in pairs], tau)
+
+    def _greedy_lc(self, obs: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The D3QN's greedy one-hot action (online Q, invalid commands masked), as ``QValueModule`` writes it."""
+        q = torch.where(mask, self.q(obs), torch.finfo(obs.dtype).min)
+        return (q == q.max(-1, keepdim=True)[0]).to(obs.dtype)
 
     def update_cf(self, x: dict, nx: dict) -> None:
+        noise = (torch.randn_like(x["cf_action"]) * self.policy_noise).clamp(-self.noise_clip, self.noise_clip)
         s_e = self._s_e(x, False)
         obs = self.cf_state(x["ego"], x["rel"], x["mask"], s_e, x["lc_action"], x["accel"])
         with torch.no_grad():
             s_e2 = self._s_e(nx, True)
-            obs2 = self.cf_state(nx["ego"], nx["rel"], nx["mask"], s_e2, x["lc_action"], nx["accel"])
-            noise = (torch.randn_like(x["cf_action"]) * self.policy_noise).clamp(-self.noise_clip, self.noise_clip)
+            chosen = self._greedy_lc(self.lc_state(nx["ego"], nx["rel"], nx["mask"], s_e2), nx["action_mask"])
+            lc2 = torch.where(nx["decide"], chosen, x["lc_action"])
+            obs2 = self.cf_state(nx["ego"], nx["rel"], nx["mask"], s_e2, lc2, nx["accel"])
             a2 = (self.actor_t(obs2) + noise).clamp(self.low, self.high)
             q2 = torch.minimum(self.critics_t[0](obs2, a2), self.critics_t[1](obs2, a2))
             y = nx["r_cf"] + self.gamma_cf * (~nx["terminated"]).float() * q2
@@ -180,15 +228,15 @@ class PlainKDDRL:
             self.opt_actor.step()
             for p in self.critics[0].parameters():
                 p.requires_grad_(True)
-            self._soft(self.pairs_cf)
+            self._soft(self.soft_cf)
 
     def update_lc(self, x: dict, nx: dict) -> None:
         obs = self.lc_state(x["ego"], x["rel"], x["mask"], self._s_e(x, False))
         with torch.no_grad():
             obs2 = self.lc_state(nx["ego"], nx["rel"], nx["mask"], self._s_e(nx, True))
-            q_online = self.q(obs2).masked_fill(~nx["action_mask"], torch.finfo(torch.float32).min)
-            best = q_online.argmax(-1, keepdim=True)
-            y = nx["r_lc"] + self.gamma_lc * (~nx["terminated"]).float() * self.q_t(obs2).gather(-1, best)
+            best = self._greedy_lc(obs2, nx["action_mask"])
+            q2 = (self.q_t(obs2) * best).sum(-1, keepdim=True)
+            y = nx["r_lc"] + self.gamma_lc * (~nx["terminated"]).float() * q2
         q = (self.q(obs) * x["lc_action"]).sum(-1, keepdim=True)
         loss = F.mse_loss(q, y)
         self.opt_q.zero_grad(set_to_none=True)
@@ -196,10 +244,11 @@ class PlainKDDRL:
         loss.backward()
         self.opt_q.step()
         self.opt_embed.step()
-        self._soft(self.pairs_lc)
+        self._soft(self.soft_lc)
 
 
 def tensors(td, device: torch.device | str = "cpu") -> tuple[dict, dict]:
+    """A replay-buffer sample as the plain reference's two dicts of tensors (root, ``"next"``), on ``device``."""
     td = td.to(device)
 
     def one(t):
@@ -208,7 +257,9 @@ def tensors(td, device: torch.device | str = "cpu") -> tuple[dict, dict]:
                 "gaps": t[K.PRED_KEY_GAPS], "action_mask": t[K.LC_ACTION_MASK]}
     x, nx = one(td), one(td["next"])
     x.update(lc_action=td[K.LC_ACTION].float(), cf_action=td[K.CF_ACTION])
-    nx.update(r_cf=td["next", K.CF_REWARD], r_lc=td["next", K.LC_REWARD], terminated=td["next", "terminated"])
+    nx.update(r_cf=td["next", K.CF_REWARD], r_lc=td["next", K.LC_REWARD], terminated=td["next", "terminated"],
+              decide=td["next", K.LC_DECIDE].reshape(*td.batch_size, 1).bool() if ("next", *K.LC_DECIDE) in
+              td.keys(True) else None)
     return x, nx
 
 

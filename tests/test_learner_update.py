@@ -75,7 +75,8 @@ def test_update_functions_give_the_parameters_of_the_torchrl_reference_loop(samp
 
 @pytest.mark.slow
 def test_compiled_update_functions_match_the_eager_ones(samples, monkeypatch):
-    """``compile=True`` (the one compile site: each update function through ``torch.compile``) gives the eager
+    """``compile=True`` (the one compile site: the learner's loss through ``torch.compile``, its guards skipped once
+    warm: ``WarmCompiled``) gives the eager
     parameters after the same updates, within float tolerance (Inductor's own RNG would draw other TD3 target
     noise than eager PyTorch: ``fallback_random`` makes it draw the same)."""
     import torch._inductor.config as inductor_config
@@ -142,3 +143,99 @@ def test_cuda_learner_with_cudagraphs_matches_the_cpu_one_and_checkpoints_cross_
     got, ref = cpu_state(gpu), cpu_state(back)
     for name in ref:
         torch.testing.assert_close(ref[name], got[name], msg=name)
+
+
+def train_throughput():
+    """``benchmarks/train_throughput.py`` as a module (its plain-PyTorch reference ``PlainKDDRL``)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "train_throughput.py"
+    spec = importlib.util.spec_from_file_location("train_throughput", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def plain_tensors(ref) -> dict:
+    """The plain reference's networks as named tensors, under the names of the learner's losses."""
+    out = {"embedding": [*ref.fusion.parameters(), *ref.embed.parameters()],
+           "target_embedding": [*ref.t_fusion.parameters(), *ref.t_embed.parameters()],
+           "q": list(ref.q.parameters()), "q_target": list(ref.q_t.parameters()),
+           "actor": list(ref.actor.net.parameters()), "actor_target": list(ref.actor_t.net.parameters())}
+    for k in range(2):
+        out[f"critic{k}"] = list(ref.critics[k].parameters())
+        out[f"critic{k}_target"] = list(ref.critics_t[k].parameters())
+    return out
+
+
+def learner_tensors(learner: HierarchicalLearner) -> dict:
+    td3, d3 = learner.cf_loss, learner.lc_loss
+
+    def leaves(params, skip=("loc", "scale")):
+        return [v for k, v in params.flatten_keys(".").items() if k.split(".")[-1] not in skip]
+    out = {"embedding": list(learner.embedding.parameters()),
+           "target_embedding": list(learner.target_embedding.parameters()),
+           "q": leaves(d3.value_network_params), "q_target": leaves(d3.target_value_network_params),
+           "actor": leaves(td3.actor_network_params), "actor_target": leaves(td3.target_actor_network_params)}
+    for k in range(2):
+        out[f"critic{k}"] = leaves(td3.qvalue_network_params[k])
+        out[f"critic{k}_target"] = leaves(td3.target_qvalue_network_params[k])
+    return out
+
+
+def test_benchmark_plain_reference_makes_the_learners_update(samples):
+    """``PlainKDDRL`` (the plain-PyTorch reference of ``benchmarks/train_throughput.py``) computes the learner's
+    update: from the same weights, on the same batches, with the same TD3 target noise (same seeds), both reach the
+    same networks and targets after 6 TD3 and 3 D3QN updates, the D3QN's greedy next lane-change action in the TD3
+    target (F6) included: the batches hold decision frames where it differs from the held action."""
+    tt = train_throughput()
+    frames, macros = samples
+    torch.manual_seed(1)
+    learner = HierarchicalLearner(**SMALL)
+    ref = tt.PlainKDDRL(learner)
+    ours, plain = learner_tensors(learner), plain_tensors(ref)
+    for name in ours:
+        assert len(ours[name]) == len(plain[name]), name
+        for a, b in zip(ours[name], plain[name]):
+            torch.testing.assert_close(a.detach(), b.detach(), rtol=0, atol=0, msg=name)
+    start = {n: [t.detach().clone() for t in ts] for n, ts in ours.items()}
+    f6 = 0
+    for i, (f, m) in enumerate(zip(frames, macros * 2)):
+        x, nx = tt.tensors(f)
+        with torch.no_grad():
+            obs2 = ref.lc_state(nx["ego"], nx["rel"], nx["mask"], ref._s_e(nx, True))
+            differs = (ref._greedy_lc(obs2, nx["action_mask"]) != x["lc_action"]).any(-1, keepdim=True)
+        f6 += int((differs & nx["decide"]).sum())
+        torch.manual_seed(100 + i)
+        learner.update_cf(f)
+        torch.manual_seed(100 + i)
+        ref.update_cf(x, nx)
+        if i % 2 == 0:
+            learner.update_lc(m)
+            ref.update_lc(*tt.tensors(m))
+    assert f6 > 0, "no decision frame where the D3QN's next choice differs from the held action: F6 untested"
+    ours, plain = learner_tensors(learner), plain_tensors(ref)
+    for name in ours:
+        for a, b, s in zip(ours[name], plain[name], start[name]):
+            torch.testing.assert_close(a.detach(), b.detach(), rtol=1e-4, atol=1e-5, msg=name)
+        assert any(not torch.equal(a.detach(), s) for a, s in zip(ours[name], start[name])), f"{name} never moved"
+
+
+def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_recompiles_on_a_new_shape():
+    """``WarmCompiled`` (the compiled loss of a CPU learner): every name first compiles with its guards; then the
+    names still pick their own graphs without the full guards, and an input of a new shape (a graph that does not
+    exist) is compiled and run with every guard instead of failing or reusing a wrong graph."""
+    from kddrl_trl.compiling import WarmCompiled
+
+    def loss(name, x):
+        return x * 2.0 if name == "double" else x + 1.0
+
+    fn = WarmCompiled(torch.compile(loss, dynamic=False, backend="eager"), warmup=1)
+    x = torch.arange(4.0)
+    assert torch.equal(fn("double", x), x * 2.0) and torch.equal(fn("inc", x), x + 1.0)
+    assert fn.calls == {"double": 1, "inc": 1}
+    for _ in range(2):  # warm: guards skipped, each name still runs its own graph
+        assert torch.equal(fn("inc", x), x + 1.0) and torch.equal(fn("double", x), x * 2.0)
+    y = torch.arange(6.0).reshape(2, 3)
+    assert torch.equal(fn("double", y), y * 2.0)

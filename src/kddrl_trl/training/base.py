@@ -27,7 +27,8 @@ Each learner names its gradient steps as update functions (:meth:`Learner.update
 ``sota-implementations`` (td3, dqn) write ``update(batch)``: loss, backward, optimiser steps and soft target
 updates (:class:`~kddrl_trl.objectives.PolyakUpdate`, one ``torch._foreach_lerp_`` per group of targets) in one
 function of a sampled batch that returns its detached losses. :meth:`Learner._compile` is the learner's one compile
-site: each function is ``torch.compile`` d (``compile``), then, on CUDA with ``cudagraphs``, wrapped in
+site: with ``compile``, the learner's :meth:`Learner.loss` is ``torch.compile`` d and called without guard evaluation
+once warm (the CPU); on CUDA with ``cudagraphs``, each update function is ``torch.compile`` d whole and wrapped in
 ``tensordict.nn.CudaGraphModule`` (optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed).
 """
 from __future__ import annotations
@@ -41,7 +42,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from .. import keys as K
-from ..compiling import resolve_compile
+from ..compiling import WarmCompiled, resolve_compile
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
 STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
@@ -116,14 +117,24 @@ class Learner(nn.Module):
         return self.device
 
     def _compile(self, compile: bool | str, cudagraphs: bool | str = False) -> None:
-        """The learner's one compile site (module docstring): each of :meth:`update_functions` is
-        ``torch.compile`` d (fixed minibatch shapes, ``dynamic=False``) when ``compile`` (``"auto"``: when a C++
-        compiler is found), then wrapped in ``CudaGraphModule`` when ``cudagraphs`` (``"auto"``: on CUDA)."""
+        """The learner's one compile site (module docstring), when ``compile`` (``"auto"``: when a C++ compiler is
+        found), with fixed minibatch shapes (``dynamic=False``):
+
+        - without CUDA graphs (the CPU): the learner's :meth:`loss` is ``torch.compile`` d and, once warm, called
+          without TorchDynamo's guard evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the update functions
+          around it stay eager: ``backward`` (the compiled backward graph), fused Adam and ``_foreach_lerp_`` are
+          one call each already, and each of them would be a graph break (with its guarded resume frames) inside a
+          compiled update function (``benchmarks/train_throughput.py``: TorchDynamo's cache lookups were 40 % of a
+          compiled TD3 update; now the update costs what a plain-PyTorch one does);
+        - with ``cudagraphs`` (``"auto"``: on CUDA): each of :meth:`update_functions` is ``torch.compile`` d whole and
+          wrapped in ``CudaGraphModule``, whose replays skip Python, guards included."""
         self.compiled = resolve_compile(compile)
         self.cudagraphs = resolve_cudagraphs(cudagraphs, self.device)
+        if self.compiled and not self.cudagraphs:
+            self.__dict__["loss"] = WarmCompiled(torch.compile(self.loss, dynamic=False))
         fns = {}
         for name, fn in self.update_functions().items():
-            if self.compiled:
+            if self.compiled and self.cudagraphs:
                 fn = torch.compile(fn, dynamic=False)
             if self.cudagraphs:
                 from tensordict.nn import CudaGraphModule

@@ -56,7 +56,7 @@ class HierarchicalLearner(Learner):
         state_extras: features appended to both agents' states (``algo.state_extras``: ``thw``, ``ttc``; issue 14,
             not in the paper; :func:`~kddrl_trl.modules.state.headway_features`).
         embed_lr: learning rate of the embedding's own optimiser.
-        compile: ``torch.compile`` the update functions (the learner's one compile site,
+        compile: ``torch.compile`` the losses (the learner's one compile site,
             :meth:`~kddrl_trl.training.base.Learner._compile`): removes most of TensorDict's per-call overhead,
             after a one-off compile; ``"auto"``: when a C++ compiler is found. Measured gain: see
             ``benchmarks/results/train_throughput.json`` (``python benchmarks/train_throughput.py``).
