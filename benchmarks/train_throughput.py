@@ -263,13 +263,14 @@ def tensors(td, device: torch.device | str = "cpu") -> tuple[dict, dict]:
     return x, nx
 
 
-def sample_batches(n_frames: int, seed: int, keys: list):
+def sample_batches(n_frames: int, seed: int, keys: list, batch_size_cf: int | None = None):
     """Frames and macro-transitions with every key the learner reads (from the fake env: only shapes and
-    plausible values matter for timing)."""
+    plausible values matter for timing); TD3 minibatches of ``batch_size_cf`` (None: training's)."""
     env = TransformedEnv(FakeHighwayEnv(num_roads=8, seed=seed), Compose(make_kddrl_transforms(seed=seed),
                                                                           DecisionClock(20)))
     learner = HierarchicalLearner(**learner_kwargs(False)[0])
-    rb_cf, rb_lc = make_buffer(10 * n_frames, batch_sizes()[0], seed), make_buffer(10 * n_frames, batch_sizes()[1], seed)
+    rb_cf = make_buffer(10 * n_frames, batch_size_cf or batch_sizes()[0], seed)
+    rb_lc = make_buffer(10 * n_frames, batch_sizes()[1], seed)
     mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=50, frame_buffer=rb_cf,
                                            macro_buffer=rb_lc, frame_keys=keys)
     for _ in mtc:
@@ -306,28 +307,34 @@ def time_updates(update_cf, update_lc, cf_batches, lc_batches, lc_period: int,
     return t_cf, t_lc, t_cf + t_lc / lc_period
 
 
-def measure_update(updates: int, seed: int, repeats: int, device: torch.device = torch.device("cpu")) -> dict:
+def measure_update(updates: int, seed: int, repeats: int, device: torch.device = torch.device("cpu"),
+                   batch_size_cf: int | None = None) -> dict:
     """The three arms (plain reference, eager learner, compiled learner) on the same batches, taking turns
     ``repeats`` times (the drifts of a shared machine hit all alike); medians over the turns. On ``device``
-    (CUDA: the compiled arm is also CUDA-graphed; the learners' batches are moved there by the learner, as in
-    training, the plain reference's beforehand)."""
+    (CUDA: the compiled arms are also CUDA-graphed; the batches are on the device beforehand, as the learner's
+    buffers sample them there, and in the extra arm ``compiled_cpu_batches`` moved there by the learner, update by
+    update, as when the buffers stay on the CPU)."""
     torch.manual_seed(seed)
     kw, lc_period = learner_kwargs(False)
     probe = HierarchicalLearner(**kw)
-    rb_cf, rb_lc = sample_batches(4000, seed, probe.buffer_keys())
+    rb_cf, rb_lc = sample_batches(4000, seed, probe.buffer_keys(), batch_size_cf)
     cf_batches = [rb_cf.sample() for _ in range(updates)]
     lc_batches = [rb_lc.sample() for _ in range(max(updates // 4, 20))]
     arms = {}
-    for name in ("plain", "eager", "compiled"):
-        compiled = name == "compiled"
+    names = ("plain", "eager", "compiled") + (("compiled_cpu_batches",) if device.type == "cuda" else ())
+    on_device = [b.to(device) for b in cf_batches], [b.to(device) for b in lc_batches]  # as the buffers sample
+    for name in names:
+        compiled = name.startswith("compiled")
         learner = HierarchicalLearner(**learner_kwargs(compiled)[0], device=device,
                                       cudagraphs=compiled and device.type == "cuda")
         if name == "plain":
             ref = PlainKDDRL(learner)
             arms[name] = (lambda b: ref.update_cf(*b), lambda b: ref.update_lc(*b),
                           [tensors(b, device) for b in cf_batches], [tensors(b, device) for b in lc_batches])
-        else:
+        elif name == "compiled_cpu_batches":  # the batches moved by the learner, update by update
             arms[name] = (learner.update_cf, learner.update_lc, cf_batches, lc_batches)
+        else:
+            arms[name] = (learner.update_cf, learner.update_lc, *on_device)
     runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
     for _ in range(repeats):
         for name, fns in arms.items():
@@ -347,6 +354,47 @@ def measure_update(updates: int, seed: int, repeats: int, device: torch.device =
 
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
+
+
+class _OnDevice(torch.nn.Module):
+    """A policy run on ``device``: inputs moved there, actions moved back to the env's CPU TensorDict."""
+
+    def __init__(self, policy, device: torch.device):
+        super().__init__()
+        self.policy, self.device = policy, device
+
+    def forward(self, td):
+        out = self.policy(td.select(*self.policy.in_keys, strict=False).to(self.device, non_blocking=True))
+        for key in self.policy.out_keys:
+            td.set(key, out.get(key).cpu())
+        return td
+
+
+def measure_acting(k: int, calls: int, seed: int, devices: list[torch.device]) -> dict:
+    """(p): milliseconds per call of the exploring acting policy (both agents, ``learner.policy()``) on a ``k``-row
+    TensorDict of the env (fake env + KDDRL transform stack + decision clock, on the CPU as in training), with the
+    learner on each of ``devices``: the policy run on that device, its inputs moved there and its actions back
+    (for a CUDA learner what TorchRL's ``policy_device`` does). Tells where acting is fastest: training acts on the
+    CPU (:class:`~kddrl_trl.training.base.CpuPolicy`) because the CPU measured faster."""
+    env = TransformedEnv(FakeHighwayEnv(num_roads=k, seed=seed),
+                         Compose(make_kddrl_transforms(seed=seed), DecisionClock(learner_kwargs(False)[1])))
+    td = env.reset()
+    rows = {}
+    for device in devices:
+        learner = HierarchicalLearner(**learner_kwargs(False)[0], device=device)
+        policy = learner._policy() if device.type == "cpu" else _OnDevice(learner._policy(), device)
+        with torch.no_grad():
+            for _ in range(20):
+                policy(td.clone())
+            _sync(device)
+            t0 = time.perf_counter()
+            for _ in range(calls):
+                policy(td.clone())
+            _sync(device)
+        rows[str(device)] = 1e3 * (time.perf_counter() - t0) / calls
+        print(f"  acting policy, learner on {device}, K={k}: {rows[str(device)]:.2f} ms per call", flush=True)
+    env.close()
+    return {"num_roads": k, "calls": calls, "ms_per_call": rows, "fastest": min(rows, key=rows.get)}
 
 
 def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile: bool | str | None = None) -> dict:
@@ -430,6 +478,10 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "train_throughput.json")
     p.add_argument("--device", default="cpu", help="where (a) runs: cpu | cuda (cuda adds the 'gpu' entry)")
     p.add_argument("--skip-collect", action="store_true", help="leave (b) out")
+    p.add_argument("--batch-size-cf", type=int, default=None, help="(a): TD3 minibatch (default: training's 128)")
+    p.add_argument("--acting-calls", type=int, default=0,
+                   help="(p): time this many acting-policy calls at each K of --roads, learner on the CPU and on "
+                        "--device (0: skip)")
     p.add_argument("--skip-update", action="store_true", help="leave (a) out")
     p.add_argument("--workers", default="", help="(w): comma-separated worker counts, e.g. 1,2 (1 must be in)")
     p.add_argument("--workers-roads", type=int, default=8, help="(w): roads per worker")
@@ -441,7 +493,10 @@ def main(argv=None) -> int:
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise SystemExit(f"--device {args.device}: no CUDA device is available here")
-    update = None if args.skip_update else measure_update(args.updates, args.seed, args.repeats, device)
+    update = None if args.skip_update else measure_update(args.updates, args.seed, args.repeats, device,
+                                                          args.batch_size_cf)
+    acting = [measure_acting(k, args.acting_calls, args.seed, list(dict.fromkeys([torch.device("cpu"), device])))
+              for k in args.roads] if args.acting_calls else []
     collect = [] if args.skip_collect else [measure_collect(k, args.frames, args.seed, args.clock, compile)
                                             for k in args.roads]
     for c in collect:
@@ -457,10 +512,16 @@ def main(argv=None) -> int:
     if update is not None and device.type == "cuda":
         result["gpu"] = {"device_name": torch.cuda.get_device_name(device),
                          **{f"{arm}_{agent}_updates_per_s": 1.0 / update[arm][f"{agent}_update_s"]
-                            for arm in ("compiled", "eager", "plain") for agent in ("td3", "d3qn")},
+                            for arm in ("compiled", "compiled_cpu_batches", "eager", "plain")
+                            for agent in ("td3", "d3qn")},
                          "td3_updates_per_s": 1.0 / update["compiled"]["td3_update_s"],
                          "d3qn_updates_per_s": 1.0 / update["compiled"]["d3qn_update_s"],
+                         "batch_size_cf": update["batch_size_cf"],
                          "ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]}
+        if acting:
+            result["gpu"]["acting"] = acting
+    elif acting:
+        result["acting"] = acting
     elif update is not None:
         result["update_ratio_vs_plain"] = update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]
         result["update_ratio_vs_plain_eager"] = update["plain"]["per_frame_s"] / update["eager"]["per_frame_s"]
@@ -486,7 +547,7 @@ def main(argv=None) -> int:
         print(f"\n{'learner (per collected frame)':<34}{'TD3 upd/s':>10}{'D3QN upd/s':>11}{'frame cost ms':>14}"
               f"{'ratio vs plain':>15}")
         print(f"(device {update['device']})")
-        for name in ("plain", "eager", "compiled"):
+        for name in [n for n in ("plain", "eager", "compiled", "compiled_cpu_batches") if n in update]:
             r = update[name]
             print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}"
                   f"{1e3 * r['per_frame_s']:>14.2f}{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")

@@ -158,3 +158,48 @@ def test_every_comparison_learner_acts_and_learns_with_the_headway_and_ttc_extra
         assert moved(before, learner, "lc_loss.value_network_params")
     assert moved(before, learner, "cf_loss." if system == "peng" else
                  ("q_loss." if system == "d3qn_unified" else "sac_loss."))
+
+
+# ------------------------------------------------------------------ every learner on a GPU (issue 15)
+def _cpu_state(learner) -> dict:
+    return {k: v.detach().cpu() for k, v in learner.state_dict().items() if k != "counters"}
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+@pytest.mark.parametrize("system", ["peng", "d3qn_unified", "pasac_unified"])
+@pytest.mark.parametrize("compile", [False, True])
+def test_every_comparison_learner_updates_on_cuda_with_cudagraphs(system, compile):
+    """On a GPU, each comparison learner with CUDA-graphed update functions (eager- or compile-captured): updates
+    without a random draw (Peng's DDPG and D3QN, the unified D3QN) give the CPU learner's parameters; PASAC's
+    (sampled actions) give finite losses and move its networks. Its policy acts on CPU TensorDicts."""
+    def build(**kw):
+        if system == "peng":
+            return HierarchicalLearner(**PENG, **kw)
+        if system == "d3qn_unified":
+            return JointD3QNLearner(num_levels=5, d3qn={"hidden": [32]}, **kw)
+        return PASACLearner(pasac={"hidden": [32]}, **kw)
+
+    torch.manual_seed(0)
+    cpu = build()
+    frames, sample_l, sample_h = collect(cpu, [MOBILCriteria()] if system == "peng" else [])
+    gpu = build(device="cuda", cudagraphs=True, compile=compile)
+    assert gpu.cudagraphs and next(gpu.parameters()).is_cuda
+    gpu.load_full_state_dict(cpu.full_state_dict())
+    before = snapshot(gpu)
+    for _ in range(6):  # past CudaGraphModule's warm-up calls: captured and replayed
+        out = gpu.update_frame(sample_l)
+        assert all(torch.isfinite(torch.tensor(v)) for v in out.values()), out
+        if system == "peng":
+            gpu.update_decision(sample_h)
+        if system != "pasac_unified":
+            cpu.update_frame(sample_l)
+            if system == "peng":
+                cpu.update_decision(sample_h)
+    if system == "pasac_unified":
+        assert moved(before, gpu, "sac_loss.qvalue_network_params") and moved(before, gpu, "sac_loss.actor_network")
+    else:
+        ref, got = _cpu_state(cpu), _cpu_state(gpu)
+        for name in ref:
+            torch.testing.assert_close(got[name], ref[name], rtol=1e-3, atol=1e-4, msg=name)
+    td = gpu.policy(explore=True)(frames[:, 0].exclude("next").clone())
+    assert td.get(K.CF_ACTION).device.type == "cpu"

@@ -7,6 +7,7 @@ import io
 import pytest
 import torch
 
+from kddrl_trl import keys as K
 from kddrl_trl.training import HierarchicalLearner
 
 from conftest import SMALL, fake_samples
@@ -133,8 +134,13 @@ def test_cuda_learner_with_cudagraphs_matches_the_cpu_one_and_checkpoints_cross_
         torch.testing.assert_close(got[name], ref[name], rtol=1e-3, atol=1e-4, msg=name)
     for f in frames * 2:
         assert all(torch.isfinite(torch.tensor(v)) for v in gpu.update_cf(f).values())
-    td = gpu.policy(explore=False)(frames[0].exclude("next").clone())
+    obs = frames[0].exclude("next").clone()
+    obs.set(K.LC_HELD, torch.nn.functional.one_hot(torch.ones(obs.shape[0], dtype=torch.long), 3).float())
+    acting = gpu.policy(explore=False)  # a CPU copy of the GPU policy
+    td = acting(obs.clone())  # a buffer sample plus the held action an env's TensorDict has
     assert td.get(("cf", "action")).device.type == "cpu"
+    on_gpu = gpu._policy(explore=False)(obs.clone().to("cuda"))
+    torch.testing.assert_close(td.get(("cf", "action")), on_gpu.get(("cf", "action")).cpu(), rtol=1e-4, atol=1e-5)
     buf = io.BytesIO()
     torch.save(gpu.full_state_dict(), buf)
     buf.seek(0)
@@ -239,3 +245,47 @@ def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_rec
         assert torch.equal(fn("inc", x), x + 1.0) and torch.equal(fn("double", x), x * 2.0)
     y = torch.arange(6.0).reshape(2, 3)
     assert torch.equal(fn("double", y), y * 2.0)
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="needs a GPU"))])
+def test_buffers_live_on_the_learners_device_and_reload_there(samples, device):
+    """``make_buffer(device=...)``: CPU frames extended into the buffer are stored and sampled on ``device``; a
+    checkpointed buffer (read onto the CPU, as checkpoints are) reloads onto ``device`` with the same contents."""
+    from kddrl_trl.training import make_buffer
+    from kddrl_trl.training.trainer import load_buffer
+
+    frames, _ = samples
+    rb = make_buffer(100, 16, 0, device=device)
+    for f in frames[:2]:
+        rb.extend(f)  # CPU TensorDicts, as the collector writes them
+    assert len(rb) == 64 and rb.sample().device.type == device
+    buf = io.BytesIO()
+    torch.save(rb.state_dict(), buf)
+    buf.seek(0)
+    back = make_buffer(100, 16, 0, device=device)
+    load_buffer(back, torch.load(buf, map_location="cpu", weights_only=False))
+    assert len(back) == 64 and back.sample().device.type == device
+    for key, value in rb.storage[:64].items(True, True):
+        assert torch.equal(back.storage[:64].get(key), value), key
+    back.extend(frames[2])  # and it keeps filling where the saved one stopped
+    assert len(back) == 96
+
+
+def test_cpu_policy_copy_acts_like_the_learner_after_sync(samples):
+    """:class:`CpuPolicy` (a non-CPU learner's acting policy; here around a CPU learner's): a copy, stale after an
+    update until ``sync()``, then acting as the learner's own policy does."""
+    from kddrl_trl.training.base import CpuPolicy
+
+    frames, _ = samples
+    learner = HierarchicalLearner(**SMALL)
+    acting = CpuPolicy(learner._policy(explore=False))
+    obs = frames[0].exclude("next").clone()
+    obs.set(K.LC_HELD, torch.nn.functional.one_hot(torch.ones(obs.shape[0], dtype=torch.long), 3).float())
+    for f in frames[:2]:
+        learner.update_cf(f)
+    own = learner._policy(explore=False)(obs.clone()).get(K.CF_ACTION)
+    assert not torch.equal(acting(obs.clone()).get(K.CF_ACTION), own)  # stale: the update moved the actor
+    acting.sync()
+    torch.testing.assert_close(acting(obs.clone()).get(K.CF_ACTION), own)
+    assert all(not t.is_cuda for t in acting.state_dict().values())

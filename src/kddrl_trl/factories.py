@@ -1,7 +1,8 @@
 """Builders of the parts the entry points wire (``train.py``, ``evaluate.py``, ``pretrain.py``), as TorchRL's
 ``sota-implementations/*/utils.py`` do: each ``make_*`` turns a typed config node (:mod:`kddrl_trl.conf.schema`)
-into one part, and holds no algorithm. Also the two steps ``train.py`` and ``evaluate.py`` share:
-:func:`evaluate` (exploration off, ``test/`` scalars) and :func:`report` (``summary.json``, ``eval_episodes.csv``).
+into one part, and holds no algorithm. Also the final evaluation ``train.py`` and ``evaluate.py`` share:
+:func:`evaluate_and_report`, i.e. :func:`evaluate` (exploration off, ``test/`` scalars) then :func:`report`
+(``summary.json``, ``eval_episodes.csv``).
 
 =============================  ===========================================================================
 :func:`seed_everything`        ``random``, ``numpy`` and ``torch`` from one seed (each env is seeded itself)
@@ -14,7 +15,7 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 :func:`make_env_factories`     one picklable env factory per collection worker (``collector.workers``), seeded
 :func:`make_learner`           the :class:`~kddrl_trl.training.Learner` of a learning algo (by ``algo.kind``)
 :func:`make_policy`            the acting policy of any algo, exploration off
-:func:`make_buffers`           replay buffers L (frames) and H (macro-transitions)
+:func:`make_buffers`           replay buffers L (frames) and H (macro-transitions), on the learner's device
 :func:`make_collector`         the two-clock collector filling both buffers (one env here, or N worker processes)
 :func:`make_evaluator`         the periodic evaluation during training (validation traffic, a worker process)
 :func:`load_trained_learner`   a training run's learner, from its latest (or best) checkpoint
@@ -24,8 +25,8 @@ into one part, and holds no algorithm. Also the two steps ``train.py`` and ``eva
 ``compile`` (the top-level ``compile: true | false | auto`` key) reaches the two compile sites: the fused
 transform stack (:func:`make_transforms`) and the learner's update (:func:`make_learner`); a learner that
 only acts is built with ``compile=False``. ``device`` (``auto | cpu | cuda``) places the learner
-(:func:`make_learner`, :func:`load_trained_learner`), ``cudagraphs`` graphs its compiled updates on CUDA; the
-env, SUMO and the transforms stay on the CPU.
+(:func:`make_learner`, :func:`load_trained_learner`) and its buffers (:func:`make_buffers`), ``cudagraphs`` graphs
+its compiled updates on CUDA; the env, SUMO, the transforms and acting stay on the CPU.
 """
 from __future__ import annotations
 
@@ -210,11 +211,12 @@ def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: 
     return learner.policy(explore=False).eval()
 
 
-def make_buffers(train: TrainConfig, seed: int) -> tuple[TensorDictReplayBuffer, TensorDictReplayBuffer]:
+def make_buffers(train: TrainConfig, seed: int, device: torch.device | str | None = None
+                 ) -> tuple[TensorDictReplayBuffer, TensorDictReplayBuffer]:
     """Buffer L (frames: TD3, DDPG, a unified agent) and buffer H (macro-transitions, D3QN) with the ``train``
-    sizes."""
-    return (make_buffer(train.buffer_cf, train.batch_size_cf, seed),
-            make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1))
+    sizes, on the learner's ``device`` (None: the CPU)."""
+    return (make_buffer(train.buffer_cf, train.batch_size_cf, seed, device),
+            make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1, device))
 
 
 def make_collector(env, learner: Learner, buffers: tuple, train: TrainConfig,
@@ -240,10 +242,16 @@ def make_collector(env, learner: Learner, buffers: tuple, train: TrainConfig,
     elif lc_reward != "frames":
         raise ValueError(f"make_collector: lc_reward must be frames or decision, got {lc_reward!r}")
     backend = (collector or CollectorConfig()).backend
+    frame_keys, nstep = learner.buffer_keys(), None
+    if train.n_steps > 1:  # n-step returns in buffer L; the held lane-change action of the window's last frame
+        from .collectors.nstep import NStepReturns
+
+        nstep = NStepReturns(train.n_steps, learner.frame_gamma)
+        frame_keys = [*frame_keys, K.STEPS_TO_NEXT_OBS, ("next", *K.LC_HELD)]
     return MultiTimescaleCollector.from_env(env, learner.policy(explore=True), frames_per_env=train.frames_per_env,
                                             rows=rows, backend=backend, frame_buffer=buffers[0],
                                             macro_buffer=buffers[1] if learner.learns_from_decisions else None,
-                                            frame_keys=learner.buffer_keys(),
+                                            frame_keys=frame_keys, frame_transform=nstep,
                                             macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],
                                             writer=MacroTransitionWriter(efficiency=efficiency))
 
@@ -325,6 +333,20 @@ def evaluate(env: EnvBase, policy, job: Job, logger, out_dir: Path | None = None
             write_json_atomic(out_dir / "traces" / f"{name}.json", trace)
             write_video(trace, out_dir / "videos" / f"{name}.mp4")
     return episodes, stats
+
+
+def evaluate_and_report(job: Job, algo, env_cfg, learner, logger, out_dir: Path, *, title: str,
+                        reference: dict | None = None, **fields) -> dict:
+    """The final evaluation of ``train`` and ``evaluate``: the greedy policy of ``algo`` (its trained ``learner`` 's
+    for a learning algo, :func:`make_policy`) on ``env_cfg`` 's traffic from the test seed of ``job``
+    (:func:`kddrl_trl.eval.protocol.test_seed`), evaluated (:func:`evaluate`) and reported (:func:`report`, with
+    the scenario, algo, env counters, flow and ``fields``) into ``out_dir``."""
+    from .eval.protocol import test_seed
+
+    env = make_env(env_cfg, algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
+    episodes, stats = evaluate(env, make_policy(algo, env_cfg, learner), job, logger, out_dir, algo.name)
+    return report(out_dir, episodes, title, reference, scenario=env_cfg.scenario, algo=algo.name, env_stats=stats,
+                  flow_vph=env_cfg.flow, **fields)
 
 
 def report(out_dir: Path, episodes: list[dict], title: str, reference: dict | None = None, **fields) -> dict:

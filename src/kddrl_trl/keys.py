@@ -119,3 +119,6 @@ PASAC_LOGITS = ("pasac", "logits")      # [3] lane-choice logits of the PASAC po
 PASAC_LOC = ("pasac", "loc")            # [1] mean of the pre-tanh Gaussian of the PASAC acceleration
 PASAC_SCALE = ("pasac", "scale")        # [1] its standard deviation
 PASAC_STATE_ACTION_VALUE = ("pasac", "state_action_value")  # [1] soft Q(s, lane, accel)
+UPDATE_LOSSES = "update_losses"         # [n] detached losses of one update function (a CUDA-graphed update's output)
+STEPS_TO_NEXT_OBS = "steps_to_next_obs"  # [1] int64, frames a buffer-L transition spans (train.n_steps; TorchRL's
+                                         # TD(0) estimator discounts its bootstrap by gamma ** this)

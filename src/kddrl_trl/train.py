@@ -32,10 +32,10 @@ from omegaconf import DictConfig, OmegaConf
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from .conf.schema import LearningAlgo, TrainJob
 from .eval.metrics import paper_reference
-from .eval.protocol import protocol, test_seed
+from .eval.protocol import protocol
 from .factories import (
-    evaluate, make_buffers, make_collector, make_env, make_env_factories, make_evaluator, make_job, make_learner,
-    make_logger, make_policy, make_run_dir, report, seed_everything,
+    evaluate_and_report, make_buffers, make_collector, make_env_factories, make_evaluator, make_job, make_learner,
+    make_logger, make_run_dir, seed_everything,
 )
 from .io import write_json_atomic, write_text_atomic
 from .provenance import provenance
@@ -50,7 +50,7 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     """Trains the learner of ``job.algo`` (continuing ``run_dir``'s latest checkpoint when ``resuming``);
     returns it and the summary of its training."""
     learner = make_learner(job.algo, compile=job.compile, device=job.torch_device, cudagraphs=job.cudagraphs)
-    buffers = make_buffers(job.train, job.seed)
+    buffers = make_buffers(job.train, job.seed, learner.device)
     trainer = Trainer(learner, buffers, job.train, run_dir, logger, episodes=job.episodes, progress=job.progress,
                       evaluator=make_evaluator(job))
     done = trainer.load(run_dir) if resuming else 0
@@ -112,13 +112,12 @@ def main(cfg: DictConfig) -> dict:
 
 def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, **fields) -> dict:
     """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, written to ``out_dir``."""
-    env = make_env(job.env, job.algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
-    episodes, stats = evaluate(env, make_policy(job.algo, job.env, learner), job, logger, out_dir, job.algo.name)
     trained_on = fields.get("trained_on", job.env.scenario)
     title = job.algo.name + ("" if trained_on == job.env.scenario else f" trained on {trained_on}")
-    return report(out_dir, episodes, f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",
-                  paper_reference(job.env.scenario, job.algo.name) if trained_on == job.env.scenario else None,
-                  scenario=job.env.scenario, algo=job.algo.name, env_stats=stats, flow_vph=job.env.flow, **fields)
+    return evaluate_and_report(job, job.algo, job.env, learner, logger, out_dir,
+                               title=f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",
+                               reference=paper_reference(job.env.scenario, job.algo.name)
+                               if trained_on == job.env.scenario else None, **fields)
 
 
 if __name__ == "__main__":

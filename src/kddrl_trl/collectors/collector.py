@@ -56,7 +56,8 @@ class MultiTimescaleCollector:
     def __init__(self, collector, *, frame_buffer: ReplayBuffer | None = None,
                  macro_buffer: ReplayBuffer | None = None, writer: MacroTransitionWriter | None = None,
                  frame_keys: Sequence[NestedKey] | None = None, macro_keys: Sequence[NestedKey] | None = None,
-                 owns_envs: bool = False, local_env: EnvBase | None = None):
+                 owns_envs: bool = False, local_env: EnvBase | None = None,
+                 frame_transform: Callable[[TensorDictBase], TensorDictBase] | None = None):
         self.collector = collector
         self.frame_buffer, self.macro_buffer = frame_buffer, macro_buffer
         self.writer = writer if writer is not None else MacroTransitionWriter()
@@ -66,6 +67,12 @@ class MultiTimescaleCollector:
         #: an env built here from a factory (the single-process path), closed by :meth:`shutdown`: TorchRL's
         #: collector does not close a custom ``EnvBase`` (its ``is_closed`` is True until a batched env starts)
         self.local_env = local_env
+        #: maps the frames ``[B, T]`` before they enter buffer L (e.g. :class:`~.nstep.NStepReturns`); the batch
+        #: yielded, buffer H and the episode records keep the frames as collected
+        self.frame_transform = frame_transform
+        #: the acting policy given to :meth:`from_env`; one with a ``sync()`` (a CUDA learner's CPU copy) is
+        #: refreshed by :meth:`update_policy_weights_`
+        self.policy = None
 
     @classmethod
     def from_env(cls, env: EnvBase | Sequence[Callable[[], EnvBase]], policy: Callable, *, frames_per_env: int,
@@ -109,7 +116,9 @@ class MultiTimescaleCollector:
         collector = Collector(factories if len(options) > 1 else factories[0], policy,
                               frames_per_batch=int(frames_per_env) * int(rows) * n, total_frames=endless,
                               trust_policy=True, **options)
-        return cls(collector, owns_envs=owns, local_env=local, **kwargs)
+        out = cls(collector, owns_envs=owns, local_env=local, **kwargs)
+        out.policy = policy
+        return out
 
     def __iter__(self) -> Iterator[MultiTimescaleBatch]:
         for frames in self.collector:
@@ -119,7 +128,7 @@ class MultiTimescaleCollector:
                 frames = frames.reshape(-1, frames.shape[-1])
             macros = self.writer(frames)
             if self.frame_buffer is not None:
-                flat = frames.reshape(-1)
+                flat = (frames if self.frame_transform is None else self.frame_transform(frames)).reshape(-1)
                 self.frame_buffer.extend(flat.select(*self.frame_keys) if self.frame_keys else flat)
             if self.macro_buffer is not None and macros is not None:
                 self.macro_buffer.extend(macros.select(*self.macro_keys) if self.macro_keys else macros)
@@ -132,7 +141,10 @@ class MultiTimescaleCollector:
         modules. With the ``process`` backend and a CPU policy, TorchRL moves the policy's own tensors into shared
         memory when the workers start, so the workers already read the learner's tensors (``sync=True`` keeps them
         idle while the learner updates them) and this call only confirms it; where the weights are copies (Ray
-        actors, a CUDA learner's CPU staging copy) this call is what sends them."""
+        actors, a CUDA learner's CPU copy of its policy: its ``sync()`` first) this call is what sends them."""
+        sync = getattr(self.policy, "sync", None)
+        if sync is not None:
+            sync()
         self.collector.update_policy_weights_()
 
     def shutdown(self, close_env: bool = True) -> None:

@@ -91,7 +91,7 @@ def _node(name: str, doc: str, check=None, optional: dict | None = None, **types
 
 def _check_train(train) -> None:
     _at_least("train.", train, 1, "frames_per_env", "batch_size_cf", "batch_size_lc", "buffer_cf", "buffer_lc",
-              "checkpoint_every")
+              "checkpoint_every", "n_steps")
     _at_least("train.", train, 0, "warmup_frames", "updates_per_frame", "updates_per_decision", "eval_every")
     _at_least("train.", train, 1, "eval_episodes")
     from ..eval.periodic import BEST_METRICS
@@ -105,7 +105,8 @@ LoggerConfig = _node("LoggerConfig", "``logger``: CSV and TensorBoard (true | fa
 TrainConfig = _node("TrainConfig", "The ``train`` node (``conf/config.yaml``): collection, replay buffers, update "
                     "ratios, checkpoints.", _check_train, frames_per_env=int, warmup_frames=int, batch_size_cf=int,
                     batch_size_lc=int, buffer_cf=int, buffer_lc=int, updates_per_frame=int, updates_per_decision=int,
-                    checkpoint_every=int, keep_buffers=bool, eval_every=int, eval_episodes=int, best_metric=str)
+                    checkpoint_every=int, keep_buffers=bool, eval_every=int, eval_episodes=int, best_metric=str,
+                    optional={"n_steps": (int, 1)})
 TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
                          ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
                          "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.).",

@@ -160,7 +160,7 @@ class _StateNet(nn.Module):
     def forward(self, ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
         c = self.scale.clip
         present, rel_raw = mask.to(rel.dtype), rel
-        rel = torch.where(mask.bool().unsqueeze(-1), rel / self.rel_scale, torch.zeros((), dtype=rel.dtype))
+        rel = torch.where(mask.bool().unsqueeze(-1), rel / self.rel_scale, rel.new_zeros(()))
         parts = [(ego / self.ego_scale).clamp(-c, c), rel.clamp(-c, c).flatten(-2), present]
         rest = list(rest)
         if self.embed:

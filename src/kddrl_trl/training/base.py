@@ -19,9 +19,10 @@ macro-transitions, once per lane-change decision), and saves everything in one d
 Device and update functions (issue 15)
 --------------------------------------
 A learner lives on one ``device`` (``device=auto|cpu|cuda``, :func:`kddrl_trl.factories.make_device`): its
-networks, targets, optimiser states, the sampled batches (moved there by :meth:`Learner._run`) and its updates.
-The env, SUMO and the transforms stay on the CPU; the acting policy runs on the learner's device, the env's
-TensorDicts moved there and its actions moved back (:class:`DevicePolicy`; on a CPU learner nothing is wrapped).
+networks, targets, optimiser states, its replay buffers (:func:`~kddrl_trl.training.make_buffer`: sampled there;
+:meth:`Learner._run` moves a batch from elsewhere) and its updates. The env, SUMO and the transforms stay on the
+CPU, and so does the acting policy: a non-CPU learner acts through a CPU copy of its policy (:class:`CpuPolicy`,
+refreshed after every batch of updates), faster than the GPU with the transfers there and back (measured).
 
 Each learner names its gradient steps as update functions (:meth:`Learner.update_functions`), as TorchRL's
 ``sota-implementations`` (td3, dqn) write ``update(batch)``: loss, backward, optimiser steps and soft target
@@ -33,10 +34,11 @@ once warm (the CPU); on CUDA with ``cudagraphs``, each update function is ``torc
 """
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import copy
+from collections.abc import Callable, Mapping, Sequence
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import nn
@@ -74,24 +76,35 @@ def resolve_cudagraphs(cudagraphs: bool | str, device: torch.device) -> bool:
     return cudagraphs
 
 
-class DevicePolicy(TensorDictModuleBase):
-    """An acting policy on another device than the env: the policy's ``in_keys`` of the env's TensorDict go to
-    ``device``, its ``out_keys`` come back to the env's device (what TorchRL collectors do with ``policy_device``;
-    here for the collector and the evaluation loops alike)."""
+def _losses_in_a_tensordict(fn: Callable[[TensorDictBase], torch.Tensor]) -> Callable[[TensorDictBase], TensorDict]:
+    """An update function whose losses come back under ``keys.UPDATE_LOSSES`` of a TensorDict
+    (``CudaGraphModule`` returns TensorDicts only)."""
+    def update(batch: TensorDictBase) -> TensorDict:
+        return TensorDict({K.UPDATE_LOSSES: fn(batch)})
+    return update
 
-    def __init__(self, policy: TensorDictModuleBase, device: torch.device):
+
+class CpuPolicy(TensorDictModuleBase):
+    """A non-CPU learner's acting policy, run on the CPU where the env's TensorDicts are: a CPU copy of the
+    policy's modules (networks and exploration schedules), which :meth:`sync` refreshes from the learner's
+    (:meth:`MultiTimescaleCollector.update_policy_weights_` calls it after every batch of updates). On an H100
+    machine a call at K = 8 took 2.4 ms on the CPU against 4.3 ms on the GPU with the transfers there and back
+    (``benchmarks/train_throughput.py --device cuda --acting-calls N``: ``gpu.acting``)."""
+
+    def __init__(self, policy: TensorDictModuleBase):
         super().__init__()
-        self.policy, self.device = policy, torch.device(device)
+        self.__dict__["source"] = policy  # not a submodule: this module's state is the CPU copy's
+        self.policy = copy.deepcopy(policy).to("cpu")
         self.in_keys, self.out_keys = list(policy.in_keys), list(policy.out_keys)
 
+    @torch.no_grad()
+    def sync(self) -> None:
+        """Copies the learner's current weights and exploration state into the CPU copy."""
+        mine, theirs = self.policy.state_dict(keep_vars=True), self.source.state_dict(keep_vars=True)
+        torch._foreach_copy_([mine[k].data for k in mine], [theirs[k].data for k in mine])
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        out = self.policy(tensordict.select(*self.in_keys, strict=False).to(self.device, non_blocking=True))
-        back = tensordict.device if tensordict.device is not None else torch.device("cpu")
-        for key in self.out_keys:
-            value = out.get(key, None)
-            if value is not None:
-                tensordict.set(key, value.to(back, non_blocking=False))
-        return tensordict
+        return self.policy(tensordict)
 
 
 def transition_keys(obs: Sequence[NestedKey], actions: Sequence[NestedKey]) -> list:
@@ -108,6 +121,14 @@ class Learner(nn.Module):
 
     #: whether :meth:`update_decision` learns from buffer H (the lane-change agent's macro-transitions)
     learns_from_decisions: bool = False
+    #: the attribute holding the TorchRL loss that learns from buffer L (frames)
+    frame_loss_name: str = ""
+
+    @property
+    def frame_gamma(self) -> float:
+        """The per-frame discount of the buffer-L loss (its TD(0) estimator's ``gamma``): what n-step returns
+        (``train.n_steps``, :class:`~kddrl_trl.collectors.nstep.NStepReturns`) discount the window's rewards by."""
+        return float(getattr(self, self.frame_loss_name).value_estimator.gamma)
 
     def _place(self, device: torch.device | str | None) -> torch.device:
         """Moves the learner (networks, targets, exploration schedules, counters) to ``device`` (None: the CPU)
@@ -139,7 +160,8 @@ class Learner(nn.Module):
             if self.cudagraphs:
                 from tensordict.nn import CudaGraphModule
 
-                fn = CudaGraphModule(fn, warmup=3, in_keys=[], out_keys=[], device=self.device)
+                fn = CudaGraphModule(_losses_in_a_tensordict(fn), warmup=3, in_keys=[], out_keys=[],
+                                     device=self.device)
             fns[name] = fn
         self.__dict__["_update_fns"] = fns  # not submodules (compiled wrappers hold the learner's own modules)
 
@@ -148,13 +170,15 @@ class Learner(nn.Module):
         as floats."""
         if batch.device != self.device:
             batch = batch.to(self.device, non_blocking=True)
-        return self._update_fns[name](batch).tolist()
+        losses = self._update_fns[name](batch)
+        return (losses[K.UPDATE_LOSSES] if self.cudagraphs else losses).tolist()
 
     def policy(self, explore: bool = True) -> TensorDictModuleBase:
         """The acting policy (exploration modules act only under ``ExplorationType.RANDOM``) for env TensorDicts
-        on the CPU: :meth:`_policy`, on a non-CPU learner wrapped in :class:`DevicePolicy`."""
+        on the CPU: :meth:`_policy`; a non-CPU learner's is a :class:`CpuPolicy` copy (acting is faster on the
+        CPU, measured)."""
         policy = self._policy(explore)
-        return policy if self.device.type == "cpu" else DevicePolicy(policy, self.device)
+        return policy if self.device.type == "cpu" else CpuPolicy(policy)
 
     # ------------------------------------------------------------------------------- to implement
     def _policy(self, explore: bool = True) -> TensorDictModuleBase:
@@ -207,6 +231,11 @@ class Learner(nn.Module):
         return {"modules": self.state_dict(), "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()}}
 
     def load_full_state_dict(self, state: Mapping) -> None:
+        """Loads :meth:`full_state_dict`, also one saved on another device: each optimiser keeps its own
+        ``capturable`` and ``fused`` (a CPU checkpoint's ``capturable=False`` would stop a CUDA graph's capture)."""
         self.load_state_dict(state["modules"])
         for name, opt in self.optimizers().items():
-            opt.load_state_dict(state["optimizers"][name])
+            saved = state["optimizers"][name]
+            groups = [{**g, "capturable": own["capturable"], "fused": own["fused"]}
+                      for g, own in zip(saved["param_groups"], opt.param_groups)]
+            opt.load_state_dict({**saved, "param_groups": groups})

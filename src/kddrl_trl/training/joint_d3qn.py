@@ -51,6 +51,8 @@ class JointD3QNLearner(Learner):
         device, cudagraphs, state_extras: as :class:`~kddrl_trl.training.HierarchicalLearner`'s.
     """
 
+    frame_loss_name = "q_loss"  # the loss of buffer L
+
     def __init__(self, *, num_levels: int = 7, low: float = -5.0, high: float = 5.0,
                  d3qn: Mapping[str, Any] | None = None, compile: bool | str = False,
                  device: torch.device | str | None = None, cudagraphs: bool | str = False, state_extras=()):

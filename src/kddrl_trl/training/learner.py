@@ -74,6 +74,7 @@ class HierarchicalLearner(Learner):
     """
 
     learns_from_decisions = True  # buffer H: the D3QN's macro-transitions
+    frame_loss_name = "cf_loss"  # buffer L: TD3 (or Peng's DDPG)
 
     def __init__(self, *, priors: bool = True, key_gaps: bool = True, embed_dim: int = 16, embed_hidden: int = 64,
                  d3qn: Mapping[str, Any] | None = None, td3: Mapping[str, Any] | None = None,

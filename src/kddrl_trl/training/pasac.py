@@ -36,6 +36,8 @@ class PASACLearner(Learner):
         device, cudagraphs, state_extras: as :class:`~kddrl_trl.training.HierarchicalLearner`'s.
     """
 
+    frame_loss_name = "sac_loss"  # the loss of buffer L
+
     def __init__(self, *, pasac: Mapping[str, Any] | None = None, compile: bool | str = False,
                  device: torch.device | str | None = None, cudagraphs: bool | str = False, state_extras=()):
         super().__init__()

@@ -46,11 +46,24 @@ EPISODE_FIELDS = ("return_lc", "return_cf", "mean_speed_kmh", "mean_accel", "mea
                   "frames", "collision", "shield_rate")
 
 
-def make_buffer(capacity: int, batch_size: int, seed: int) -> TensorDictReplayBuffer:
-    """A uniform TorchRL replay buffer in memory (``LazyTensorStorage``)."""
-    gen = torch.Generator().manual_seed(int(seed))
-    return TensorDictReplayBuffer(storage=LazyTensorStorage(int(capacity)), batch_size=int(batch_size),
-                                  generator=gen)
+def make_buffer(capacity: int, batch_size: int, seed: int,
+                device: torch.device | str | None = None) -> TensorDictReplayBuffer:
+    """A uniform TorchRL replay buffer in memory (``LazyTensorStorage``) on ``device`` (None: the CPU): a CUDA
+    learner's buffers live on its GPU, so the collector's frames cross once per batch and the sampled minibatches
+    are already where the update runs."""
+    device = torch.device(device or "cpu")
+    gen = torch.Generator(device).manual_seed(int(seed))  # the sampler draws its indices on the storage's device
+    return TensorDictReplayBuffer(storage=LazyTensorStorage(int(capacity), device=device),
+                                  batch_size=int(batch_size), generator=gen)
+
+
+def load_buffer(buffer: TensorDictReplayBuffer, state: dict) -> None:
+    """Loads a buffer's ``state_dict`` (read onto the CPU) back onto the buffer's own device (TorchRL's
+    ``LazyTensorStorage.load_state_dict`` keeps the tensors where they were read)."""
+    buffer.load_state_dict(state)
+    storage = buffer.storage
+    if storage.initialized and storage._storage.device != torch.device(storage.device):
+        storage._storage = storage._storage.to(storage.device)
 
 
 class Trainer:
@@ -97,8 +110,8 @@ class Trainer:
         self.history = list(payload["history"])
         self.validations = list(payload.get("validations", []))
         if "buffer_cf" in payload:
-            self.buffer_cf.load_state_dict(payload["buffer_cf"])
-            self.buffer_lc.load_state_dict(payload["buffer_lc"])
+            load_buffer(self.buffer_cf, payload["buffer_cf"])
+            load_buffer(self.buffer_lc, payload["buffer_lc"])
         self.tracker.finished = len(self.history)
         log.info("resumed %s: %d episodes, %d frames, buffers %d / %d", path, len(self.history),
                  self.counters["frames"], len(self.buffer_cf), len(self.buffer_lc))
