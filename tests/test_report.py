@@ -272,3 +272,24 @@ def test_gym_env_renders_rgb_frames():
         env.close()
     assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3 and frame.shape == first.shape
     assert frame.std() > 0  # something is drawn
+
+
+def test_runs_with_options_are_rows_of_their_own(tmp_path):
+    """Issue 14's ablation: a run whose ``config.yaml`` sets an option otherwise than its algo's defaults (e.g.
+    ``train.n_steps=3``) is the row ``"kddrl [train.n_steps=3]"``, beside the runs at the defaults; a config
+    without the option keys (saved before they existed) is the algo's own row."""
+    import yaml
+    from omegaconf import OmegaConf
+
+    from kddrl_trl.eval.records import default_config, find_runs
+
+    defaults = default_config("kddrl", "braking")
+    options = OmegaConf.to_container(OmegaConf.merge(defaults, {"train": {"n_steps": 3}, "algo": {
+        "shield": "idm", "state_extras": ["thw", "ttc"]}}))
+    for seed in range(2):
+        for name, cfg in (("paper", defaults), ("options", options), ("old", {"seed": seed, "episodes": 1000})):
+            run = _fake_run(tmp_path / "runs" / f"{name}{seed}", seed=seed, scenario="braking")
+            (run / "config.yaml").write_text(yaml.safe_dump(cfg))
+    runs = find_runs([tmp_path / "runs" / "paper0", tmp_path / "runs" / "options0", tmp_path / "runs" / "old1"])
+    assert sorted(r.algo for r in runs) == sorted(
+        ["kddrl", "kddrl", "kddrl [algo.shield=idm, algo.state_extras=[thw,ttc], train.n_steps=3]"])

@@ -88,15 +88,86 @@ def load_run(path: str | Path) -> RunRecord:
     validation = _csv(trained / "validation.csv") if (trained / "validation.csv").is_file() else None
     # traces of its final evaluation, and of later evaluations of it on its own scenario (evaluate video=true)
     traces = sorted((path / "traces").glob("*.json")) + sorted(path.glob(f"eval__{summary['scenario']}__*/traces/*.json"))
-    return RunRecord(path, algo_label(summary), str(summary["scenario"]), int(summary["seed"]), summary, episodes,
-                     training, validation, traces)
+    # the options it ran with: its training run's config (an evaluation folder of kddrl_trl.evaluate: its run's)
+    config = _config((path.parent if path.name.startswith("eval__") else trained) / "config.yaml")
+    return RunRecord(path, algo_label(summary, config), str(summary["scenario"]), int(summary["seed"]), summary,
+                     episodes, training, validation, traces)
 
 
-def algo_label(summary: dict) -> str:
-    """The report's name of a run's policy: its algo, with the training scenario where that is not the scenario
-    evaluated (``trained_on``: ``kddrl_trl.evaluate``, ``kddrl_trl.train eval_scenarios=...``)."""
+def _config(path: Path) -> dict | None:
+    """A run's ``config.yaml`` (None where there is none: an evaluation folder, records without it)."""
+    if not path.is_file():
+        return None
+    from omegaconf import OmegaConf
+
+    try:
+        return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+    except Exception as err:
+        raise ValueError(f"{path}: not a readable config ({err})") from err
+
+
+#: the options (issue 14) that make a run a row of its own in the report when they differ from its algo's defaults
+OPTION_KEYS = ("env.reward", "env.ego_start", "algo.mobil_safety_mask", "algo.lc_reward", "algo.shield",
+               "algo.shield_ttc", "algo.state_extras", "algo.learner.d3qn.semi_mdp", "algo.learner.d3qn.eps_decisions",
+               "algo.learner.td3.exploration_clip", "train.n_steps", "train.updates_per_decision", "episodes")
+
+
+def _dotted(cfg: dict, key: str):
+    for part in key.split("."):
+        if not isinstance(cfg, dict) or part not in cfg:
+            return _MISSING
+        cfg = cfg[part]
+    return cfg
+
+
+_MISSING = object()
+_DEFAULTS: dict[tuple[str, str], dict] = {}
+
+
+def default_config(algo: str, scenario: str) -> dict:
+    """The package's composed config of ``algo=<algo> +scenario=<scenario>`` (resolved; cached): what a run of
+    that algo and scenario runs with when no option is set."""
+    if (algo, scenario) not in _DEFAULTS:
+        from hydra import compose, initialize_config_module
+        from hydra.core.global_hydra import GlobalHydra
+        from omegaconf import OmegaConf
+
+        overrides = [f"algo={algo}"] + ([f"+scenario={scenario}"] if scenario != "baseline" else [])
+        if GlobalHydra.instance().is_initialized():  # inside an entry point (kddrl_trl.report): its config module
+            cfg = compose(config_name="config", overrides=overrides)
+        else:
+            with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+                cfg = compose(config_name="config", overrides=overrides)
+        _DEFAULTS[(algo, scenario)] = OmegaConf.to_container(cfg, resolve=True)
+    return _DEFAULTS[(algo, scenario)]
+
+
+def option_label(config: dict, algo: str, scenario: str) -> str:
+    """``key=value, ...`` of the :data:`OPTION_KEYS` a run's ``config`` sets otherwise than its algo's defaults on
+    its training ``scenario`` (keys a run's config lacks, saved before they existed, ran as the paper; keys
+    the package no longer has are left out)."""
+    try:
+        defaults = default_config(algo, scenario)
+    except Exception:  # an algo or scenario this package does not know: nothing to compare with
+        return ""
+    diffs = []
+    for key in OPTION_KEYS:
+        value, default = _dotted(config, key), _dotted(defaults, key)
+        if value is not _MISSING and default is not _MISSING and value != default:
+            shown = "[" + ",".join(map(str, value)) + "]" if isinstance(value, list) else value
+            diffs.append(f"{key}={shown}")
+    return ", ".join(diffs)
+
+
+def algo_label(summary: dict, config: dict | None = None) -> str:
+    """The report's name of a run's policy: its algo, then the options its ``config`` (the run's ``config.yaml``)
+    sets otherwise than the algo's defaults (:func:`option_label`, e.g. ``kddrl [train.n_steps=3]``: a row of its
+    own), with the training scenario where that is not the scenario evaluated (``trained_on``:
+    ``kddrl_trl.evaluate``, ``kddrl_trl.train eval_scenarios=...``)."""
     algo, trained_on = str(summary["algo"]), str(summary.get("trained_on", summary["scenario"]))
-    return algo if trained_on == str(summary["scenario"]) else f"{algo} (trained on {trained_on})"
+    options = option_label(config, algo, trained_on) if config else ""
+    name = f"{algo} [{options}]" if options else algo
+    return name if trained_on == str(summary["scenario"]) else f"{name} (trained on {trained_on})"
 
 
 def _expand(summary_path: Path) -> list[Path]:
