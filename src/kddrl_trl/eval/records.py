@@ -107,9 +107,10 @@ def _config(path: Path) -> dict | None:
 
 
 #: the options (issue 14) that make a run a row of its own in the report when they differ from its algo's defaults
+#: (not ``episodes``: short smoke and test sweeps would all be rows of their own)
 OPTION_KEYS = ("env.reward", "env.ego_start", "algo.mobil_safety_mask", "algo.lc_reward", "algo.shield",
                "algo.shield_ttc", "algo.state_extras", "algo.learner.d3qn.semi_mdp", "algo.learner.d3qn.eps_decisions",
-               "algo.learner.td3.exploration_clip", "train.n_steps", "train.updates_per_decision", "episodes")
+               "algo.learner.td3.exploration_clip", "train.n_steps", "train.updates_per_decision")
 
 
 def _dotted(cfg: dict, key: str):
