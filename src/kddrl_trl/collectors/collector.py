@@ -57,7 +57,7 @@ class MultiTimescaleCollector:
                  macro_buffer: ReplayBuffer | None = None, writer: MacroTransitionWriter | None = None,
                  frame_keys: Sequence[NestedKey] | None = None, macro_keys: Sequence[NestedKey] | None = None,
                  owns_envs: bool = False, local_env: EnvBase | None = None,
-                 frame_transform: Callable[[TensorDictBase], TensorDictBase] | None = None):
+                 frame_transform: Callable[[TensorDictBase], TensorDictBase] | None = None, policy=None):
         self.collector = collector
         self.frame_buffer, self.macro_buffer = frame_buffer, macro_buffer
         self.writer = writer if writer is not None else MacroTransitionWriter()
@@ -72,7 +72,7 @@ class MultiTimescaleCollector:
         self.frame_transform = frame_transform
         #: the acting policy given to :meth:`from_env`; one with a ``sync()`` (a CUDA learner's CPU copy) is
         #: refreshed by :meth:`update_policy_weights_`
-        self.policy = None
+        self.policy = policy
 
     @classmethod
     def from_env(cls, env: EnvBase | Sequence[Callable[[], EnvBase]], policy: Callable, *, frames_per_env: int,
@@ -116,9 +116,7 @@ class MultiTimescaleCollector:
         collector = Collector(factories if len(options) > 1 else factories[0], policy,
                               frames_per_batch=int(frames_per_env) * int(rows) * n, total_frames=endless,
                               trust_policy=True, **options)
-        out = cls(collector, owns_envs=owns, local_env=local, **kwargs)
-        out.policy = policy
-        return out
+        return cls(collector, owns_envs=owns, local_env=local, policy=policy, **kwargs)
 
     def __iter__(self) -> Iterator[MultiTimescaleBatch]:
         for frames in self.collector:
