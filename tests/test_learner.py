@@ -96,11 +96,11 @@ def test_d3qn_update_moves_q_and_embedding_not_td3(batches):
 def test_actor_loss_never_reaches_the_embedding(batches):
     frames, _ = batches
     learner = HierarchicalLearner(**SMALL)
-    learner.loss("cf_actor", frames).backward()
+    learner.loss("cf_actor", frames)[0].backward()
     assert all(p.grad is None for p in learner.embedding.parameters())
     assert any(p.grad is not None for p in learner.cf_loss.actor_network_params.values(True, True))
     learner.zero_grad()
-    learner.loss("cf_value", frames).backward()
+    learner.loss("cf_value", frames)[0].backward()
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in learner.embedding.parameters())
     assert all(p.grad is None for p in learner.target_embedding.parameters())
 
@@ -203,7 +203,7 @@ def test_td3_target_reads_the_new_lane_change_decision_on_the_frame_before_a_dec
 
     def capture(states):
         seen["states"] = states
-        return (states.get(K.CF_OBS).sum() * 0.0,)
+        return states.get(K.CF_OBS).sum() * 0.0, {"td_error": torch.zeros(states.shape)}
 
     learner.cf_loss.value_loss = capture
     learner.loss("cf_value", roll.select(*learner.buffer_keys(), strict=False))

@@ -29,13 +29,13 @@ def reference_steps(learner: HierarchicalLearner, frames, macros) -> None:
 
     for i, (f, m) in enumerate(zip(frames, macros * 2)):
         torch.manual_seed(100 + i)
-        learner._descend(learner.loss("cf_value", f), learner.opt_critic, learner.opt_embed)
+        learner._descend(learner.loss("cf_value", f)[0], learner.opt_critic, learner.opt_embed)
         if (i + 1) % learner.td3.policy_delay == 0:
-            learner._descend(learner.loss("cf_actor", f), learner.opt_actor)
+            learner._descend(learner.loss("cf_actor", f)[0], learner.opt_actor)
             learner.td3.target_updater.step()
             soft_embedding()
         if i % 2 == 0:
-            learner._descend(learner.loss("lc", m), learner.opt_lc, learner.opt_embed)
+            learner._descend(learner.loss("lc", m)[0], learner.opt_lc, learner.opt_embed)
             learner.d3qn.target_updater.step()
             soft_embedding()
 

@@ -214,9 +214,10 @@ def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: 
 def make_buffers(train: TrainConfig, seed: int, device: torch.device | str | None = None
                  ) -> tuple[TensorDictReplayBuffer, TensorDictReplayBuffer]:
     """Buffer L (frames: TD3, DDPG, a unified agent) and buffer H (macro-transitions, D3QN) with the ``train``
-    sizes, on the learner's ``device`` (None: the CPU)."""
-    return (make_buffer(train.buffer_cf, train.batch_size_cf, seed, device),
-            make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1, device))
+    sizes, on the learner's ``device`` (None: the CPU); both prioritized with ``train.prioritized``."""
+    per = (train.priority_alpha, train.priority_beta) if train.prioritized else None
+    return (make_buffer(train.buffer_cf, train.batch_size_cf, seed, device, prioritized=per),
+            make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1, device, prioritized=per))
 
 
 def make_collector(env, learner: Learner, buffers: tuple, train: TrainConfig,

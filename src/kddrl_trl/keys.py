@@ -120,5 +120,10 @@ PASAC_LOC = ("pasac", "loc")            # [1] mean of the pre-tanh Gaussian of t
 PASAC_SCALE = ("pasac", "scale")        # [1] its standard deviation
 PASAC_STATE_ACTION_VALUE = ("pasac", "state_action_value")  # [1] soft Q(s, lane, accel)
 UPDATE_LOSSES = "update_losses"         # [n] detached losses of one update function (a CUDA-graphed update's output)
+PRIORITY = "priority"                    # [B] |TD error| of each sampled transition, written by a learner's update
+                                         # into the sample: a prioritized buffer's new priorities (train.prioritized;
+                                         # not TorchRL losses' own "td_error", which they write in their own shapes)
+PRIORITY_WEIGHT = "priority_weight"      # [B] importance-sampling weight of a prioritized sample (TorchRL's
+                                         # PrioritizedSampler writes it; TorchRL losses weight their mean by it)
 STEPS_TO_NEXT_OBS = "steps_to_next_obs"  # [1] int64, frames a buffer-L transition spans (train.n_steps; TorchRL's
                                          # TD(0) estimator discounts its bootstrap by gamma ** this)

@@ -96,6 +96,10 @@ def _check_train(train) -> None:
     _at_least("train.", train, 1, "eval_episodes")
     from ..eval.periodic import BEST_METRICS
 
+    if not 0.0 < train.priority_alpha <= 1.0:
+        raise ValueError(f"train.priority_alpha must be in (0, 1], got {train.priority_alpha!r}")
+    if not 0.0 <= train.priority_beta <= 1.0:
+        raise ValueError(f"train.priority_beta must be in [0, 1], got {train.priority_beta!r}")
     if train.best_metric not in BEST_METRICS:
         raise ValueError(f"train.best_metric={train.best_metric!r}: known metrics are {', '.join(BEST_METRICS)}")
 
@@ -106,7 +110,8 @@ TrainConfig = _node("TrainConfig", "The ``train`` node (``conf/config.yaml``): c
                     "ratios, checkpoints.", _check_train, frames_per_env=int, warmup_frames=int, batch_size_cf=int,
                     batch_size_lc=int, buffer_cf=int, buffer_lc=int, updates_per_frame=int, updates_per_decision=int,
                     checkpoint_every=int, keep_buffers=bool, eval_every=int, eval_episodes=int, best_metric=str,
-                    optional={"n_steps": (int, 1)})
+                    optional={"n_steps": (int, 1), "prioritized": (bool, False), "priority_alpha": (float, 0.6),
+                              "priority_beta": (float, 0.4)})
 TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
                          ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
                          "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.).",

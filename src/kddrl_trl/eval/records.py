@@ -110,7 +110,8 @@ def _config(path: Path) -> dict | None:
 #: (not ``episodes``: short smoke and test sweeps would all be rows of their own)
 OPTION_KEYS = ("env.reward", "env.ego_start", "algo.mobil_safety_mask", "algo.lc_reward", "algo.shield",
                "algo.shield_ttc", "algo.state_extras", "algo.learner.d3qn.semi_mdp", "algo.learner.d3qn.eps_decisions",
-               "algo.learner.td3.exploration_clip", "train.n_steps", "train.updates_per_decision")
+               "algo.learner.td3.exploration_clip", "train.n_steps", "train.updates_per_decision", "train.prioritized",
+               "train.priority_alpha", "train.priority_beta")
 
 
 def _dotted(cfg: dict, key: str):

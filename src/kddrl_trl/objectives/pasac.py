@@ -74,7 +74,10 @@ class PASACLoss(LossModule):
     Returns (``forward``): a TensorDict with ``loss_qvalue``, ``loss_actor``, ``loss_alpha_lane``,
     ``loss_alpha_param`` (each trains disjoint parameters: summing them and stepping one optimiser per part is
     the SAC update) and the detached diagnostics ``alpha_lane``, ``alpha_param``, ``entropy_lane``,
-    ``log_prob_param``, ``state_action_value``, ``target_value``.
+    ``log_prob_param``, ``state_action_value``, ``target_value``, and ``td_error`` (TorchRL's priority key): the
+    squared TD errors ``[critics, B]`` (prioritized replay's priorities, :mod:`.priority`). A sample with
+    ``keys.PRIORITY_WEIGHT`` weights the critic and policy means by them (TorchRL's reduction); the temperature
+    losses stay unweighted.
     """
 
     @dataclass
@@ -91,6 +94,8 @@ class PASACLoss(LossModule):
                 Defaults to ``"state_value"``.
             reward, done, terminated: read under ``"next"``. Default to ``keys.JOINT_REWARD``, ``"done"``,
                 ``"terminated"``.
+            priority: the squared TD errors in ``forward`` 's output. Defaults to ``"td_error"``.
+            priority_weight: a prioritized sample's importance weights. Defaults to ``keys.PRIORITY_WEIGHT``.
         """
 
         action: NestedKey = K.LC_ACTION
@@ -104,6 +109,8 @@ class PASACLoss(LossModule):
         reward: NestedKey = K.JOINT_REWARD
         done: NestedKey = "done"
         terminated: NestedKey = "terminated"
+        priority: NestedKey = "td_error"
+        priority_weight: NestedKey = K.PRIORITY_WEIGHT
 
     tensor_keys: _AcceptedKeys
     actor_network: TensorDictModule
@@ -113,9 +120,10 @@ class PASACLoss(LossModule):
     target_actor_network_params: TensorDictParams
     target_qvalue_network_params: TensorDictParams
     default_keys = _AcceptedKeys
+    use_prioritized_weights = "auto"  # a sample's priority_weight (prioritized replay) weights the means, as TorchRL's
     default_value_estimator = ValueEstimators.TD0
     out_keys = ["loss_qvalue", "loss_actor", "loss_alpha_lane", "loss_alpha_param", "alpha_lane", "alpha_param",
-                "entropy_lane", "log_prob_param", "state_action_value", "target_value"]
+                "entropy_lane", "log_prob_param", "state_action_value", "target_value", "td_error"]
 
     def __init__(self, actor_network: TensorDictModule, qvalue_network: TensorDictModule, *, num_choices: int = 3,
                  num_qvalue_nets: int = 2, low: float = -5.0, high: float = 5.0, alpha_init: float = 1.0,
@@ -218,16 +226,28 @@ class PASACLoss(LossModule):
             target = self.value_estimator.value_estimate(td).squeeze(-1)
         pred = self._q(tensordict, tensordict.get(self.tensor_keys.action), tensordict.get(self.tensor_keys.param),
                        self.qvalue_network_params)
-        loss = distance_loss(pred, target.expand_as(pred), loss_function=self.loss_function).sum(0).mean()
-        return loss, {"state_action_value": pred.detach().mean(), "target_value": target.detach().mean()}
+        loss = distance_loss(pred, target.expand_as(pred), loss_function=self.loss_function).sum(0)
+        return self._weighted_mean(loss, tensordict), {"state_action_value": pred.detach().mean(),
+                                                       "target_value": target.detach().mean(),
+                                                       self.tensor_keys.priority: (pred - target).detach().pow(2)}
 
     def actor_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         """Policy loss of both heads (critics detached) and the entropies the temperatures are tuned on."""
         p, log_p, param, log_prob = self._policy(tensordict)
         q = self._q_every_choice(tensordict, param, self.qvalue_network_params.detach())
-        loss = ((p * (self.alpha_lane * log_p - q)).sum(-1, keepdim=True) + self.alpha_param * log_prob).mean()
+        loss = self._weighted_mean(((p * (self.alpha_lane * log_p - q)).sum(-1, keepdim=True)
+                                    + self.alpha_param * log_prob).squeeze(-1), tensordict)
         entropy = -(p * log_p).sum(-1)
         return loss, {"entropy_lane": entropy.detach(), "log_prob_param": log_prob.detach().squeeze(-1)}
+
+    def _weighted_mean(self, loss: Tensor, tensordict: TensorDictBase) -> Tensor:
+        """Mean of a per-transition ``loss`` ``[B]``, weighted by the sample's ``priority_weight`` when it has them
+        (``sum(w l) / sum(w)``, TorchRL's reduction)."""
+        weights = self._maybe_get_priority_weight(tensordict)
+        if weights is None:
+            return loss.mean()
+        weights = weights.reshape(loss.shape)
+        return (loss * weights).sum() / weights.sum()
 
     def alpha_loss(self, entropy_lane: Tensor, log_prob_param: Tensor) -> tuple[Tensor, Tensor]:
         """Temperature losses of the lane choice and the parameter (module docstring)."""

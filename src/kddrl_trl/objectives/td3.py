@@ -13,6 +13,7 @@ from torchrl.objectives import SoftUpdate, TD3Loss
 
 from .. import keys as K
 from ..modules.heads import BoundedActor, StateActionCritic
+from .priority import td_priority
 
 
 class ClippedGaussianModule(AdditiveGaussianModule):
@@ -43,9 +44,12 @@ class CarFollowingLosses:
         """The critics' parameters (the critic optimiser's)."""
         return getattr(self.loss, self._critic)
 
-    def value_loss(self, td):
-        """Critic loss (TD3: twin critics, Eq. 6-7) of a batch holding the agent's states."""
-        return getattr(self.loss, self._value)(td)[0]
+    def value_loss(self, td) -> tuple[torch.Tensor, torch.Tensor]:
+        """Critic loss (TD3: twin critics, Eq. 6-7) of a batch holding the agent's states (weighted by its
+        ``keys.PRIORITY_WEIGHT`` when it has them), and each transition's ``|δ|`` (the largest over the critics:
+        prioritized replay's priority, :mod:`.priority`)."""
+        loss, metadata = getattr(self.loss, self._value)(td)
+        return loss, td_priority(metadata["td_error"], td.numel())
 
     def actor_loss(self, td):
         """Deterministic policy-gradient loss ``-Q(s, mu(s))`` (Eq. 8), critic parameters detached."""

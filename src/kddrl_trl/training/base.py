@@ -76,11 +76,13 @@ def resolve_cudagraphs(cudagraphs: bool | str, device: torch.device) -> bool:
     return cudagraphs
 
 
-def _losses_in_a_tensordict(fn: Callable[[TensorDictBase], torch.Tensor]) -> Callable[[TensorDictBase], TensorDict]:
-    """An update function whose losses come back under ``keys.UPDATE_LOSSES`` of a TensorDict
-    (``CudaGraphModule`` returns TensorDicts only)."""
+def _outputs_in_a_tensordict(fn: Callable[[TensorDictBase], tuple[torch.Tensor, torch.Tensor]]
+                             ) -> Callable[[TensorDictBase], TensorDict]:
+    """An update function whose (losses, priorities) come back under ``keys.UPDATE_LOSSES`` and
+    ``keys.PRIORITY`` of a TensorDict (``CudaGraphModule`` returns TensorDicts only)."""
     def update(batch: TensorDictBase) -> TensorDict:
-        return TensorDict({K.UPDATE_LOSSES: fn(batch)})
+        losses, priority = fn(batch)
+        return TensorDict({K.UPDATE_LOSSES: losses, K.PRIORITY: priority})
     return update
 
 
@@ -157,21 +159,22 @@ class Learner(nn.Module):
         for name, fn in self.update_functions().items():
             if self.compiled and self.cudagraphs:
                 fn = torch.compile(fn, dynamic=False)
+            fn = _outputs_in_a_tensordict(fn)
             if self.cudagraphs:
                 from tensordict.nn import CudaGraphModule
 
-                fn = CudaGraphModule(_losses_in_a_tensordict(fn), warmup=3, in_keys=[], out_keys=[],
-                                     device=self.device)
+                fn = CudaGraphModule(fn, warmup=3, in_keys=[], out_keys=[], device=self.device)
             fns[name] = fn
         self.__dict__["_update_fns"] = fns  # not submodules (compiled wrappers hold the learner's own modules)
 
     def _run(self, name: str, batch: TensorDictBase) -> list[float]:
-        """Runs the update function ``name`` on a sampled ``batch`` (moved to the learner's device); its losses
-        as floats."""
-        if batch.device != self.device:
-            batch = batch.to(self.device, non_blocking=True)
-        losses = self._update_fns[name](batch)
-        return (losses[K.UPDATE_LOSSES] if self.cudagraphs else losses).tolist()
+        """Runs the update function ``name`` on a sampled ``batch`` (moved to the learner's device); returns its
+        losses as floats and writes each transition's ``|δ|`` into ``batch`` (``keys.PRIORITY``: what a prioritized
+        buffer's ``update_tensordict_priority`` reads)."""
+        on_device = batch if batch.device == self.device else batch.to(self.device, non_blocking=True)
+        out = self._update_fns[name](on_device)
+        batch.set(K.PRIORITY, out[K.PRIORITY].clone())  # a CUDA graph's outputs are overwritten by its next replay
+        return out[K.UPDATE_LOSSES].tolist()
 
     def policy(self, explore: bool = True) -> TensorDictModuleBase:
         """The acting policy (exploration modules act only under ``ExplorationType.RANDOM``) for env TensorDicts
@@ -186,16 +189,18 @@ class Learner(nn.Module):
         raise NotImplementedError
 
     def update_functions(self) -> dict:
-        """Name -> ``update(batch) -> detached losses (1-d tensor)``: one gradient step (loss, backward, optimiser
-        steps, soft target updates), what :meth:`_compile` compiles and graphs."""
+        """Name -> ``update(batch) -> (detached losses (1-d tensor), |δ| per transition)``: one gradient step (loss,
+        backward, optimiser steps, soft target updates), what :meth:`_compile` compiles and graphs."""
         raise NotImplementedError
 
     def buffer_keys(self) -> list:
         """Keys a replay-buffer entry must keep for the updates (root and under ``"next"``)."""
         raise NotImplementedError
 
-    def loss(self, name: str, batch: TensorDictBase) -> torch.Tensor:
-        """The loss ``name`` of a replay-buffer sample: tensor maths only, what ``compile`` compiles."""
+    def loss(self, name: str, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(the loss ``name`` of a replay-buffer sample, its transitions' ``|δ|`` for a value loss, else None):
+        tensor maths only, what ``compile`` compiles. A sample with ``keys.PRIORITY_WEIGHT`` (prioritized replay)
+        weights the loss's mean by them."""
         raise NotImplementedError
 
     def update_frame(self, batch: TensorDictBase) -> dict[str, float]:

@@ -26,7 +26,7 @@ from tensordict.nn import TensorDictSequential
 from .. import keys as K
 from ..modules import build_agent_states, cf_obs_dim, cf_state
 from ..modules.joint import accel_levels, joint_action_mask, joint_action_split, joint_reward
-from ..objectives import PolyakUpdate, make_d3qn, soft_update_tensors
+from ..objectives import PolyakUpdate, make_d3qn, soft_update_tensors, td_priority
 from .base import STATE_KEYS, Learner, adam, transition_keys
 
 
@@ -91,22 +91,24 @@ class JointD3QNLearner(Learner):
     def exploration(self) -> dict[str, float]:
         return {"epsilon": float(self.q_explore.eps)}
 
-    def loss(self, name: str, batch: TensorDictBase) -> torch.Tensor:
-        """``"joint"``: the double-DQN loss (Eq. 4) of a buffer-L sample on the joint reward."""
+    def loss(self, name: str, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
+        """``"joint"``: the double-DQN loss (Eq. 4) of a buffer-L sample on the joint reward, and each transition's
+        ``|δ|`` (prioritized replay)."""
         if name != "joint":
             raise ValueError(f"JointD3QNLearner.loss: unknown loss {name!r}; known: joint")
-        states = build_agent_states(batch, None, self.state, self.mask)
-        return self.q_loss(self.reward(states))["loss"]
+        states = self.reward(build_agent_states(batch, None, self.state, self.mask))
+        loss = self.q_loss(states)["loss"]  # DQNLoss writes the squared TD errors into ``states``
+        return loss, td_priority(states.get(self.q_loss.tensor_keys.priority), states.numel())
 
     def update_functions(self) -> dict:
         return {"joint": self._step}
 
-    def _step(self, batch: TensorDictBase) -> torch.Tensor:
+    def _step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """The double-DQN step (Eq. 4), then the soft target update (Eq. 5)."""
-        loss = self.loss("joint", batch)
+        loss, priority = self.loss("joint", batch)
         self._descend(loss, self.opt)
         self._soft()
-        return loss.detach().reshape(1)
+        return loss.detach().reshape(1), priority
 
     def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
         loss = self._run("joint", batch)[0]

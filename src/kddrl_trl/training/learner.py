@@ -29,7 +29,15 @@ from ..modules import (
     make_shared_embedding,
     make_target_embedding,
 )
-from ..objectives import PolyakUpdate, make_d3qn, make_ddpg, make_td3, module_tensors, soft_update_tensors
+from ..objectives import (
+    PolyakUpdate,
+    make_d3qn,
+    make_ddpg,
+    make_td3,
+    module_tensors,
+    soft_update_tensors,
+    td_priority,
+)
 from .base import STATE_KEYS, Learner, adam, transition_keys
 
 log = logging.getLogger(__name__)
@@ -150,8 +158,9 @@ class HierarchicalLearner(Learner):
         return {"epsilon": float(self.lc_explore.eps)}
 
     # ---------------------------------------------------------------------------------- updates
-    def loss(self, name: str, batch: TensorDictBase) -> torch.Tensor:
-        """The loss ``name`` of a replay-buffer sample, on the agents' states (s_e of Eq. 23-24 inside):
+    def loss(self, name: str, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The loss ``name`` of a replay-buffer sample, on the agents' states (s_e of Eq. 23-24 inside), and for
+        the value losses each transition's ``|δ|`` (prioritized replay, :mod:`~kddrl_trl.objectives.priority`):
 
         - ``"cf_value"``: TD3 twin-critic loss (Eq. 6-7); trains the embedding too (target s_e from the target
           embedding; the next state's lane-change action is the D3QN's greedy choice where the next frame is a
@@ -166,10 +175,11 @@ class HierarchicalLearner(Learner):
             return self.td3.value_loss(states)
         if name == "cf_actor":
             states = build_agent_states(batch.exclude("next"), self.embedding, self.cf_state)
-            return self.td3.actor_loss(detach_embedding(states))
+            return self.td3.actor_loss(detach_embedding(states)), None
         if name == "lc":
             states = build_agent_states(batch, self.embedding, self.lc_state, target_embedding=self.target_embedding)
-            return self.lc_loss(states)["loss"]
+            loss = self.lc_loss(states)["loss"]  # DQNLoss writes the squared TD errors into ``states``
+            return loss, td_priority(states.get(self.lc_loss.tensor_keys.priority), states.numel())
         raise ValueError(f"HierarchicalLearner.loss: unknown loss {name!r}; known: cf_value, cf_actor, lc")
 
     def update_functions(self) -> dict:
@@ -177,27 +187,27 @@ class HierarchicalLearner(Learner):
         target updates (the step of every ``policy_delay``-th critic update); ``"lc"``: the D3QN step."""
         return {"cf_value": self._step_cf_value, "cf_full": self._step_cf_full, "lc": self._step_lc}
 
-    def _step_cf_value(self, batch: TensorDictBase) -> torch.Tensor:
+    def _step_cf_value(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """TD3 critic step (Eq. 6-7): the critics and the embedding (its own optimiser, ``modules/sharing.py``)."""
-        value_loss = self.loss("cf_value", batch)
+        value_loss, priority = self.loss("cf_value", batch)
         self._descend(value_loss, self.opt_critic, self.opt_embed)
-        return value_loss.detach().reshape(1)
+        return value_loss.detach().reshape(1), priority
 
-    def _step_cf_full(self, batch: TensorDictBase) -> torch.Tensor:
+    def _step_cf_full(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """The critic step, then the delayed actor step (Eq. 8, on detached s_e, after the critic moved) and the
         soft target updates of the actor, the critics and the embedding (Eq. 9-10)."""
-        value_loss = self._step_cf_value(batch)
-        actor_loss = self.loss("cf_actor", batch)
+        value_loss, priority = self._step_cf_value(batch)
+        actor_loss, _ = self.loss("cf_actor", batch)
         self._descend(actor_loss, self.opt_actor)
         self._soft_cf()
-        return torch.cat([value_loss, actor_loss.detach().reshape(1)])
+        return torch.cat([value_loss, actor_loss.detach().reshape(1)]), priority
 
-    def _step_lc(self, batch: TensorDictBase) -> torch.Tensor:
+    def _step_lc(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """D3QN step (Eq. 4, the embedding trained too), then the soft target updates (Eq. 5 and the embedding)."""
-        loss = self.loss("lc", batch)
+        loss, priority = self.loss("lc", batch)
         self._descend(loss, self.opt_lc, self.opt_embed)
         self._soft_lc()
-        return loss.detach().reshape(1)
+        return loss.detach().reshape(1), priority
 
     def update_cf(self, batch: TensorDictBase) -> dict[str, float]:
         """One TD3 step on a buffer-L sample (Algorithm 1 lines 38-43)."""

@@ -17,7 +17,7 @@ from tensordict.nn import TensorDictSequential
 from .. import keys as K
 from ..modules import build_agent_states, cf_obs_dim
 from ..modules.joint import joint_reward
-from ..objectives import PolyakUpdate, make_pasac, soft_update_tensors
+from ..objectives import PolyakUpdate, make_pasac, soft_update_tensors, td_priority
 from .base import Learner, adam, transition_keys
 from .joint_d3qn import JOINT_STATE_KEYS, joint_state
 
@@ -68,23 +68,24 @@ class PASACLearner(Learner):
     def exploration(self) -> dict[str, float]:
         return {"alpha_lane": float(self.sac_loss.alpha_lane), "alpha_param": float(self.sac_loss.alpha_param)}
 
-    def loss(self, name: str, batch: TensorDictBase) -> torch.Tensor:
+    def loss(self, name: str, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """``"pasac"``: the :data:`LOSS_ENTRIES` of :class:`~kddrl_trl.objectives.PASACLoss` on a buffer-L sample,
-        stacked into one tensor (what ``torch.compile`` handles best)."""
+        stacked into one tensor (what ``torch.compile`` handles best), and each transition's ``|δ|`` (prioritized
+        replay)."""
         if name != "pasac":
             raise ValueError(f"PASACLearner.loss: unknown loss {name!r}; known: pasac")
         out = self.sac_loss(self.reward(build_agent_states(batch, None, self.state)))
-        return torch.stack([out[k] for k in LOSS_ENTRIES])
+        return torch.stack([out[k] for k in LOSS_ENTRIES]), td_priority(out[self.sac_loss.tensor_keys.priority], batch.numel())
 
     def update_functions(self) -> dict:
         return {"pasac": self._step}
 
-    def _step(self, batch: TensorDictBase) -> torch.Tensor:
+    def _step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """One SAC step: critics, both policy heads and both temperatures, then the critics' soft target update."""
-        out = self.loss("pasac", batch)
+        out, priority = self.loss("pasac", batch)
         self._descend(out[:4].sum(), self.opt_critic, self.opt_actor, self.opt_alpha)
         self._soft()
-        return out[:4].detach()
+        return out[:4].detach(), priority
 
     def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
         out = self._run("pasac", batch)

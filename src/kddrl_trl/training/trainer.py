@@ -29,12 +29,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplayBuffer
+
+from .. import keys as K
 
 from ..collectors import MultiTimescaleCollector
 from ..eval.tracker import EpisodeTracker
 from .base import Learner
 from .checkpoint import load_latest_training_checkpoint, save_best_checkpoint, save_training_checkpoint
+from .priority_trees import PortablePrioritizedSampler
 
 if TYPE_CHECKING:
     from ..conf.schema import TrainConfig
@@ -46,15 +49,33 @@ EPISODE_FIELDS = ("return_lc", "return_cf", "mean_speed_kmh", "mean_accel", "mea
                   "frames", "collision", "shield_rate")
 
 
-def make_buffer(capacity: int, batch_size: int, seed: int,
-                device: torch.device | str | None = None) -> TensorDictReplayBuffer:
-    """A uniform TorchRL replay buffer in memory (``LazyTensorStorage``) on ``device`` (None: the CPU): a CUDA
-    learner's buffers live on its GPU, so the collector's frames cross once per batch and the sampled minibatches
-    are already where the update runs."""
+#: ε of prioritized replay: ``P(i) ∝ (|δ_i| + ε)^α``, no transition's probability is zero
+PRIORITY_EPS = 1e-6
+
+
+def make_buffer(capacity: int, batch_size: int, seed: int, device: torch.device | str | None = None,
+                prioritized: tuple[float, float] | None = None) -> TensorDictReplayBuffer:
+    """A TorchRL replay buffer in memory (``LazyTensorStorage``) on ``device`` (None: the CPU): a CUDA learner's
+    buffers live on its GPU, so the collector's frames cross once per batch and the sampled minibatches are already
+    where the update runs. Uniform sampling (the paper), or with ``prioritized = (alpha, beta)`` TorchRL's
+    ``PrioritizedSampler`` (Schaul et al., 2016; ``train.prioritized``; on any torch build:
+    :class:`~kddrl_trl.training.priority_trees.PortablePrioritizedSampler`): ``P(i) ∝ (|δ_i| + ε)^α``,
+    new transitions at the largest priority so far, samples carrying their importance weights
+    (``keys.PRIORITY_WEIGHT``) and priorities updated from ``keys.PRIORITY`` (:meth:`Trainer._updates`)."""
     device = torch.device(device or "cpu")
     gen = torch.Generator(device).manual_seed(int(seed))  # the sampler draws its indices on the storage's device
-    return TensorDictReplayBuffer(storage=LazyTensorStorage(int(capacity), device=device),
+    storage = LazyTensorStorage(int(capacity), device=device)
+    if prioritized is None:
+        return TensorDictReplayBuffer(storage=storage, batch_size=int(batch_size), generator=gen)
+    alpha, beta = prioritized
+    sampler = PortablePrioritizedSampler(int(capacity), float(alpha), float(beta), eps=PRIORITY_EPS)
+    return TensorDictReplayBuffer(storage=storage, sampler=sampler, priority_key=K.PRIORITY,
                                   batch_size=int(batch_size), generator=gen)
+
+
+def is_prioritized(buffer: TensorDictReplayBuffer) -> bool:
+    """Whether ``buffer`` samples by priority (:func:`make_buffer` with ``prioritized``)."""
+    return isinstance(buffer.sampler, PrioritizedSampler)
 
 
 def load_buffer(buffer: TensorDictReplayBuffer, state: dict) -> None:
@@ -150,16 +171,33 @@ class Trainer:
                     "resume=true, or start again")
             losses.setdefault(k, []).append(v)
 
+    def _update(self, buffer: TensorDictReplayBuffer, update, losses: dict[str, list[float]]) -> None:
+        """One ``update`` (the learner's ``update_frame`` / ``update_decision``) on a sample of ``buffer``; a
+        prioritized buffer then takes the sample's new ``|δ|`` as its priorities."""
+        batch = buffer.sample()
+        self._record(update(batch), losses)
+        if is_prioritized(buffer):
+            buffer.update_tensordict_priority(batch)
+
     def _updates(self, frames: int, decisions: int, losses: dict[str, list[float]]) -> None:
         c, learner = self.cfg, self.learner
         if self.counters["frames"] >= c.warmup_frames and len(self.buffer_cf) >= c.batch_size_cf:
             for _ in range(frames * c.updates_per_frame):
-                self._record(learner.update_frame(self.buffer_cf.sample()), losses)
+                self._update(self.buffer_cf, learner.update_frame, losses)
                 self.counters["cf_updates"] += 1
         if learner.learns_from_decisions and len(self.buffer_lc) >= c.batch_size_lc:
             for _ in range(decisions * c.updates_per_decision):
-                self._record(learner.update_decision(self.buffer_lc.sample()), losses)
+                self._update(self.buffer_lc, learner.update_decision, losses)
                 self.counters["lc_updates"] += 1
+
+    def _anneal_beta(self) -> None:
+        """Prioritized replay's importance-sampling exponent: ``train.priority_beta`` annealed linearly to 1 over
+        the training episodes (Schaul et al., 2016), in both buffers."""
+        beta0 = self.cfg.priority_beta
+        beta = beta0 + (1.0 - beta0) * min(1.0, len(self.history) / max(self.episodes, 1))
+        for buffer in (self.buffer_cf, self.buffer_lc):
+            if is_prioritized(buffer):
+                buffer.sampler.beta = beta
 
     def _log_episode(self, ep: dict, losses: dict[str, list[float]], started: float) -> None:
         step = ep["index"]
@@ -199,6 +237,7 @@ class Trainer:
                 self.counters["frames"] += frames
                 self.counters["decisions"] += decisions
                 learner.explore_step(decisions, frames)
+                self._anneal_beta()
                 self._updates(frames, decisions, losses)
                 self.collector.update_policy_weights_()
                 for ep in self.tracker(batch.frames):
