@@ -782,3 +782,21 @@ def test_shield_executes_and_records_the_bounded_action_and_counts_interventions
     assert 0 < summarize(episodes)["shield_rate"] <= 1
     bare = evaluate_policy(FakeHighwayEnv(num_roads=4, seed=0), floor_it, episodes=2, seed=0, progress=False)
     assert all(e["shield_interventions"] == 0 for e in bare)  # no shield: the key is absent, counted as 0
+    # in a ParallelEnv worker (the periodic evaluation's), whose TensorDicts are locked: the shield still acts
+    from functools import partial
+
+    from torchrl.envs import ParallelEnv
+
+    worker = ParallelEnv(1, partial(shielded_fake_env, kind), mp_start_method="spawn")
+    try:
+        episodes = evaluate_policy(worker, floor_it, episodes=4, seed=0, progress=False)
+    finally:
+        worker.close()
+    assert sum(e["shield_interventions"] for e in episodes) > 0
+
+
+def shielded_fake_env(kind: str):
+    """The fake env of 4 roads behind a :class:`~kddrl_trl.transforms.SafetyShield` (picklable for a worker)."""
+    from kddrl_trl.transforms import SafetyShield
+
+    return TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0, ego_start="window"), SafetyShield(kind))
