@@ -4,7 +4,7 @@ exploration state."""
 from __future__ import annotations
 
 import json
-import pickle
+import os
 import subprocess
 import sys
 
@@ -93,8 +93,13 @@ def test_worker_env_factories_have_distinct_documented_reproducible_seeds():
     assert [f.seed for f in make_env_factories(job, seed=8)] == [8, 8 + WORKER_OFFSET, 8 + 2 * WORKER_OFFSET]
     # what a spawned worker receives (TorchRL pickles env factories with cloudpickle: the algo schemas are made by
     # dataclasses.make_dataclass, which the standard pickle cannot find by name)
-    again = pickle.loads(cloudpickle.dumps(factories))
-    assert [f.seed for f in again] == [f.seed for f in factories]
+    # (loaded in a fresh process, as a worker does: cloudpickle loading classes pickled by value back into the
+    # process that defined them rewrites those classes, which broke later tests of the same pytest worker)
+    loaded = subprocess.run([sys.executable, "-c", "import pickle, sys; "
+                             "print([f.seed for f in pickle.loads(sys.stdin.buffer.read())])"],
+                            input=cloudpickle.dumps(factories), capture_output=True, check=True,
+                            env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert loaded.stdout.decode().strip() == str([f.seed for f in factories])
     (single,) = make_env_factories(compose_job("compile=false"), seed=7)
     assert single.seed == 7 and not single.seed_torch  # the learner process's env: as before, torch left alone
     assert protocol(7, 10, None, 1, workers=3)["worker_seeds"] == [f.seed for f in factories]
