@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import time
@@ -69,7 +70,7 @@ def main() -> None:
     med = {name: statistics.median(v) for name, v in turns.items()}
     result = {"args": vars(args), "trees": "torchrl" if native_trees_available() else "tensor",
               "machine": {"platform": platform.platform(), "python": platform.python_version(),
-                          "torch": torch.__version__, "cpu_count": __import__("os").cpu_count()},
+                          "torch": torch.__version__, "cpu_count": os.cpu_count()},
               "ms_per_call": {k: 1e3 * v for k, v in med.items()}, "turns_ms": {k: [1e3 * x for x in v]
                                                                             for k, v in turns.items()},
               "prioritized_ratio": med["prioritized"] / med["uniform"]}

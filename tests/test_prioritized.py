@@ -45,12 +45,11 @@ def test_prioritized_buffer_samples_by_priority_with_importance_weights():
     # (p_i / p_min)^-beta: the high-priority transition is down-weighted (1 / 10) against the others (1)
     torch.testing.assert_close(w, torch.where(heavy["index"] == 3, 0.1, 1.0), rtol=1e-4, atol=1e-5)
     # the same seed draws the same indices (reproducible runs)
-    again = make_buffer(100, 64, seed=0, prioritized=(1.0, 1.0))
-    again.extend(TensorDict({"x": torch.arange(10.0)}, [10]))
-    torch.testing.assert_close(again.sample()["index"], make_buffer_sample_first(seed=0))
+    torch.testing.assert_close(first_sample(seed=0), first_sample(seed=0))
 
 
-def make_buffer_sample_first(seed: int) -> torch.Tensor:
+def first_sample(seed: int) -> torch.Tensor:
+    """The indices of a fresh prioritized buffer's first sample (10 transitions, equal priorities)."""
     rb = make_buffer(100, 64, seed=seed, prioritized=(1.0, 1.0))
     rb.extend(TensorDict({"x": torch.arange(10.0)}, [10]))
     return rb.sample()["index"]

@@ -173,7 +173,8 @@ class Learner(nn.Module):
         buffer's ``update_tensordict_priority`` reads)."""
         on_device = batch if batch.device == self.device else batch.to(self.device, non_blocking=True)
         out = self._update_fns[name](on_device)
-        batch.set(K.PRIORITY, out[K.PRIORITY].clone())  # a CUDA graph's outputs are overwritten by its next replay
+        priority = out[K.PRIORITY]
+        batch.set(K.PRIORITY, priority.clone() if self.cudagraphs else priority)  # a graph's outputs are reused
         return out[K.UPDATE_LOSSES].tolist()
 
     def policy(self, explore: bool = True) -> TensorDictModuleBase:

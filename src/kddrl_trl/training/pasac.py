@@ -75,7 +75,8 @@ class PASACLearner(Learner):
         if name != "pasac":
             raise ValueError(f"PASACLearner.loss: unknown loss {name!r}; known: pasac")
         out = self.sac_loss(self.reward(build_agent_states(batch, None, self.state)))
-        return torch.stack([out[k] for k in LOSS_ENTRIES]), td_priority(out[self.sac_loss.tensor_keys.priority], batch.numel())
+        priority = td_priority(out[self.sac_loss.tensor_keys.priority], batch.numel())
+        return torch.stack([out[k] for k in LOSS_ENTRIES]), priority
 
     def update_functions(self) -> dict:
         return {"pasac": self._step}

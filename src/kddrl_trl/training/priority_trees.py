@@ -11,14 +11,9 @@ reduction, sampling a ``cumsum`` + ``searchsorted``: O(capacity) per call instea
 """
 from __future__ import annotations
 
-import logging
-
-import numpy as np
 import torch
 from torchrl.data.replay_buffers.samplers import prioritized as _torchrl_prioritized
 from torchrl.data.replay_buffers.samplers.prioritized import PrioritizedSampler
-
-log = logging.getLogger(__name__)
 
 
 def native_trees_available() -> bool:
@@ -30,7 +25,7 @@ class _TensorTree:
     """A segment tree's interface (``tree[index]``, ``tree[index] = value``, ``query(start, end)``) on one flat
     float64 tensor of ``capacity`` entries, ``fill`` where nothing was written."""
 
-    fill: float = 0.0
+    fill: float  # the reduction's identity
 
     def __init__(self, capacity: int, device: torch.device | str | None = None):
         self.values = torch.full((int(capacity),), self.fill, dtype=torch.float64, device=device)
@@ -66,8 +61,7 @@ class TensorSumTree(_TensorTree):
 
     def scan_lower_bound(self, mass) -> torch.Tensor:
         """For each ``mass``, the first index whose cumulative sum exceeds it."""
-        mass = torch.as_tensor(np.asarray(mass) if not isinstance(mass, torch.Tensor) else mass,
-                               dtype=torch.float64, device=self.values.device)
+        mass = torch.as_tensor(mass, dtype=torch.float64, device=self.values.device)
         return torch.searchsorted(self.values.cumsum(0), mass, right=True)
 
 

@@ -32,7 +32,6 @@ import torch
 from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplayBuffer
 
 from .. import keys as K
-
 from ..collectors import MultiTimescaleCollector
 from ..eval.tracker import EpisodeTracker
 from .base import Learner
