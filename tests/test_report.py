@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
-from kddrl_trl.eval.stats import difference_ci, mean_ci
+from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
 
 #: a tiny KDDRL budget that still trains, validates and evaluates
 TINY = ["episodes=4", "eval_episodes=4", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
@@ -58,6 +58,10 @@ def test_bootstrap_intervals_over_seeds():
     assert lower["ci_high"] < 0 and lower["p_greater"] == 0.0
     same = difference_ci([1.0, 2.0, 3.0], [1.5, 2.5, 2.0])
     assert same["ci_low"] < 0 < same["ci_high"]
+    faster = ratio_ci([110.0, 112.0, 108.0], [100.0, 101.0, 99.0])
+    assert faster["mean"] == pytest.approx(1.1) and 1.0 < faster["ci_low"] < 1.1 < faster["ci_high"]
+    with pytest.raises(ValueError, match="reference values must be finite and > 0"):
+        ratio_ci([1.0], [0.0])
 
 
 # -------------------------------------------------------------------------------------------- records
@@ -112,10 +116,34 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
     assert rows["kddrl"]["paper"]["mean_speed_kmh"] == [159.4, 22.5]
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "idm_mobil is lower" in md and "125.0 [" in md and "paper: 159.4 ± 22.5" in md
+    # against the rule baseline: 125 / 90 km/h, no collisions on either side; no shield column without a shield
+    assert "| kddrl | 3 | 1.389 | [" in md and "| 0.0% | +0.0 | [+0.0, +0.0] |" in md
+    assert "shield interventions" not in md
     two = build_report(find_runs([tmp_path / "runs" / "k0", tmp_path / "runs" / "k1", tmp_path / "runs" / "i0",
                                   tmp_path / "runs" / "i1"]), tmp_path / "rep2")
     assert two["rows"] and "too few seeds for a verdict (2 vs 2" in (tmp_path / "rep2" / "report.md").read_text()
     assert out["figures"]["Figs. 9 / 15: evaluation returns"]
+
+
+def test_shield_interventions_and_collisions_are_read_against_the_rules(tmp_path):
+    """Issue 14: a shielded row shows how often its shield acted (fraction of frames), and every row's speed ratio
+    and collision difference to IDM+MOBIL come with their intervals."""
+    from kddrl_trl.eval.records import find_runs
+    from kddrl_trl.eval.report import build_report
+
+    for seed in range(3):
+        run = _fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(110.0, 110.0 + seed),
+                        collisions=(seed == 0, False))
+        frame = pd.read_csv(run / "eval_episodes.csv")
+        frame.assign(shield_interventions=[50, 25]).to_csv(run / "eval_episodes.csv", index=False)
+        _fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(100.0, 100.0), collisions=(False, False))
+    build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep")
+    md = (tmp_path / "rep" / "report.md").read_text()
+    table = next(line for line in md.splitlines() if line.startswith("| **kddrl**"))
+    assert table.endswith("| 37.50% [37.50%, 37.50%] |")  # 75 of 200 frames in every seed
+    against = next(line for line in md.splitlines() if line.startswith("| kddrl | 3 |"))
+    # speed 110.5 / 100 (seeds 110, 110.5, 111); collisions 50 %, 0, 0: +16.7 points
+    assert against.startswith("| kddrl | 3 | 1.105 | [1.100, 1.110] | 16.7% | +16.7 | [+0.0, +50.0] | 37.50% |")
 
 
 def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):

@@ -14,12 +14,14 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
+
 from .. import keys as K
 from ..provenance import commit, machine, versions
 from . import figures
 from .paper import PAPER_NAMES, TABLES, paper_value
 from .records import RunRecord
-from .stats import difference_ci, mean_ci
+from .stats import difference_ci, mean_ci, ratio_ci
 
 #: metric name -> (column title, unit, format); the first four are the paper's table columns
 METRICS = {
@@ -38,6 +40,8 @@ METRICS = {
 TABLE_METRICS = ("mean_speed_kmh", "mean_accel", "lane_changes_per_episode", "lane_changes_per_1000_episodes",
                  "collision_rate")
 REFERENCE = "kddrl"
+#: the rule-based reference of the safety comparison (issue 14's goals are read against it)
+RULE_REFERENCE = "idm_mobil"
 #: fewer seeds than this on a side: no verdict (a percentile bootstrap over 2 seeds only spans the two values seen)
 MIN_SEEDS_FOR_VERDICT = 3
 #: scenario order of the paper's tables
@@ -96,9 +100,14 @@ def rows(runs: list[RunRecord]) -> list[dict]:
     return out
 
 
+def _shielded(table_rows: list[dict]) -> bool:
+    return any(row["metrics"]["shield_rate"]["mean"] > 0 for row in table_rows)
+
+
 def _table(scenario: str, table_rows: list[dict]) -> list[str]:
+    shown = TABLE_METRICS + (("shield_rate",) if _shielded(table_rows) else ())  # a column once a row has a shield
     head = ["algo (paper's name)", "seeds × episodes"] + [METRICS[m][0] + (f" ({METRICS[m][1]})" if METRICS[m][1] else "")
-                                                          for m in TABLE_METRICS]
+                                                          for m in shown]
     lines = [f"### {scenario} (paper {TABLES.get(scenario, 'no table')})", "",
              "Each cell: the mean over seeds [95 % bootstrap CI over seeds]; below it, the paper's value (mean ± its "
              "unexplained ±) where it published one. A row of 2 seeds has no real interval: its bracket is the range of "
@@ -109,7 +118,7 @@ def _table(scenario: str, table_rows: list[dict]) -> list[str]:
         n = row["episodes_per_seed"]
         cells = [f"**{row['algo']}** ({PAPER_NAMES.get(row['algo'], 'not in the paper')})",
                  f"{len(row['seeds'])} × {n[0] if len(n) == 1 else n}"]
-        for m in TABLE_METRICS:
+        for m in shown:
             paper = _paper_cell(scenario, row["algo"], m)
             cells.append(_cell(m, row["metrics"][m]) + (f"<br>paper: {paper}" if paper else ""))
         lines.append("| " + " | ".join(cells) + " |")
@@ -144,6 +153,34 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
             ci = "n/a" if d["ci_low"] is None else f"[{_fmt(m, d['ci_low'])}, {_fmt(m, d['ci_high'])}]"
             lines.append(f"| {row['algo']} | {METRICS[m][0]} | {'+' if d['mean'] > 0 else ''}{_fmt(m, d['mean'])} | {ci} | {d['p_greater']:.2f} | "
                          f"{_verdict(d, m, row['algo'], (len(row['seeds']), len(ref['seeds'])))} |")
+    return lines
+
+
+def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
+    """Each other row against :data:`RULE_REFERENCE` on one scenario: its mean speed as a ratio of the rule
+    baseline's and its collision rate minus the rule baseline's, with bootstrap CIs over seeds (issue 14's goals:
+    speed >= 1.05 x, collisions <= + 0.5 points on baseline, <= 2 % on braking)."""
+    ref = next((r for r in table_rows if r["algo"] == RULE_REFERENCE), None)
+    others = [r for r in table_rows if r["algo"] != RULE_REFERENCE]
+    if ref is None or not others:
+        return []
+    shield = _shielded(table_rows)
+    lines = [f"### {scenario}: each algo against {RULE_REFERENCE} ({len(ref['seeds'])} seeds)", "",
+             f"Mean speed ÷ {RULE_REFERENCE}'s and collision rate − {RULE_REFERENCE}'s (percentage points), "
+             "95 % bootstrap CI (seeds resampled within each system).", "",
+             "| algo | seeds | speed ratio | 95 % CI | collision rate | collisions − rules | 95 % CI |"
+             + (" shield interventions |" if shield else ""), "|---|---|---|---|---|---|---|" + ("---|" if shield else "")]
+    for row in others:
+        speed = ratio_ci(row["per_seed"]["mean_speed_kmh"], ref["per_seed"]["mean_speed_kmh"])
+        hits = difference_ci(100.0 * np.asarray(row["per_seed"]["collision_rate"]),
+                             100.0 * np.asarray(ref["per_seed"]["collision_rate"]))
+        ci = ["n/a" if d["ci_low"] is None else f"[{d['ci_low']:{f}}, {d['ci_high']:{f}}]"
+              for d, f in ((speed, ".3f"), (hits, "+.1f"))]
+        cells = [row["algo"], str(len(row["seeds"])), f"{speed['mean']:.3f}", ci[0],
+                 _fmt("collision_rate", row["metrics"]["collision_rate"]["mean"]), f"{hits['mean']:+.1f}", ci[1]]
+        if shield:
+            cells.append(_fmt("shield_rate", row["metrics"]["shield_rate"]["mean"]))
+        lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
@@ -220,6 +257,10 @@ def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "pyt
     md += ["## Comparison with KDDRL", ""]
     for s in scenarios:
         md += _comparisons(s, [r for r in table_rows if r["scenario"] == s]) + [""]
+    against = [line for s in scenarios for line in
+               _against_rules(s, [r for r in table_rows if r["scenario"] == s]) + [""]]
+    if any(against):
+        md += [f"## Against the rule baseline ({RULE_REFERENCE})", ""] + against
     md += ["## Collisions by kind", "",
            "Kinds (`kddrl_trl/keys.py`): `rear_end`, the ego ran into a vehicle ahead; `hit_from_behind`, a vehicle "
            "behind ran into the ego; `side`, any contact while the ego's lane change was under way. The other "

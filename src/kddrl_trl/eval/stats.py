@@ -1,6 +1,6 @@
 """Confidence intervals over seeds: the seed (run) is the unit of evidence (DESIGN.md "Evidence").
 
-Percentile bootstrap (``scipy.stats.bootstrap``) of the across-seed mean, and of the difference of two systems'
+Percentile bootstrap (``scipy.stats.bootstrap``) of the across-seed mean, and of the difference (or the ratio) of two systems'
 means (independent seeds, each resampled on its own). Fixed ``random_state``: the same records give the same
 report. With one seed there is no interval (None); with identical values the interval is that value.
 """
@@ -34,17 +34,34 @@ def mean_ci(values, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) 
     return {"mean": mean, "ci_low": low, "ci_high": high, "n": int(x.size)}
 
 
-def difference_ci(values, reference, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
-    """Mean of ``values`` minus mean of ``reference`` (independent seeds) with its bootstrap interval, and the
-    probability of improvement ``P(X > Y)`` over all pairs of seeds (ties count one half)."""
+def _two_systems(values, reference, statistic, confidence: float, resamples: int) -> dict:
+    """``statistic(x, y)`` of two systems' per-seed values (independent seeds, each resampled on its own) with its
+    bootstrap interval, and the probability of improvement ``P(X > Y)`` over all pairs of seeds (ties count one
+    half)."""
     x, y = np.asarray(values, dtype=float), np.asarray(reference, dtype=float)
-    diff = float(x.mean() - y.mean())
+    value = float(statistic(x, y))
     pairs = x[:, None] - y[None, :]
     p_greater = float(((pairs > 0) + 0.5 * (pairs == 0)).mean())
     if min(x.size, y.size) < 2:
-        return {"mean": diff, "ci_low": None, "ci_high": None, "p_greater": p_greater}
+        return {"mean": value, "ci_low": None, "ci_high": None, "p_greater": p_greater}
     if np.ptp(x) == 0 and np.ptp(y) == 0:
-        return {"mean": diff, "ci_low": diff, "ci_high": diff, "p_greater": p_greater}
-    low, high = _bootstrap((x, y), lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), confidence,
-                           resamples)
-    return {"mean": diff, "ci_low": low, "ci_high": high, "p_greater": p_greater}
+        return {"mean": value, "ci_low": value, "ci_high": value, "p_greater": p_greater}
+    low, high = _bootstrap((x, y), statistic, confidence, resamples)
+    return {"mean": value, "ci_low": low, "ci_high": high, "p_greater": p_greater}
+
+
+def difference_ci(values, reference, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
+    """Mean of ``values`` minus mean of ``reference`` (independent seeds) with its bootstrap interval, and the
+    probability of improvement ``P(X > Y)`` over all pairs of seeds (ties count one half)."""
+    return _two_systems(values, reference, lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), confidence,
+                        resamples)
+
+
+def ratio_ci(values, reference, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
+    """Mean of ``values`` divided by the mean of ``reference`` (independent seeds; e.g. a policy's mean speed over
+    the rule baseline's, as issue 14's goal "speed >= 1.05 x IDM+MOBIL's" reads) with its bootstrap interval."""
+    y = np.asarray(reference, dtype=float)
+    if y.size == 0 or not (np.isfinite(y).all() and (y > 0).all()):
+        raise ValueError(f"ratio_ci: the reference values must be finite and > 0, got {y.tolist()}")
+    return _two_systems(values, y, lambda a, b, axis=-1: a.mean(axis=axis) / b.mean(axis=axis), confidence,
+                        resamples)
