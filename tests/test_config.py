@@ -182,3 +182,28 @@ def test_state_extras_reach_every_learner_and_default_off(name):
     assert [b.module.extras for b in builders] == [(), ("thw", "ttc")]
     sizes = [sum(p.numel() for p in lr.parameters()) for lr in learners]
     assert sizes[1] > sizes[0]  # the first layers take the two extra inputs
+
+
+@pytest.mark.parametrize("name", LEARNING_ALGOS)
+@pytest.mark.parametrize("scenario", ["baseline", "braking"])
+def test_the_plus_preset_sets_the_same_options_for_every_algo(name, scenario):
+    """``+preset=plus`` (issue 14's best combination) changes the same option keys, to the same values, whatever
+    the algo and scenario, and nothing else; the report names such a run by those options (so it pools with the
+    screening runs of that configuration); a command-line key still wins over the preset."""
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from kddrl_trl.conf.schema import algo_from_node
+    from kddrl_trl.eval.records import option_label
+
+    extra = [] if scenario == "baseline" else [f"+scenario={scenario}"]
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        plain = OmegaConf.to_container(compose(config_name="config", overrides=[f"algo={name}", *extra]),
+                                       resolve=True)
+        plus = OmegaConf.to_container(compose(config_name="config", overrides=[f"algo={name}", *extra,
+                                                                              "+preset=plus"]), resolve=True)
+        mine = compose(config_name="config", overrides=[f"algo={name}", *extra, "+preset=plus", "algo.shield=ttc"])
+        assert option_label(plus, name, scenario) == "algo.shield=idm"
+    assert algo_from_node(OmegaConf.create(plus["algo"])).shield == "idm" and mine.algo.shield == "ttc"
+    plus["algo"]["shield"] = plain["algo"]["shield"]
+    assert plus == plain  # nothing else changed
