@@ -106,6 +106,30 @@ def test_each_temperature_moves_toward_its_target_entropy(parts, part):
         assert float(getattr(loss, f"log_alpha_{other}")) == before[other]
 
 
+def test_the_lane_temperature_ignores_states_with_one_valid_command(parts):
+    """During a manoeuvre the mask leaves one lane command: entropy 0 whatever α_d. Such states do not tune α_d
+    (counting them drove α_d from 0.2 to 3e14 in a 1000-episode run): the lane temperature loss of a batch equals
+    that of its choosable rows alone, and a batch with no choice leaves α_d where it is."""
+    loss = parts.loss
+    td = batch()
+    forced = td[:8].clone()
+    forced[K.LC_ACTION_MASK] = torch.zeros(8, 3, dtype=torch.bool)
+    forced[K.LC_ACTION_MASK][:, K.KEEP] = True
+    mixed = torch.cat([td[8:], forced])
+    assert loss.choosable(mixed).tolist() == [1.0] * 8 + [0.0] * 8
+    torch.manual_seed(5)
+    both = loss(mixed)
+    torch.manual_seed(5)
+    alone = loss(td[8:])
+    assert float(both["loss_alpha_lane"]) == pytest.approx(float(alone["loss_alpha_lane"]), rel=1e-5)
+    assert float(both["entropy_lane"]) == pytest.approx(float(alone["entropy_lane"]), rel=1e-5)
+    none = loss(forced)
+    assert float(none["loss_alpha_lane"]) == 0.0 and float(none["entropy_lane"]) == 0.0
+    loss.zero_grad(set_to_none=True)
+    none["loss_alpha_lane"].backward()
+    assert loss.log_alpha_lane.grad is None or float(loss.log_alpha_lane.grad) == 0.0
+
+
 def test_target_of_a_terminal_transition_is_the_reward(parts):
     td = batch(terminated=True)
     out = parts.loss(td)
