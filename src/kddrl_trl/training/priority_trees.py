@@ -11,9 +11,15 @@ reduction, sampling a ``cumsum`` + ``searchsorted``: O(capacity) per call instea
 """
 from __future__ import annotations
 
+import logging
+
 import torch
 from torchrl.data.replay_buffers.samplers import prioritized as _torchrl_prioritized
 from torchrl.data.replay_buffers.samplers.prioritized import PrioritizedSampler
+
+
+log = logging.getLogger(__name__)
+_told = False  # the fallback is announced once per process
 
 
 def native_trees_available() -> bool:
@@ -81,6 +87,11 @@ class PortablePrioritizedSampler(PrioritizedSampler):
     def _init(self) -> None:
         if native_trees_available():
             return super()._init()
+        global _told
+        if not _told:  # TorchRL's import-time warning says prioritized buffers "may not work": they do, on these
+            log.info("prioritized replay on kddrl_trl's tensor segment trees (TorchRL's C++ trees did not load "
+                     "with this torch; kddrl_trl/training/priority_trees.py)")
+            _told = True
         self._sum_tree = TensorSumTree(self._max_capacity, self._device)
         self._min_tree = TensorMinTree(self._max_capacity, self._device)
         self._max_priority = None
