@@ -247,6 +247,29 @@ def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_rec
     assert torch.equal(fn("double", y), y * 2.0)
 
 
+def test_warm_compiled_compiles_with_views_recomputed_and_leaves_the_setting_as_it_was():
+    """Every graph ``WarmCompiled`` compiles (warm-up and recompilation) is partitioned with
+    ``torch._functorch.config.recompute_views`` on (``compiling.recomputing_views``: no slow ``bool`` mask stores in
+    the CPU kernels of the TD3 critic update); outside its calls the setting is the user's own."""
+    from torch._functorch import config as functorch_config
+
+    from kddrl_trl.compiling import WarmCompiled
+
+    seen = []
+
+    def backend(gm, example_inputs):  # called exactly when a graph is compiled
+        seen.append(functorch_config.recompute_views)
+        return gm.forward
+
+    fn = WarmCompiled(torch.compile(lambda name, x: x * 3.0, dynamic=False, backend=backend), warmup=1)
+    before = functorch_config.recompute_views
+    fn("a", torch.ones(3))
+    fn("a", torch.ones(3))  # warm: no compile
+    fn("a", torch.ones(2, 2))  # a new shape: recompiled with every guard
+    assert seen == [True, True]
+    assert functorch_config.recompute_views == before
+
+
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not torch.cuda.is_available(), reason="needs a GPU"))])
 def test_buffers_live_on_the_learners_device_and_reload_there(samples, device):
