@@ -587,10 +587,16 @@ def test_compiled_stack_matches_eager_stack():
 
     if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
         pytest.skip("torch.compile needs a C++ compiler on a CPU machine")
+    from torch._dynamo.utils import clear_compilation_metrics, get_compilation_metrics
+
     env = FakeHighwayEnv(num_roads=5, seed=3)
     td = env.rollout(12, break_when_any_done=False)["next"].reshape(-1)
     eager = make_kddrl_transforms(seed=4)(td.clone())
+    torch._dynamo.reset()  # the stack's graph is traced here, whatever ran before in this process
+    clear_compilation_metrics()
     compiled = make_kddrl_transforms(seed=4, compile=True)(td.clone())
+    traced = [m for m in get_compilation_metrics() if m.co_name == "run_frames"]
+    assert len(traced) == 1 and not traced[0].restart_reasons, [(m.restart_reasons, m.fail_reason) for m in traced]
     for key in (K.PRED_PRIOR_TRAJ, K.PRED_TRAJ, K.PRED_KEY_GAPS, K.PRIOR_P_MOBIL, K.PRIOR_P_LCGAN):
         torch.testing.assert_close(compiled[key], eager[key], rtol=1e-4, atol=1e-3, msg=str(key))
     # a member used on its own, outside the stack (eager: only the stack compiles), gives the same values too
