@@ -99,6 +99,17 @@ def test_kill_9_during_a_checkpoint_write_leaves_a_loadable_checkpoint(tmp_path)
     assert not list((tmp_path / "checkpoints").glob(".*.tmp"))
 
 
+def test_the_next_checkpoint_save_sweeps_every_killed_writes_temp_file(tmp_path):
+    """A kill can land in any of the three atomic writes (a checkpoint, ``latest``, ``best.pt``): each leaves its
+    own temp file, and the next save removes them all (the kill test above hits the ``latest`` case rarely)."""
+    stale = [".ep000003.pt.k1.tmp", ".latest.k2.tmp", ".best.pt.k3.tmp"]
+    (tmp_path / "checkpoints").mkdir()
+    for name in stale:
+        (tmp_path / "checkpoints" / name).write_bytes(b"half a file")
+    save_training_checkpoint(tmp_path, 4, {"episodes": 4})
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["ep000004.pt", "latest"]
+
+
 @pytest.mark.parametrize("override, sweep", [("env.flow_vph=-1", []), ("env.flow_vphh=3", []),
                                              ("train.batch_size_cf=0", []), ("env.flow_vph=-1", ["-m", "seed=0,1"])])
 def test_a_refused_config_leaves_no_run_folder(tmp_path, override, sweep):

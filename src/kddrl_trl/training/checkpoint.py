@@ -37,7 +37,7 @@ def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, 
     """Write ``payload`` as the checkpoint after ``episodes`` training episodes; keep the newest ``keep``
     (default two: the previous one is the fallback of a damaged newest one)."""
     folder = checkpoint_dir(run_dir)
-    for stale in folder.glob(".ep*.pt.*.tmp"):  # left by a writer killed mid-write: never a checkpoint
+    for stale in folder.glob(".*.tmp"):  # left by a writer killed mid-write (of a checkpoint, `latest` or best.pt)
         stale.unlink(missing_ok=True)
     path = torch_save_atomic(folder / f"ep{episodes:06d}.pt", {"format": FORMAT, **payload})
     write_text_atomic(folder / "latest", path.name + "\n")
