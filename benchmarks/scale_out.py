@@ -11,7 +11,8 @@ sweep's wall time is about ``fixed + runs' work / P``, and ``outside_runs_s`` (w
 ``wall_s`` / P) is that fixed part. The default budget, 150 training + 20 evaluation episodes (about a minute of
 work a run), keeps the ratio about parallel runs: 20 training episodes, the budget this goal was first measured
 with, took 50-100 s a run then and 6-14 s now (learner and compile speed-ups), which leaves a sweep of 4 such runs
-timing almost nothing but those fixed costs (ratio 0.92, one run at 20 episodes). Every run's ``summary.json`` is checked and its own ``wall_s`` kept beside the sweep's. Both
+timing almost nothing but those fixed costs (ratio 0.92, one run at 20 episodes). Every run's ``summary.json`` is
+checked and its own ``wall_s`` kept beside the sweep's. Both
 sweeps run each run with the same torch threads (``--threads``, default 1: ``OMP_NUM_THREADS``, which Ray also sets
 to a task's CPUs where it is unset), so that the ratio measures runs side by side, not a thread count: a smoke run on
 a busy 2-core machine took ~5x longer per run sequentially with torch's default threads (one per core) than on Ray
@@ -64,8 +65,9 @@ def sweep_command(args, launcher: list[str], sweep_dir: Path) -> list[str]:
             f"eval_episodes={args.eval_episodes}", "progress=false", *args.set, *launcher, f"hydra.sweep.dir={sweep_dir}"]
 
 
-def timed_sweep(args, name: str, launcher: list[str], root: Path) -> dict:
-    """Runs the sweep with ``launcher`` into ``root/name``; its wall time and every run's own ``wall_s``."""
+def timed_sweep(args, name: str, launcher: list[str], root: Path, parallel: int) -> dict:
+    """Runs the sweep with ``launcher`` (``parallel`` runs at once) into ``root/name``; its wall time, every run's
+    own ``wall_s`` and the time outside them."""
     sweep_dir = root / name
     cmd = sweep_command(args, launcher, sweep_dir)
     t0 = time.perf_counter()
@@ -79,7 +81,6 @@ def timed_sweep(args, name: str, launcher: list[str], root: Path) -> dict:
     if len(summaries) != expected:
         raise SystemExit(f"the {name} sweep left {len(summaries)} finished runs of {expected} in {sweep_dir}")
     runs = {p.parent.name: json.loads(p.read_text())["wall_s"] for p in summaries}
-    parallel = args.ray_cpus if name == "ray" else 1
     return {"wall_s": wall, "run_wall_s": runs, "runs_sum_s": sum(runs.values()),
             "outside_runs_s": wall - sum(runs.values()) / parallel}
 
@@ -88,8 +89,9 @@ def measure_sweep(args) -> tuple[dict, dict]:
     """The sweep sequentially (Hydra's basic launcher), then on a local Ray of ``args.ray_cpus`` CPUs."""
     with tempfile.TemporaryDirectory(prefix="scale_out_") as tmp:
         root = Path(tmp)
-        sequential = timed_sweep(args, "sequential", ["hydra/launcher=basic"], root)
-        ray = timed_sweep(args, "ray", ["hydra/launcher=ray", f"+hydra.launcher.init.num_cpus={args.ray_cpus}"], root)
+        sequential = timed_sweep(args, "sequential", ["hydra/launcher=basic"], root, parallel=1)
+        ray = timed_sweep(args, "ray", ["hydra/launcher=ray", f"+hydra.launcher.init.num_cpus={args.ray_cpus}"], root,
+                          parallel=args.ray_cpus)
     details = {"runs": len(args.algos) * len(args.seeds), "algos": args.algos, "seeds": args.seeds,
                "ray_cpus": args.ray_cpus, "sequential": sequential, "ray": ray}
     return details, {"sweep_time_ratio": ray["wall_s"] / sequential["wall_s"]}

@@ -26,13 +26,24 @@ def _ordinary_permissions(tmp: str) -> None:
     os.chmod(tmp, 0o666 & ~umask)
 
 
+#: the suffix of :func:`write_atomic`'s temporary files (named ``.<target name>.<random><suffix>``)
+_TMP_SUFFIX = ".tmp"
+
+
+def remove_killed_writes(folder: str | os.PathLike) -> None:
+    """Remove the temporary files that writes killed mid-way (``kill -9``: no ``except`` ran) left in ``folder``.
+    Only for a folder no other process is writing to at the same time."""
+    for stale in Path(folder).glob(f".*{_TMP_SUFFIX}"):
+        stale.unlink(missing_ok=True)
+
+
 def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newline: str | None = None,
                  binary: bool = False) -> Path:
     """Call ``write(fh)`` on a temporary file (text, or bytes with ``binary=True``) beside ``path``, then move
     it onto ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=_TMP_SUFFIX)
     try:
         _ordinary_permissions(tmp)
         with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline=newline)) as fh:

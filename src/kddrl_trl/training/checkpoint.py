@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from ..io import torch_save_atomic, write_text_atomic
+from ..io import remove_killed_writes, torch_save_atomic, write_text_atomic
 from ..runs import checkpoint_candidates, checkpoint_dir
 
 log = logging.getLogger(__name__)
@@ -37,8 +37,7 @@ def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, 
     """Write ``payload`` as the checkpoint after ``episodes`` training episodes; keep the newest ``keep``
     (default two: the previous one is the fallback of a damaged newest one)."""
     folder = checkpoint_dir(run_dir)
-    for stale in folder.glob(".*.tmp"):  # left by a writer killed mid-write (of a checkpoint, `latest` or best.pt)
-        stale.unlink(missing_ok=True)
+    remove_killed_writes(folder)  # of a checkpoint, `latest` or best.pt: never a checkpoint
     path = torch_save_atomic(folder / f"ep{episodes:06d}.pt", {"format": FORMAT, **payload})
     write_text_atomic(folder / "latest", path.name + "\n")
     for old in sorted(folder.glob("ep*.pt"))[:-max(int(keep), 1)]:

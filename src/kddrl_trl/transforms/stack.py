@@ -21,11 +21,10 @@ from collections.abc import Sequence
 from functools import lru_cache, wraps
 
 import torch
-from torch._dynamo import config as dynamo_config
 from tensordict import TensorDictBase
 from torchrl.envs.transforms import Compose, Transform
 
-from ..compiling import resolve_compile
+from ..compiling import resolve_compile, specializing_floats
 from ._base import PredictiveTransform, call_on_root_and_next
 from .leader_history import LeaderHistory
 
@@ -51,16 +50,13 @@ def compiled_frames():
     CPU, arms in paired turns on one simulation): **+73 %** at K = 8 roads, +46 % at K = 32, +122 % at K = 1,
     from ``python benchmarks/transform_overhead.py`` (``benchmarks/results/transform_overhead.json``).
 
-    It is traced with the members' Python floats (their constants) specialized (TorchDynamo's
-    ``specialize_float``): left symbolic, the tracing of the whole stack ran twice (a
-    ``TensorifyScalarRestartAnalysis`` restart) and the graph had more inputs; specialized, a process's first
-    frame compiles in about half the time (9.2 -> 4.4 s on the 2-core CPU, TorchInductor's cache warm). A stack
-    whose constants differ from the first compiled one's gets a graph of its own (recompiled once, then cached)."""
+    Each call runs under :func:`~kddrl_trl.compiling.specializing_floats` (the members' float constants traced
+    as constants: one trace, not two)."""
     compiled = torch.compile(run_frames, dynamic=True)
 
     @wraps(run_frames)
     def frames(members: Sequence[PredictiveTransform], values: dict, noises: list) -> dict:
-        with dynamo_config.patch(specialize_float=True):  # read when tracing; ~16 µs a call
+        with specializing_floats():
             return compiled(members, values, noises)
 
     return frames
