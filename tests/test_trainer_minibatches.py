@@ -1,0 +1,47 @@
+"""``training.trainer.minibatches``: one storage read for a collection batch's updates on a uniform buffer, the same
+minibatches as one ``sample()`` per update; a prioritized buffer still drawn once per update."""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from kddrl_trl.training import make_buffer
+from kddrl_trl.training.trainer import MINIBATCHES_PER_DRAW, minibatches
+
+
+def _filled(prioritized=None, seed=7):
+    rb = make_buffer(500, 16, seed, prioritized=prioritized)
+    n = 300
+    rb.extend(TensorDict({"x": torch.arange(n, dtype=torch.float32)[:, None].repeat(1, 3),
+                          "next": {"y": -torch.arange(n), "done": torch.arange(n) % 2 == 0}}, [n]))
+    return rb
+
+
+def test_uniform_minibatches_are_the_per_update_samples_across_draws():
+    n = MINIBATCHES_PER_DRAW + 6  # two storage reads
+    ours, reference = _filled(), _filled()
+    got = list(minibatches(ours, n))
+    assert len(got) == n
+    for batch in got:
+        want = reference.sample()
+        assert batch.batch_size == torch.Size([16])
+        assert torch.equal(batch["x"], want["x"]) and torch.equal(batch["next", "y"], want["next", "y"])
+        assert torch.equal(batch["next", "done"], want["next", "done"])
+    assert torch.equal(ours.sample()["x"], reference.sample()["x"])  # the streams go on alike
+    assert list(minibatches(ours, 0)) == []
+
+
+def test_a_prioritized_buffer_is_sampled_after_each_priority_update():
+    rb = _filled(prioritized=(1.0, 0.4))
+    draws = []
+    sample = rb.sample
+    rb.sample = lambda *a, **kw: draws.append(a) or sample(*a, **kw)
+    batches = minibatches(rb, 3)
+    first = next(batches)
+    assert len(draws) == 1 and first.batch_size == torch.Size([16])
+    # all priority on item 5: the next minibatch, drawn only now, sees it
+    rb.update_priority(torch.arange(300), torch.full((300,), 1e-9))
+    rb.update_priority(torch.tensor([5]), torch.tensor([1e6]))
+    second = next(batches)
+    assert len(draws) == 2 and (second["x"][:, 0] == 5).all()
+    assert len(list(batches)) == 1 and len(draws) == 3
