@@ -1,11 +1,19 @@
-"""What prioritized replay (``train.prioritized``) costs per update: one minibatch drawn from buffer L, uniform
-against prioritized (sampling, importance weights and the priority write-back of
-:meth:`kddrl_trl.training.Trainer._update`), at training's capacity and batch size.
+"""What drawing a minibatch from buffer L costs per update, at training's capacity and batch size, on rows with
+every key the KDDRL learner stores (frames of the fake env through the transform stack and the collector, tiled
+to ``--capacity``), three arms:
 
-    python benchmarks/replay_sampling.py [--capacity 100000] [--batch-size 128] [--calls 500] [--repeats 3]
+- ``uniform``: one ``buffer.sample()`` per update (the paper's uniform replay, drawn one minibatch at a time);
+- ``uniform_grouped``: the minibatches of one collection batch (``--per-batch``, 160 = 20 frames x 8 roads at one
+  update per frame) drawn as the trainer draws them, :func:`kddrl_trl.training.trainer.minibatches` (one storage
+  read split into views; the same indices as the ``uniform`` arm's calls);
+- ``prioritized`` (``train.prioritized``): sampling, importance weights and the priority write-back of
+  :meth:`kddrl_trl.training.Trainer._update`, one minibatch per update.
 
-Both arms run in one process, taking turns ``repeats`` times (a shared machine's drifts hit both alike); the table
-gives the medians and ``prioritized_ratio`` = prioritized / uniform seconds per call. Where TorchRL's C++ segment
+    python benchmarks/replay_sampling.py [--capacity 100000] [--batch-size 128] [--calls 480] [--repeats 3]
+
+The arms run in one process, taking turns ``repeats`` times (a shared machine's drifts hit all alike); the table
+gives the medians, ``prioritized_ratio`` = prioritized / uniform and ``grouped_ratio`` = uniform_grouped / uniform
+seconds per minibatch. Where TorchRL's C++ segment
 trees do not load (TorchRL 0.14.1 with torch 2.13), the prioritized arm runs on the tensor trees of
 ``kddrl_trl/training/priority_trees.py`` (``trees`` in the JSON). Writes ``benchmarks/results/replay_sampling.json``.
 """
@@ -16,30 +24,46 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import torch
 from tensordict import TensorDict
 
-from kddrl_trl import keys as K
-from kddrl_trl.training import make_buffer
-from kddrl_trl.training.priority_trees import native_trees_available
-from kddrl_trl.training.trainer import is_prioritized
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from train_throughput import learner_kwargs, sample_batches  # noqa: E402
 
-#: a stored frame's size: ~40 floats of state per side, as buffer L's rows (only the copy cost matters here)
-ROW = 40
+from kddrl_trl import keys as K  # noqa: E402
+from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
+from kddrl_trl.training.priority_trees import native_trees_available  # noqa: E402
+from kddrl_trl.training.trainer import is_prioritized, minibatches  # noqa: E402
 
 
-def filled(capacity: int, batch_size: int, prioritized: bool, seed: int):
-    rb = make_buffer(capacity, batch_size, seed, prioritized=(0.6, 0.4) if prioritized else None)
-    rb.extend(TensorDict({"obs": torch.randn(capacity, ROW), "next": {"obs": torch.randn(capacity, ROW)}},
-                         [capacity]))
+def frame_rows(capacity: int, seed: int) -> TensorDict:
+    """``capacity`` buffer-L rows with the KDDRL learner's keys (values from the fake env: only the layout and the
+    copy cost matter here)."""
+    learner = HierarchicalLearner(**learner_kwargs(False)[0])
+    rb, _ = sample_batches(2000, seed, learner.buffer_keys())
+    frames = rb[: len(rb)]
+    return frames[torch.arange(capacity) % len(rb)]
+
+
+def filled(rows: TensorDict, batch_size: int, prioritized: bool, seed: int):
+    rb = make_buffer(rows.shape[0], batch_size, seed, prioritized=(0.6, 0.4) if prioritized else None)
+    rb.extend(rows)
     return rb
 
 
-def seconds_per_call(rb, calls: int, gen: torch.Generator) -> float:
+def seconds_per_call(rb, calls: int, gen: torch.Generator, per_batch: int = 0) -> float:
+    """Seconds per minibatch over ``calls`` minibatches: one ``sample()`` each, or (``per_batch`` > 0) drawn
+    ``per_batch`` at a time by the trainer's :func:`minibatches`."""
     t0 = time.perf_counter()
+    if per_batch:
+        for _ in range(calls // per_batch):
+            for _batch in minibatches(rb, per_batch):
+                pass
+        return (time.perf_counter() - t0) / (calls // per_batch * per_batch)
     for _ in range(calls):
         batch = rb.sample()
         if is_prioritized(rb):  # what the trainer does after each update
@@ -52,32 +76,38 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--capacity", type=int, default=100_000)
     ap.add_argument("--batch-size", type=int, default=128)
-    ap.add_argument("--calls", type=int, default=500)
+    ap.add_argument("--calls", type=int, default=480)
+    ap.add_argument("--per-batch", type=int, default=160, help="minibatches per collection batch (grouped arm)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "replay_sampling.json"))
     args = ap.parse_args()
     torch.set_num_threads(1)
     gen = torch.Generator().manual_seed(args.seed)
-    buffers = {name: filled(args.capacity, args.batch_size, name == "prioritized", args.seed)
-               for name in ("uniform", "prioritized")}
-    for rb in buffers.values():
-        seconds_per_call(rb, 20, gen)  # warm-up
+    rows = frame_rows(args.capacity, args.seed)
+    buffers = {name: filled(rows, args.batch_size, name == "prioritized", args.seed)
+               for name in ("uniform", "uniform_grouped", "prioritized")}
+    per_batch = {"uniform_grouped": args.per_batch}
+    for name, rb in buffers.items():
+        seconds_per_call(rb, 2 * args.per_batch, gen, per_batch.get(name, 0))  # warm-up
     turns = {name: [] for name in buffers}
     for _ in range(args.repeats):
         for name, rb in buffers.items():
-            turns[name].append(seconds_per_call(rb, args.calls, gen))
+            turns[name].append(seconds_per_call(rb, args.calls, gen, per_batch.get(name, 0)))
     med = {name: statistics.median(v) for name, v in turns.items()}
     result = {"args": vars(args), "trees": "torchrl" if native_trees_available() else "tensor",
               "machine": {"platform": platform.platform(), "python": platform.python_version(),
                           "torch": torch.__version__, "cpu_count": os.cpu_count()},
               "ms_per_call": {k: 1e3 * v for k, v in med.items()}, "turns_ms": {k: [1e3 * x for x in v]
                                                                             for k, v in turns.items()},
-              "prioritized_ratio": med["prioritized"] / med["uniform"]}
-    print(f"{'arm':<14}{'ms per call':>12}")
+              "prioritized_ratio": med["prioritized"] / med["uniform"],
+              "grouped_ratio": med["uniform_grouped"] / med["uniform"],
+              "row_leaves": len(rows.keys(True, True))}
+    print(f"{'arm':<18}{'ms per minibatch':>17}")
     for name, v in med.items():
-        print(f"{name:<14}{1e3 * v:>12.3f}")
+        print(f"{name:<18}{1e3 * v:>17.3f}")
     print(f"prioritized / uniform: {result['prioritized_ratio']:.2f}  (trees: {result['trees']})")
+    print(f"uniform_grouped / uniform: {result['grouped_ratio']:.2f}  ({result['row_leaves']} tensors a row)")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
