@@ -194,6 +194,16 @@ def test_provenance_names_the_commit_and_a_changed_tree(tmp_path):
     assert set(p) == {"commit", "machine", "packages"} and "CPUs" in p["machine"]
 
 
+def test_a_run_records_the_commit_its_code_was_loaded_from(monkeypatch):
+    from kddrl_trl import provenance as prov
+
+    monkeypatch.setattr(prov, "_LOADED", {})
+    checked_out = iter(["aaaaaaa", "bbbbbbb"])  # a commit lands in the checkout while the run trains
+    monkeypatch.setattr(prov, "commit", lambda where=None: next(checked_out))
+    assert prov.code_commit() == "aaaaaaa"  # the entry point's call as it starts
+    assert prov.provenance()["commit"] == "aaaaaaa" and prov.code_commit() == "aaaaaaa"
+
+
 # ------------------------------------------------------------------------------ the sweep, as typed
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):

@@ -18,10 +18,12 @@ from . import conf as _conf  # noqa: F401  (registers the typed schemas and the 
 from .conf.schema import EvaluateJob
 from .eval.protocol import check_disjoint, test_seed
 from .factories import evaluate_and_report, load_trained_learner, make_job, make_logger, seed_everything
+from .provenance import code_commit
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
 def main(cfg: DictConfig) -> dict:
+    code_commit()  # the commit of the code loaded now, whatever is checked out when the evaluation ends
     job: EvaluateJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     algo, learner, ckpt, saved = load_trained_learner(Path(job.run), job.checkpoint, job.torch_device)

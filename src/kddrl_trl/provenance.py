@@ -45,6 +45,18 @@ def commit(where: str | Path | None = None) -> str:
     return "unknown"
 
 
+_LOADED: dict[str, str] = {}
+
+
+def code_commit() -> str:
+    """:func:`commit` of the code this process runs, read once, at the first call: an entry point calls it as it
+    starts, so a run records the commit its code was loaded from, not the one checked out when it ends (a
+    campaign's runs last while later commits land in the same checkout)."""
+    if "commit" not in _LOADED:
+        _LOADED["commit"] = commit()
+    return _LOADED["commit"]
+
+
 def machine() -> str:
     """One line: platform, Python and CPU count."""
     return f"{platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPUs"
@@ -52,4 +64,4 @@ def machine() -> str:
 
 def provenance() -> dict:
     """``{"commit", "machine", "packages"}``: what a run's ``summary.json`` records."""
-    return {"commit": commit(), "machine": machine(), "packages": versions()}
+    return {"commit": code_commit(), "machine": machine(), "packages": versions()}

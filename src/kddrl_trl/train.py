@@ -38,7 +38,7 @@ from .factories import (
     make_logger, make_run_dir, seed_everything,
 )
 from .io import write_json_atomic, write_text_atomic
-from .provenance import provenance
+from .provenance import code_commit, provenance
 from .runs import config_differences
 from .loggers import trim_logs
 from .training import Trainer, plot_training_curves
@@ -73,6 +73,7 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> dict:
+    code_commit()  # the commit of the code loaded now, whatever is checked out when the run ends
     job: TrainJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
     run_dir, resuming = make_run_dir(job.resume)
     if (run_dir / "config.yaml").is_file():  # a resumed run or sweep job: the same config, or refuse
