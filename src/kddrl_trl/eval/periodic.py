@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Callable
 
+import torch
 from torchrl.envs import EnvBase, ParallelEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -45,7 +46,11 @@ class PeriodicEvaluator:
         self.make_env, self.episodes, self.seed = make_env, int(episodes), int(seed)
         self.score = BEST_METRICS[best_metric]
         _spawnable_start_method()
-        self.env: ParallelEnv | None = ParallelEnv(1, make_env, mp_start_method="spawn")  # worker starts on use
+        # worker starts on use; ``num_threads``: this process keeps its torch threads. Left to TorchRL, starting the
+        # worker sets them to (threads - 1) here, mid-run: on a 2-core machine the learner went from 2 threads to 1
+        # at the first validation, and every compiled loss was traced again (TorchDynamo guards the thread count)
+        self.env: ParallelEnv | None = ParallelEnv(1, make_env, mp_start_method="spawn",
+                                                   num_threads=torch.get_num_threads())
 
     def __call__(self, policy) -> tuple[list[dict], dict]:
         if self.env is None:
