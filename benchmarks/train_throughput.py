@@ -28,10 +28,12 @@
     approach 1.0 while the machine has a free core per worker beside the learner process.
 (c) ``train_1000_episodes_s``: read from a finished run's ``summary.json`` (``--full-run RUN_DIR``), the
     training wall time of ``python -m kddrl_trl.train`` (1000 episodes, baseline) — goal <= 400 s (issue
-    "Training speed"; it was 654 s).
+    "Training speed"; it was 654 s). With ``--baseline-run RUN_DIR`` (a run of the same job and seed on other
+    code, trained side by side with ``--full-run``'s, one core each): ``full_run_vs_baseline``, the ratio of the two
+    training times and whether the two runs' records are identical.
 
     python benchmarks/train_throughput.py [--roads 8] [--updates 200] [--frames 2000] [--clock wall|cpu]
-                                          [--full-run runs/...] [--device cpu|cuda] [--skip-collect]
+                                          [--full-run runs/... [--baseline-run runs/...]] [--device cpu|cuda] [--skip-collect]
                                           [--workers 1,2] [--skip-update] [--compile auto|true|false]
 
 ``--device cuda`` runs (a) on the GPU: the learner (compiled arm: compiled update functions in
@@ -458,6 +460,18 @@ def measure_collect_workers(k: int, workers: list[int], frames: int, seed: int,
             "collect_scaling": {str(r["workers"]): r["collect_fps"] / (r["workers"] * one) for r in rows}}
 
 
+def compare_runs(run: Path, baseline: Path) -> dict:
+    """(c'): two finished runs of one job and seed, ``run`` on this code and ``baseline`` on other code, trained
+    side by side (one core each: the load is the same for both): the ratio of their training wall times, and
+    whether their training and evaluation records are byte for byte the same (a change that should not alter
+    the arithmetic)."""
+    a, b = (json.loads((d / "summary.json").read_text())["training"]["elapsed_s"] for d in (run, baseline))
+    same = all((run / f).read_bytes() == (baseline / f).read_bytes()
+               for f in ("train_episodes.csv", "eval_episodes.csv"))
+    return {"baseline_dir": str(baseline), "elapsed_s": a, "baseline_elapsed_s": b, "time_ratio": a / b,
+            "records_identical": same}
+
+
 def learner_compile_gain(update: dict, collect_fps: float) -> float:
     """Share of the training wall time per ego-frame (collection + the eager learner's updates) that the
     compiled learner saves."""
@@ -475,6 +489,8 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--full-run", type=Path, default=None, help="run dir of a finished 1000-episode training")
+    p.add_argument("--baseline-run", type=Path, default=None,
+                   help="with --full-run: a run of the same job and seed made with other code, side by side with it")
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "train_throughput.json")
     p.add_argument("--device", default="cpu", help="where (a) runs: cpu | cuda (cuda adds the 'gpu' entry)")
     p.add_argument("--skip-collect", action="store_true", help="leave (b) out")
@@ -541,6 +557,8 @@ def main(argv=None) -> int:
         result["train_1000_episodes_s"] = summary["training"]["elapsed_s"]
         result["full_run"] = {"dir": str(args.full_run), "episodes": summary["training"]["episodes"],
                               "frames": summary["training"]["frames"]}
+        if args.baseline_run is not None:
+            result["full_run_vs_baseline"] = compare_runs(args.full_run, args.baseline_run)
 
     update = result.get("update")
     if update:
@@ -567,6 +585,10 @@ def main(argv=None) -> int:
     if "train_1000_episodes_s" in result:
         print(f"\nfull training run: {result['train_1000_episodes_s']:.0f} s for {result['full_run']['episodes']} "
               f"episodes ({result['full_run']['frames']} frames)")
+    if args.full_run is not None and args.baseline_run is not None:
+        ab = result["full_run_vs_baseline"]
+        print(f"against {ab['baseline_dir']}: training time ratio {ab['time_ratio']:.3f} ({ab['elapsed_s']:.0f} / "
+              f"{ab['baseline_elapsed_s']:.0f} s); records identical: {ab['records_identical']}")
     write_json(args.out, result)
     print(f"\nwritten {args.out}")
     return 0
