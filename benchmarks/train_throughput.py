@@ -30,7 +30,7 @@
     training wall time of ``python -m kddrl_trl.train`` (1000 episodes, baseline) — goal <= 400 s (issue
     "Training speed"; it was 654 s). With ``--baseline-run RUN_DIR`` (a run of the same job and seed on other
     code, trained side by side with ``--full-run``'s, one core each): ``full_run_vs_baseline``, the ratio of the two
-    training times and whether the two runs' records are identical.
+    training times and whether the two runs' training (and evaluation) records are identical.
 
     python benchmarks/train_throughput.py [--roads 8] [--updates 200] [--frames 2000] [--clock wall|cpu]
                                           [--full-run runs/... [--baseline-run runs/...]] [--device cpu|cuda] [--skip-collect]
@@ -466,10 +466,15 @@ def compare_runs(run: Path, baseline: Path) -> dict:
     whether their training and evaluation records are byte for byte the same (a change that should not alter
     the arithmetic)."""
     a, b = (json.loads((d / "summary.json").read_text())["training"]["elapsed_s"] for d in (run, baseline))
-    same = all((run / f).read_bytes() == (baseline / f).read_bytes()
-               for f in ("train_episodes.csv", "eval_episodes.csv"))
+
+    def same(name: str) -> bool:
+        return (run / name).read_bytes() == (baseline / name).read_bytes()
+
+    evals = [json.loads((d / "summary.json").read_text()).get("episodes") for d in (run, baseline)]
     return {"baseline_dir": str(baseline), "elapsed_s": a, "baseline_elapsed_s": b, "time_ratio": a / b,
-            "records_identical": same}
+            "train_records_identical": same("train_episodes.csv"),
+            # evaluations of different lengths (eval_episodes=) do not compare
+            "eval_records_identical": same("eval_episodes.csv") if evals[0] == evals[1] else None}
 
 
 def learner_compile_gain(update: dict, collect_fps: float) -> float:
@@ -588,7 +593,8 @@ def main(argv=None) -> int:
     if args.full_run is not None and args.baseline_run is not None:
         ab = result["full_run_vs_baseline"]
         print(f"against {ab['baseline_dir']}: training time ratio {ab['time_ratio']:.3f} ({ab['elapsed_s']:.0f} / "
-              f"{ab['baseline_elapsed_s']:.0f} s); records identical: {ab['records_identical']}")
+              f"{ab['baseline_elapsed_s']:.0f} s); training records identical: {ab['train_records_identical']}, "
+              f"evaluation records identical: {ab['eval_records_identical']}")
     write_json(args.out, result)
     print(f"\nwritten {args.out}")
     return 0
