@@ -172,7 +172,11 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
     assert rows[("braking", "kddrl (trained on mixed)")]["metrics"]["collision_rate"]["mean"] == 0.0
     assert rows[("braking", "kddrl (trained on mixed)")]["trained_on"] == "mixed"
     assert rows[("braking", "kddrl (trained on mixed)")]["paper"] == {}  # the paper published nothing for it
-    assert "kddrl (trained on mixed) is higher" in (tmp_path / "rep" / "report.md").read_text()  # vs kddrl
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "kddrl (trained on mixed) is higher" in md  # vs kddrl
+    # the runs table names a final evaluation with its run's folder, and a wall time it lacks as missing, not nan
+    runs_table = md.split("## Runs")[1].split("\n---\n")[0]
+    assert "| `m1/final__braking` |" in runs_table and "nan" not in runs_table
     named = find_runs([evaluated])
     assert [(r.scenario, r.algo) for r in named] == [("baseline", "kddrl (trained on braking)")]
 
