@@ -286,9 +286,9 @@ def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "pyt
     for r in runs:
         m = r.metrics()
         wall = r.summary.get("wall_s")
-        # a final evaluation of a run trained elsewhere (``final__<scenario>``) is named with its run's folder; its
-        # summary has no wall time of its own (the run's summary.json has the run's)
-        folder = f"{r.path.parent.name}/{r.path.name}" if r.path.name.startswith("final__") else r.path.name
+        # one of a run's final evaluations (its summary says ``final``, kddrl_trl.train eval_scenarios=...) is named
+        # with its run's folder; its summary has no wall time of its own (the run's summary.json has the run's)
+        folder = f"{r.path.parent.name}/{r.path.name}" if r.summary.get("final") else r.path.name
         md.append(f"| {r.scenario} | {r.algo} | {r.seed} | {m['episodes']} | {m['mean_speed_kmh']:.1f} | "
                   f"{m['collision_rate']:.1%} | {'—' if wall is None else f'{wall:.0f}'} | `{folder}` |")
     md += [""] + footer(runs, command)
