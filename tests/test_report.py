@@ -157,7 +157,8 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
         mixed = tmp_path / "runs" / f"m{seed}"
         mixed.mkdir(parents=True)
         (mixed / "summary.json").write_text(json.dumps({"algo": "kddrl", "scenario": "mixed", "seed": seed,
-                                                        "final_evaluations": ["final__baseline", "final__braking"]}))
+                                                        "final_evaluations": ["final__baseline", "final__braking"],
+                                                        "wall_s": 4000.0, "training": {"elapsed_s": 3600.0}}))
         for scenario in ("baseline", "braking"):
             _fake_run(mixed / f"final__{scenario}", seed=seed, scenario=scenario, speeds=(130.0, 130.0),
                       collisions=(False, False), trained_on="mixed", final=True)
@@ -177,6 +178,8 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
     # the runs table names a final evaluation with its run's folder, and a wall time it lacks as missing, not nan
     runs_table = md.split("## Runs")[1].split("\n---\n")[0]
     assert "| `m1/final__braking` |" in runs_table and "nan" not in runs_table
+    # the footer's wall time counts each mixed run once, from its own summary.json (its final evaluations have none)
+    assert "training 3.00 h over all runs" in md and "3.33 h (`wall_s`); 3 runs did not record it" in md
     named = find_runs([evaluated])
     assert [(r.scenario, r.algo) for r in named] == [("baseline", "kddrl (trained on braking)")]
 

@@ -11,6 +11,7 @@ compared with the reference trained on the scenario evaluated.
 """
 from __future__ import annotations
 
+import json
 from collections import Counter
 from pathlib import Path
 
@@ -212,8 +213,7 @@ def footer(runs: list[RunRecord], command: str) -> list[str]:
         p = r.summary.get("protocol")
         protocols[("seed + 1,000,000" if p and p["eval_seed"] == r.seed + 1_000_000 else
                    f"eval seed {p['eval_seed']}" if p else "not recorded (run made before the protocol)")] += 1
-    wall = [r.summary.get("wall_s") for r in runs]
-    training = [r.summary.get("training", {}).get("elapsed_s") for r in runs]
+    training, wall = zip(*_run_times(runs)) if runs else ((), ())
     machines = Counter(r.summary.get("machine", "not recorded") for r in runs)
     commits = Counter(r.summary.get("commit", "not recorded") for r in runs)
     packages = Counter(", ".join(f"{k} {v}" for k, v in r.summary["packages"].items()) if "packages" in r.summary
@@ -235,6 +235,25 @@ def footer(runs: list[RunRecord], command: str) -> list[str]:
         f"included, {sum(w for w in wall if w) / 3600:.2f} h (`wall_s`)"
         + ("" if all(wall) else f"; {sum(1 for w in wall if not w)} runs did not record it") + ".",
     ]
+
+
+def _run_times(runs: list[RunRecord]) -> list[tuple[float | None, float | None]]:
+    """``(training.elapsed_s, wall_s)`` of each training run behind ``runs``, once per run: a run's final
+    evaluations (``final__<scenario>``, ``eval_scenarios=``) have no times of their own; their run's
+    ``summary.json`` (the folder above) holds them."""
+    times = {}
+    for r in runs:
+        folder = r.path.parent if r.summary.get("final") else r.path
+        if folder not in times:
+            summary = r.summary if folder == r.path else _summary(folder)
+            times[folder] = ((summary.get("training") or {}).get("elapsed_s"), summary.get("wall_s"))
+    return list(times.values())
+
+
+def _summary(folder: Path) -> dict:
+    """The ``summary.json`` of a training run whose final evaluations are reported ({} where it is missing)."""
+    path = Path(folder) / "summary.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
 
 
 def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "python -m kddrl_trl.report",
