@@ -251,9 +251,15 @@ def _run_times(runs: list[RunRecord]) -> list[tuple[float | None, float | None]]
 
 
 def _summary(folder: Path) -> dict:
-    """The ``summary.json`` of a training run whose final evaluations are reported ({} where it is missing)."""
+    """The ``summary.json`` of a training run whose final evaluations are reported ({} where there is none: the
+    footer then counts the run among those that did not record their times)."""
     path = Path(folder) / "summary.json"
-    return json.loads(path.read_text()) if path.is_file() else {}
+    if not path.is_file():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not a readable summary ({err})") from err
 
 
 def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "python -m kddrl_trl.report",
