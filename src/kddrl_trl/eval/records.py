@@ -37,6 +37,15 @@ class RunRecord:
     training: pd.DataFrame | None = None
     validation: pd.DataFrame | None = None
     traces: list[Path] = field(default_factory=list)
+    #: the folder of the training run behind these records: ``path`` itself, or, for a final evaluation
+    #: (``final__<scenario>``), the run folder above it; and that run's summary (its times, ``wall_s`` and
+    #: ``training``, are there; {} where the folder above holds none)
+    trained: Path | None = None
+    trained_summary: dict | None = None
+
+    def __post_init__(self):
+        if self.trained is None:  # records of a run folder itself
+            self.trained, self.trained_summary = self.path, self.summary
 
     def metrics(self) -> dict:
         """The per-run driving metrics of Tables II-V (:func:`~kddrl_trl.eval.summarize` of its episodes)."""
@@ -64,10 +73,7 @@ def load_run(path: str | Path) -> RunRecord:
     """Read the run folder ``path``."""
     path = Path(path)
     summary_path = path / "summary.json"
-    try:
-        summary = json.loads(summary_path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise ValueError(f"{summary_path}: not a readable summary ({err})") from err
+    summary = _read_summary(summary_path)
     for key in ("algo", "scenario", "seed"):
         if key not in summary:
             raise ValueError(f"{summary_path}: no {key!r} key")
@@ -90,8 +96,18 @@ def load_run(path: str | Path) -> RunRecord:
     traces = sorted((path / "traces").glob("*.json")) + sorted(path.glob(f"eval__{summary['scenario']}__*/traces/*.json"))
     # the options it ran with: its training run's config (an evaluation folder of kddrl_trl.evaluate: its run's)
     config = _config((path.parent if path.name.startswith("eval__") else trained) / "config.yaml")
+    trained_summary = summary if trained == path else \
+        _read_summary(trained / "summary.json") if (trained / "summary.json").is_file() else {}
     return RunRecord(path, algo_label(summary, config), str(summary["scenario"]), int(summary["seed"]), summary,
-                     episodes, training, validation, traces)
+                     episodes, training, validation, traces, trained, trained_summary)
+
+
+def _read_summary(summary_path: Path) -> dict:
+    """A ``summary.json``, or a ``ValueError`` naming the file."""
+    try:
+        return json.loads(summary_path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"{summary_path}: not a readable summary ({err})") from err
 
 
 def _config(path: Path) -> dict | None:
@@ -174,10 +190,7 @@ def algo_label(summary: dict, config: dict | None = None) -> str:
 
 def _expand(summary_path: Path) -> list[Path]:
     """A run folder's evaluation folders: itself, or the ``final_evaluations`` its summary names."""
-    try:
-        finals = json.loads(summary_path.read_text()).get("final_evaluations")
-    except (OSError, json.JSONDecodeError) as err:
-        raise ValueError(f"{summary_path}: not a readable summary ({err})") from err
+    finals = _read_summary(summary_path).get("final_evaluations")
     if not finals:
         return [summary_path.parent]
     return [summary_path.parent / name for name in finals]

@@ -11,7 +11,6 @@ compared with the reference trained on the scenario evaluated.
 """
 from __future__ import annotations
 
-import json
 from collections import Counter
 from pathlib import Path
 
@@ -238,28 +237,11 @@ def footer(runs: list[RunRecord], command: str) -> list[str]:
 
 
 def _run_times(runs: list[RunRecord]) -> list[tuple[float | None, float | None]]:
-    """``(training.elapsed_s, wall_s)`` of each training run behind ``runs``, once per run: a run's final
-    evaluations (``final__<scenario>``, ``eval_scenarios=``) have no times of their own; their run's
-    ``summary.json`` (the folder above) holds them."""
-    times = {}
-    for r in runs:
-        folder = r.path.parent if r.summary.get("final") else r.path
-        if folder not in times:
-            summary = r.summary if folder == r.path else _summary(folder)
-            times[folder] = ((summary.get("training") or {}).get("elapsed_s"), summary.get("wall_s"))
+    """``(training.elapsed_s, wall_s)`` of each training run behind ``runs``, once per run (a run's final
+    evaluations, ``eval_scenarios=``, share their run's times: :attr:`RunRecord.trained_summary`)."""
+    times = {r.trained: ((r.trained_summary.get("training") or {}).get("elapsed_s"), r.trained_summary.get("wall_s"))
+             for r in runs}
     return list(times.values())
-
-
-def _summary(folder: Path) -> dict:
-    """The ``summary.json`` of a training run whose final evaluations are reported ({} where there is none: the
-    footer then counts the run among those that did not record their times)."""
-    path = Path(folder) / "summary.json"
-    if not path.is_file():
-        return {}
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: not a readable summary ({err})") from err
 
 
 def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "python -m kddrl_trl.report",
@@ -311,9 +293,9 @@ def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "pyt
     for r in runs:
         m = r.metrics()
         wall = r.summary.get("wall_s")
-        # one of a run's final evaluations (its summary says ``final``, kddrl_trl.train eval_scenarios=...) is named
-        # with its run's folder; its summary has no wall time of its own (the run's summary.json has the run's)
-        folder = f"{r.path.parent.name}/{r.path.name}" if r.summary.get("final") else r.path.name
+        # one of a run's final evaluations (kddrl_trl.train eval_scenarios=...) is named with its run's folder; its
+        # summary has no wall time of its own (the run's summary.json has the run's)
+        folder = r.path.name if r.trained == r.path else f"{r.trained.name}/{r.path.name}"
         md.append(f"| {r.scenario} | {r.algo} | {r.seed} | {m['episodes']} | {m['mean_speed_kmh']:.1f} | "
                   f"{m['collision_rate']:.1%} | {'—' if wall is None else f'{wall:.0f}'} | `{folder}` |")
     md += [""] + footer(runs, command)
