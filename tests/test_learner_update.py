@@ -2,6 +2,7 @@
 on a GPU) against the TorchRL reference loop they replace, and the ``device`` / ``cudagraphs`` options."""
 from __future__ import annotations
 
+import contextlib
 import io
 
 import pytest
@@ -249,25 +250,67 @@ def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_rec
 
 def test_warm_compiled_compiles_with_views_recomputed_and_leaves_the_setting_as_it_was():
     """Every graph ``WarmCompiled`` compiles (warm-up and recompilation) is partitioned with
-    ``torch._functorch.config.recompute_views`` on (``compiling.recomputing_views``: no slow ``bool`` mask stores in
-    the CPU kernels of the TD3 critic update); outside its calls the setting is the user's own."""
+    ``torch._functorch.config.recompute_views`` on and the mask pass set (``compiling.partitioning``: no slow
+    ``bool`` mask stores in the CPU kernels of the TD3 updates); outside its calls the settings are the user's own."""
     from torch._functorch import config as functorch_config
 
-    from kddrl_trl.compiling import WarmCompiled
+    from kddrl_trl.compiling import WarmCompiled, recompute_bool_masks
 
     seen = []
 
     def backend(gm, example_inputs):  # called exactly when a graph is compiled
-        seen.append(functorch_config.recompute_views)
+        seen.append((functorch_config.recompute_views, functorch_config.joint_custom_pass is recompute_bool_masks))
         return gm.forward
 
     fn = WarmCompiled(torch.compile(lambda name, x: x * 3.0, dynamic=False, backend=backend), warmup=1)
-    before = functorch_config.recompute_views
+    before = functorch_config.recompute_views, functorch_config.joint_custom_pass
     fn("a", torch.ones(3))
     fn("a", torch.ones(3))  # warm: no compile
     fn("a", torch.ones(2, 2))  # a new shape: recompiled with every guard
-    assert seen == [True, True]
-    assert functorch_config.recompute_views == before
+    assert seen == [(True, True), (True, True)]
+    assert (functorch_config.recompute_views, functorch_config.joint_custom_pass) == before
+
+
+def test_partitioning_saves_floats_not_relu_masks_and_keeps_the_gradient():
+    """Under ``compiling.partitioning`` the forward graph of a loss through ReLUs whose weights need no gradient (the
+    TD3 actor loss through the detached critics, Eq. 8) saves no ``bool`` tensor for its backward (TorchInductor's CPU
+    stores of ``bool`` are slow): the masks are recomputed from saved floats. Without it the same graph saves masks
+    (so the test can fail); the input gradient is the eager one either way."""
+    from torch._dynamo.backends.common import aot_autograd
+    from torch._functorch.partitioners import min_cut_rematerialization_partition
+    from torch._inductor.decomposition import select_decomp_table
+
+    from kddrl_trl.compiling import partitioning
+
+    torch.manual_seed(0)
+    w1, w2, w3 = torch.randn(2, 6, 16), torch.randn(2, 16, 16), torch.randn(2, 16, 1)
+
+    def loss(x):  # twin critics as TorchRL's TD3Loss runs them (one bmm), weights detached, the first critic's value
+        h = torch.relu(torch.bmm(x, w1))
+        return -torch.bmm(torch.relu(torch.bmm(h, w2)), w3)[0].mean()
+
+    def saved_dtypes(context):
+        saved = []
+
+        def forward(gm, inputs):  # the forward graph's outputs past the loss: what it saves for the backward
+            outputs = next(n for n in gm.graph.nodes if n.op == "output").args[0]
+            saved.extend(o.meta["val"].dtype for o in outputs[1:] if isinstance(o.meta.get("val"), torch.Tensor))
+            return gm
+
+        backend = aot_autograd(fw_compiler=forward, bw_compiler=lambda gm, inputs: gm,  # partitioned as Inductor does
+                               partition_fn=min_cut_rematerialization_partition, decompositions=select_decomp_table())
+        torch._dynamo.reset()
+        x = torch.randn(2, 8, 6, requires_grad=True)
+        with context:
+            torch.compile(loss, backend=backend, dynamic=False)(x).backward()
+        return saved, x
+
+    with_pass, x = saved_dtypes(partitioning())
+    without, _ = saved_dtypes(contextlib.nullcontext())
+    assert torch.bool in without and torch.bool not in with_pass, (without, with_pass)
+    x_eager = x.detach().clone().requires_grad_()
+    loss(x_eager).backward()
+    torch.testing.assert_close(x.grad, x_eager.grad)
 
 
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(

@@ -39,21 +39,56 @@ def resolve_compile(compile: bool | str) -> bool:
     return compile
 
 
-def recomputing_views():
-    """A context in which ``torch.compile`` s AOTAutograd partitioner may recompute views in the backward
-    (``torch._functorch.config.recompute_views``): the results are the same, only what the forward saves changes.
+#: comparisons of a tensor with a number: the ops whose ``bool`` results :func:`recompute_bool_masks` recomputes
+_MASK_OPS = frozenset(getattr(torch.ops.aten, op).Scalar for op in ("le", "lt", "ge", "gt", "eq", "ne"))
 
-    Without it, where a ReLU's output reaches the next layer through a view (the twin critics of TorchRL's
-    ``TD3Loss`` run as one batched ``bmm`` over ``[2, batch, hidden]``), the forward saves the view *and* the
-    ReLU's mask as a ``bool`` tensor, and the CPU code TorchInductor (torch 2.13) generates for a ``bool`` store is
-    over 20x slower than eager ``x <= 0`` ([2, 128, 128]: 852 vs 31 µs on this project's 2-core CPU). With the
-    views recomputed, the forward saves the ReLU output once and the backward kernel derives the mask: the TD3
-    critic update stores no mask, and a compiled TD3 update takes about 30 % less CPU time (``update.compiled`` of
-    ``benchmarks/results/train_throughput.json``, before and after). The actor's graph still saves two masks (it
-    has no weight gradient to save the output for, so the mask is the smallest thing to save)."""
+
+def recompute_bool_masks(graph_module, joint_inputs):
+    """A joint-graph pass (``torch._functorch.config.joint_custom_pass``): each ``bool`` mask a comparison of a
+    tensor with a number makes (a ReLU's ``x <= 0``: what its backward, ``threshold_backward``, decomposes to) is
+    marked must-recompute, so that the partitioner saves the float tensor it compares and the backward recomputes
+    the mask, instead of the forward storing the mask.
+
+    Why: the CPU code TorchInductor (torch 2.13) generates for a ``bool`` store is over 10x slower than eager
+    ``x <= 0`` ([2, 128, 128]: 237 µs against 20 µs for the same kernel storing only the float). The TD3 actor loss
+    (Eq. 8) runs the critics with detached weights, so its backward needs no ReLU output for a weight gradient and,
+    left alone, the partitioner saves the critics' two ReLU masks (1 byte each instead of 4): 0.91 of the 1.2 ms
+    its compiled forward took on this project's 2-core CPU. Recomputing them in the backward gives the same masks
+    from the same saved floats: the results are bit for bit those of the unmarked graph.
+    ``benchmarks/train_throughput.py`` (``update.compiled``) measures the gain."""
+    from torch.utils.checkpoint import CheckpointPolicy
+
+    for node in graph_module.graph.nodes:
+        val = node.meta.get("val")
+        if node.op == "call_function" and node.target in _MASK_OPS and isinstance(val, torch.Tensor) \
+                and val.dtype == torch.bool:
+            node.meta["recompute"] = CheckpointPolicy.MUST_RECOMPUTE
+    return graph_module
+
+
+def partitioning():
+    """The context in which the learner's losses are compiled: ``torch.compile`` s AOTAutograd partitioner may
+    recompute views in the backward (``torch._functorch.config.recompute_views``) and recomputes the ``bool``
+    masks of comparisons (:func:`recompute_bool_masks`); the results are the same, only what the forward saves
+    changes.
+
+    Views: where a ReLU's output reaches the next layer through a view (the twin critics of TorchRL's ``TD3Loss``
+    run as one batched ``bmm`` over ``[2, batch, hidden]``), the forward would save the view *and* the ReLU's mask
+    as a ``bool`` tensor, and the CPU code TorchInductor (torch 2.13) generates for a ``bool`` store is over 10x
+    slower than eager ``x <= 0``. With the views recomputed, the forward saves the ReLU output once and the
+    backward kernel derives the mask: the TD3 critic update stores no mask, and a compiled TD3 update takes about
+    30 % less CPU time (``update.compiled`` of ``benchmarks/results/train_throughput.json``, before and after).
+    Masks: the actor's graph has no weight gradient to save the ReLU outputs for, so the mask was the smallest
+    thing to save; :func:`recompute_bool_masks` makes it save the float instead.
+
+    AOTAutograd's cache is off inside: its key leaves the joint pass out, so it would hand back a graph that code
+    without the pass partitioned (correct, but with the slow mask stores). The partitioned graphs' kernels are still
+    cached by TorchInductor; tracing and partitioning again cost ~3 s per process (the learner's losses, 2-core
+    CPU)."""
     from torch._functorch import config as functorch_config
 
-    return functorch_config.patch(recompute_views=True)
+    return functorch_config.patch(recompute_views=True, joint_custom_pass=recompute_bool_masks,
+                                  enable_autograd_cache=False)
 
 
 def specializing_floats():
@@ -84,7 +119,7 @@ class WarmCompiled:
     learner never changes between calls: which modules and parameters the loss reads, the grad mode.
 
     Its compiling calls (the warm-up ones and a recompilation) run with AOTAutograd's partitioner allowed to
-    recompute views in the backward (:func:`recomputing_views`)."""
+    recompute views and ``bool`` masks in the backward (:func:`partitioning`)."""
 
     def __init__(self, fn: Callable, warmup: int = 2):
         self.fn, self.warmup, self.calls = fn, int(warmup), {}
@@ -93,7 +128,7 @@ class WarmCompiled:
         calls = self.calls.get(name, 0)
         if calls < self.warmup:
             self.calls[name] = calls + 1
-            with recomputing_views():
+            with partitioning():
                 return self.fn(name, *args, **kwargs)
         try:
             with torch.compiler.set_stance(skip_guard_eval_unsafe=True):
@@ -102,5 +137,5 @@ class WarmCompiled:
             if _RECOMPILE_UNDER_SKIP not in str(e):
                 raise
             log.info("the warm compiled loss %r needs a new graph: compiling it with every guard", name)
-            with recomputing_views():
+            with partitioning():
                 return self.fn(name, *args, **kwargs)
