@@ -49,6 +49,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import os
 import statistics
 import sys
 import time
@@ -504,6 +505,8 @@ def main(argv=None) -> int:
                    help="(p): time this many acting-policy calls at each K of --roads, learner on the CPU and on "
                         "--device (0: skip)")
     p.add_argument("--skip-update", action="store_true", help="leave (a) out")
+    p.add_argument("--update-threads", type=int, default=len(os.sched_getaffinity(0)),
+                   help="(a): torch threads of the updates (default: the cores, torch's default and so training's)")
     p.add_argument("--workers", default="", help="(w): comma-separated worker counts, e.g. 1,2 (1 must be in)")
     p.add_argument("--workers-roads", type=int, default=8, help="(w): roads per worker")
     p.add_argument("--compile", default=None, choices=["auto", "true", "false"],
@@ -514,8 +517,12 @@ def main(argv=None) -> int:
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise SystemExit(f"--device {args.device}: no CUDA device is available here")
+    torch.set_num_threads(args.update_threads)  # env_throughput set 1 on import (for the env)
     update = None if args.skip_update else measure_update(args.updates, args.seed, args.repeats, device,
                                                           args.batch_size_cf)
+    if update is not None:
+        update["torch_threads"] = torch.get_num_threads()
+    torch.set_num_threads(1)
     acting = [measure_acting(k, args.acting_calls, args.seed, list(dict.fromkeys([torch.device("cpu"), device])))
               for k in args.roads] if args.acting_calls else []
     collect = [] if args.skip_collect else [measure_collect(k, args.frames, args.seed, args.clock, compile)

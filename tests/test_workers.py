@@ -127,10 +127,12 @@ def test_a_worker_env_seeds_the_torch_generator_of_its_process():
     ("collector.workers=0", "collector.workers must be >= 1, got 0"),
     (f"collector.workers={MAX_WORKERS + 1}", f"collector.workers must be <= {MAX_WORKERS}"),
     ("collector.backend=threads", "collector.backend must be one of process, ray, got 'threads'"),
+    ("collector.sync=false collector.workers=2", "collector.sync=false runs one worker process: it needs "
+                                                 "collector.workers=1 and collector.backend=process, got workers=2"),
 ])
 def test_bad_collector_values_are_refused_naming_the_key(override, match):
     with pytest.raises(ValueError, match=match):
-        compose_job(override)
+        compose_job(*override.split())
 
 
 def test_the_ray_backend_without_ray_names_the_extra():
@@ -216,6 +218,65 @@ def test_two_workers_feed_both_buffers_in_a_stable_row_order_acting_with_the_lea
     assert len({s[2] for s in states[:len(batches)]}) > 1  # and the weights were updated
 
 
+@pytest.mark.slow  # a spawned worker process importing torch / torchrl
+def test_overlapped_collection_acts_with_the_learners_state_of_two_batches_before(tmp_path):
+    """``collector.sync=false`` on the fake env (2 roads, one worker process): the batches continue row by row
+    and fill both buffers as the synchronous collector's do, and batch ``j`` was collected with the ε, σ and
+    weights the learner had after its updates on batch ``j - 2`` (the worker collects batch ``j`` while the learner
+    updates on batch ``j - 1``; the snapshot was taken when batch ``j - 1`` arrived), whatever the timing."""
+    from dataclasses import replace
+
+    from kddrl_trl.collectors import OverlappedCollector
+    from kddrl_trl.conf.schema import LoggerConfig
+    from kddrl_trl.factories import make_buffers, make_collector, make_env_factories, make_learner, make_logger
+    from kddrl_trl.training import Trainer
+
+    job = compose_job("env.num_roads=2", "compile=false", "collector.sync=false", "env.ego_start=window",
+                      "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]")
+    learner = make_learner(job.algo, compile=False)
+    train = replace(job.train, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10,
+                    checkpoint_every=1000)
+    buffers = make_buffers(train, seed=0)
+    trainer = Trainer(learner, buffers, train, tmp_path, make_logger(LoggerConfig(csv=True, tensorboard=False),
+                                                                     tmp_path), episodes=6, progress=False)
+    step = learner.explore_step
+
+    def explore_step(decisions, frames):  # also anneal σ (constant in kddrl.yaml), so that its sync is seen
+        step(decisions, frames)
+        learner.cf_explore.sigma.mul_(0.9)
+
+    learner.explore_step = explore_step
+    acting = learner.policy
+    learner.policy = lambda explore=True: ExplorationProbe(acting(explore))
+    before = (float(learner.lc_explore.eps), float(learner.cf_explore.sigma), weights_checksum(acting(True)))
+    mtc = make_collector(make_env_factories(job, seed=0, fake=True), learner, buffers, train, job.algo.lc_reward,
+                         job.env.highway(), collector=job.collector, rows=job.env.num_roads)
+    learner.policy = acting
+    assert isinstance(mtc.collector, OverlappedCollector)
+    recorder = RecordingCollector(mtc, learner)
+    history = trainer.run(recorder)
+
+    batches = recorder.batches
+    assert len(history) == 6 and len(batches) >= 4 and trainer.counters["cf_updates"] > 0
+    frames = torch.cat([b.frames for b in batches], dim=1)
+    assert frames.batch_size == (2, 10 * len(batches))
+    for prev, cur in zip(batches, batches[1:]):
+        cont = ~prev.frames["next", "done"][:, -1, 0]
+        torch.testing.assert_close(cur.frames[K.EGO_STATE][:, 0][cont], prev.frames["next", *K.EGO_STATE][:, -1][cont])
+    assert len(trainer.buffer_cf) == frames.numel() == trainer.counters["frames"]
+    states = [before, before, *recorder.after]  # batch j: the state after batch j - 2 (the first two: the initial one)
+    for batch, (eps, sigma, checksum) in zip(batches, states):
+        f = batch.frames
+        assert torch.allclose(f[PROBE_EPS], torch.tensor(eps, dtype=torch.float64))
+        assert torch.allclose(f[PROBE_SIGMA], torch.tensor(sigma, dtype=torch.float64))
+        assert torch.allclose(f[PROBE_W], torch.tensor(checksum, dtype=torch.float64), rtol=1e-6)
+    assert len({s[2] for s in states[:len(batches)]}) > 1  # the weights moved between batches
+    # and not the synchronous collector's lag: batch j != the state after batch j - 1 once they differ
+    lagged_one = [before, *recorder.after]
+    assert any(float(b.frames[PROBE_W][0, 0, 0]) != pytest.approx(s[2], rel=1e-6)
+               for b, s in zip(batches, lagged_one))
+
+
 #: a tiny KDDRL budget on SUMO (as tests/test_train.py's TINY)
 TINY = ["env.num_roads=2", "progress=false", "train.warmup_frames=50", "train.batch_size_cf=32",
         "train.batch_size_lc=8", "compile=false", "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]",
@@ -237,6 +298,22 @@ def test_kddrl_trains_with_two_sumo_workers_as_typed(tmp_path):
     roads = {int(line.split(",")[2]) for line in (run / "train_episodes.csv").read_text().split()[1:]}
     assert roads <= {0, 1, 2, 3}  # rows of both workers
     assert summary["episodes"] == 2 and (run / "checkpoints" / "latest").read_text().strip() == "ep000004.pt"
+
+
+@pytest.mark.slow  # two tiny runs on SUMO, each with a worker process
+def test_an_overlapped_sumo_run_repeats_exactly(tmp_path):
+    """``collector.sync=false`` trains on SUMO and the same seed gives the same training records twice (the
+    snapshot is refreshed only between the worker's batches, so the timing of the two processes does not count)."""
+    records = []
+    for name in ("a", "b"):
+        cmd = [sys.executable, "-m", "kddrl_trl.train", "collector.sync=false", "episodes=4", "eval_episodes=1",
+               *TINY, f"hydra.run.dir={tmp_path / name}"]
+        done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
+        assert done.returncode == 0, done.stderr[-3000:]
+        summary = json.loads((tmp_path / name / "summary.json").read_text())
+        assert summary["training"]["episodes"] == 4 and summary["training"]["cf_updates"] > 0
+        records.append((tmp_path / name / "train_episodes.csv").read_text())
+    assert records[0] == records[1] and records[0].count("\n") == 5
 
 
 def test_the_single_process_collector_closes_the_env_it_builds():

@@ -177,13 +177,13 @@ def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[Wor
     :func:`~kddrl_trl.eval.protocol.worker_seed` ``(seed, i)`` (``seed``: the run's env seed, ``job.seed`` plus the
     episodes already done on resume) and seeds its process's torch generator with it. A single worker of the
     ``process`` backend is the env of the learner process: its seed is ``seed`` and torch is left as the entry point
-    seeded it."""
+    seeded it (``collector.sync=false``: its one worker is a process of its own, seeded as any worker)."""
     from functools import partial
 
     from .eval.protocol import worker_seed
 
     workers = job.collector.workers
-    in_process = workers == 1 and job.collector.backend == "process"
+    in_process = workers == 1 and job.collector.backend == "process" and job.collector.sync
     make = partial(make_env, job.env, job.algo, compile=job.compile, fake=fake)
     return [WorkerEnv(make, worker_seed(seed, i), seed_torch=not in_process) for i in range(workers)]
 
@@ -242,7 +242,7 @@ def make_collector(env, learner: Learner, buffers: tuple, train: TrainConfig,
             return efficiency_term(nxt.get(K.EGO_STATE)[..., 1], highway)
     elif lc_reward != "frames":
         raise ValueError(f"make_collector: lc_reward must be frames or decision, got {lc_reward!r}")
-    backend = (collector or CollectorConfig()).backend
+    collector = collector or CollectorConfig()
     frame_keys, nstep = learner.buffer_keys(), None
     if train.n_steps > 1:  # n-step returns in buffer L; the held lane-change action of the window's last frame
         from .collectors.nstep import NStepReturns
@@ -250,7 +250,8 @@ def make_collector(env, learner: Learner, buffers: tuple, train: TrainConfig,
         nstep = NStepReturns(train.n_steps, learner.frame_gamma)
         frame_keys = [*frame_keys, K.STEPS_TO_NEXT_OBS, ("next", *K.LC_HELD)]
     return MultiTimescaleCollector.from_env(env, learner.policy(explore=True), frames_per_env=train.frames_per_env,
-                                            rows=rows, backend=backend, frame_buffer=buffers[0],
+                                            rows=rows, backend=collector.backend, sync=collector.sync,
+                                            frame_buffer=buffers[0],
                                             macro_buffer=buffers[1] if learner.learns_from_decisions else None,
                                             frame_keys=frame_keys, frame_transform=nstep,
                                             macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],

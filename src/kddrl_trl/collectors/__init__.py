@@ -4,6 +4,9 @@ SUMO: any TorchRL env batch and any pair of TensorDict policies."""
 from .clock import DecisionClock
 from .collector import MultiTimescaleCollector
 from .macro import MacroTransitionWriter
+from .overlap import OverlappedCollector
 from .policy import MultiRatePolicy
+from .snapshot import PolicySnapshot
 
-__all__ = ["DecisionClock", "MacroTransitionWriter", "MultiRatePolicy", "MultiTimescaleCollector"]
+__all__ = ["DecisionClock", "MacroTransitionWriter", "MultiRatePolicy", "MultiTimescaleCollector",
+           "OverlappedCollector", "PolicySnapshot"]

@@ -12,6 +12,8 @@ from torchrl.data import ReplayBuffer
 from torchrl.envs import EnvBase
 
 from .macro import MacroTransitionWriter
+from .overlap import OverlappedCollector
+from .snapshot import PolicySnapshot
 
 #: ``collector.backend`` values: TorchRL's local multi-process collector, or its Ray collector (the optional extra
 #: ``.[ray]``)
@@ -76,7 +78,8 @@ class MultiTimescaleCollector:
 
     @classmethod
     def from_env(cls, env: EnvBase | Sequence[Callable[[], EnvBase]], policy: Callable, *, frames_per_env: int,
-                 rows: int | None = None, backend: str = "process", **kwargs) -> MultiTimescaleCollector:
+                 rows: int | None = None, backend: str = "process", sync: bool = True,
+                 **kwargs) -> MultiTimescaleCollector:
         """A TorchRL ``Collector`` collecting ``frames_per_env`` consecutive frames per env row per iteration
         (``[B, frames_per_env]``), endlessly, with ``policy`` (exploration on: TorchRL's default ``RANDOM``).
 
@@ -86,7 +89,11 @@ class MultiTimescaleCollector:
         ``backend="process"`` is built and run in this process (the single-process path, the same as passing its
         env); otherwise ``Collector(factories, policy, backend=backend, num_collectors=N, sync=True)``: each env in
         its own worker process (``process``) or Ray actor (``ray``, :data:`BACKENDS`), every worker collecting
-        its ``frames_per_env * rows`` frames per iteration, batches ``[N * rows, frames_per_env]``."""
+        its ``frames_per_env * rows`` frames per iteration, batches ``[N * rows, frames_per_env]``.
+
+        ``sync=False`` (``collector.sync=false``): one factory, run by an :class:`~.overlap.OverlappedCollector` (a
+        worker process that collects the next batch while the learner updates, acting with a
+        :class:`~.snapshot.PolicySnapshot` of ``policy``; ``policy`` may already be one)."""
         from torchrl.collectors import Collector
 
         if int(frames_per_env) < 1:
@@ -102,6 +109,15 @@ class MultiTimescaleCollector:
                 raise ValueError(f"rows (the batch size of each factory's env) must be >= 1, got {rows!r}")
         n = len(factories)
         inner = {"auto_register_policy_transforms": False}  # the policy is ours: no transform registration
+        if not sync:
+            if backend != "process" or not owns or n != 1:
+                raise ValueError("collector.sync=false runs one env factory in one worker process (collector."
+                                 f"backend=process, collector.workers=1), got backend={backend!r} and "
+                                 f"{'an env built by the caller' if not owns else f'{n} env factories'}")
+            snapshot = policy if isinstance(policy, PolicySnapshot) else PolicySnapshot(policy)
+            collector = OverlappedCollector(factories, snapshot, frames_per_batch=int(frames_per_env) * int(rows),
+                                            total_frames=-1, trust_policy=True, **inner)
+            return cls(collector, owns_envs=True, policy=snapshot, **kwargs)
         if n == 1 and backend == "process":
             options = inner
         elif backend == "process":
@@ -139,7 +155,11 @@ class MultiTimescaleCollector:
         modules. With the ``process`` backend and a CPU policy, TorchRL moves the policy's own tensors into shared
         memory when the workers start, so the workers already read the learner's tensors (``sync=True`` keeps them
         idle while the learner updates them) and this call only confirms it; where the weights are copies (Ray
-        actors, a CUDA learner's CPU copy of its policy: its ``sync()`` first) this call is what sends them."""
+        actors, a CUDA learner's CPU copy of its policy: its ``sync()`` first) this call is what sends them.
+        An :class:`~.overlap.OverlappedCollector` refreshes its snapshot itself, between two batches of its
+        worker: here, while that worker collects, nothing is done."""
+        if isinstance(self.collector, OverlappedCollector):
+            return
         sync = getattr(self.policy, "sync", None)
         if sync is not None:
             sync()

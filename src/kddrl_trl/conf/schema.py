@@ -320,10 +320,13 @@ class CollectorConfig:
     (``env.num_roads``) and transform stack, collecting through TorchRL's multi-process collector with ``backend``
     (``process``: local processes; ``ray``: Ray actors, the optional extra ``.[ray]``; checked here, before any
     simulator starts). ``workers=1`` with ``process`` runs the env in the learner process
-    (:meth:`kddrl_trl.collectors.MultiTimescaleCollector.from_env`); worker seeds: :mod:`kddrl_trl.eval.protocol`."""
+    (:meth:`kddrl_trl.collectors.MultiTimescaleCollector.from_env`); worker seeds: :mod:`kddrl_trl.eval.protocol`.
+    ``sync=false``: one worker process collects while the learner updates
+    (:class:`~kddrl_trl.collectors.OverlappedCollector`; one batch more policy lag, runs still repeat exactly)."""
 
     workers: int = 1
     backend: str = "process"
+    sync: bool = True
 
     def __post_init__(self) -> None:
         from ..collectors.collector import check_backend
@@ -334,6 +337,9 @@ class CollectorConfig:
             raise ValueError(f"collector.workers must be <= {MAX_WORKERS} (each worker's env seeds stay below the "
                              f"validation seed, kddrl_trl/eval/protocol.py), got {self.workers}")
         check_backend(self.backend)
+        if not self.sync and (self.workers != 1 or self.backend != "process"):
+            raise ValueError("collector.sync=false runs one worker process: it needs collector.workers=1 and "
+                             f"collector.backend=process, got workers={self.workers}, backend={self.backend}")
 
 
 @dataclass

@@ -21,8 +21,9 @@ Device and update functions (issue 15)
 A learner lives on one ``device`` (``device=auto|cpu|cuda``, :func:`kddrl_trl.factories.make_device`): its
 networks, targets, optimiser states, its replay buffers (:func:`~kddrl_trl.training.make_buffer`: sampled there;
 :meth:`Learner._run` moves a batch from elsewhere) and its updates. The env, SUMO and the transforms stay on the
-CPU, and so does the acting policy: a non-CPU learner acts through a CPU copy of its policy (:class:`CpuPolicy`,
-refreshed after every batch of updates), faster than the GPU with the transfers there and back (measured).
+CPU, and so does the acting policy: a non-CPU learner acts through a CPU copy of its policy
+(:class:`~kddrl_trl.collectors.PolicySnapshot`, refreshed after every batch of updates), faster than the GPU with the
+transfers there and back (measured).
 
 Each learner names its gradient steps as update functions (:meth:`Learner.update_functions`), as TorchRL's
 ``sota-implementations`` (td3, dqn) write ``update(batch)``: loss, backward, optimiser steps and soft target
@@ -34,7 +35,6 @@ once warm (the CPU); on CUDA with ``cudagraphs``, each update function is ``torc
 """
 from __future__ import annotations
 
-import copy
 from collections.abc import Callable, Mapping, Sequence
 
 import torch
@@ -44,6 +44,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from .. import keys as K
+from ..collectors import PolicySnapshot
 from ..compiling import WarmCompiled, resolve_compile
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
@@ -84,29 +85,6 @@ def _outputs_in_a_tensordict(fn: Callable[[TensorDictBase], tuple[torch.Tensor, 
         losses, priority = fn(batch)
         return TensorDict({K.UPDATE_LOSSES: losses, K.PRIORITY: priority})
     return update
-
-
-class CpuPolicy(TensorDictModuleBase):
-    """A non-CPU learner's acting policy, run on the CPU where the env's TensorDicts are: a CPU copy of the
-    policy's modules (networks and exploration schedules), which :meth:`sync` refreshes from the learner's
-    (:meth:`MultiTimescaleCollector.update_policy_weights_` calls it after every batch of updates). On an H100
-    machine a call at K = 8 took 2.4 ms on the CPU against 4.3 ms on the GPU with the transfers there and back
-    (``benchmarks/train_throughput.py --device cuda --acting-calls N``: ``gpu.acting``)."""
-
-    def __init__(self, policy: TensorDictModuleBase):
-        super().__init__()
-        self.__dict__["source"] = policy  # not a submodule: this module's state is the CPU copy's
-        self.policy = copy.deepcopy(policy).to("cpu")
-        self.in_keys, self.out_keys = list(policy.in_keys), list(policy.out_keys)
-
-    @torch.no_grad()
-    def sync(self) -> None:
-        """Copies the learner's current weights and exploration state into the CPU copy."""
-        mine, theirs = self.policy.state_dict(keep_vars=True), self.source.state_dict(keep_vars=True)
-        torch._foreach_copy_([mine[k].data for k in mine], [theirs[k].data for k in mine])
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return self.policy(tensordict)
 
 
 def transition_keys(obs: Sequence[NestedKey], actions: Sequence[NestedKey]) -> list:
@@ -179,10 +157,10 @@ class Learner(nn.Module):
 
     def policy(self, explore: bool = True) -> TensorDictModuleBase:
         """The acting policy (exploration modules act only under ``ExplorationType.RANDOM``) for env TensorDicts
-        on the CPU: :meth:`_policy`; a non-CPU learner's is a :class:`CpuPolicy` copy (acting is faster on the
-        CPU, measured)."""
+        on the CPU: :meth:`_policy`; a non-CPU learner's is a CPU copy,
+        :class:`~kddrl_trl.collectors.PolicySnapshot` (acting is faster on the CPU, measured)."""
         policy = self._policy(explore)
-        return policy if self.device.type == "cpu" else CpuPolicy(policy)
+        return policy if self.device.type == "cpu" else PolicySnapshot(policy)
 
     # ------------------------------------------------------------------------------- to implement
     def _policy(self, explore: bool = True) -> TensorDictModuleBase:
