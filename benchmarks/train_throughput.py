@@ -378,7 +378,7 @@ def measure_acting(k: int, calls: int, seed: int, devices: list[torch.device]) -
     TensorDict of the env (fake env + KDDRL transform stack + decision clock, on the CPU as in training), with the
     learner on each of ``devices``: the policy run on that device, its inputs moved there and its actions back
     (for a CUDA learner what TorchRL's ``policy_device`` does). Tells where acting is fastest: training acts on the
-    CPU (:class:`~kddrl_trl.training.base.CpuPolicy`) because the CPU measured faster."""
+    CPU (:class:`~kddrl_trl.collectors.PolicySnapshot`) because the CPU measured faster."""
     env = TransformedEnv(FakeHighwayEnv(num_roads=k, seed=seed),
                          Compose(make_kddrl_transforms(seed=seed), DecisionClock(learner_kwargs(False)[1])))
     td = env.reset()

@@ -338,14 +338,14 @@ def test_buffers_live_on_the_learners_device_and_reload_there(samples, device):
     assert len(back) == 96
 
 
-def test_cpu_policy_copy_acts_like_the_learner_after_sync(samples):
-    """:class:`CpuPolicy` (a non-CPU learner's acting policy; here around a CPU learner's): a copy, stale after an
-    update until ``sync()``, then acting as the learner's own policy does."""
-    from kddrl_trl.training.base import CpuPolicy
+def test_policy_snapshot_acts_like_the_learner_after_sync(samples):
+    """:class:`~kddrl_trl.collectors.PolicySnapshot` (a non-CPU learner's acting policy; here around a CPU
+    learner's): a copy, stale after an update until ``sync()``, then acting as the learner's own policy does."""
+    from kddrl_trl.collectors import PolicySnapshot
 
     frames, _ = samples
     learner = HierarchicalLearner(**SMALL)
-    acting = CpuPolicy(learner._policy(explore=False))
+    acting = PolicySnapshot(learner._policy(explore=False))
     obs = frames[0].exclude("next").clone()
     obs.set(K.LC_HELD, torch.nn.functional.one_hot(torch.ones(obs.shape[0], dtype=torch.long), 3).float())
     for f in frames[:2]:

@@ -22,3 +22,19 @@ def test_validation_keeps_the_training_process_threads():
     finally:
         evaluator.close()
         torch.set_num_threads(before)
+
+
+def test_validation_keeps_threads_a_collector_lowered_after_the_evaluator_was_built():
+    """A multi-process collector (``collector.workers`` > 1, ``collector.sync=false``) lowers the training process's
+    threads when its workers start, after the evaluator was built and before the evaluator's own worker starts (at
+    the first validation): that start must not raise them back (the learner would compete with the workers)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    evaluator = PeriodicEvaluator(partial(FakeHighwayEnv, num_roads=2, seed=0), episodes=2, seed=5)
+    try:
+        torch.set_num_threads(1)  # as TorchRL's collector does when its one worker starts
+        evaluator(RandomDrivingPolicy(generator=torch.Generator().manual_seed(0)))
+        assert torch.get_num_threads() == 1
+    finally:
+        evaluator.close()
+        torch.set_num_threads(before)

@@ -55,8 +55,15 @@ class PeriodicEvaluator:
     def __call__(self, policy) -> tuple[list[dict], dict]:
         if self.env is None:
             raise RuntimeError("PeriodicEvaluator: closed")
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            episodes = evaluate_policy(self.env, policy, self.episodes, self.seed, progress=False)
+        threads = torch.get_num_threads()
+        try:
+            with set_exploration_type(ExplorationType.DETERMINISTIC):
+                episodes = evaluate_policy(self.env, policy, self.episodes, self.seed, progress=False)
+        finally:
+            # the worker's start (first call) sets this process's threads to the count read at construction; by
+            # then a collector may have lowered them (TorchRL's multi-process collectors leave a core per worker:
+            # collector.workers > 1, collector.sync=false), and the learner would compete with its workers
+            torch.set_num_threads(threads)
         summary = summarize(episodes)
         summary["score"] = float(self.score(summary))
         return episodes, summary

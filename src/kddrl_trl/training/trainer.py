@@ -9,7 +9,9 @@ Per collection batch of ``frames_per_env`` frames from each of the B environment
    frame / per decision are the paper's; they are run after each batch instead of between two frames, so
    the acting policy lags by at most ``frames_per_env`` frames (the usual collector trade-off). After the updates
    the acting policies take the learner's weights and exploration state (ε, σ; TorchRL's weight sync, which
-   reaches the collector's worker processes with ``collector.workers`` > 1). Any
+   reaches the collector's worker processes with ``collector.workers`` > 1; with ``collector.sync=false`` the
+   worker collects the next batch during the updates, acting one batch behind:
+   :class:`~kddrl_trl.collectors.OverlappedCollector`). Any
    :class:`~kddrl_trl.training.Learner` trains here: its ``update_frame`` is the buffer-L update (TD3, DDPG, or
    a unified agent's only one), its ``update_decision`` the buffer-H one (only ``learns_from_decisions``);
 3. finished episodes are logged (``train/`` and ``time/``), the progress bar moves, and every
