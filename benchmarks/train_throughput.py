@@ -509,6 +509,8 @@ def main(argv=None) -> int:
                    help="(a): torch threads of the updates (default: the cores, torch's default and so training's)")
     p.add_argument("--workers", default="", help="(w): comma-separated worker counts, e.g. 1,2 (1 must be in)")
     p.add_argument("--workers-roads", type=int, default=8, help="(w): roads per worker")
+    p.add_argument("--note", default=None, help="free text stored in the JSON (e.g. how --full-run / --baseline-run "
+                                                  "were run: side by side, one core each, which codes)")
     p.add_argument("--compile", default=None, choices=["auto", "true", "false"],
                    help="the transform stack's compile in (b) and (w) (default: conf/config.yaml's)")
     args = p.parse_args(argv)
@@ -531,7 +533,7 @@ def main(argv=None) -> int:
         if update is not None:
             c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "update": update,
-              "collect": collect}
+              "collect": collect, **({"note": args.note} if args.note else {})}
     if args.workers:
         workers = measure_collect_workers(args.workers_roads, [int(n) for n in args.workers.split(",")], args.frames,
                                           args.seed, compile)

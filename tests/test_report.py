@@ -330,11 +330,12 @@ def test_runs_with_options_are_rows_of_their_own(tmp_path):
 
     defaults = default_config("kddrl", "braking")
     options = OmegaConf.to_container(OmegaConf.merge(defaults, {"train": {"n_steps": 3}, "algo": {
-        "shield": "idm", "state_extras": ["thw", "ttc"]}}))
+        "shield": "idm", "state_extras": ["thw", "ttc"]}, "collector": {"sync": False}}))
     for seed in range(2):
         for name, cfg in (("paper", defaults), ("options", options), ("old", {"seed": seed, "episodes": 1000})):
             run = _fake_run(tmp_path / "runs" / f"{name}{seed}", seed=seed, scenario="braking")
             (run / "config.yaml").write_text(yaml.safe_dump(cfg))
     runs = find_runs([tmp_path / "runs" / "paper0", tmp_path / "runs" / "options0", tmp_path / "runs" / "old1"])
     assert sorted(r.algo for r in runs) == sorted(
-        ["kddrl", "kddrl", "kddrl [algo.shield=idm, algo.state_extras=[thw,ttc], train.n_steps=3]"])
+        ["kddrl", "kddrl",
+         "kddrl [algo.shield=idm, algo.state_extras=[thw,ttc], train.n_steps=3, collector.sync=False]"])

@@ -150,19 +150,17 @@ def test_an_eval_seed_inside_a_workers_training_seeds_is_refused():
     compose_job("eval_seed=10003", "episodes=10")  # one worker: not a training seed
 
 
-@pytest.mark.slow  # two spawned worker processes importing torch / torchrl: ~45 s on the loaded 2-core machine
-def test_two_workers_feed_both_buffers_in_a_stable_row_order_acting_with_the_learners_state(tmp_path):
-    """Trainer + ``collector.workers=2`` on the fake env (2 roads each): batches ``[4, T]`` whose rows continue
-    from one iteration to the next, every frame in buffer L and every macro-transition in buffer H, decisions
-    counted as the single-process collector counts them, and each iteration's frames acted with the ε, σ and
-    weights the learner had after the previous iteration's updates."""
+def probe_training(tmp_path, collector_override: str):
+    """Trainer on the fake env (2 roads, tiny networks, σ annealed so that its sync is seen) with the collector of
+    ``collector_override``, its acting policy wrapped in :class:`ExplorationProbe` and its batches recorded:
+    (trainer, recorder, history, the learner's (ε, σ, weights checksum) before training, the collector)."""
     from dataclasses import replace
 
     from kddrl_trl.conf.schema import LoggerConfig
     from kddrl_trl.factories import make_buffers, make_collector, make_env_factories, make_learner, make_logger
     from kddrl_trl.training import Trainer
 
-    job = compose_job("env.num_roads=2", "compile=false", "collector.workers=2", "env.ego_start=window",
+    job = compose_job("env.num_roads=2", "compile=false", collector_override, "env.ego_start=window",
                       "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]")
     learner = make_learner(job.algo, compile=False)
     train = replace(job.train, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10,
@@ -184,7 +182,16 @@ def test_two_workers_feed_both_buffers_in_a_stable_row_order_acting_with_the_lea
                          job.env.highway(), collector=job.collector, rows=job.env.num_roads)
     learner.policy = acting
     recorder = RecordingCollector(mtc, learner)
-    history = trainer.run(recorder)
+    return trainer, recorder, trainer.run(recorder), before, mtc
+
+
+@pytest.mark.slow  # two spawned worker processes importing torch / torchrl: ~45 s on the loaded 2-core machine
+def test_two_workers_feed_both_buffers_in_a_stable_row_order_acting_with_the_learners_state(tmp_path):
+    """Trainer + ``collector.workers=2`` on the fake env (2 roads each): batches ``[4, T]`` whose rows continue
+    from one iteration to the next, every frame in buffer L and every macro-transition in buffer H, decisions
+    counted as the single-process collector counts them, and each iteration's frames acted with the ε, σ and
+    weights the learner had after the previous iteration's updates."""
+    trainer, recorder, history, before, _ = probe_training(tmp_path, "collector.workers=2")
 
     batches = recorder.batches
     assert len(history) == 6 and len(batches) >= 3 and trainer.counters["cf_updates"] > 0
@@ -202,7 +209,7 @@ def test_two_workers_feed_both_buffers_in_a_stable_row_order_acting_with_the_lea
     assert len(trainer.buffer_cf) == frames.numel() == trainer.counters["frames"]
     assert len(trainer.buffer_lc) == macros.numel() > 0
     # decisions: every episode decides on its first frame, then every lc_period frames; macros close on them
-    period, decisions = job.algo.lc_period, int(frames[K.LC_DECIDE].sum())
+    period, decisions = compose_job().algo.lc_period, int(frames[K.LC_DECIDE].sum())
     assert trainer.counters["decisions"] == decisions
     assert frames.numel() / period <= decisions <= frames.numel()
     n = macros["next", K.LC_MACRO_FRAMES].squeeze(-1)
@@ -224,37 +231,10 @@ def test_overlapped_collection_acts_with_the_learners_state_of_two_batches_befor
     and fill both buffers as the synchronous collector's do, and batch ``j`` was collected with the ε, σ and
     weights the learner had after its updates on batch ``j - 2`` (the worker collects batch ``j`` while the learner
     updates on batch ``j - 1``; the snapshot was taken when batch ``j - 1`` arrived), whatever the timing."""
-    from dataclasses import replace
-
     from kddrl_trl.collectors import OverlappedCollector
-    from kddrl_trl.conf.schema import LoggerConfig
-    from kddrl_trl.factories import make_buffers, make_collector, make_env_factories, make_learner, make_logger
-    from kddrl_trl.training import Trainer
 
-    job = compose_job("env.num_roads=2", "compile=false", "collector.sync=false", "env.ego_start=window",
-                      "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]")
-    learner = make_learner(job.algo, compile=False)
-    train = replace(job.train, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10,
-                    checkpoint_every=1000)
-    buffers = make_buffers(train, seed=0)
-    trainer = Trainer(learner, buffers, train, tmp_path, make_logger(LoggerConfig(csv=True, tensorboard=False),
-                                                                     tmp_path), episodes=6, progress=False)
-    step = learner.explore_step
-
-    def explore_step(decisions, frames):  # also anneal σ (constant in kddrl.yaml), so that its sync is seen
-        step(decisions, frames)
-        learner.cf_explore.sigma.mul_(0.9)
-
-    learner.explore_step = explore_step
-    acting = learner.policy
-    learner.policy = lambda explore=True: ExplorationProbe(acting(explore))
-    before = (float(learner.lc_explore.eps), float(learner.cf_explore.sigma), weights_checksum(acting(True)))
-    mtc = make_collector(make_env_factories(job, seed=0, fake=True), learner, buffers, train, job.algo.lc_reward,
-                         job.env.highway(), collector=job.collector, rows=job.env.num_roads)
-    learner.policy = acting
+    trainer, recorder, history, before, mtc = probe_training(tmp_path, "collector.sync=false")
     assert isinstance(mtc.collector, OverlappedCollector)
-    recorder = RecordingCollector(mtc, learner)
-    history = trainer.run(recorder)
 
     batches = recorder.batches
     assert len(history) == 6 and len(batches) >= 4 and trainer.counters["cf_updates"] > 0

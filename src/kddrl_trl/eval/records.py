@@ -123,11 +123,12 @@ def _config(path: Path) -> dict | None:
 
 
 #: the options (issue 14) that make a run a row of its own in the report when they differ from its algo's defaults
-#: (not ``episodes``: short smoke and test sweeps would all be rows of their own)
+#: (not ``episodes``: short smoke and test sweeps would all be rows of their own); ``collector.sync``: the overlapped
+#: collection acts one batch behind (issue 15), so what a run learns may differ
 OPTION_KEYS = ("env.reward", "env.ego_start", "algo.mobil_safety_mask", "algo.lc_reward", "algo.shield",
                "algo.shield_ttc", "algo.state_extras", "algo.learner.d3qn.semi_mdp", "algo.learner.d3qn.eps_decisions",
                "algo.learner.td3.exploration_clip", "train.n_steps", "train.updates_per_decision", "train.prioritized",
-               "train.priority_alpha", "train.priority_beta")
+               "train.priority_alpha", "train.priority_beta", "collector.sync")
 
 
 def _dotted(cfg: dict, key: str):
