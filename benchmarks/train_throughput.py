@@ -519,12 +519,13 @@ def main(argv=None) -> int:
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise SystemExit(f"--device {args.device}: no CUDA device is available here")
-    torch.set_num_threads(args.update_threads)  # env_throughput set 1 on import (for the env)
+    env_threads = torch.get_num_threads()  # env_throughput set 1 on import (for the env); the updates get their own
+    torch.set_num_threads(args.update_threads)
     update = None if args.skip_update else measure_update(args.updates, args.seed, args.repeats, device,
                                                           args.batch_size_cf)
     if update is not None:
         update["torch_threads"] = torch.get_num_threads()
-    torch.set_num_threads(1)
+    torch.set_num_threads(env_threads)
     acting = [measure_acting(k, args.acting_calls, args.seed, list(dict.fromkeys([torch.device("cpu"), device])))
               for k in args.roads] if args.acting_calls else []
     collect = [] if args.skip_collect else [measure_collect(k, args.frames, args.seed, args.clock, compile)

@@ -109,11 +109,11 @@ class MultiTimescaleCollector:
                 raise ValueError(f"rows (the batch size of each factory's env) must be >= 1, got {rows!r}")
         n = len(factories)
         inner = {"auto_register_policy_transforms": False}  # the policy is ours: no transform registration
-        if not sync:
-            if backend != "process" or not owns or n != 1:
-                raise ValueError("collector.sync=false runs one env factory in one worker process (collector."
-                                 f"backend=process, collector.workers=1), got backend={backend!r} and "
-                                 f"{'an env built by the caller' if not owns else f'{n} env factories'}")
+        if not sync:  # (the factory count: OverlappedCollector checks it)
+            if backend != "process" or not owns:
+                raise ValueError("collector.sync=false runs its env factory in a worker process (collector."
+                                 f"backend=process), got backend={backend!r} and "
+                                 f"{'an env built by the caller' if not owns else 'env factories'}")
             snapshot = policy if isinstance(policy, PolicySnapshot) else PolicySnapshot(policy)
             collector = OverlappedCollector(factories, snapshot, frames_per_batch=int(frames_per_env) * int(rows),
                                             total_frames=-1, trust_policy=True, **inner)
