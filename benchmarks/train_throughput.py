@@ -38,8 +38,10 @@
 
 ``--device cuda`` runs (a) on the GPU: the learner (compiled arm: compiled update functions in
 ``CudaGraphModule``, capturable Adam), the plain reference's networks and the batches moved there, and writes a
-``gpu`` entry (device name, TD3 / D3QN updates per second of ours and of the plain reference) besides the CPU
-ratios of a CPU run. ``--skip-collect`` measures (a) only (and (w) if asked); ``--skip-update`` leaves (a) out.
+``gpu`` entry (device name, TD3 / D3QN updates per second of ours and of the plain reference, and (r): TorchRL's
+own compiled, CUDA-graphed TD3 on a MuJoCo-sized task, the reference the issue's GPU goal names, with our TD3
+update's speed as a ratio of it, both measured in the run) besides the CPU ratios of a CPU run
+(``--torchrl-reference on`` measures (r) on the CPU too). ``--skip-collect`` measures (a) only (and (w) if asked); ``--skip-update`` leaves (a) out.
 ``--compile`` overrides the transform stack's ``compile`` of conf/config.yaml in (b) and (w).
 
 Prints a table and writes ``benchmarks/results/train_throughput.json``.
@@ -356,6 +358,74 @@ def measure_update(updates: int, seed: int, repeats: int, device: torch.device =
             "batch_size_lc": int(lc_batches[0].numel()), **rows}
 
 
+def measure_torchrl_td3(updates: int, repeats: int, device: torch.device, batch_size: int = 256) -> dict:
+    """(r): the reference the issue's GPU goal names, TorchRL's own TD3 as its ``sota-implementations`` run it:
+    ``TD3Loss`` (twin critics) on a MuJoCo-sized task (17-dim observations, 6 actions, 2 x 256 MLPs), batch
+    ``batch_size``, each update ``torch.compile`` d and (on CUDA) wrapped in ``CudaGraphModule`` with capturable
+    Adam; the critic step and, every second update (``policy_delay`` 2), the critic + actor + ``SoftUpdate`` step,
+    as two functions. Updates per second on random batches already on ``device``, median over ``repeats``."""
+    from tensordict import TensorDict
+    from tensordict.nn import CudaGraphModule, TensorDictModule
+    from torchrl.data import Bounded
+    from torchrl.modules import MLP, ValueOperator
+    from torchrl.objectives import SoftUpdate, TD3Loss
+
+    obs, act, b = 17, 6, batch_size
+    torch.manual_seed(0)
+    actor = TensorDictModule(torch.nn.Sequential(MLP(obs, act, num_cells=[256, 256]), torch.nn.Tanh()),
+                             ["observation"], ["action"]).to(device)
+    critic = ValueOperator(MLP(obs + act, 1, num_cells=[256, 256]), in_keys=["observation", "action"]).to(device)
+    loss = TD3Loss(actor, critic, action_spec=Bounded(-torch.ones(act), torch.ones(act), device=device),
+                   num_qvalue_nets=2, loss_function="l2", delay_actor=True, delay_qvalue=True)
+    loss.make_value_estimator(gamma=0.99)
+    target = SoftUpdate(loss, tau=0.005)
+    graphs = device.type == "cuda"
+    opt_a = torch.optim.Adam(loss.actor_network_params.flatten_keys().values(), lr=3e-4, capturable=graphs)
+    opt_c = torch.optim.Adam(loss.qvalue_network_params.flatten_keys().values(), lr=3e-4, capturable=graphs)
+
+    def value(td):
+        q, _ = loss.value_loss(td)
+        q.backward()
+        opt_c.step()
+        opt_c.zero_grad(set_to_none=True)
+        return TensorDict({"q": q.detach()})
+
+    def full(td):
+        out = value(td)
+        a, _ = loss.actor_loss(td)
+        a.backward()
+        opt_a.step()
+        opt_a.zero_grad(set_to_none=True)
+        target.step()
+        return out.set("a", a.detach())
+
+    steps = [torch.compile(f) for f in (value, full)]
+    if graphs:
+        steps = [CudaGraphModule(f, in_keys=[], out_keys=[], warmup=5) for f in steps]
+
+    def batch():
+        flags = {k: torch.zeros(b, 1, dtype=torch.bool, device=device) for k in ("done", "terminated")}
+        return TensorDict({"observation": torch.randn(b, obs, device=device),
+                           "action": torch.rand(b, act, device=device) * 2 - 1,
+                           "next": {"observation": torch.randn(b, obs, device=device),
+                                    "reward": torch.randn(b, 1, device=device), **flags}}, [b])
+
+    batches = [batch() for _ in range(updates)]
+    for i, td in enumerate(batches[:12]):
+        steps[i % 2](td)
+    runs = []
+    for _ in range(repeats):
+        _sync(device)
+        t0 = time.perf_counter()
+        for i, td in enumerate(batches):
+            steps[i % 2](td)
+        _sync(device)
+        runs.append((time.perf_counter() - t0) / len(batches))
+    per_update = statistics.median(runs)
+    print(f"  TorchRL's own TD3 (batch {b}): {1 / per_update:.0f} updates/s", flush=True)
+    return {"batch_size": b, "td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update}
+
+
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 
 
@@ -505,6 +575,8 @@ def main(argv=None) -> int:
                    help="(p): time this many acting-policy calls at each K of --roads, learner on the CPU and on "
                         "--device (0: skip)")
     p.add_argument("--skip-update", action="store_true", help="leave (a) out")
+    p.add_argument("--torchrl-reference", choices=["auto", "on", "off"], default="auto",
+                   help="(r): TorchRL's own compiled TD3 as the GPU goal's reference (auto: with --device cuda)")
     p.add_argument("--update-threads", type=int, default=len(os.sched_getaffinity(0)),
                    help="(a): torch threads of the updates (default: the cores, torch's default and so training's)")
     p.add_argument("--workers", default="", help="(w): comma-separated worker counts, e.g. 1,2 (1 must be in)")
@@ -525,6 +597,9 @@ def main(argv=None) -> int:
                                                           args.batch_size_cf)
     if update is not None:
         update["torch_threads"] = torch.get_num_threads()
+    reference = (measure_torchrl_td3(args.updates, args.repeats, device)
+                 if args.torchrl_reference == "on" or (args.torchrl_reference == "auto" and device.type == "cuda")
+                 else None)
     torch.set_num_threads(env_threads)
     acting = [measure_acting(k, args.acting_calls, args.seed, list(dict.fromkeys([torch.device("cpu"), device])))
               for k in args.roads] if args.acting_calls else []
@@ -534,6 +609,7 @@ def main(argv=None) -> int:
         if update is not None:
             c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "update": update,
+              **({"torchrl_td3_reference": reference} if reference is not None and device.type != "cuda" else {}),
               "collect": collect, **({"note": args.note} if args.note else {})}
     if args.workers:
         workers = measure_collect_workers(args.workers_roads, [int(n) for n in args.workers.split(",")], args.frames,
@@ -549,6 +625,9 @@ def main(argv=None) -> int:
                          "d3qn_updates_per_s": 1.0 / update["compiled"]["d3qn_update_s"],
                          "batch_size_cf": update["batch_size_cf"],
                          "ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]}
+        if reference is not None:
+            result["gpu"]["torchrl_td3_reference"] = reference
+            result["gpu"]["td3_ratio_vs_torchrl_reference"] = reference["td3_update_s"] / update["compiled"]["td3_update_s"]
         if acting:
             result["gpu"]["acting"] = acting
     elif acting:

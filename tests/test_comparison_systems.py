@@ -103,7 +103,7 @@ def test_unified_d3qn_acts_on_valid_joint_actions_and_learns():
     assert frames[K.LC_ACTION_MASK].gather(-1, lane.unsqueeze(-1)).all()  # never an invalid command
     assert set(frames[K.CF_ACTION].unique().tolist()) <= set(accel_levels(5).tolist())
     before = snapshot(learner)
-    assert torch.isfinite(torch.tensor(learner.update_frame(sample_l)["loss_joint"]))
+    assert torch.isfinite(learner.update_frame(sample_l)["loss_joint"])
     assert moved(before, learner, "q_loss.value_network_params") and moved(before, learner, "q_loss.target_")
     with pytest.raises(NotImplementedError):
         learner.update_decision(sample_l)
@@ -188,7 +188,7 @@ def test_every_comparison_learner_updates_on_cuda_with_cudagraphs(system, compil
     before = snapshot(gpu)
     for _ in range(6):  # past CudaGraphModule's warm-up calls: captured and replayed
         out = gpu.update_frame(sample_l)
-        assert all(torch.isfinite(torch.tensor(v)) for v in out.values()), out
+        assert all(torch.isfinite(v) for v in out.values()), out
         if system == "peng":
             gpu.update_decision(sample_h)
         if system != "pasac_unified":

@@ -86,7 +86,7 @@ def test_d3qn_update_moves_q_and_embedding_not_td3(batches):
     g = groups(learner)
     before = snapshot(learner)
     out = learner.update_lc(macros)
-    assert torch.isfinite(torch.tensor(out["loss_lc"]))
+    assert torch.isfinite(out["loss_lc"])
     moved = changed(before, learner)
     assert g["q"] <= moved and g["embedding"] <= moved
     assert moved & g["q_target"]  # soft update (Eq. 5)

@@ -95,6 +95,38 @@ def test_compiled_update_functions_match_the_eager_ones(samples):
     assert_same_tensors(eager, compiled, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.parametrize("compile", [False, True])
+def test_graphed_update_copies_each_batch_into_the_inputs_it_captured(samples, compile):
+    """:class:`~kddrl_trl.compiling.GraphedUpdate` (the CUDA-graph path of an update function; here on the CPU,
+    where tensordict's ``CudaGraphModule`` calls through without a graph): each batch is copied into the static
+    TensorDict the update reads, so the updates give the parameters of direct calls, eager or compiled; a batch of
+    another size, or without a key the first had, is refused by name."""
+    import warnings
+
+    from kddrl_trl.compiling import GraphedUpdate
+
+    frames, macros = samples
+    torch.manual_seed(1)
+    direct = HierarchicalLearner(**SMALL)
+    torch.manual_seed(1)
+    graphed = HierarchicalLearner(**SMALL)
+    fn = torch.compile(graphed._step_lc, dynamic=False) if compile else graphed._step_lc
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "This module is instantiated on a machine without CUDA", UserWarning)
+        step = GraphedUpdate(fn, "cpu", warmup=2, written=(K.PRIORITY,))
+    for m in macros * 2:
+        ref_loss, ref_priority = direct._step_lc(m.clone())
+        loss, priority = step(m.clone())
+        torch.testing.assert_close(loss, ref_loss, rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(priority, ref_priority, rtol=1e-5, atol=1e-6)
+    assert_same_tensors(direct, graphed, rtol=1e-5, atol=1e-6)
+    assert K.PRIORITY not in step.keys and len(step.leaves) == len(step.keys)
+    with pytest.raises(ValueError, match=r"captured for minibatches of \(16,\) rows and got \(8,\)"):
+        step(macros[0][:8])
+    with pytest.raises(KeyError, match="this batch lacks"):
+        step(macros[0].exclude(K.EGO_STATE))
+
+
 def test_device_auto_is_the_cpu_without_a_gpu_and_cuda_fails_at_once(monkeypatch):
     from kddrl_trl.factories import make_device
 
@@ -134,7 +166,7 @@ def test_cuda_learner_with_cudagraphs_matches_the_cpu_one_and_checkpoints_cross_
     for name in ref:
         torch.testing.assert_close(got[name], ref[name], rtol=1e-3, atol=1e-4, msg=name)
     for f in frames * 2:
-        assert all(torch.isfinite(torch.tensor(v)) for v in gpu.update_cf(f).values())
+        assert all(torch.isfinite(v) for v in gpu.update_cf(f).values())
     obs = frames[0].exclude("next").clone()
     obs.set(K.LC_HELD, torch.nn.functional.one_hot(torch.ones(obs.shape[0], dtype=torch.long), 3).float())
     acting = gpu.policy(explore=False)  # a CPU copy of the GPU policy

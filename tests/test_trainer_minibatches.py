@@ -45,3 +45,29 @@ def test_a_prioritized_buffer_is_sampled_after_each_priority_update():
     second = next(batches)
     assert len(draws) == 2 and (second["x"][:, 0] == 5).all()
     assert len(list(batches)) == 1 and len(draws) == 3
+
+
+def test_a_run_of_updates_is_read_at_once_and_a_non_finite_loss_names_its_update(tmp_path):
+    """``Trainer._update``: the learner's losses (0-d tensors, unread per update: a GPU learner is not waited for)
+    are read after the run, in update order; a NaN stops the training, naming the loss and the update it came
+    from (here the actor loss, made every second update, of update 4 of the run)."""
+    import math
+
+    import pytest
+
+    from kddrl_trl.training import Trainer
+
+    def update(batch, calls=[]):  # noqa: B006 - counts the calls
+        calls.append(1)
+        n = len(calls)
+        out = {"loss_qvalue": torch.tensor(float(n))}
+        if n % 2 == 0:
+            out["loss_actor"] = torch.tensor(math.nan if n == 4 else -float(n))
+        return out
+
+    trainer = Trainer(None, (_filled(), _filled()), None, tmp_path, None, episodes=1, progress=False)
+    losses = {}
+    trainer._update(trainer.buffer_cf, 3, update, losses, "cf_updates")
+    assert losses == {"loss_qvalue": [1.0, 2.0, 3.0], "loss_actor": [-2.0]} and trainer.counters["cf_updates"] == 3
+    with pytest.raises(FloatingPointError, match=r"loss_actor = nan at cf_updates update 4 \(5 buffer-L"):
+        trainer._update(trainer.buffer_cf, 2, update, losses, "cf_updates")

@@ -6,6 +6,7 @@ and the learner's ``loss`` (:meth:`kddrl_trl.training.Learner._compile`, for eve
 """
 from __future__ import annotations
 
+import itertools
 import logging
 import shutil
 from collections.abc import Callable
@@ -139,3 +140,57 @@ class WarmCompiled:
             log.info("the warm compiled loss %r needs a new graph: compiling it with every guard", name)
             with partitioning():
                 return self.fn(name, *args, **kwargs)
+
+
+class GraphedUpdate:
+    """An update function ``fn(batch) -> (losses, priority)`` replayed as a CUDA graph: tensordict's
+    ``CudaGraphModule`` around ``fn`` applied to one static TensorDict, into which each call copies the sampled
+    batch with a single ``torch._foreach_copy_``.
+
+    Why not ``CudaGraphModule`` 's own TensorDict inputs: it copies an input TensorDict leaf by leaf
+    (``TensorDict.update_``: one ``copy_`` launch per leaf, 26 for a KDDRL buffer-L sample), CPU time that a
+    CUDA graph's replay is meant to save; here the copies are one ``_foreach_copy_`` per dtype (its one-kernel
+    path takes a list of floating-point tensors of one dtype; the 10 ``bool`` / integer leaves of a buffer-L sample
+    are copied one by one either way). The graph reads the static
+    TensorDict's tensors (made from the first batch, on ``device``), so every later batch must have the first
+    one's batch size and keys (a sampled minibatch does; anything else is refused, naming what differs). The
+    copy is queued on the stream the graph replays on, behind the previous replay: no batch is overwritten while
+    a graph still reads it. ``CudaGraphModule`` runs ``warmup`` calls eagerly before it captures. ``written``: keys
+    the caller sets in a batch after its update (its ``|δ|``), left out of the inputs."""
+
+    def __init__(self, fn: Callable, device: torch.device, warmup: int = 3, written=()):
+        self.fn, self.device, self.warmup = fn, torch.device(device), int(warmup)
+        self.written = set(written)  # keys the caller writes into a batch after the update: never inputs
+        self.static = self.keys = self.leaves = self.groups = self.graph = None
+
+    def _capture_inputs(self, batch) -> None:
+        from tensordict.nn import CudaGraphModule
+
+        keys = sorted((k for k in batch.keys(True, True) if k not in self.written), key=str)
+        self.static = batch.to(self.device).clone()
+        by_dtype: dict[torch.dtype, list] = {}
+        for k in keys:
+            by_dtype.setdefault(self.static.get(k).dtype, []).append(k)
+        self.keys = [k for ks in by_dtype.values() for k in ks]  # grouped by dtype: each group one copy call
+        self.leaves = [self.static.get(k) for k in self.keys]
+        ends = list(itertools.accumulate(len(ks) for ks in by_dtype.values()))
+        self.groups = list(zip([0, *ends[:-1]], ends))
+        self.graph = CudaGraphModule(lambda: self.fn(self.static), warmup=self.warmup, device=self.device)
+
+    def __call__(self, batch):
+        if self.static is None:
+            self._capture_inputs(batch)
+        elif batch.batch_size != self.static.batch_size:
+            raise ValueError(f"a CUDA-graphed update was captured for minibatches of {tuple(self.static.batch_size)} "
+                             f"rows and got {tuple(batch.batch_size)}; its buffer's batch_size must not change")
+        sources = [batch.get(k) for k in self.keys]
+        try:
+            for i, j in self.groups:
+                torch._foreach_copy_(self.leaves[i:j], sources[i:j], non_blocking=True)
+        except TypeError:  # a key missing from the batch: its get gave None
+            missing = [k for k, v in zip(self.keys, sources, strict=True) if v is None]
+            if not missing:
+                raise
+            raise KeyError(f"a CUDA-graphed update was captured with the keys {self.keys}; this batch lacks "
+                           f"{missing}") from None
+        return self.graph()

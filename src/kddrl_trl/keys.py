@@ -119,7 +119,6 @@ PASAC_LOGITS = ("pasac", "logits")      # [3] lane-choice logits of the PASAC po
 PASAC_LOC = ("pasac", "loc")            # [1] mean of the pre-tanh Gaussian of the PASAC acceleration
 PASAC_SCALE = ("pasac", "scale")        # [1] its standard deviation
 PASAC_STATE_ACTION_VALUE = ("pasac", "state_action_value")  # [1] soft Q(s, lane, accel)
-UPDATE_LOSSES = "update_losses"         # [n] detached losses of one update function (a CUDA-graphed update's output)
 PRIORITY = "priority"                    # [B] |TD error| of each sampled transition, written by a learner's update
                                          # into the sample: a prioritized buffer's new priorities (train.prioritized;
                                          # not TorchRL losses' own "td_error", which they write in their own shapes)

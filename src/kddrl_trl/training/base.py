@@ -31,21 +31,24 @@ updates (:class:`~kddrl_trl.objectives.PolyakUpdate`, one ``torch._foreach_lerp_
 function of a sampled batch that returns its detached losses. :meth:`Learner._compile` is the learner's one compile
 site: with ``compile``, the learner's :meth:`Learner.loss` is ``torch.compile`` d and called without guard evaluation
 once warm (the CPU); on CUDA with ``cudagraphs``, each update function is ``torch.compile`` d whole and wrapped in
-``tensordict.nn.CudaGraphModule`` (optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed).
+``tensordict.nn.CudaGraphModule`` (:class:`~kddrl_trl.compiling.GraphedUpdate`: a batch's leaves copied in by one
+launch; optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the update path waits
+for the GPU: the losses come back as device tensors, read once per collection batch by the trainer, and the update
+counters (the TD3 policy delay reads one every update) stay on the CPU.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import nn
 
 from .. import keys as K
 from ..collectors import PolicySnapshot
-from ..compiling import WarmCompiled, resolve_compile
+from ..compiling import GraphedUpdate, WarmCompiled, resolve_compile
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
 STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
@@ -77,16 +80,6 @@ def resolve_cudagraphs(cudagraphs: bool | str, device: torch.device) -> bool:
     return cudagraphs
 
 
-def _outputs_in_a_tensordict(fn: Callable[[TensorDictBase], tuple[torch.Tensor, torch.Tensor]]
-                             ) -> Callable[[TensorDictBase], TensorDict]:
-    """An update function whose (losses, priorities) come back under ``keys.UPDATE_LOSSES`` and
-    ``keys.PRIORITY`` of a TensorDict (``CudaGraphModule`` returns TensorDicts only)."""
-    def update(batch: TensorDictBase) -> TensorDict:
-        losses, priority = fn(batch)
-        return TensorDict({K.UPDATE_LOSSES: losses, K.PRIORITY: priority})
-    return update
-
-
 def transition_keys(obs: Sequence[NestedKey], actions: Sequence[NestedKey]) -> list:
     """Keys of a stored transition: ``obs`` and ``actions`` at the root, ``obs``, both agents' rewards and the
     done flags under ``"next"``."""
@@ -115,6 +108,8 @@ class Learner(nn.Module):
         and returns it. Call it before building optimisers and target updates (they hold the moved tensors)."""
         self.device = torch.device(device if device is not None else "cpu")
         self.to(self.device)
+        if "counters" in self._buffers:  # read on every update (the policy delay): a GPU read would wait for the GPU
+            self._buffers["counters"] = self.counters.cpu()
         return self.device
 
     def _compile(self, compile: bool | str, cudagraphs: bool | str = False) -> None:
@@ -137,23 +132,21 @@ class Learner(nn.Module):
         for name, fn in self.update_functions().items():
             if self.compiled and self.cudagraphs:
                 fn = torch.compile(fn, dynamic=False)
-            fn = _outputs_in_a_tensordict(fn)
             if self.cudagraphs:
-                from tensordict.nn import CudaGraphModule
-
-                fn = CudaGraphModule(fn, warmup=3, in_keys=[], out_keys=[], device=self.device)
+                fn = GraphedUpdate(fn, self.device, written=(K.PRIORITY,))
             fns[name] = fn
         self.__dict__["_update_fns"] = fns  # not submodules (compiled wrappers hold the learner's own modules)
 
-    def _run(self, name: str, batch: TensorDictBase) -> list[float]:
+    def _run(self, name: str, batch: TensorDictBase) -> torch.Tensor:
         """Runs the update function ``name`` on a sampled ``batch`` (moved to the learner's device); returns its
-        losses as floats and writes each transition's ``|δ|`` into ``batch`` (``keys.PRIORITY``: what a prioritized
-        buffer's ``update_tensordict_priority`` reads)."""
+        detached losses (a 1-d tensor on the learner's device, not read here: on a GPU reading it would wait for
+        the update, :meth:`~kddrl_trl.training.Trainer._update` reads a whole batch of updates' losses at once)
+        and writes each transition's ``|δ|`` into ``batch`` (``keys.PRIORITY``: what a prioritized buffer's
+        ``update_tensordict_priority`` reads; a graph's outputs come back cloned)."""
         on_device = batch if batch.device == self.device else batch.to(self.device, non_blocking=True)
-        out = self._update_fns[name](on_device)
-        priority = out[K.PRIORITY]
-        batch.set(K.PRIORITY, priority.clone() if self.cudagraphs else priority)  # a graph's outputs are reused
-        return out[K.UPDATE_LOSSES].tolist()
+        losses, priority = self._update_fns[name](on_device)
+        batch.set(K.PRIORITY, priority)
+        return losses
 
     def policy(self, explore: bool = True) -> TensorDictModuleBase:
         """The acting policy (exploration modules act only under ``ExplorationType.RANDOM``) for env TensorDicts
@@ -182,12 +175,13 @@ class Learner(nn.Module):
         weights the loss's mean by them."""
         raise NotImplementedError
 
-    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
-        """One gradient step on a buffer-L sample (frames); returns the losses."""
+    def update_frame(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """One gradient step on a buffer-L sample (frames); returns the losses as 0-d tensors on the learner's
+        device (unread: reading one on a GPU waits for the update; the trainer reads a batch of them at once)."""
         raise NotImplementedError
 
-    def update_decision(self, batch: TensorDictBase) -> dict[str, float]:
-        """One gradient step on a buffer-H sample (macro-transitions); returns the losses."""
+    def update_decision(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+        """One gradient step on a buffer-H sample (macro-transitions); returns the losses as :meth:`update_frame`."""
         raise NotImplementedError(f"{type(self).__name__} learns from buffer L only")
 
     def explore_step(self, decisions: int, frames: int) -> None:

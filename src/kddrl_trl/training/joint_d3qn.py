@@ -110,7 +110,7 @@ class JointD3QNLearner(Learner):
         self._soft()
         return loss.detach().reshape(1), priority
 
-    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
+    def update_frame(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         loss = self._run("joint", batch)[0]
         self.counters[0] += 1
         return {"loss_joint": loss}

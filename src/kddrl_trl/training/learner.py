@@ -209,24 +209,24 @@ class HierarchicalLearner(Learner):
         self._soft_lc()
         return loss.detach().reshape(1), priority
 
-    def update_cf(self, batch: TensorDictBase) -> dict[str, float]:
+    def update_cf(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """One TD3 step on a buffer-L sample (Algorithm 1 lines 38-43)."""
         self.counters[1] += 1
         if int(self.counters[1]) % self.td3.policy_delay == 0:
-            value_loss, actor_loss = self._run("cf_full", batch)
+            value_loss, actor_loss = self._run("cf_full", batch).unbind()
             self.counters[2] += 1
             return {"loss_qvalue": value_loss, "loss_actor": actor_loss}
         return {"loss_qvalue": self._run("cf_value", batch)[0]}
 
-    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
+    def update_frame(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Buffer L: :meth:`update_cf`."""
         return self.update_cf(batch)
 
-    def update_decision(self, batch: TensorDictBase) -> dict[str, float]:
+    def update_decision(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """Buffer H: :meth:`update_lc`."""
         return self.update_lc(batch)
 
-    def update_lc(self, batch: TensorDictBase) -> dict[str, float]:
+    def update_lc(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """One D3QN step on a buffer-H sample of macro-transitions (Algorithm 1 lines 27-29)."""
         loss = self._run("lc", batch)[0]
         self.counters[0] += 1

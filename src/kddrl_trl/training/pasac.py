@@ -88,10 +88,10 @@ class PASACLearner(Learner):
         self._soft()
         return out[:4].detach(), priority
 
-    def update_frame(self, batch: TensorDictBase) -> dict[str, float]:
+    def update_frame(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         out = self._run("pasac", batch)
         self.counters[0] += 1
-        return dict(zip(LOSS_ENTRIES[:4], out))
+        return dict(zip(LOSS_ENTRIES[:4], out.unbind(), strict=True))
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
         return {"critic": self.opt_critic, "actor": self.opt_actor, "alpha": self.opt_alpha}

@@ -190,27 +190,37 @@ class Trainer:
         return record
 
     # ------------------------------------------------------------------------------------ loop
-    def _record(self, out: dict[str, float], losses: dict[str, list[float]]) -> None:
-        for k, v in out.items():
-            if not math.isfinite(v):
+    def _record(self, outs: list[dict[str, torch.Tensor]], losses: dict[str, list[float]], counter: str) -> None:
+        """Reads the losses of the run of ``counter`` updates just made (``outs``: one dict of 0-d tensors on the
+        learner's device per update; a GPU learner's updates are not waited for one by one) at once into
+        ``losses``; a loss that is not finite stops the training, naming its update."""
+        first = self.counters[counter] - len(outs) + 1  # the number of the first update of the run
+        for k in dict.fromkeys(k for out in outs for k in out):
+            made = [(first + i, out[k]) for i, out in enumerate(outs) if k in out]
+            read = torch.stack([torch.as_tensor(v) for _, v in made]).tolist()  # (a float from a learner of yours too)
+            bad = next((j for j, v in enumerate(read) if not math.isfinite(v)), None)
+            if bad is not None:
                 raise FloatingPointError(
-                    f"{k} = {v} after {self.counters['cf_updates']} buffer-L / {self.counters['lc_updates']} buffer-H "
-                    f"updates ({len(self.history)} episodes): training diverged. The last checkpoint in "
-                    f"{self.run_dir / 'checkpoints'} is from before; lower the learning rates (algo.learner.*) and "
-                    "resume=true, or start again")
-            losses.setdefault(k, []).append(v)
+                    f"{k} = {read[bad]} at {counter} update {made[bad][0]} ({self.counters['cf_updates']} buffer-L / "
+                    f"{self.counters['lc_updates']} buffer-H updates, {len(self.history)} episodes): training "
+                    f"diverged. The last checkpoint in {self.run_dir / 'checkpoints'} is from before; lower the "
+                    "learning rates (algo.learner.*) and resume=true, or start again")
+            losses.setdefault(k, []).extend(read)
 
     def _update(self, buffer: TensorDictReplayBuffer, n: int, update, losses: dict[str, list[float]],
                 counter: str) -> None:
         """``n`` updates (``update``: the learner's ``update_frame`` / ``update_decision``), each on its own minibatch
         of ``buffer`` (:func:`minibatches`); a prioritized buffer takes each minibatch's new ``|δ|`` as its
-        priorities before the next is drawn."""
+        priorities before the next is drawn. Their losses are read after the last (:meth:`_record`)."""
         prioritized = is_prioritized(buffer)
+        outs = []
         for batch in minibatches(buffer, n):
-            self._record(update(batch), losses)
+            outs.append(update(batch))
             if prioritized:
                 buffer.update_tensordict_priority(batch)
             self.counters[counter] += 1
+        if outs:
+            self._record(outs, losses, counter)
 
     def _updates(self, frames: int, decisions: int, losses: dict[str, list[float]]) -> None:
         c, learner = self.cfg, self.learner
