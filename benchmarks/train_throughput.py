@@ -555,6 +555,31 @@ def learner_compile_gain(update: dict, collect_fps: float) -> float:
     return (eager - compiled) / (1.0 / collect_fps + eager)
 
 
+#: keys of the results file that describe a run rather than hold a measurement
+BOOKKEEPING = ("args", "machine", "note", "runs", "measured_by", "kept_from_previous_run")
+
+
+def keep_previous(result: dict, previous: dict) -> None:
+    """Adds to ``result`` every measurement of the previous results file that this run did not make (a CPU run
+    keeps the ``gpu`` entry, a ``--full-run`` alone keeps the update and collection figures), and says which run
+    made each: ``runs`` lists the runs (``args``, ``machine``, ``note``; this one first) and ``measured_by`` maps
+    each measurement to its run's index there. The top-level ``args`` / ``machine`` / ``note`` are this run's."""
+    made = [k for k, v in result.items() if k not in BOOKKEEPING and v not in (None, [], {})]
+    old_runs = previous.get("runs") or [{k: previous.get(k) for k in ("args", "machine", "note")}]
+    old_by = previous.get("measured_by", {})
+    runs = [{k: result.get(k) for k in ("args", "machine", "note")}]
+    measured_by = dict.fromkeys(made, 0)
+    for key, value in previous.items():
+        if key in BOOKKEEPING or key in made or value in (None, [], {}):
+            continue
+        result[key] = value
+        run = old_runs[old_by.get(key, 0)]
+        if run not in runs:
+            runs.append(run)
+        measured_by[key] = runs.index(run)
+    result["runs"], result["measured_by"] = runs, measured_by
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--roads", type=int, nargs="+", default=[8, 32])
@@ -637,15 +662,6 @@ def main(argv=None) -> int:
         result["update_ratio_vs_plain_eager"] = update["plain"]["per_frame_s"] / update["eager"]["per_frame_s"]
     if collect:
         result["collect_ratio_vs_sim"] = min(c["collect_ratio_vs_sim"] for c in collect)
-    if args.out.is_file():  # keep what this run did not measure (a CPU run keeps the gpu entry and vice versa)
-        previous = json.loads(args.out.read_text())
-        kept = [k for k in ("update", "update_ratio_vs_plain", "update_ratio_vs_plain_eager", "gpu", "collect",
-                            "collect_ratio_vs_sim", "collect_workers", "collect_scaling", "train_1000_episodes_s",
-                            "full_run")
-                if k in previous and not result.get(k)]
-        result.update({k: previous[k] for k in kept})
-        if kept:
-            result["kept_from_previous_run"] = kept
     if args.full_run is not None:
         summary = json.loads((args.full_run / "summary.json").read_text())
         result["train_1000_episodes_s"] = summary["training"]["elapsed_s"]
@@ -653,6 +669,8 @@ def main(argv=None) -> int:
                               "frames": summary["training"]["frames"]}
         if args.baseline_run is not None:
             result["full_run_vs_baseline"] = compare_runs(args.full_run, args.baseline_run)
+    if args.out.is_file():  # keep what this run did not measure (a CPU run keeps the gpu entry and vice versa)
+        keep_previous(result, json.loads(args.out.read_text()))
 
     update = result.get("update")
     if update:
