@@ -41,7 +41,8 @@
 ``gpu`` entry (device name, TD3 / D3QN updates per second of ours and of the plain reference, and (r): TorchRL's
 own compiled, CUDA-graphed TD3 on a MuJoCo-sized task, the reference the issue's GPU goal names, with our TD3
 update's speed as a ratio of it, both measured in the run) besides the CPU ratios of a CPU run
-(``--torchrl-reference on`` measures (r) on the CPU too). ``--skip-collect`` measures (a) only (and (w) if asked); ``--skip-update`` leaves (a) out.
+(``--torchrl-reference on`` measures (r) on the CPU too). ``--skip-collect`` measures (a) only (and (w) if asked);
+``--skip-update`` leaves (a) out.
 ``--compile`` overrides the transform stack's ``compile`` of conf/config.yaml in (b) and (w).
 
 Prints a table and writes ``benchmarks/results/train_throughput.json``.
@@ -652,7 +653,8 @@ def main(argv=None) -> int:
                          "ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]}
         if reference is not None:
             result["gpu"]["torchrl_td3_reference"] = reference
-            result["gpu"]["td3_ratio_vs_torchrl_reference"] = reference["td3_update_s"] / update["compiled"]["td3_update_s"]
+            result["gpu"]["td3_ratio_vs_torchrl_reference"] = (reference["td3_update_s"]
+                                                               / update["compiled"]["td3_update_s"])
         if acting:
             result["gpu"]["acting"] = acting
     elif acting:

@@ -57,9 +57,10 @@ def test_a_run_of_updates_is_read_at_once_and_a_non_finite_loss_names_its_update
 
     from kddrl_trl.training import Trainer
 
-    def update(batch, calls=[]):  # noqa: B006 - counts the calls
-        calls.append(1)
-        n = len(calls)
+    calls = iter(range(1, 100))
+
+    def update(batch):
+        n = next(calls)
         out = {"loss_qvalue": torch.tensor(float(n))}
         if n % 2 == 0:
             out["loss_actor"] = torch.tensor(math.nan if n == 4 else -float(n))

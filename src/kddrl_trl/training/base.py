@@ -32,9 +32,9 @@ function of a sampled batch that returns its detached losses. :meth:`Learner._co
 site: with ``compile``, the learner's :meth:`Learner.loss` is ``torch.compile`` d and called without guard evaluation
 once warm (the CPU); on CUDA with ``cudagraphs``, each update function is ``torch.compile`` d whole and wrapped in
 ``tensordict.nn.CudaGraphModule`` (:class:`~kddrl_trl.compiling.GraphedUpdate`: a batch's leaves copied in by one
-``_foreach_copy_`` per dtype; optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the update path waits
-for the GPU: the losses come back as device tensors, read once per collection batch by the trainer, and the update
-counters (the TD3 policy delay reads one every update) stay on the CPU.
+``_foreach_copy_`` per dtype; optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the
+update path waits for the GPU: the losses come back as device tensors, read once per collection batch by the
+trainer, and the update counters (the TD3 policy delay reads one every update) stay on the CPU.
 """
 from __future__ import annotations
 
