@@ -116,8 +116,8 @@ CF_STATE_ACTION_VALUE = ("cf", "state_action_value")  # [1] TD3 / DDPG critic va
 JOINT_ACTION_VALUE = ("joint", "action_value")          # [3 x levels] Q(s, ·) of d3qn_unified
 JOINT_CHOSEN_VALUE = ("joint", "chosen_action_value")   # [1] Q(s, a) of the taken joint action
 PASAC_LOGITS = ("pasac", "logits")      # [3] lane-choice logits of the PASAC policy (invalid commands masked)
-PASAC_LOC = ("pasac", "loc")            # [1] mean of the pre-tanh Gaussian of the PASAC acceleration
-PASAC_SCALE = ("pasac", "scale")        # [1] its standard deviation
+PASAC_LOC = ("pasac", "loc")            # [3, 1] mean of the pre-tanh Gaussian of the PASAC acceleration, per lane command
+PASAC_SCALE = ("pasac", "scale")        # [3, 1] its standard deviation
 PASAC_STATE_ACTION_VALUE = ("pasac", "state_action_value")  # [1] soft Q(s, lane, accel)
 PRIORITY = "priority"                    # [B] |TD error| of each sampled transition, written by a learner's update
                                          # into the sample: a prioritized buffer's new priorities (train.prioritized;

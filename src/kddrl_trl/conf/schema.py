@@ -157,7 +157,7 @@ JointD3QNLearnerConfig = _node("JointD3QNLearnerConfig", "``algo.learner`` of ``
                                low=float, high=float, d3qn=D3QNConfig)
 PASACConfig = _node("PASACConfig", "``algo.learner.pasac``: :func:`~kddrl_trl.objectives.make_pasac` options and the "
                     "learning rates.", hidden=list[int], gamma=float, tau=float, actor_lr=float, critic_lr=float,
-                    alpha_lr=float, alpha_init=float, target_entropy_lane=float, target_entropy_param=float,
+                    alpha_lr=float, alpha_init=float, alpha_min=float, alpha_max=float, target_entropy_lane=float, target_entropy_param=float,
                     low=float, high=float)
 PASACLearnerConfig = _node("PASACLearnerConfig", "``algo.learner`` of ``pasac_unified``: keyword arguments of "
                            ":class:`~kddrl_trl.training.PASACLearner`.", pasac=PASACConfig)

@@ -84,21 +84,25 @@ MASKED_LOGIT = -1.0e9
 
 class HybridActor(nn.Module):
     """Policy of a parameterised-action agent (PASAC, ``algo=pasac_unified``): from one torso, the logits of a
-    categorical over ``num_choices`` lane commands (invalid ones masked to :data:`MASKED_LOGIT`) and the mean
-    and standard deviation of the pre-tanh Gaussian of ``param_dim`` continuous parameters (the acceleration).
-    ``log_std`` is clamped to [``log_std_min``, ``log_std_max``] (SAC's usual [-5, 2])."""
+    categorical over ``num_choices`` lane commands (invalid ones masked to :data:`MASKED_LOGIT`) and, for each
+    command k, the mean and standard deviation of the pre-tanh Gaussian of its ``param_dim`` continuous parameters
+    (the acceleration x_k), shaped ``[*, num_choices, param_dim]``: the acceleration is conditioned on the lane
+    command, as in P-DQN (Xiong et al. 2018) and hybrid SAC (Delalleau et al. 2019). ``log_std`` is clamped to
+    [``log_std_min``, ``log_std_max``] (SAC's usual [-5, 2])."""
 
     def __init__(self, in_features: int, num_choices: int = 3, param_dim: int = 1, hidden: Sequence[int] = (256, 256),
                  log_std_min: float = -5.0, log_std_max: float = 2.0):
         super().__init__()
         self.num_choices, self.param_dim = int(num_choices), int(param_dim)
-        self.net = mlp(in_features, self.num_choices + 2 * self.param_dim, hidden)
+        self.net = mlp(in_features, self.num_choices * (1 + 2 * self.param_dim), hidden)
         self.log_std_min, self.log_std_max = float(log_std_min), float(log_std_max)
 
     def forward(self, obs: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        logits, loc, log_std = self.net(obs).split([self.num_choices, self.param_dim, self.param_dim], dim=-1)
+        k, p = self.num_choices, self.param_dim
+        logits, loc, log_std = self.net(obs).split([k, k * p, k * p], dim=-1)
         logits = logits.masked_fill(~mask.bool(), MASKED_LOGIT)
-        return logits, loc, log_std.clamp(self.log_std_min, self.log_std_max).exp()
+        shape = (*loc.shape[:-1], k, p)
+        return logits, loc.reshape(shape), log_std.clamp(self.log_std_min, self.log_std_max).exp().reshape(shape)
 
 
 class HybridCritic(nn.Module):

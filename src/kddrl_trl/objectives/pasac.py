@@ -3,22 +3,26 @@
 for it: :class:`PASACLoss` is one, written the way ``torchrl/objectives/sac.py`` (``SACLoss``, ``DiscreteSACLoss``)
 is. :func:`make_pasac` wires it to the keys of :mod:`kddrl_trl.keys`.
 
-The policy factorises, ``π(k, x | s) = π_d(k | s) π_c(x | s)``: a categorical over the lane commands k (left,
-keep, right; invalid commands have probability 0) and a tanh-Gaussian over the acceleration x, scaled to
-[low, high] (Eq. 31). Its entropy is the sum of the two parts, each with its own temperature (α_d, α_c), each
-auto-tuned towards its own target entropy (Delalleau et al. 2019, "hybrid SAC"; Haarnoja et al. 2018 for the
-continuous part, Christodoulou 2019 for the discrete one). With twin soft critics ``Q_i(s, k, x)`` and target
-copies ``Q'_i``:
+The policy factorises, ``π(k, x | s) = π_d(k | s) π_c(x | s, k)``: a categorical over the lane commands k (left,
+keep, right; invalid commands have probability 0) and, for each command, a tanh-Gaussian over its acceleration x_k,
+scaled to [low, high] (Eq. 31). The acceleration is conditioned on the command, as in parameterised-action SAC
+(Delalleau et al. 2019) and P-DQN (Xiong et al. 2018): the acceleration that suits a lane change (closing on a gap
+in the target lane) differs from the one that suits keeping the lane, and one acceleration shared by all commands
+would have to average them. Each part has its own temperature (α_d, α_c), auto-tuned towards its own target entropy
+(Haarnoja et al. 2018 for the continuous part, Christodoulou 2019 for the discrete one) and kept inside
+[``alpha_min``, ``alpha_max``] (TorchRL's ``SACLoss`` bounds its temperature the same way). With twin soft critics
+``Q_i(s, k, x)`` and target copies ``Q'_i``:
 
-- soft value of a next state, exact over k and one sample x' ~ π_c(·|s'):
-  ``V(s') = Σ_k π_d(k|s') [min_i Q'_i(s', k, x') - α_d log π_d(k|s')] - α_c log π_c(x'|s')``;
+- soft value of a next state, exact over k and one sample x'_k ~ π_c(·|s', k) per command:
+  ``V(s') = Σ_k π_d(k|s') [min_i Q'_i(s', k, x'_k) - α_d log π_d(k|s') - α_c log π_c(x'_k|s', k)]``;
 - critic loss: ``Σ_i E[(Q_i(s, k, x) - r - γ (1 - terminated) V(s'))²]`` (the target through the TorchRL value
   estimator made by :meth:`~PASACLoss.make_value_estimator`, TD(0) by default);
-- actor loss, x reparameterised, critics detached:
-  ``E_s[Σ_k π_d(k|s) (α_d log π_d(k|s) - min_i Q_i(s, k, x)) + α_c log π_c(x|s)]``;
-- temperatures: ``-log α_c (log π_c + H̄_c)`` and ``log α_d (H_d - H̄_d)``, so each α falls while its part's
-  entropy is above its target H̄ and rises below it; ``H_d`` is averaged over the states where the mask leaves
-  more than one lane command (elsewhere the lane choice has entropy 0, below any target, whatever α_d).
+- actor loss, x_k reparameterised, critics detached:
+  ``E_s[Σ_k π_d(k|s) (α_d log π_d(k|s) + α_c log π_c(x_k|s, k) - min_i Q_i(s, k, x_k))]``;
+- temperatures: ``-log α_c (Σ_k π_d(k|s) log π_c(x_k|s, k) + H̄_c)`` (π_d detached) and ``log α_d (H_d - H̄_d)``,
+  so each α falls while its part's entropy is above its target H̄ and rises below it; ``H_d`` is averaged over the
+  states where the mask leaves more than one lane command (elsewhere the lane choice has entropy 0, below any
+  target, whatever α_d).
 
 ``log π_c`` is the density of the tanh-squashed action in [-1, 1] (before the affine scaling to [low, high]), SAC's
 usual convention, so ``target_entropy_param = -1`` (-dim) is the usual target.
@@ -68,6 +72,9 @@ class PASACLoss(LossModule):
         num_qvalue_nets (int): twin critics by default.
         low, high (float): bounds of the continuous parameter (the tanh sample is scaled to them).
         alpha_init (float): initial value of both temperatures.
+        alpha_min, alpha_max (float): bounds of both temperatures (TorchRL ``SACLoss``'s ``min_alpha``,
+            ``max_alpha``): an entropy target the policy cannot reach (a critic that ranks commands far apart) then
+            leaves α at ``alpha_max`` instead of letting it grow until the entropy bonus outweighs the rewards.
         target_entropy_lane (float): target entropy H̄_d of the lane choice, in nats (≤ log of the number of commands).
         target_entropy_param (float): target entropy H̄_c of the tanh-squashed parameter (SAC: ``-dim``).
         loss_function (str): critic distance, ``"l2"`` (default) or ``"smooth_l1"``.
@@ -128,7 +135,7 @@ class PASACLoss(LossModule):
 
     def __init__(self, actor_network: TensorDictModule, qvalue_network: TensorDictModule, *, num_choices: int = 3,
                  num_qvalue_nets: int = 2, low: float = -5.0, high: float = 5.0, alpha_init: float = 1.0,
-                 target_entropy_lane: float = 0.33,
+                 alpha_min: float = 1e-4, alpha_max: float = 1.0, target_entropy_lane: float = 0.33,
                  target_entropy_param: float = -1.0, loss_function: str = "l2"):
         super().__init__()
         self._in_keys = None
@@ -141,6 +148,10 @@ class PASACLoss(LossModule):
         self._vmap_q = _vmap_func(self.qvalue_network, (None, 0), randomness="error")
         self.register_buffer("param_loc", torch.tensor((high + low) / 2.0))
         self.register_buffer("param_half", torch.tensor((high - low) / 2.0))
+        if not 0.0 < alpha_min <= alpha_init <= alpha_max:
+            raise ValueError(f"PASACLoss: need 0 < alpha_min <= alpha_init <= alpha_max, got alpha_min={alpha_min}, "
+                             f"alpha_init={alpha_init}, alpha_max={alpha_max}")
+        self.log_alpha_min, self.log_alpha_max = math.log(alpha_min), math.log(alpha_max)
         self.log_alpha_lane = torch.nn.Parameter(torch.tensor(math.log(alpha_init)))
         self.log_alpha_param = torch.nn.Parameter(torch.tensor(math.log(alpha_init)))
         self.register_buffer("target_entropy_lane", torch.tensor(float(target_entropy_lane)))
@@ -190,14 +201,21 @@ class PASACLoss(LossModule):
     def alpha_param(self) -> Tensor:
         return self.log_alpha_param.detach().exp()
 
+    def clamp_temperatures(self) -> None:
+        """Bring both log-temperatures back into [log alpha_min, log alpha_max] (in place, outside autograd)."""
+        with torch.no_grad():
+            self.log_alpha_lane.clamp_(self.log_alpha_min, self.log_alpha_max)
+            self.log_alpha_param.clamp_(self.log_alpha_min, self.log_alpha_max)
+
     def _policy(self, td: TensorDictBase) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """(π_d [*, K], log π_d [*, K], a reparameterised parameter in [low, high] [*, P], its log π_c [*, 1])."""
+        """(π_d [*, K], log π_d [*, K], one reparameterised parameter x_k in [low, high] per command [*, K, P], and
+        log π_c(x_k | s, k) [*, K])."""
         td = td.select(*self.actor_network.in_keys, strict=False).clone(False)
         with self.actor_network_params.to_module(self.actor_network):
             self.actor_network(td)
         log_p = torch.log_softmax(td.get(self.tensor_keys.logits), dim=-1)
         u, log_prob = tanh_gaussian(td.get(self.tensor_keys.loc), td.get(self.tensor_keys.scale))
-        return log_p.exp(), log_p, self.param_loc + self.param_half * u, log_prob
+        return log_p.exp(), log_p, self.param_loc + self.param_half * u, log_prob.squeeze(-1)
 
     def _q(self, td: TensorDictBase, choice: Tensor, param: Tensor, params: TensorDictBase) -> Tensor:
         """``Q_i(s, choice, param)`` of every critic i: ``[num_qvalue_nets, *batch]``."""
@@ -208,11 +226,11 @@ class PASACLoss(LossModule):
         return self._vmap_q(x, params).get(self.tensor_keys.state_action_value).squeeze(-1)
 
     def _q_every_choice(self, td: TensorDictBase, param: Tensor, params: TensorDictBase) -> Tensor:
-        """``min_i Q_i(s, k, param)`` for every choice k: ``[*batch, K]``."""
+        """``min_i Q_i(s, k, x_k)`` for every choice k, ``param`` holding x_k ``[*batch, K, P]``: ``[*batch, K]``."""
         n, batch = self.num_choices, td.batch_size
         expanded = td.select(*self.qvalue_network.in_keys[:-2]).unsqueeze(-1).expand(*batch, n)
         choice = torch.eye(n, dtype=param.dtype, device=param.device).expand(*batch, n, n)
-        return self._q(expanded, choice, param.unsqueeze(-2).expand(*batch, n, param.shape[-1]), params).min(0).values
+        return self._q(expanded, choice, param, params).min(0).values
 
     # ---------------------------------------------------------------------------------------- losses
     def qvalue_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
@@ -221,7 +239,7 @@ class PASACLoss(LossModule):
             nxt = tensordict.get("next")
             p, log_p, param, log_prob = self._policy(nxt)
             q_next = self._q_every_choice(nxt, param, self.target_qvalue_network_params)
-            value = (p * (q_next - self.alpha_lane * log_p)).sum(-1, keepdim=True) - self.alpha_param * log_prob
+            value = (p * (q_next - self.alpha_lane * log_p - self.alpha_param * log_prob)).sum(-1, keepdim=True)
             td = tensordict.clone(False)
             td.set(("next", self.tensor_keys.value), value)
             target = self.value_estimator.value_estimate(td).squeeze(-1)
@@ -236,10 +254,10 @@ class PASACLoss(LossModule):
         """Policy loss of both heads (critics detached) and the entropies the temperatures are tuned on."""
         p, log_p, param, log_prob = self._policy(tensordict)
         q = self._q_every_choice(tensordict, param, self.qvalue_network_params.detach())
-        loss = self._weighted_mean(((p * (self.alpha_lane * log_p - q)).sum(-1, keepdim=True)
-                                    + self.alpha_param * log_prob).squeeze(-1), tensordict)
+        loss = self._weighted_mean((p * (self.alpha_lane * log_p + self.alpha_param * log_prob - q)).sum(-1),
+                                   tensordict)
         entropy = -(p * log_p).sum(-1)
-        return loss, {"entropy_lane": entropy.detach(), "log_prob_param": log_prob.detach().squeeze(-1),
+        return loss, {"entropy_lane": entropy.detach(), "log_prob_param": (p * log_prob).sum(-1).detach(),
                       "choosable": self.choosable(tensordict)}
 
     def choosable(self, tensordict: TensorDictBase) -> Tensor:
@@ -274,6 +292,7 @@ class PASACLoss(LossModule):
         return lane, param
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self.clamp_temperatures()
         loss_q, meta_q = self.qvalue_loss(tensordict)
         loss_actor, meta_a = self.actor_loss(tensordict)
         choosable = meta_a["choosable"]
@@ -289,7 +308,7 @@ class HybridActionSampler(TensorDictModuleBase):
     """Acting with a PASAC policy: reads the actor's ``logits``, ``loc``, ``scale`` and writes the one-hot lane
     command (``keys.LC_ACTION``) and the acceleration (``keys.CF_ACTION``, in [low, high]). With ``explore`` and under
     TorchRL's ``ExplorationType.RANDOM`` (a collector's default) it samples both; otherwise it takes the modes
-    (most probable valid command, ``tanh(loc)`` scaled)."""
+    (most probable valid command, ``tanh(loc_k)`` of that command k, scaled)."""
 
     def __init__(self, low: float = -5.0, high: float = 5.0, explore: bool = True):
         super().__init__()
@@ -299,11 +318,11 @@ class HybridActionSampler(TensorDictModuleBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         logits, loc, scale = (tensordict.get(k) for k in self.in_keys)
-        if self.explore and exploration_type() in (ExplorationType.RANDOM, None):
-            choice = torch.distributions.Categorical(logits=logits).sample()
-            u, _ = tanh_gaussian(loc, scale)
-        else:
-            choice, u = logits.argmax(-1), torch.tanh(loc)
+        sample = self.explore and exploration_type() in (ExplorationType.RANDOM, None)
+        choice = torch.distributions.Categorical(logits=logits).sample() if sample else logits.argmax(-1)
+        index = choice.reshape(*choice.shape, 1, 1).expand(*loc.shape[:-2], 1, loc.shape[-1])
+        loc, scale = loc.gather(-2, index).squeeze(-2), scale.gather(-2, index).squeeze(-2)
+        u = tanh_gaussian(loc, scale)[0] if sample else torch.tanh(loc)
         tensordict.set(K.LC_ACTION, torch.nn.functional.one_hot(choice, logits.shape[-1]).to(loc.dtype))
         tensordict.set(K.CF_ACTION, self.loc + self.half * u)
         return tensordict
@@ -323,7 +342,7 @@ class PASACParts:
 
 def make_pasac(obs_dim: int, *, num_choices: int = 3, low: float = -5.0, high: float = 5.0,
                hidden: Sequence[int] = (256, 256), gamma: float = 0.99, tau: float = 0.005, alpha_init: float = 1.0,
-               target_entropy_lane: float = 0.33, target_entropy_param: float = -1.0, loss_function: str = "l2",
+               alpha_min: float = 1e-4, alpha_max: float = 1.0, target_entropy_lane: float = 0.33, target_entropy_param: float = -1.0, loss_function: str = "l2",
                obs_key=K.JOINT_OBS) -> PASACParts:
     """The PASAC agent on ``obs_key``: lane command (``keys.LC_ACTION``, masked by ``keys.LC_ACTION_MASK``) and
     acceleration (``keys.CF_ACTION`` in [low, high] m/s², Eq. 31), rewarded with ``keys.JOINT_REWARD``."""
@@ -332,6 +351,7 @@ def make_pasac(obs_dim: int, *, num_choices: int = 3, low: float = -5.0, high: f
     critic = TensorDictModule(HybridCritic(obs_dim, num_choices, 1, hidden, param_scale=max(abs(low), abs(high))),
                               in_keys=[obs_key, K.LC_ACTION, K.CF_ACTION], out_keys=[K.PASAC_STATE_ACTION_VALUE])
     loss = PASACLoss(actor, critic, num_choices=num_choices, low=low, high=high, alpha_init=alpha_init,
+                     alpha_min=alpha_min, alpha_max=alpha_max,
                      target_entropy_lane=target_entropy_lane, target_entropy_param=target_entropy_param,
                      loss_function=loss_function)
     loss.make_value_estimator(gamma=gamma)
