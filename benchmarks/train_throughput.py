@@ -557,6 +557,25 @@ def learner_compile_gain(update: dict, collect_fps: float) -> float:
 
 
 #: keys of the results file that describe a run rather than hold a measurement
+def same_batch(batches: list[int], updates: int, seed: int, repeats: int, device: torch.device,
+               update: dict) -> dict:
+    """Our compiled, CUDA-graphed TD3 update and TorchRL's own (r) at the same TD3 minibatch, for each of
+    ``batches`` (``update``: (a) already measured at training's batch, reused there). Per batch: both rates in
+    updates/s and their ratio (ours / TorchRL's; above 1: ours is faster)."""
+    out = {}
+    for b in batches:
+        ours = update if b == update["batch_size_cf"] else measure_update(updates, seed, repeats, device, b)
+        ref = measure_torchrl_td3(updates, repeats, device, batch_size=b)
+        out[str(b)] = {"td3_updates_per_s": 1.0 / ours["compiled"]["td3_update_s"],
+                       "d3qn_updates_per_s": 1.0 / ours["compiled"]["d3qn_update_s"],
+                       "torchrl_td3_updates_per_s": 1.0 / ref["td3_update_s"],
+                       "td3_ratio_vs_torchrl_same_batch": ref["td3_update_s"] / ours["compiled"]["td3_update_s"]}
+        print(f"  batch {b}: ours {out[str(b)]['td3_updates_per_s']:.0f} TD3 updates/s, TorchRL's "
+              f"{out[str(b)]['torchrl_td3_updates_per_s']:.0f}: ratio "
+              f"{out[str(b)]['td3_ratio_vs_torchrl_same_batch']:.2f}", flush=True)
+    return out
+
+
 BOOKKEEPING = ("args", "machine", "note", "runs", "measured_by", "kept_from_previous_run")
 
 
@@ -601,6 +620,9 @@ def main(argv=None) -> int:
                    help="(p): time this many acting-policy calls at each K of --roads, learner on the CPU and on "
                         "--device (0: skip)")
     p.add_argument("--skip-update", action="store_true", help="leave (a) out")
+    p.add_argument("--gpu-batches", type=int, nargs="*", default=[],
+                   help="with --device cuda: (a)'s compiled TD3 and (r) again at each of these TD3 minibatches, "
+                        "side by side (gpu.by_batch; gpu.td3_ratio_vs_torchrl_same_batch at training's batch)")
     p.add_argument("--torchrl-reference", choices=["auto", "on", "off"], default="auto",
                    help="(r): TorchRL's own compiled TD3 as the GPU goal's reference (auto: with --device cuda)")
     p.add_argument("--update-threads", type=int, default=len(os.sched_getaffinity(0)),
@@ -657,6 +679,13 @@ def main(argv=None) -> int:
                                                                / update["compiled"]["td3_update_s"])
         if acting:
             result["gpu"]["acting"] = acting
+        if args.gpu_batches:
+            result["gpu"]["by_batch"] = same_batch(args.gpu_batches, args.updates, args.seed, args.repeats, device,
+                                                   update)
+            train_batch = str(update["batch_size_cf"])
+            if train_batch in result["gpu"]["by_batch"]:
+                result["gpu"]["td3_ratio_vs_torchrl_same_batch"] = (
+                    result["gpu"]["by_batch"][train_batch]["td3_ratio_vs_torchrl_same_batch"])
     elif acting:
         result["acting"] = acting
     elif update is not None:

@@ -138,7 +138,10 @@ class Trainer:
         self.run_dir, self.logger, self.progress = Path(run_dir), logger, progress
         self.tracker = EpisodeTracker()
         self.history: list[dict] = []
-        self.counters = {"frames": 0, "decisions": 0, "cf_updates": 0, "lc_updates": 0, "elapsed_s": 0.0}
+        # elapsed_s: training wall time; update_s: its share spent in the learner's updates (losses read included,
+        # so a GPU learner's queued work is counted where it is waited for)
+        self.counters = {"frames": 0, "decisions": 0, "cf_updates": 0, "lc_updates": 0, "elapsed_s": 0.0,
+                         "update_s": 0.0}
         self.collector: MultiTimescaleCollector | None = None
 
     # ------------------------------------------------------------------------------ checkpoints
@@ -278,7 +281,9 @@ class Trainer:
                 self.counters["decisions"] += decisions
                 learner.explore_step(decisions, frames)
                 self._anneal_beta()
+                updating = time.perf_counter()
                 self._updates(frames, decisions, losses)
+                self.counters["update_s"] += time.perf_counter() - updating
                 self.collector.update_policy_weights_()
                 for ep in self.tracker(batch.frames):
                     if len(self.history) >= target:

@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Copy the study's finished runs (those with summary.json) into docs/paper/runs/, without checkpoints, TorchRL logs
+# or per-run curve images (the report redraws them):  bash docs/paper/collect.sh <study sweep dir>
+set -euo pipefail
+SRC=${1:?usage: collect.sh <study sweep dir>}
+DST=$(dirname "$0")/runs
+mkdir -p "$DST"
+cp "$SRC/multirun.yaml" "$DST/" 2>/dev/null || true
+for run in "$SRC"/*/; do
+  name=$(basename "$run")
+  [ -f "$run/summary.json" ] || continue
+  mkdir -p "$DST/$name"
+  (cd "$run" && find . -path ./checkpoints -prune -o -path ./logs -prune -o -name training_curves.png -o -type f -print) \
+    | while read -r f; do mkdir -p "$DST/$name/$(dirname "$f")"; cp "$run/$f" "$DST/$name/$f"; done
+done
+ls "$DST"
