@@ -52,7 +52,9 @@ def main(cfg: DictConfig) -> dict:
         raise SystemExit(f"lcgan_metrics={job.lcgan_metrics}: no such file")
     runs = find_runs(job.runs)
     command = "python -m kddrl_trl.report " + " ".join(shlex.quote(r) for r in job.runs) + f" out={job.out}"
-    result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan)
+    if job.verdict:
+        command += " verdict=true"
+    result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan, verdict=job.verdict)
     print(f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures")
     return result
 

@@ -12,6 +12,7 @@ compared with the reference trained on the scenario evaluated.
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ from . import figures
 from .paper import PAPER_NAMES, TABLES, paper_value
 from .records import RunRecord
 from .stats import difference_ci, mean_ci, ratio_ci
+from .verdict import CLAIMS, exact_collisions, judge, speed_vs_rules
 
 #: metric name -> (column title, unit, format); the first four are the paper's table columns
 METRICS = {
@@ -86,6 +88,7 @@ def rows(runs: list[RunRecord]) -> list[dict]:
         per_seed = [r.metrics() for r in group]
         out.append({
             "algo": algo, "scenario": scenario,
+            "commits": sorted({str(r.summary.get("commit", "not recorded")) for r in group}),
             "trained_on": str(group[0].summary.get("trained_on", scenario)),  # algo: "<name> (trained on ...)" if not
             "seeds": sorted(r.seed for r in group),
             "episodes": int(sum(m["episodes"] for m in per_seed)),
@@ -244,13 +247,64 @@ def _run_times(runs: list[RunRecord]) -> list[tuple[float | None, float | None]]
     return list(times.values())
 
 
+def split_commits(runs: list[RunRecord]) -> list[RunRecord]:
+    """The runs, those made at a commit other than the most common one renamed ``"<algo> @<commit>"``: a row of
+    their own, never pooled with the study's runs."""
+    commits = Counter(str(r.summary.get("commit", "not recorded")) for r in runs)
+    main = commits.most_common(1)[0][0]
+    return [r if str(r.summary.get("commit", "not recorded")) == main else
+            replace(r, algo=f"{r.algo} @{r.summary.get('commit', 'not recorded')}") for r in runs]
+
+
+def _claims_section(claims: list[dict], table_rows: list[dict], exact: dict, ratios: dict) -> list[str]:
+    """The verdict table (every claim, its paired difference over seeds, CI, Holm-adjusted p and verdict) and, per
+    row, the exact collision interval and the speed ratio to IDM+MOBIL."""
+    def num(metric, v):
+        return "—" if v is None else (f"{100 * v:+.2f} pts" if metric == "collision_rate" else f"{v:+.2f}")
+
+    counts = Counter(c["verdict"] for c in claims)
+    md = ["## The paper's claims", "",
+          "Each claim is one paired comparison: the difference a − b of the per-seed values over the seeds both "
+          "systems ran (the same seed is the same evaluation traffic), its 95 % Student-t CI over seeds, and the "
+          "two-sided paired t-test's p-value adjusted by Holm-Bonferroni over all the claims tested. *holds*: adjusted "
+          "p < 0.05 in the claimed direction; *contradicted*: adjusted p < 0.05 against it; *inconclusive*: neither, "
+          "or fewer than 3 paired seeds. Collision differences are in percentage points; speeds in km/h; lane "
+          "changes per episode. `paper`: the same difference in the paper's tables.", "",
+          f"**{counts.get('holds', 0)} hold, {counts.get('contradicted', 0)} contradicted, "
+          f"{counts.get('inconclusive', 0)} inconclusive** of {len(claims)} claims.", "",
+          "| claim | seeds | difference a − b | 95 % CI | p (Holm) | verdict | paper |", "|---|---|---|---|---|---|---|"]
+    for c in claims:
+        ci = "—" if c["ci"] is None else f"[{num(c['metric'], c['ci'][0])}, {num(c['metric'], c['ci'][1])}]"
+        p = "—" if c["p_holm"] is None else f"{c['p_holm']:.3g}"
+        md.append(f"| {c['claim']} | {len(c['seeds'])} | {num(c['metric'], c['difference'])} | {ci} | {p} | "
+                  f"**{c['verdict']}** | {num(c['metric'], c['paper'])} |")
+    md += ["", "### Collision rates (exact) and speed against IDM+MOBIL", "",
+           "Collisions pooled over a row's episodes with a Clopper-Pearson 95 % interval; speed as the mean of the "
+           "per-seed ratios to IDM+MOBIL's speed on the same seeds (t interval), beside the paper's ratio.", "",
+           "| scenario | algo | collisions / episodes | rate [exact 95 % CI] | speed ÷ IDM+MOBIL | paper |",
+           "|---|---|---|---|---|---|"]
+    for row in table_rows:
+        key = (row["scenario"], row["algo"])
+        e, r = exact[key], ratios.get(key)
+        ratio = "—" if r is None else (f"{r['ratio']:.3f}" + ("" if r["ci"] is None else
+                                                              f" [{r['ci'][0]:.3f}, {r['ci'][1]:.3f}]"))
+        paper = "—" if r is None or r["paper"] is None else f"{r['paper']:.3f}"
+        md.append(f"| {row['scenario']} | {row['algo']} | {e['collisions']} / {e['episodes']} | {e['rate']:.2%} "
+                  f"[{e['ci'][0]:.3%}, {e['ci'][1]:.3%}] | {ratio} | {paper} |")
+    return md + [""]
+
+
 def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "python -m kddrl_trl.report",
-                 lcgan_metrics: dict | None = None) -> dict:
-    """Write ``report.md``, ``report.json`` and the figures into ``out_dir``; return the JSON content."""
+                 lcgan_metrics: dict | None = None, verdict: bool = False) -> dict:
+    """Write ``report.md``, ``report.json`` and the figures into ``out_dir``; return the JSON content. ``verdict``:
+    runs of other commits as rows of their own (:func:`split_commits`), the paper's claims tested
+    (:mod:`~kddrl_trl.eval.verdict`), and ``report.json`` an object ``{"rows", "claims", "commits"}``."""
     from ..io import write_json_atomic, write_text_atomic
 
     if not runs:
         raise ValueError("build_report: no runs")
+    if verdict:
+        runs = split_commits(runs)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     table_rows = rows(runs)
@@ -261,6 +315,12 @@ def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "pyt
           "## Tables II-V: driving metrics in evaluation", ""]
     for s in scenarios:
         md += _table(s, [r for r in table_rows if r["scenario"] == s]) + [""]
+    if verdict:
+        claims, exact, ratios = judge(CLAIMS, table_rows), exact_collisions(runs), speed_vs_rules(table_rows)
+        md += _claims_section(claims, table_rows, exact, ratios)
+        for row in table_rows:
+            row["collisions_exact"] = exact[(row["scenario"], row["algo"])]
+            row["speed_vs_idm_mobil"] = ratios.get((row["scenario"], row["algo"]))
     md += ["## Comparison with KDDRL", ""]
     for s in scenarios:
         md += _comparisons(s, [r for r in table_rows if r["scenario"] == s]) + [""]
@@ -301,6 +361,11 @@ def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "pyt
     md += [""] + footer(runs, command)
     report = [{k: v for k, v in row.items() if k not in ("runs", "per_seed")} | {"per_seed": row["per_seed"]}
               for row in table_rows]
-    write_json_atomic(out_dir / "report.json", report)
+    if verdict:
+        commits = Counter(str(r.summary.get("commit", "not recorded")) for r in runs)
+        write_json_atomic(out_dir / "report.json", {"rows": report, "claims": claims, "commits": dict(commits)})
+    else:
+        write_json_atomic(out_dir / "report.json", report)
     write_text_atomic(out_dir / "report.md", "\n".join(md) + "\n")
-    return {"rows": report, "figures": {k: str(v) if v else None for k, v in figs.items()}}
+    return {"rows": report, "figures": {k: str(v) if v else None for k, v in figs.items()},
+            **({"claims": claims} if verdict else {})}
