@@ -69,8 +69,8 @@ from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 from kddrl_trl import keys as K  # noqa: E402
 from kddrl_trl.collectors import DecisionClock, MultiTimescaleCollector  # noqa: E402
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
-from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
+from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.training.learner import adam  # noqa: E402
 from kddrl_trl.transforms import make_kddrl_transforms  # noqa: E402

@@ -32,10 +32,10 @@ from pathlib import Path
 import torch
 from torchrl.envs import TransformedEnv
 
+from kddrl_trl import keys as K
 from kddrl_trl.baselines import IDMMobilPolicy
 from kddrl_trl.envs import SumoHighwayEnv
 from kddrl_trl.io import write_json_atomic
-from kddrl_trl import keys as K
 from kddrl_trl.transforms import make_kddrl_transforms
 
 ARMS = ("none", "eager", "compiled")

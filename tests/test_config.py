@@ -3,8 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv, make_config, scenario_names
-from kddrl_trl.envs import sim
+from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv, make_config, scenario_names, sim
 
 
 @pytest.mark.parametrize("kwargs, match", [

@@ -5,10 +5,10 @@ from functools import partial
 
 import pytest
 import torch
+from conftest import command
 from torchrl.envs import Compose, ParallelEnv, RewardSum, SerialEnv, StepCounter, TransformedEnv
 from torchrl.envs.utils import check_env_specs, step_mdp
 
-from conftest import command
 from kddrl_trl import keys as K
 from kddrl_trl.baselines import IDMMobilPolicy
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv

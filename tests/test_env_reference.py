@@ -4,7 +4,6 @@ same actions -> every observation key, reward, done flag and episode event ident
 baseline, braking and congested scenarios at K = 2-4, with partial resets, collisions and truncations."""
 import numpy as np
 import pytest
-
 from env_reference import CASES, FIXTURE, rollout
 
 pytest.importorskip("libsumo")

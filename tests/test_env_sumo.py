@@ -8,10 +8,10 @@ import libsumo
 import numpy as np
 import pytest
 import torch
+from conftest import command
 from torchrl.envs import Compose, ParallelEnv, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.utils import check_env_specs, step_mdp
 
-from conftest import command
 from kddrl_trl import keys as K
 from kddrl_trl.baselines import IDMMobilPolicy, RandomDrivingPolicy
 from kddrl_trl.envs import SumoHighwayEnv, make_config

@@ -6,9 +6,9 @@ import math
 
 import pytest
 import torch
+from conftest import command
 from torchrl.envs import StepCounter, TransformedEnv
 
-from conftest import command
 from kddrl_trl import keys as K
 from kddrl_trl.baselines import IDMMobilPolicy
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv

@@ -19,10 +19,10 @@ from kddrl_trl import keys as K
 
 pytest.importorskip("highway_env")
 
+from conftest import command  # noqa: E402
+
 from kddrl_trl.envs.highwayenv import HighwayEnvAdapter, HighwayEnvOptions  # noqa: E402
 from kddrl_trl.eval import evaluate_policy  # noqa: E402
-
-from conftest import command  # noqa: E402
 
 #: a small, fast road: few vehicles, few observed
 SMALL = {"options": HighwayEnvOptions(vehicles_count=12, observed_vehicles=10)}

@@ -137,7 +137,7 @@ def test_on_the_sumo_env_it_reproduces_its_history_where_the_leaders_stay():
     policy, h = IDMMobilPolicy(), base.config.history_len
     try:
         td = env.reset()
-        ids, compared, moved = [], 0, 0
+        ids, compared = [], 0
         for _ in range(250):
             full, td = env.step_and_maybe_reset(policy(td))
             ids.append([list(s[:3]) for s in base.sim.observer.slots])

@@ -5,14 +5,13 @@ import io
 
 import pytest
 import torch
+from conftest import SMALL, fake_samples
 from torchrl.envs import TransformedEnv
 
 from kddrl_trl import keys as K
 from kddrl_trl.collectors import DecisionClock
 from kddrl_trl.envs import FakeHighwayEnv
 from kddrl_trl.training import HierarchicalLearner
-
-from conftest import SMALL, fake_samples
 
 
 @pytest.fixture(scope="module")

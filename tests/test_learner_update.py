@@ -7,11 +7,10 @@ import io
 
 import pytest
 import torch
+from conftest import SMALL, fake_samples
 
 from kddrl_trl import keys as K
 from kddrl_trl.training import HierarchicalLearner
-
-from conftest import SMALL, fake_samples
 
 
 @pytest.fixture(scope="module")

@@ -5,11 +5,10 @@ from __future__ import annotations
 import pytest
 import torch
 from tensordict import TensorDict
+from test_train import SMALL_NETS, compose_job, fake_trainer
 
 from kddrl_trl import keys as K
 from kddrl_trl.collectors.nstep import NStepReturns
-
-from test_train import SMALL_NETS, compose_job, fake_trainer
 
 
 def frames(steps: int = 6, done_at: int = 3) -> TensorDict:

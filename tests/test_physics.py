@@ -7,8 +7,18 @@ from tensordict import TensorDict
 
 from kddrl_trl.baselines import IDMMobilPolicy
 from kddrl_trl.keys import (
-    CF_ACTION, EGO_LANE, EGO_STATE, KEEP, LC_ACTION, LC_ACTION_MASK, LEFT, NEIGHBORS_KIN, NEIGHBORS_MASK, NEIGHBORS_REL,
-    RIGHT, SLOT,
+    CF_ACTION,
+    EGO_LANE,
+    EGO_STATE,
+    KEEP,
+    LC_ACTION,
+    LC_ACTION_MASK,
+    LEFT,
+    NEIGHBORS_KIN,
+    NEIGHBORS_MASK,
+    NEIGHBORS_REL,
+    RIGHT,
+    SLOT,
 )
 from kddrl_trl.physics import IDMParams, MOBILParams, idm_acceleration, idm_rollout, mobil_prior, mobil_utilities
 

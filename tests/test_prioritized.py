@@ -6,13 +6,12 @@ from __future__ import annotations
 import pytest
 import torch
 from tensordict import TensorDict
+from test_train import SMALL_NETS, compose_job, fake_trainer
 
 from kddrl_trl import keys as K
 from kddrl_trl.objectives import td_priority
 from kddrl_trl.training import make_buffer
 from kddrl_trl.training.trainer import is_prioritized
-
-from test_train import SMALL_NETS, compose_job, fake_trainer
 
 ALGOS = ["kddrl", "peng", "d3qn_unified", "pasac_unified"]  # TD3, DDPG, a joint D3QN, PASAC: every loss kind
 #: the loss whose batch each algo's buffer-L update reads

@@ -104,6 +104,7 @@ def test_bad_launcher_values_are_refused_naming_the_key(kwargs, key):
 
 def test_launcher_config_is_registered_and_reaches_ray_init():
     from hydra import compose, initialize_config_module
+
     from hydra_plugins.kddrl_trl_ray_launcher._core import init_kwargs
 
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):

@@ -1,18 +1,21 @@
-"""The README's code stays true: its transform-reuse example runs as written."""
+"""The README's and the guide's code stays true: the two set-up commands are CI's, the transform-reuse example of
+docs/reuse.md runs as written, and the README stays a front door."""
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+REUSE = ROOT / "docs" / "reuse.md"
 
 
-def test_readme_reuse_example_runs():
-    text = README.read_text()
+def test_reuse_example_runs():
+    text = REUSE.read_text()
     match = re.search(r"```python\n(import torch\nfrom torchrl.data import Bounded.*?)```", text, re.S)
-    assert match, "the README lost its transform-reuse example"
+    assert match, "docs/reuse.md lost its transform-reuse example"
     namespace: dict = {}
-    exec(compile(match.group(1), str(README), "exec"), namespace)  # noqa: S102 - our own README
+    exec(compile(match.group(1), str(REUSE), "exec"), namespace)  # noqa: S102 - our own guide
     td = namespace["td"]
     assert td["next", "pred", "key_gaps"].shape == (2, 5, 3, 2)
     assert td["next", "prior", "p_lcgan"].shape == (2, 5, 3)
@@ -24,3 +27,24 @@ def test_readme_gives_exactly_two_command_lines_first():
     assert len(block) == 2 and "kddrl_trl.train" in block[0] and "pytest" in block[1]
     ci = (README.parent / ".ci" / "run").read_text()
     assert block[1] in ci  # CI runs the README's test command
+
+
+def test_readme_is_a_front_door():
+    """At most 200 lines, no line over 120 characters but the two set-up commands (kept whole, as CI runs them), and
+    every relative link points to a file that exists."""
+    text = README.read_text()
+    commands = re.search(r"```bash\n(.*?)```", text, re.S).group(1).splitlines()
+    assert len(text.splitlines()) <= 200
+    assert max(len(line) for line in text.splitlines() if line not in commands) <= 120
+    for target in re.findall(r"\]\(([^)#]+)\)", text):
+        if not target.startswith("http"):
+            assert (ROOT / target).exists(), target
+
+
+def test_the_guide_home_is_the_readme():
+    """docs/index.md is README.md with its links made relative to docs/ (regenerate it when the README changes)."""
+    readme = README.read_text().replace("](docs/", "](").replace(
+        "([LICENSE](LICENSE))", "(the file LICENSE at the repository root)")
+    home = (ROOT / "docs" / "index.md").read_text()
+    marker = "<!-- the guide's home: README.md with links relative to docs/ (tests/test_readme.py keeps them in step) -->\n"
+    assert home.replace(marker, "").replace("# kddrl_trl\n\n", "# kddrl_trl\n", 1) == readme

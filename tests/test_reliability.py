@@ -15,7 +15,10 @@ import torch
 
 from kddrl_trl.runs import checkpoint_candidates, latest_checkpoint
 from kddrl_trl.training import (
-    CheckpointError, load_latest_training_checkpoint, load_training_checkpoint, save_training_checkpoint,
+    CheckpointError,
+    load_latest_training_checkpoint,
+    load_training_checkpoint,
+    save_training_checkpoint,
 )
 
 

@@ -6,7 +6,6 @@ import subprocess
 import sys
 
 import pytest
-
 from hydra import compose, initialize_config_module
 
 

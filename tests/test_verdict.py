@@ -6,9 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from test_report import _fake_run
 
 from kddrl_trl.eval.verdict import CLAIMS, Claim, clopper_pearson, holm, judge, t_interval
-from test_report import _fake_run
 
 
 def test_t_interval_by_hand_and_degenerate_cases():

@@ -43,13 +43,28 @@ from torchrl.envs import Compose, EnvBase, TransformedEnv
 from . import keys as K
 from .collectors import DecisionClock, MultiTimescaleCollector
 from .collectors.workers import WorkerEnv
-from .conf.schema import CollectorConfig, EnvNode, Job, LearningAlgo, LoggerConfig, RuleAlgo, TrainConfig, TrainJob, algo_from_node
+from .conf.schema import (
+    CollectorConfig,
+    EnvNode,
+    Job,
+    LearningAlgo,
+    LoggerConfig,
+    RuleAlgo,
+    TrainConfig,
+    TrainJob,
+    algo_from_node,
+)
 from .envs.config import HighwayConfig
 from .loggers import MultiLogger
 from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
 from .training import (
-    HierarchicalLearner, JointD3QNLearner, Learner, PASACLearner, load_latest_training_checkpoint,
-    load_training_checkpoint, make_buffer,
+    HierarchicalLearner,
+    JointD3QNLearner,
+    Learner,
+    PASACLearner,
+    load_latest_training_checkpoint,
+    load_training_checkpoint,
+    make_buffer,
 )
 
 #: the learner of each learning ``algo.kind`` (:data:`kddrl_trl.conf.schema.ALGO_SCHEMAS`)

@@ -34,13 +34,21 @@ from .conf.schema import LearningAlgo, TrainJob
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol
 from .factories import (
-    evaluate_and_report, make_buffers, make_collector, make_env_factories, make_evaluator, make_job, make_learner,
-    make_logger, make_run_dir, seed_everything,
+    evaluate_and_report,
+    make_buffers,
+    make_collector,
+    make_env_factories,
+    make_evaluator,
+    make_job,
+    make_learner,
+    make_logger,
+    make_run_dir,
+    seed_everything,
 )
 from .io import write_json_atomic, write_text_atomic
+from .loggers import trim_logs
 from .provenance import code_commit, provenance
 from .runs import config_differences
-from .loggers import trim_logs
 from .training import Trainer, plot_training_curves
 
 log = logging.getLogger(__name__)

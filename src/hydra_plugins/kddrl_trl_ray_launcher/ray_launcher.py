@@ -1,7 +1,7 @@
 """The Hydra :class:`~hydra.plugins.launcher.Launcher` of ``hydra/launcher=ray`` (the work is in :mod:`._core`)."""
 from __future__ import annotations
 
-from typing import Any, Optional, Sequence
+from typing import Optional, Sequence
 
 from hydra.core.utils import JobReturn
 from hydra.plugins.launcher import Launcher

@@ -7,7 +7,15 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from kddrl_trl.keys import (
-    CF_ACTION, EGO_LANE, EGO_STATE, KEEP, LC_ACTION, LC_ACTION_MASK, NEIGHBORS_KIN, NEIGHBORS_MASK, NEIGHBORS_REL,
+    CF_ACTION,
+    EGO_LANE,
+    EGO_STATE,
+    KEEP,
+    LC_ACTION,
+    LC_ACTION_MASK,
+    NEIGHBORS_KIN,
+    NEIGHBORS_MASK,
+    NEIGHBORS_REL,
 )
 from kddrl_trl.physics.idm import IDMParams, idm_acceleration
 from kddrl_trl.physics.mobil import MOBILParams, mobil_prior

@@ -15,7 +15,15 @@ from hydra.core.config_store import ConfigStore
 from ..envs.config import SCENARIOS
 from . import resolvers
 from .schema import (
-    EnvNode, EvaluateJob, HierarchicalAlgo, JointD3QNAlgo, LoggerConfig, PASACAlgo, ReportJob, RuleAlgo, TrainJob,
+    EnvNode,
+    EvaluateJob,
+    HierarchicalAlgo,
+    JointD3QNAlgo,
+    LoggerConfig,
+    PASACAlgo,
+    ReportJob,
+    RuleAlgo,
+    TrainJob,
 )
 
 

@@ -20,19 +20,21 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
-
 import hydra
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
+from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from kddrl_trl.data.calibrate import CalibrationImpossible, calibrate, write_calibration
 from kddrl_trl.data.extract import extract_dataset
 from kddrl_trl.data.highd import list_recordings, read_recording
 from kddrl_trl.data.record import print_summary
 from kddrl_trl.data.recorder import (
-    PAPER_LANE_CHANGER_SHARE, PAPER_VEHICLES_PER_HOUR, read_driver_params, record_to_directory,
+    PAPER_LANE_CHANGER_SHARE,
+    PAPER_VEHICLES_PER_HOUR,
+    read_driver_params,
+    record_to_directory,
 )
 from kddrl_trl.data.tracks import longitudinal_tracks
 from kddrl_trl.envs.config import HighwayConfig, default_drivers

@@ -113,7 +113,7 @@ class Observer:
         lane_index, leader, follower, neighbors = (vmod.getLaneIndex, vmod.getLeader, vmod.getFollower,
                                                    vmod.getNeighbors)
         error = ls.TraCIException
-        cfg, o = self.cfg, self.obs
+        cfg = self.cfg
         rng_, entry, h = cfg.sensing_range, cfg.entry_length, cfg.history_len
         slot_b, slot_e = K.SLOT["b"], K.SLOT["e"]
         side = [(K.SLOT[name], mode) for name, mode in (("a", 2), ("c", 3), ("d", 0), ("f", 1))]

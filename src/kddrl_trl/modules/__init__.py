@@ -26,7 +26,15 @@ from .sharing import (
     soft_update_embedding_,
 )
 from .state import (
-    BASE_DIM, STATE_EXTRAS, StateScale, cf_obs_dim, cf_state, check_extras, headway_features, lc_obs_dim, lc_state,
+    BASE_DIM,
+    STATE_EXTRAS,
+    StateScale,
+    cf_obs_dim,
+    cf_state,
+    check_extras,
+    headway_features,
+    lc_obs_dim,
+    lc_state,
 )
 
 __all__ = [

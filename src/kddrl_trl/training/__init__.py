@@ -4,7 +4,10 @@ systems, :class:`JointD3QNLearner` and :class:`PASACLearner` of the unified ones
 :mod:`kddrl_trl.factories`."""
 from .base import Learner
 from .checkpoint import (
-    CheckpointError, load_latest_training_checkpoint, load_training_checkpoint, save_training_checkpoint,
+    CheckpointError,
+    load_latest_training_checkpoint,
+    load_training_checkpoint,
+    save_training_checkpoint,
 )
 from .curves import plot_training_curves
 from .joint_d3qn import JointD3QNLearner

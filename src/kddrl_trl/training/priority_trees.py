@@ -17,7 +17,6 @@ import torch
 from torchrl.data.replay_buffers.samplers import prioritized as _torchrl_prioritized
 from torchrl.data.replay_buffers.samplers.prioritized import PrioritizedSampler
 
-
 log = logging.getLogger(__name__)
 _told = False  # the fallback is announced once per process
 

@@ -5,6 +5,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import torch
+
 from ..physics import IDMParams, MOBILParams
 from .idm_prior import IDMPrior, as_idm_params
 from .key_gaps import KeyGapsFromPrior
