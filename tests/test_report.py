@@ -100,6 +100,30 @@ def test_records_refuse_bad_files_naming_file_and_column(tmp_path):
         find_runs([tmp_path / "b", tmp_path / "c"])
 
 
+@pytest.mark.parametrize("suffix", [".xz", ".gz"])
+def test_compressed_records_read_as_plain_ones(tmp_path, suffix):
+    """A study committed with compressed CSVs (eval_episodes.csv.xz, ...) reads exactly as its plain form."""
+    import gzip
+    import lzma
+    import shutil
+
+    from kddrl_trl.eval.records import load_run
+
+    plain = _fake_run(tmp_path / "plain", speeds=(100.0, 120.0, 90.0), collisions=(False, True, False))
+    pd.DataFrame({"return_lc": [1.0, 2.0], "return_cf": [3.0, 4.0]}).to_csv(plain / "train_episodes.csv", index=False)
+    packed = tmp_path / "packed"
+    shutil.copytree(plain, packed)
+    for csv in packed.glob("*.csv"):
+        with open(csv, "rb") as src, {".xz": lzma.open, ".gz": gzip.open}[suffix](f"{csv}{suffix}", "wb") as dst:
+            shutil.copyfileobj(src, dst)
+        csv.unlink()
+    a, b = load_run(plain), load_run(packed)
+    assert (packed / f"eval_episodes.csv{suffix}").is_file() and not (packed / "eval_episodes.csv").exists()
+    pd.testing.assert_frame_equal(a.episodes, b.episodes)
+    pd.testing.assert_frame_equal(a.training, b.training)
+    assert a.metrics() == b.metrics() and b.metrics()["collision_rate"] == pytest.approx(1 / 3)
+
+
 def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
     from kddrl_trl.eval.records import find_runs
     from kddrl_trl.eval.report import build_report

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Copy the study's finished runs (those with summary.json) into docs/paper/runs/, without checkpoints, TorchRL logs
-# or per-run curve images (the report redraws them):  bash docs/paper/collect.sh <study sweep dir>
+# or per-run curve images (the report redraws them), their CSVs xz-compressed (the report reads them as they are):
+#   bash docs/paper/collect.sh <study sweep dir>
 set -euo pipefail
 SRC=${1:?usage: collect.sh <study sweep dir>}
 DST=$(dirname "$0")/runs
@@ -10,7 +11,13 @@ for run in "$SRC"/*/; do
   name=$(basename "$run")
   [ -f "$run/summary.json" ] || continue
   mkdir -p "$DST/$name"
-  (cd "$run" && find . -path ./checkpoints -prune -o -path ./logs -prune -o -name training_curves.png -o -type f -print) \
-    | while read -r f; do mkdir -p "$DST/$name/$(dirname "$f")"; cp "$run/$f" "$DST/$name/$f"; done
+  (cd "$run" && find . -path ./checkpoints -prune -o -path ./logs -prune -o -name training_curves.png -prune -o -type f -print) \
+    | while read -r f; do
+        mkdir -p "$DST/$name/$(dirname "$f")"
+        case "$f" in
+          *.csv) [ -f "$DST/$name/$f.xz" ] || xz -9 -c "$run/$f" > "$DST/$name/$f.xz" ;;
+          *) cp "$run/$f" "$DST/$name/$f" ;;
+        esac
+      done
 done
 ls "$DST"

@@ -1,5 +1,7 @@
 """The records a run leaves (``summary.json``, ``eval_episodes.csv``, ``train_episodes.csv``, ``validation.csv``,
-``traces/``, also those of its ``eval__<its scenario>__*`` evaluations), found under any run or sweep folder and read back for the report (:mod:`kddrl_trl.eval.report`).
+``traces/``, also those of its ``eval__<its scenario>__*`` evaluations), found under any run or sweep folder and read
+back for the report (:mod:`kddrl_trl.eval.report`). Each CSV may also be compressed (``eval_episodes.csv.xz`` or
+``.gz``), as the committed studies keep them (:func:`record_file`).
 
 A run folder is any folder holding ``summary.json`` and ``eval_episodes.csv`` (written by
 :func:`kddrl_trl.factories.report`): a single run, a sweep job, or an evaluation of a trained run (whose
@@ -56,6 +58,18 @@ class RunRecord:
         return out
 
 
+#: compressed forms of a record file, by suffix (pandas reads each by its suffix)
+COMPRESSED = (".xz", ".gz")
+
+
+def record_file(folder: Path, name: str) -> Path:
+    """``folder / name``, or its compressed form ``name + ".xz"`` / ``".gz"`` where only that exists (the committed
+    studies keep their CSVs xz-compressed; a run writes them plain). Each is read the same way."""
+    plain = folder / name
+    packed = [folder / f"{name}{suffix}" for suffix in COMPRESSED if (folder / f"{name}{suffix}").is_file()]
+    return packed[0] if not plain.is_file() and packed else plain
+
+
 def _csv(path: Path, required: tuple = ()) -> pd.DataFrame:
     try:
         frame = pd.read_csv(path, keep_default_na=False, na_values=[""])
@@ -77,21 +91,22 @@ def load_run(path: str | Path) -> RunRecord:
     for key in ("algo", "scenario", "seed"):
         if key not in summary:
             raise ValueError(f"{summary_path}: no {key!r} key")
-    episodes = _csv(path / "eval_episodes.csv", EPISODE_COLUMNS)
+    episodes_path = record_file(path, "eval_episodes.csv")
+    episodes = _csv(episodes_path, EPISODE_COLUMNS)
     episodes["collision"] = episodes["collision"].astype(str).str.lower().map({"true": True, "false": False, "1": True,
                                                                                "0": False})
     if episodes["collision"].isna().any():
-        raise ValueError(f"{path / 'eval_episodes.csv'}: column collision holds values other than True / False")
+        raise ValueError(f"{episodes_path}: column collision holds values other than True / False")
     numeric = [c for c in EPISODE_COLUMNS if c not in ("collision", "outcome", "collision_kind", "collision_with")]
     bad = [c for c in numeric if not pd.api.types.is_numeric_dtype(episodes[c]) or episodes[c].isna().any()]
     if bad:
-        raise ValueError(f"{path / 'eval_episodes.csv'}: non-numeric or empty values in column(s) {', '.join(bad)}")
+        raise ValueError(f"{episodes_path}: non-numeric or empty values in column(s) {', '.join(bad)}")
     episodes["collision_with"] = episodes["collision_with"].astype(object).where(episodes["collision_with"].notna(),
                                                                                  "").astype(str)
     trained = path.parent if summary.get("final") else path  # a final__<scenario> folder: its run's training
-    training = _csv(trained / "train_episodes.csv", ("return_lc", "return_cf")) \
-        if (trained / "train_episodes.csv").is_file() else None
-    validation = _csv(trained / "validation.csv") if (trained / "validation.csv").is_file() else None
+    training_path, validation_path = record_file(trained, "train_episodes.csv"), record_file(trained, "validation.csv")
+    training = _csv(training_path, ("return_lc", "return_cf")) if training_path.is_file() else None
+    validation = _csv(validation_path) if validation_path.is_file() else None
     # traces of its final evaluation, and of later evaluations of it on its own scenario (evaluate video=true)
     traces = sorted((path / "traces").glob("*.json")) + sorted(path.glob(f"eval__{summary['scenario']}__*/traces/*.json"))
     # the options it ran with: its training run's config (an evaluation folder of kddrl_trl.evaluate: its run's)
