@@ -359,6 +359,62 @@ def measure_update(updates: int, seed: int, repeats: int, device: torch.device =
             "batch_size_lc": int(lc_batches[0].numel()), **rows}
 
 
+def update_flops(seed: int, updates: int = 8) -> dict:
+    """FLOPs of one TD3 and one D3QN update of the plain reference (the arithmetic every arm does), counted by
+    ``torch.utils.flop_counter.FlopCounterMode`` over ``updates`` consecutive updates (the TD3 actor steps every
+    second update) and averaged."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    torch.manual_seed(seed)
+    kw, _ = learner_kwargs(False)
+    learner = HierarchicalLearner(**kw)
+    rb_cf, rb_lc = sample_batches(4000, seed, learner.buffer_keys())
+    ref = PlainKDDRL(learner)
+    out = {}
+    for name, update, rb in (("td3", ref.update_cf, rb_cf), ("d3qn", ref.update_lc, rb_lc)):
+        batches = [tensors(rb.sample()) for _ in range(updates)]
+        with FlopCounterMode(display=False) as counter:
+            for b in batches:
+                update(*b)
+        out[f"{name}_flops_per_update"] = counter.get_total_flops() / updates
+    return out
+
+
+def gemm_rate(threads: int, size: int = 128, batch: int = 2, seconds: float = 1.0) -> float:
+    """Sustained FP32 GEMM rate (FLOP/s) of ``[batch, size, size] @ [batch, size, size]`` products in a loop, the
+    shapes of the updates' layers (128-wide MLPs, batch 128, twin critics), with ``threads`` torch threads."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        a, b = torch.randn(batch, size, size), torch.randn(batch, size, size)
+        for _ in range(50):
+            torch.bmm(a, b)
+        n, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            for _ in range(100):
+                torch.bmm(a, b)
+            n += 100
+        return 2.0 * batch * size ** 3 * n / (time.perf_counter() - t0)
+    finally:
+        torch.set_num_threads(before)
+
+
+def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
+    """The compute floor of one update: its FLOPs over the GEMM rate at its shapes, per thread count; and our
+    compiled update's and the plain reference's time per TD3 / D3QN update (``update``, measured at
+    ``update["torch_threads"]``) over the floor at that thread count."""
+    flops = update_flops(seed)
+    rates = {str(t): gemm_rate(t) for t in threads}
+    out = {**flops, "gemm_flop_per_s": rates, "threads_of_update": update["torch_threads"]}
+    rate = rates.get(str(update["torch_threads"])) or gemm_rate(update["torch_threads"])
+    for agent in ("td3", "d3qn"):
+        floor = flops[f"{agent}_flops_per_update"] / rate
+        out[f"{agent}_floor_s"] = floor
+        for arm in ("compiled", "plain"):
+            out[f"{agent}_{arm}_over_floor"] = update[arm][f"{agent}_update_s"] / floor
+    return out
+
+
 def measure_torchrl_td3(updates: int, repeats: int, device: torch.device, batch_size: int = 256) -> dict:
     """(r): the reference the issue's GPU goal names, TorchRL's own TD3 as its ``sota-implementations`` run it:
     ``TD3Loss`` (twin critics) on a MuJoCo-sized task (17-dim observations, 6 actions, 2 x 256 MLPs), batch
@@ -620,6 +676,9 @@ def main(argv=None) -> int:
                    help="(p): time this many acting-policy calls at each K of --roads, learner on the CPU and on "
                         "--device (0: skip)")
     p.add_argument("--skip-update", action="store_true", help="leave (a) out")
+    p.add_argument("--floor", action="store_true",
+                   help="(a): also the compute floor: the updates' FLOPs over the GEMM rate at their shapes (floor)")
+    p.add_argument("--floor-threads", type=int, nargs="+", default=[1, 2], help="--floor: GEMM rates at these")
     p.add_argument("--gpu-batches", type=int, nargs="*", default=[],
                    help="with --device cuda: (a)'s compiled TD3 and (r) again at each of these TD3 minibatches, "
                         "side by side (gpu.by_batch; gpu.td3_ratio_vs_torchrl_same_batch at training's batch)")
@@ -645,6 +704,8 @@ def main(argv=None) -> int:
                                                           args.batch_size_cf)
     if update is not None:
         update["torch_threads"] = torch.get_num_threads()
+    floor = measure_floor(update, args.seed, args.floor_threads) if args.floor and update is not None \
+        and device.type == "cpu" else None
     reference = (measure_torchrl_td3(args.updates, args.repeats, device)
                  if args.torchrl_reference == "on" or (args.torchrl_reference == "auto" and device.type == "cuda")
                  else None)
@@ -658,7 +719,7 @@ def main(argv=None) -> int:
             c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "update": update,
               **({"torchrl_td3_reference": reference} if reference is not None and device.type != "cuda" else {}),
-              "collect": collect, **({"note": args.note} if args.note else {})}
+              "collect": collect, **({"note": args.note} if args.note else {}), **({"floor": floor} if floor else {})}
     if args.workers:
         workers = measure_collect_workers(args.workers_roads, [int(n) for n in args.workers.split(",")], args.frames,
                                           args.seed, compile)
@@ -712,6 +773,13 @@ def main(argv=None) -> int:
             r = update[name]
             print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}"
                   f"{1e3 * r['per_frame_s']:>14.2f}{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")
+    if floor:
+        print(f"\n{'compute floor (FLOPs / GEMM rate)':<34}{'MFLOP':>8}{'floor ms':>10}{'ours/floor':>12}"
+              f"{'plain/floor':>13}   GEMM GFLOP/s by threads: "
+              + ", ".join(f"{t}: {r / 1e9:.0f}" for t, r in floor["gemm_flop_per_s"].items()))
+        for agent in ("td3", "d3qn"):
+            print(f"{agent:<34}{floor[f'{agent}_flops_per_update'] / 1e6:>8.1f}{1e3 * floor[f'{agent}_floor_s']:>10.3f}"
+                  f"{floor[f'{agent}_compiled_over_floor']:>12.2f}{floor[f'{agent}_plain_over_floor']:>13.2f}")
     if result.get("collect"):
         print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}"
               f"{'ratio':>8}{'compiled learner saves':>24}")

@@ -44,7 +44,20 @@ def test_readme_is_a_front_door():
 def test_the_guide_home_is_the_readme():
     """docs/index.md is README.md with its links made relative to docs/ (regenerate it when the README changes)."""
     readme = README.read_text().replace("](docs/", "](").replace(
-        "([LICENSE](LICENSE))", "(the file LICENSE at the repository root)")
+        "([LICENSE](LICENSE))", "(the file LICENSE at the repository root)").replace(
+        "[CITATION.cff](CITATION.cff)", "the file CITATION.cff")
     home = (ROOT / "docs" / "index.md").read_text()
     marker = "<!-- the guide's home: README.md with links relative to docs/ (tests/test_readme.py keeps them in step) -->\n"
     assert home.replace(marker, "").replace("# kddrl_trl\n\n", "# kddrl_trl\n", 1) == readme
+
+
+def test_conf_at_the_root_is_the_package_conf():
+    """``conf/`` at the repository root (where a Hydra user looks) is the package's config folder itself, one copy."""
+    root_conf = ROOT / "conf"
+    assert root_conf.is_symlink() and root_conf.resolve() == (ROOT / "src" / "kddrl_trl" / "conf").resolve()
+    assert (root_conf / "config.yaml").is_file() and (root_conf / "algo" / "kddrl.yaml").is_file()
+
+
+def test_citation_names_the_paper():
+    text = (ROOT / "CITATION.cff").read_text()
+    assert "cff-version" in text and "Knowledge-Data-Dual-Driven Reinforcement Learning" in text

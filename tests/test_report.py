@@ -363,3 +363,17 @@ def test_runs_with_options_are_rows_of_their_own(tmp_path):
     assert sorted(r.algo for r in runs) == sorted(
         ["kddrl", "kddrl",
          "kddrl [algo.shield=idm, algo.state_extras=[thw,ttc], train.n_steps=3, collector.sync=False]"])
+
+
+def test_figures_keep_one_colour_per_system_and_few_series_per_axes():
+    from kddrl_trl.eval.figures import MAX_SERIES, series_panels, style, system_of
+
+    labels = ["kddrl"] + [f"kddrl [opt{i}]" for i in range(13)] + ["d3qn_td3 [algo.shield=idm]", "idm_mobil", "ni"]
+    panels = series_panels(labels)
+    assert all(len(p) <= MAX_SERIES for p in panels)
+    assert {lab for p in panels for lab in p} == set(labels)  # every series drawn...
+    assert all("kddrl" in p for p in panels if any(system_of(lab) == "kddrl" for lab in p))  # ...beside its reference
+    assert style("kddrl", labels)["color"] == style("kddrl", ["kddrl", "ni"])["color"]  # the same in every figure
+    assert style("kddrl", labels)["color"] != style("ni", labels)["color"]
+    assert system_of("kddrl [algo.shield=idm] @abc1234") == "kddrl" and system_of("ni (trained on mixed)") == "ni"
+    assert series_panels(["peng", "kddrl", "ni"]) == [["kddrl", "ni", "peng"]]  # the paper's order

@@ -50,13 +50,12 @@ def recompute_bool_masks(graph_module, joint_inputs):
     marked must-recompute, so that the partitioner saves the float tensor it compares and the backward recomputes
     the mask, instead of the forward storing the mask.
 
-    Why: the CPU code TorchInductor (torch 2.13) generates for a ``bool`` store is over 10x slower than eager
-    ``x <= 0`` ([2, 128, 128]: 237 µs against 20 µs for the same kernel storing only the float). The TD3 actor loss
-    (Eq. 8) runs the critics with detached weights, so its backward needs no ReLU output for a weight gradient and,
-    left alone, the partitioner saves the critics' two ReLU masks (1 byte each instead of 4): 0.91 of the 1.2 ms
-    its compiled forward took on this project's 2-core CPU. Recomputing them in the backward gives the same masks
-    from the same saved floats: the results are bit for bit those of the unmarked graph.
-    ``benchmarks/train_throughput.py`` (``update.compiled``) measures the gain."""
+    Why: the CPU code TorchInductor (torch 2.13) generates for a ``bool`` store is far slower than eager ``x <= 0``.
+    The TD3 actor loss (Eq. 8) runs the critics with detached weights, so its backward needs no ReLU output for a
+    weight gradient and, left alone, the partitioner saves the critics' two ReLU masks (1 byte each instead of 4),
+    whose stores then dominate its compiled forward. Recomputing them in the backward gives the same masks from the
+    same saved floats: the results are bit for bit those of the unmarked graph. ``benchmarks/train_throughput.py``
+    (``update.compiled``) measures the gain."""
     from torch.utils.checkpoint import CheckpointPolicy
 
     for node in graph_module.graph.nodes:
@@ -84,8 +83,7 @@ def partitioning():
 
     AOTAutograd's cache is off inside: its key leaves the joint pass out, so it would hand back a graph that code
     without the pass partitioned (correct, but with the slow mask stores). The partitioned graphs' kernels are still
-    cached by TorchInductor; tracing and partitioning again cost ~3 s per process (the learner's losses, 2-core
-    CPU)."""
+    cached by TorchInductor; tracing and partitioning run again once per process."""
     from torch._functorch import config as functorch_config
 
     return functorch_config.patch(recompute_views=True, joint_custom_pass=recompute_bool_masks,
@@ -96,9 +94,9 @@ def specializing_floats():
     """A context in which TorchDynamo traces Python floats as constants (``torch._dynamo.config.specialize_float``),
     for the fused transform stack (:func:`kddrl_trl.transforms.stack.compiled_frames`): left symbolic, the members'
     float constants made Dynamo trace the whole stack twice (a ``TensorifyScalarRestartAnalysis`` restart) into a
-    graph with more inputs; specialized, a process's first frame compiles in about half the time (9.2 -> 4.4 s on
-    the 2-core CPU, TorchInductor's cache warm). A stack whose constants differ gets a graph of its own. The
-    setting is read when tracing; entering the context costs ~16 µs (it is entered on every frame)."""
+    graph with more inputs; specialized, a process's first frame compiles in about half the time. A stack whose
+    constants differ gets a graph of its own. The setting is read when tracing; entering the context is cheap (it
+    is entered on every frame)."""
     return dynamo_config.patch(specialize_float=True)
 
 
@@ -111,8 +109,8 @@ class WarmCompiled:
 
     TorchDynamo checks a compiled frame's guards on every call before it runs the graph. On a learner's loss they
     cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines for the KDDRL
-    learner's TD3 critic loss; their evaluation cost about as much as the loss's whole compiled forward on the
-    2-core CPU). Each loss ``name`` first runs ``warmup`` calls with every guard (they compile its graph: the
+    learner's TD3 critic loss; their evaluation cost about as much as the loss's whole compiled forward on a CPU).
+    Each loss ``name`` first runs ``warmup`` calls with every guard (they compile its graph: the
     losses have fixed shapes); later calls run under ``torch.compiler.set_stance(skip_guard_eval_unsafe=True)``,
     which still checks the guards that told the cached graphs apart (the ``name``) and every tensor's shape, dtype
     and device, not the rest. A call that would need a new graph raises in that stance before the graph runs; it is

@@ -1,4 +1,4 @@
-"""Every TensorDict key shared across kddrl_trl modules (``../shared/DESIGN.md``, "Key contract").
+"""Every TensorDict key shared across kddrl_trl modules (docs/design.md, "Key contract").
 
 Conventions: nested keys, snake_case leaves, SI units (m, m/s, m/s², s), a trailing feature dimension.
 The paper's coordinates are used throughout: ``y`` is *longitudinal* (along the road, metres from the

@@ -1,4 +1,4 @@
-"""Multi-timescale collection (DESIGN.md "Clocks"; paper Algorithm 1): a decision clock transform, a policy
+"""Multi-timescale collection (docs/design.md, "Clocks"; paper Algorithm 1): a decision clock transform, a policy
 acting on two clocks, and the writer of the lane-change agent's macro-transitions. None of it is specific to
 SUMO: any TorchRL env batch and any pair of TensorDict policies."""
 from .clock import DecisionClock

@@ -1,4 +1,4 @@
-"""``DecisionClock``: the lane-change agent's clock (DESIGN.md "Clocks"; paper Algorithm 1 line 22).
+"""``DecisionClock``: the lane-change agent's clock (docs/design.md, "Clocks"; paper Algorithm 1 line 22).
 
 A TorchRL transform, so that any collector (``Collector``, ``MultiSyncCollector`` workers, a plain
 ``env.rollout``) sees the clock in the observation and no learning code has to count frames.

@@ -1,4 +1,4 @@
-"""``MultiTimescaleCollector``: a TorchRL collector feeding two replay buffers on two clocks (DESIGN.md
+"""``MultiTimescaleCollector``: a TorchRL collector feeding two replay buffers on two clocks (docs/design.md
 "Clocks"; paper Algorithm 1 lines 8-9, 25, 37), from one env in this process or from N worker processes."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``MacroTransitionWriter``: frame trajectories -> macro-transitions of buffer H (DESIGN.md "Clocks";
+"""``MacroTransitionWriter``: frame trajectories -> macro-transitions of buffer H (docs/design.md, "Clocks";
 paper Algorithm 1 lines 25-26, 35)."""
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""n-step returns for buffer L (option ``train.n_steps``, issue 14 "Learning signal"; not in the paper).
+"""n-step returns for buffer L (option ``train.n_steps``; docs/usage.md, "Safety and learning-signal options"; not
+in the paper).
 
 The paper's TD3 target (Eq. 6) bootstraps after one 0.1 s frame. With ``n_steps = n`` each frame written to buffer L
 carries instead the discounted sum of the next k rewards and the state k frames later,

@@ -1,4 +1,4 @@
-"""``OverlappedCollector``: collection that runs while the learner updates (``collector.sync=false``; issue 15).
+"""``OverlappedCollector``: collection that runs while the learner updates (``collector.sync=false``).
 
 With TorchRL's synchronous collectors the learner's updates and the collection take turns: a run's wall time is
 their sum. Here the env runs in one worker process that collects the next batch while the learner updates on the

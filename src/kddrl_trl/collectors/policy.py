@@ -23,9 +23,7 @@ class MultiRatePolicy(TensorDictModuleBase):
        lane-change policy runs **only on those rows** (on a sub-batch of its own in-keys); the other rows keep
        ``held_key`` (the action in force, written by :class:`~kddrl_trl.collectors.DecisionClock`). Running it on
        all rows and keeping the decision rows would draw the ε-greedy coin for every row, so the random stream,
-       and with it every later exploring action, would differ; measured with the KDDRL policy on a 2-core CPU it
-       is hardly faster (K = 8, 2 of 8 rows deciding, machine under load: the D3QN policy 5.3 ms on the
-       sub-batch vs 5.0 ms on all rows, plus 0.37 ms to index the sub-batch);
+       and with it every later exploring action, would differ (and it is hardly faster);
     3. the car-following policy runs on all rows, reading the lane-change action just set (Eq. 30: the held
        a_D3QN is part of s_TD3; lines 31-32).
 

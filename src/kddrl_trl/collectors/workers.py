@@ -1,4 +1,4 @@
-"""``WorkerEnv``: the picklable env factory of one collection worker (issue 15, "Worker processes").
+"""``WorkerEnv``: the picklable env factory of one collection worker (docs/usage.md, "Worker processes").
 
 ``python -m kddrl_trl.train collector.workers=N`` runs N envs, each in its own process (its own SUMO through
 libsumo, which allows one simulation per process, its own K roads and transform stack), through TorchRL's

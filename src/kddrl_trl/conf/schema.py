@@ -173,7 +173,7 @@ LC_REWARDS = ("frames", "decision")
 
 @dataclass
 class SafetyOptions:
-    """Options every algo has (issue 14), learning or rule-based. Schema defaults = how runs saved before these keys
+    """Options every algo has, learning or rule-based. Schema defaults = how runs saved before these keys
     existed behaved; the algo YAMLs set the project's defaults (README, "Safety and learning-signal options")."""
 
     shield: str = "none"       # car-following shield: none | idm | ttc (a_exec = min(a_agent, a_safe))
@@ -189,7 +189,7 @@ class SafetyOptions:
 @dataclass
 class LearningAlgo(SafetyOptions):
     """What every learning algo has: a lane-change clock, the env's transforms and the safety and learning-signal
-    options of issue 14 (``kind`` picks the learner)."""
+    safety and learning-signal options (``kind`` picks the learner)."""
 
     name: str = MISSING
     kind: str = MISSING

@@ -1,6 +1,6 @@
 """Scenario 2 of the paper (§IV.D, ``+scenario=braking``): once per episode, a leader 100-300 m ahead in
 the ego's lane brakes to a stop at ``decel``, stands for ``stand_time`` and drives on. With ``braking.probability``
-below 1 (``+scenario=mixed``, issue 14's curriculum) only that share of the episodes has the event.
+below 1 (``+scenario=mixed``, a training curriculum) only that share of the episodes has the event.
 
 :class:`BrakingEvents` runs the event on every road of a :class:`~kddrl_trl.envs.sim.HighwaySim` and writes its
 phase (``keys.BRAKING_PHASE``, codes of ``keys.BRAKING_PHASES``) and the gap at which it started

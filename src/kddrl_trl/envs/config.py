@@ -1,6 +1,6 @@
 """Configuration of the SUMO highway: road, traffic, driver population, ego, rewards, scenarios.
 
-One dataclass holds every default, with its unit, in one place (paper Table A.1, DESIGN.md "Traffic
+One dataclass holds every default, with its unit, in one place (paper Table A.1, docs/design.md, "Traffic
 model"). The same schema validates Hydra configs (``conf/env/highway.yaml``) and keyword overrides of
 :class:`~kddrl_trl.envs.SumoHighwayEnv`, so a misspelt key or a malformed value fails before SUMO starts
 with a message naming the key.
@@ -66,7 +66,7 @@ def default_drivers() -> list[DriverClass]:
 class BrakingEvent:
     """Scenario 2 (paper §IV.D): a leader in the ego's lane brakes hard to a stop, stands, then resumes.
 
-    ``probability`` (issue 14's mixed-traffic curriculum, not in the paper, whose braking scenario has the event in
+    ``probability`` (a mixed-traffic curriculum, not in the paper, whose braking scenario has the event in
     every episode): when ``enabled``, each episode has the event with this probability, drawn per episode and per
     road from the road's seeded random stream (:class:`~kddrl_trl.envs.braking.BrakingEvents`), so a seed gives the
     same mix every time. 1.0 draws nothing: the stream, and every run saved before the key existed, is unchanged.
@@ -110,7 +110,7 @@ class HighwayConfig:
     accel_high: float = 5.0        # m/s²
     pick_window: float = 150.0     # m before the section in which the ego is designated
     ego_start: str = "entry"       # entry: the vehicle nearest the section entry in the pick window (the next to
-    #                                enter the study area, paper §IV.B) | window: any vehicle in it (before issue 14)
+    #                                enter the study area, paper §IV.B) | window: any vehicle in it
     ego_lane: int | None = None    # start lane of the ego (None = any)
     # --- rewards (Eq. 26-29, 32-33)
     collision_penalty: float = -100.0
@@ -190,7 +190,7 @@ SCENARIOS: dict[str, dict[str, Any]] = {
     # scenario 2 (paper §IV.D): in every episode a leader 100-300 m ahead of the ego in its lane brakes hard
     # to a stop, stands 3 s, then resumes
     "braking": {"braking": {"enabled": True, "min_distance": 100.0, "max_distance": 300.0, "stand_time": 3.0}},
-    # training curriculum (issue 14, not in the paper): half of the episodes are scenario 2's, half the baseline's
+    # training curriculum (not in the paper): half of the episodes are scenario 2's, half the baseline's
     # (drawn per episode and road from the seeded stream); evaluate on each with eval_scenarios=[baseline,braking]
     "mixed": {"braking": {"enabled": True, "min_distance": 100.0, "max_distance": 300.0, "stand_time": 3.0,
                           "probability": 0.5}},

@@ -14,10 +14,9 @@ Ego control (paper §III.G, Eq. 25 and 31):
   ego AV in each episode"): with ``ego_start="entry"`` (default) the one nearest the section entry, i.e. the
   next vehicle to enter the study area, so that the episode is as close as the traffic allows to "the complete
   traversal of a vehicle from the entry to the exit of the study area" (§IV.B); with ``"window"`` any of them
-  at random (the behaviour before issue 14: the ego started up to 150 m, on average ~75 m, before the
-  section). Which vehicle is nearest is random through the traffic. From then on SUMO's speed and
-  lane-change safety overrides are off for it (speed mode 0, lane-change mode 0), so a bad command
-  really collides and SUMO's collision detection reports it.
+  at random (the ego then starts up to 150 m, on average ~75 m, before the section). Which vehicle is nearest
+  is random through the traffic. From then on SUMO's speed and lane-change safety overrides are off for it (speed
+  mode 0, lane-change mode 0), so a bad command really collides and SUMO's collision detection reports it.
 * Acceleration: every frame v' = max(v + a·dt, 0) with a clipped to [accel_low, accel_high]; the
   executed acceleration (v' - v)/dt is what the observation and the comfort reward use.
 * Lane change: a left/right command starts a ``lc_duration`` manoeuvre (SUMO's continuous lane change,

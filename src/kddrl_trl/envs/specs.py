@@ -1,4 +1,4 @@
-"""TorchRL specs of the raw highway keys (DESIGN.md "Key contract") and the base class shared by the SUMO
+"""TorchRL specs of the raw highway keys (docs/design.md, "Key contract") and the base class shared by the SUMO
 and the fake env (constructor, config validation, specs)."""
 from __future__ import annotations
 

@@ -1,13 +1,90 @@
 """The report's figures (paper Figs. 8-10, 12-17) from run records (:class:`~kddrl_trl.eval.records.RunRecord`).
 
 Every function writes one PNG and returns its path; a figure with nothing to draw is not written (None).
+
+Readability rules, the same in every figure: each system has one colour, drawn solid (:func:`style`; a system's
+option variants are dashed, in colours of their own), an axes draws at most :data:`MAX_SERIES` series (more are
+split into panels, :func:`series_panels`, each with the system's plain run as the reference), bands of the spread
+over seeds only where an axes has few series, and legends sit outside the data, right of the axes.
 """
 from __future__ import annotations
 
+import re
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+#: the systems in the paper's order; each has its colour (matplotlib's tab10) in every figure
+SYSTEMS = ("kddrl", "ni", "peng", "d3qn_unified", "pasac_unified", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock",
+           "idm_mobil")
+#: the most series one axes draws
+MAX_SERIES = 8
+#: at most this many series in an axes get the band of their spread over seeds
+MAX_BANDS = 3
+
+
+def system_of(label: str) -> str:
+    """The system of a report label: ``"kddrl [algo.shield=idm]"``, ``"kddrl @abc1234"`` and
+    ``"kddrl (trained on mixed)"`` are all ``kddrl``."""
+    return re.split(r" \[| @| \(", label, maxsplit=1)[0]
+
+
+def style(label: str, labels) -> dict:
+    """``color``, ``linestyle`` and ``lw`` of ``label`` among all ``labels`` of a report: a system (its plain run) in
+    its own colour of tab10, solid; an option variant of it dashed, in the colour of its rank among the system's
+    variants in Dark2 (dash-dotted from the ninth on)."""
+    from matplotlib import colormaps
+
+    system = system_of(label)
+    if label == system:
+        index = SYSTEMS.index(system) if system in SYSTEMS else len(SYSTEMS)
+        return {"color": colormaps["tab10"].colors[index % 10], "linestyle": "-", "lw": 1.8}
+    variants = sorted({lab for lab in labels if system_of(lab) == system and lab != system})
+    rank = variants.index(label)
+    return {"color": colormaps["Dark2"].colors[rank % 8], "linestyle": "--" if rank < 8 else "-.", "lw": 1.1}
+
+
+def _order(label: str):
+    system = system_of(label)
+    return (SYSTEMS.index(system) if system in SYSTEMS else len(SYSTEMS), system, label != system, label)
+
+
+def series_panels(labels, limit: int = MAX_SERIES) -> list[list[str]]:
+    """``labels`` split into panels of at most ``limit`` series: all in one when they fit; otherwise every system
+    with option variants gets panels of its own (its plain run in each, as the reference), and the systems without
+    variants fill the room left, then panels of their own."""
+    labels = sorted(set(labels), key=_order)
+    if len(labels) <= limit:
+        return [labels]
+    by_system: dict[str, list[str]] = defaultdict(list)
+    for lab in labels:
+        by_system[system_of(lab)].append(lab)
+    plain, panels = [], []
+    for system, group in by_system.items():
+        if len(group) == 1:
+            plain += group
+            continue
+        variants = [lab for lab in group if lab != system]
+        head = [system] if system in group else []
+        size = limit - len(head)
+        panels += [head + variants[i:i + size] for i in range(0, len(variants), size)]
+    for lab in plain:
+        room = next((p for p in panels if len(p) < limit), None)
+        if room is None:
+            room = []
+            panels.append(room)
+        room.append(lab)
+    return [p for p in panels if p]
+
+
+def _tight(fig) -> None:
+    """``tight_layout`` leaving room for the suptitle (about 0.4 inch at the top)."""
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.4 / fig.get_figheight()))
+
+
+def _legend(ax) -> None:
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, frameon=False)
 
 
 def _plt():
@@ -29,7 +106,7 @@ def _by(runs, *keys) -> dict:
 def _agent_grid(scenarios: list[str]):
     """One row per scenario, one column per agent (lane change, car following)."""
     plt = _plt()
-    fig, axes = plt.subplots(len(scenarios), 2, figsize=(11, 3.4 * len(scenarios)), squeeze=False)
+    fig, axes = plt.subplots(len(scenarios), 2, figsize=(14, 3.4 * len(scenarios)), squeeze=False)
     agents = (("return_lc", "lane-change return"), ("return_cf", "car-following return"))
     return plt, fig, [(scenario, [(ax, *agent) for ax, agent in zip(row, agents)])
                       for scenario, row in zip(scenarios, axes)]
@@ -37,25 +114,32 @@ def _agent_grid(scenarios: list[str]):
 
 def training_curves(runs, path: Path, window: int = 50) -> Path | None:
     """Fig. 8: per scenario, both agents' training returns (rolling mean over ``window`` episodes), the mean over
-    seeds as a line and the range over seeds (min to max) as a band."""
+    seeds as a line and, where drawn, the range over seeds (min to max) as a band."""
     learning = [r for r in runs if r.training is not None]
     if not learning:
         return None
-    plt, fig, grid = _agent_grid(sorted({r.scenario for r in learning}))
-    for scenario, panels in grid:
-        for ax, key, title in panels:
-            for (algo,), group in sorted(_by([r for r in learning if r.scenario == scenario], "algo").items()):
+    labels = sorted({r.algo for r in learning})
+    rows = [(scenario, panel) for scenario in sorted({r.scenario for r in learning})
+            for panel in series_panels({r.algo for r in learning if r.scenario == scenario})]
+    plt, fig, grid = _agent_grid([scenario for scenario, _ in rows])
+    for (scenario, panel), (_, axes) in zip(rows, grid):
+        for ax, key, title in axes:
+            groups = _by([r for r in learning if r.scenario == scenario and r.algo in panel], "algo")
+            for algo in panel:
+                group = groups[(algo,)]
                 n = min(len(r.training) for r in group)
                 curves = np.stack([r.training[key].rolling(window, min_periods=1).mean().to_numpy()[:n] for r in group])
                 x = np.arange(1, n + 1)
-                line, = ax.plot(x, curves.mean(0), label=f"{algo} ({len(group)} seeds)")
-                ax.fill_between(x, curves.min(0), curves.max(0), color=line.get_color(), alpha=0.2, lw=0)
+                look = style(algo, labels)
+                ax.plot(x, curves.mean(0), label=f"{algo} ({len(group)} seeds)", **look)
+                if len(panel) <= MAX_BANDS:
+                    ax.fill_between(x, curves.min(0), curves.max(0), color=look["color"], alpha=0.15, lw=0)
             ax.set_title(f"{scenario}: {title}", fontsize=10)
             ax.set_xlabel("training episode")
             ax.set_ylabel(f"return (rolling mean, {window} ep)")
-            ax.legend(fontsize=8)
+        _legend(axes[-1][0])
     fig.suptitle("Training curves: mean over seeds, band = min..max over seeds (paper Fig. 8)", fontsize=10)
-    fig.tight_layout()
+    _tight(fig)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -69,13 +153,17 @@ def return_boxes(runs, path: Path) -> Path | None:
     plt, fig, grid = _agent_grid(sorted({r.scenario for r in runs}))
     for scenario, panels in grid:
         groups = sorted(_by([r for r in runs if r.scenario == scenario], "algo").items())
+        groups = sorted(groups, key=lambda kv: _order(kv[0][0]))
+        labels = [a for (a,), _ in groups]
         for ax, key, title in panels:
             data = [np.concatenate([r.episodes[key].to_numpy() for r in g]) for _, g in groups]
-            ax.boxplot(data, showfliers=False)
-            ax.set_xticks(range(1, len(groups) + 1), [a for (a,), _ in groups], fontsize=8)
+            boxes = ax.boxplot(data, showfliers=False, patch_artist=True)
+            for box, label in zip(boxes["boxes"], labels):
+                box.set_facecolor((*style(label, labels)["color"], 0.35))
+            ax.set_xticks(range(1, len(groups) + 1), labels, fontsize=7, rotation=30, ha="right")
             ax.set_title(f"{scenario}: {title} per evaluation episode", fontsize=10)
     fig.suptitle("Evaluation returns (paper Figs. 9 / 15; whiskers 1.5 IQR, outliers hidden)", fontsize=10)
-    fig.tight_layout()
+    _tight(fig)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -83,25 +171,34 @@ def return_boxes(runs, path: Path) -> Path | None:
 
 def distributions(runs, scenario: str, path: Path) -> Path | None:
     """Figs. 10 / 12 / 13: per algo, the distribution of the evaluation episodes' mean speed and mean
-    acceleration on ``scenario`` (density over episodes; the band is the range of the per-seed densities)."""
+    acceleration on ``scenario`` (density over episodes; the band, where drawn, is the range of the per-seed
+    densities)."""
     runs = [r for r in runs if r.scenario == scenario]
     if not runs:
         return None
     plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
-    for ax, key, label in zip(axes, ("mean_speed_kmh", "mean_accel"), ("mean speed (km/h)", "mean acceleration (m/s²)")):
-        values = np.concatenate([r.episodes[key].to_numpy() for r in runs])
-        bins = np.linspace(values.min(), values.max() + 1e-9, 31)
-        centres = 0.5 * (bins[1:] + bins[:-1])
-        for (algo,), group in sorted(_by(runs, "algo").items()):
-            dens = np.stack([np.histogram(r.episodes[key], bins=bins, density=True)[0] for r in group])
-            line, = ax.plot(centres, dens.mean(0), label=f"{algo} ({len(group)} seeds)")
-            ax.fill_between(centres, dens.min(0), dens.max(0), color=line.get_color(), alpha=0.2, lw=0)
-        ax.set_xlabel(f"{label} of an episode")
-        ax.set_ylabel("density")
-        ax.legend(fontsize=8)
+    labels = sorted({r.algo for r in runs})
+    panels = series_panels(labels)
+    fig, grid = plt.subplots(len(panels), 2, figsize=(14, 3.6 * len(panels)), squeeze=False)
+    groups = _by(runs, "algo")
+    for panel, axes in zip(panels, grid):
+        for ax, key, label in zip(axes, ("mean_speed_kmh", "mean_accel"),
+                                  ("mean speed (km/h)", "mean acceleration (m/s²)")):
+            values = np.concatenate([r.episodes[key].to_numpy() for r in runs])
+            bins = np.linspace(values.min(), values.max() + 1e-9, 31)
+            centres = 0.5 * (bins[1:] + bins[:-1])
+            for algo in panel:
+                group = groups[(algo,)]
+                dens = np.stack([np.histogram(r.episodes[key], bins=bins, density=True)[0] for r in group])
+                look = style(algo, labels)
+                ax.plot(centres, dens.mean(0), label=f"{algo} ({len(group)} seeds)", **look)
+                if len(panel) <= MAX_BANDS:
+                    ax.fill_between(centres, dens.min(0), dens.max(0), color=look["color"], alpha=0.15, lw=0)
+            ax.set_xlabel(f"{label} of an episode")
+            ax.set_ylabel("density")
+        _legend(axes[-1])
     fig.suptitle(f"{scenario}: speed and acceleration per evaluation episode (paper Figs. 10 / 12 / 13)", fontsize=10)
-    fig.tight_layout()
+    _tight(fig)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -12,7 +12,7 @@ from __future__ import annotations
 TABLES = {"baseline": "Table II (and Table V, ablations)", "congested": "Table III", "braking": "Table IV",
           "congested_text": "Table III (the text's flow, 3 x 1329 veh/h)"}
 
-#: the paper's name of each of our algos (DESIGN.md "Comparison systems")
+#: the paper's name of each of our algos (docs/design.md, "Comparison systems")
 PAPER_NAMES = {
     "kddrl": "D3QN+TD3 (KDDRL)", "ni": "DDQN+TD3 (Ni)", "peng": "D3QN+DDPG (Peng)", "d3qn_unified": "D3QN (Unit)",
     "pasac_unified": "PASAC (Unit)", "idm_mobil": "IDM+MOBIL", "d3qn_td3": "D3QN+TD3", "d3qn_td3_lg": "D3QN+TD3+LG",

@@ -47,8 +47,8 @@ class PeriodicEvaluator:
         self.score = BEST_METRICS[best_metric]
         _spawnable_start_method()
         # worker starts on use; ``num_threads``: this process keeps its torch threads. Left to TorchRL, starting the
-        # worker sets them to (threads - 1) here, mid-run: on a 2-core machine the learner went from 2 threads to 1
-        # at the first validation, and every compiled loss was traced again (TorchDynamo guards the thread count)
+        # worker sets them to (threads - 1) here, mid-run: the learner would lose a thread at the first validation,
+        # and every compiled loss would be traced again (TorchDynamo guards the thread count)
         self.env: ParallelEnv | None = ParallelEnv(1, make_env, mp_start_method="spawn",
                                                    num_threads=torch.get_num_threads())
 

@@ -54,7 +54,7 @@ class RunRecord:
         out = summarize(self.episodes.to_dict("records"))
         out["lane_changes_per_episode"] = out["lane_changes"]
         out["lane_changes_per_1000_episodes"] = 1000.0 * out["lane_changes"]
-        out.setdefault("shield_rate", 0.0)  # runs from before the shield option (issue 14) had none
+        out.setdefault("shield_rate", 0.0)  # runs without the shield option have none
         return out
 
 
@@ -137,9 +137,9 @@ def _config(path: Path) -> dict | None:
         raise ValueError(f"{path}: not a readable config ({err})") from err
 
 
-#: the options (issue 14) that make a run a row of its own in the report when they differ from its algo's defaults
+#: the options that make a run a row of its own in the report when they differ from its algo's defaults
 #: (not ``episodes``: short smoke and test sweeps would all be rows of their own); ``collector.sync``: the overlapped
-#: collection acts one batch behind (issue 15), so what a run learns may differ
+#: collection acts one batch behind, so what a run learns may differ
 OPTION_KEYS = ("env.reward", "env.ego_start", "algo.mobil_safety_mask", "algo.lc_reward", "algo.shield",
                "algo.shield_ttc", "algo.state_extras", "algo.learner.d3qn.semi_mdp", "algo.learner.d3qn.eps_decisions",
                "algo.learner.td3.exploration_clip", "train.n_steps", "train.updates_per_decision", "train.prioritized",

@@ -42,7 +42,7 @@ METRICS = {
 TABLE_METRICS = ("mean_speed_kmh", "mean_accel", "lane_changes_per_episode", "lane_changes_per_1000_episodes",
                  "collision_rate")
 REFERENCE = "kddrl"
-#: the rule-based reference of the safety comparison (issue 14's goals are read against it)
+#: the rule-based reference of the safety comparison (the safety goals are read against it)
 RULE_REFERENCE = "idm_mobil"
 #: fewer seeds than this on a side: no verdict (a percentile bootstrap over 2 seeds only spans the two values seen)
 MIN_SEEDS_FOR_VERDICT = 3
@@ -161,7 +161,7 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
 
 def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
     """Each other row against :data:`RULE_REFERENCE` on one scenario: its mean speed as a ratio of the rule
-    baseline's and its collision rate minus the rule baseline's, with bootstrap CIs over seeds (issue 14's goals:
+    baseline's and its collision rate minus the rule baseline's, with bootstrap CIs over seeds (the safety goals:
     speed >= 1.05 x, collisions <= + 0.5 points on baseline, <= 2 % on braking)."""
     ref = next((r for r in table_rows if r["algo"] == RULE_REFERENCE), None)
     others = [r for r in table_rows if r["algo"] != RULE_REFERENCE]

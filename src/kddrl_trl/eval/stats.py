@@ -1,4 +1,4 @@
-"""Confidence intervals over seeds: the seed (run) is the unit of evidence (DESIGN.md "Evidence").
+"""Confidence intervals over seeds: the seed (run) is the unit of evidence (docs/design.md, "Evidence").
 
 Percentile bootstrap (``scipy.stats.bootstrap``) of the across-seed mean, and of the difference (or the ratio) of
 two systems' means (independent seeds, each resampled on its own). Fixed ``random_state``: the same records give the same
@@ -59,7 +59,7 @@ def difference_ci(values, reference, confidence: float = CONFIDENCE, resamples: 
 
 def ratio_ci(values, reference, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
     """Mean of ``values`` divided by the mean of ``reference`` (independent seeds; e.g. a policy's mean speed over
-    the rule baseline's, as issue 14's goal "speed >= 1.05 x IDM+MOBIL's" reads) with its bootstrap interval."""
+    the rule baseline's, as the safety goal "speed >= 1.05 x IDM+MOBIL's" reads) with its bootstrap interval."""
     y = np.asarray(reference, dtype=float)
     if y.size == 0 or not (np.isfinite(y).all() and (y > 0).all()):
         raise ValueError(f"ratio_ci: the reference values must be finite and > 0, got {y.tolist()}")

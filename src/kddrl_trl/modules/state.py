@@ -22,7 +22,7 @@ d         s_e from ``keys.EMBED_S_E`` (only when ``embed``)       none (tanh out
 the acceleration executed in the last frame a_TD3^{t-1} (``keys.EGO_ACCEL`` / accel, 1). Every scaled
 feature is clipped to ±``StateScale.clip``.
 
-State extras (issue 14's option ``algo.state_extras``, **not in the paper**; none by default): appended last to the
+State extras (the option ``algo.state_extras``, **not in the paper**; none by default): appended last to the
 state of every agent of every learner (both hierarchical agents, the unified agents' ``keys.JOINT_OBS``), in the order
 of :data:`STATE_EXTRAS`, one feature each, computed by :func:`headway_features` from the raw keys the states already
 read (the current-lane leader, slot b: its gap ``Δy - vehicle_length`` bumper to bumper, its speed difference Δv_y),
@@ -37,7 +37,7 @@ so no key is added and the replay buffers are unchanged:
           with no leader
 ========  =====================================================  ========================================
 
-Executed, not commanded (issue 14, F7): Eq. 30 reads "the continuous acceleration action executed at the previous
+Executed, not commanded: Eq. 30 reads "the continuous acceleration action executed at the previous
 time step", and Algorithm 1 line 33 executes a_TD3 in the env. The env executes the command (already within
 [-5, 5] m/s², Eq. 31) except where v + a dt would fall below 0 (v' = max(v + a dt, 0)), so the two differ only at
 a standstill; with a car-following shield (``algo.shield``) the executed acceleration is the shielded command,
@@ -84,7 +84,7 @@ class StateScale:
     clip: float = 5.0                # every scaled feature is clipped to ±clip
 
 
-#: the optional state features of ``algo.state_extras`` (issue 14, not in the paper), in state order
+#: the optional state features of ``algo.state_extras`` (not in the paper), in state order
 STATE_EXTRAS = ("thw", "ttc")
 
 
@@ -100,7 +100,7 @@ def check_extras(extras) -> tuple[str, ...]:
 
 def headway_features(ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, extras=STATE_EXTRAS,
                      scale: StateScale = StateScale()) -> torch.Tensor:
-    """The state extras ``[*B, len(extras)]`` (issue 14's option, not in the paper; module docstring): the time
+    """The state extras ``[*B, len(extras)]`` (an option, not in the paper; module docstring): the time
     headway ``gap / v`` and the time to collision ``gap / (v - v_lead)`` to the current-lane leader (slot b), each
     capped at ``scale.time * scale.clip`` seconds (the cap when there is no leader, when the ego stands (thw) or is not
     closing in (ttc); 0 when the vehicles overlap) and divided by ``scale.time``.
@@ -198,7 +198,7 @@ def lc_state(embed: bool = True, *, mobil: bool = False, detach_s_e: bool = Fals
             embedding, see :mod:`kddrl_trl.modules.sharing`).
         scale (StateScale): input scales. Defaults to ``StateScale()``.
         out_key (NestedKey): defaults to ``keys.LC_OBS``.
-        extras (tuple of str): state extras of :data:`STATE_EXTRAS` appended last (``algo.state_extras``, issue 14,
+        extras (tuple of str): state extras of :data:`STATE_EXTRAS` appended last (``algo.state_extras``,
             not in the paper). Defaults to none.
 
     Examples:
@@ -238,7 +238,7 @@ def cf_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale 
         lc_action_key (NestedKey): the lane-change action read. Defaults to ``keys.LC_ACTION`` (the command in
             force now); the unified agents, which choose both actions at once, read ``keys.LC_HELD`` (the command
             of the previous frame) into ``keys.JOINT_OBS``.
-        extras (tuple of str): state extras of :data:`STATE_EXTRAS` appended last (``algo.state_extras``, issue 14,
+        extras (tuple of str): state extras of :data:`STATE_EXTRAS` appended last (``algo.state_extras``,
             not in the paper). Defaults to none.
     """
     in_keys = ([K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])

@@ -1,4 +1,4 @@
-"""Priorities of prioritized replay (Schaul et al., 2016; ``train.prioritized``, issue 14; not in the paper).
+"""Priorities of prioritized replay (Schaul et al., 2016; ``train.prioritized``; not in the paper).
 
 Every learner's value loss reports, per sampled transition, ``|δ|`` (``keys.PRIORITY``): the absolute TD error of
 its Bellman target (Eq. 4 for the D3QN, Eq. 6-7 for TD3, the soft target for PASAC), the largest over twin critics.

@@ -16,7 +16,7 @@ when :attr:`Learner.learns_from_decisions`, of :meth:`Learner.update_decision` (
 macro-transitions, once per lane-change decision), and saves everything in one dict
 (:meth:`Learner.full_state_dict`).
 
-Device and update functions (issue 15)
+Device and update functions
 --------------------------------------
 A learner lives on one ``device`` (``device=auto|cpu|cuda``, :func:`kddrl_trl.factories.make_device`): its
 networks, targets, optimiser states, its replay buffers (:func:`~kddrl_trl.training.make_buffer`: sampled there;

@@ -32,7 +32,7 @@ from .base import STATE_KEYS, Learner, adam, transition_keys
 
 def joint_state(extras=()):
     """``keys.JOINT_OBS`` of the unified agents: Eq. 30 without s_e, with the previous frame's lane command (and the
-    state ``extras`` of ``algo.state_extras``, issue 14, not in the paper)."""
+    state ``extras`` of ``algo.state_extras``, not in the paper)."""
     return cf_state(embed=False, lc_action_key=K.LC_HELD, out_key=K.JOINT_OBS, extras=extras)
 
 

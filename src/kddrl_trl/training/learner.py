@@ -1,7 +1,7 @@
 """``HierarchicalLearner``: the two agents of KDDRL and their updates (paper §III.G.3, Algorithm 1 lines 4-9,
 27-29, 38-43), around one shared embedding (Eq. 23-24, trained as :mod:`kddrl_trl.modules.sharing` decides).
 
-One class serves KDDRL and the configuration-only comparison systems of DESIGN.md (``d3qn_td3``,
+One class serves KDDRL and the configuration-only comparison systems of docs/design.md (``d3qn_td3``,
 ``d3qn_td3_lg``, ``kddrl_same_clock``, ``ni``, ``peng``): which embedding inputs exist, dueling or not, the
 car-following agent (TD3, or DDPG for Peng et al.), MOBIL's criteria in the lane-change state (Peng et al.) and the
 decision period are options. Everything that touches a tensor is a TorchRL loss / module or a TensorDict module.
@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 #: car-following agents of a hierarchical learner: their loss factories (TD3: KDDRL; DDPG: Peng et al.)
 CF_AGENTS = {"td3": make_td3, "ddpg": make_ddpg}
 #: besides the base's state keys, the decision flag: the TD3 target's next lane-change action is the D3QN's choice
-#: where the next frame is a decision frame (F6 of issue 14, ``modules/sharing.py::build_agent_states``)
+#: where the next frame is a decision frame (``modules/sharing.py::build_agent_states``)
 HIERARCHICAL_STATE_KEYS = (*STATE_KEYS, K.LC_DECIDE)
 
 
@@ -61,7 +61,7 @@ class HierarchicalLearner(Learner):
             keyword arguments ``ddpg``).
         mobil_criteria: the lane-change state carries MOBIL's utilities and safety flags (Peng et al.;
             the env must carry :class:`~kddrl_trl.transforms.MOBILCriteria`).
-        state_extras: features appended to both agents' states (``algo.state_extras``: ``thw``, ``ttc``; issue 14,
+        state_extras: features appended to both agents' states (``algo.state_extras``: ``thw``, ``ttc``;
             not in the paper; :func:`~kddrl_trl.modules.state.headway_features`).
         embed_lr: learning rate of the embedding's own optimiser.
         compile: ``torch.compile`` the losses (the learner's one compile site,

@@ -10,7 +10,7 @@ transform              writes                               paper
 :class:`MOBILPrior`     ``("prior", "p_mobil")`` [3]         P_MOBIL, Eq. 20-22
 :class:`LCGANPrior`     ``("prior", "p_lcgan")`` [3]         P_lcGAN, Eq. 16
 :class:`MOBILSafetyMask`  ``("lc", "action_mask")`` [3]      MOBIL's safety check as a hard mask, Eq. 20-21
-:class:`SafetyShield`   ``("cf", "action")`` (executed),     car-following shield (not in the paper; issue 14)
+:class:`SafetyShield`   ``("cf", "action")`` (executed),     car-following shield (not in the paper)
                         ``("next", "cf", "shield")`` [1]
 :class:`LeaderHistory`  ``("leaders", "history")`` [3, H, 2] the leaders' last H (y, v), for envs without it
 :class:`MOBILCriteria`  ``("prior", "mobil_incentive")`` [3], MOBIL utilities (Eq. 21-22) and safety flags

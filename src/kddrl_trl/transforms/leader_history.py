@@ -1,5 +1,5 @@
 """``LeaderHistory``: the rolling window of the leaders' positions and speeds, for envs that write only the
-instantaneous raw keys (``keys.LEADERS_HISTORY`` is optional in the key contract, ``shared/DESIGN.md``).
+instantaneous raw keys (``keys.LEADERS_HISTORY`` is optional in the key contract, docs/design.md).
 
 The window of each leader slot a, b, c is kept from ``("neighbors","kin")`` (its y and v) and
 ``("neighbors","mask")``, with no vehicle ids: the identity of the vehicle in a slot is judged by kinematics.

@@ -1,4 +1,4 @@
-"""``SafetyShield``: a car-following safety shield for any policy, ``a_exec = min(a_agent, a_safe)`` (issue 14).
+"""``SafetyShield``: a car-following safety shield for any policy, ``a_exec = min(a_agent, a_safe)`` (not in the paper).
 
 Not part of the paper (its TD3 acts unshielded, §III.G.2); an option of every algo (``algo.shield``), off by
 default. The bound ``a_safe`` comes from the raw keys of the frame the action is taken in:

@@ -46,9 +46,8 @@ def compiled_frames():
     the one compile site of the transforms, built once per process on first use (nothing compiled is stored
     on a stack, so stacks pickle as they are).
 
-    Measured gain: collection ego-frames/s of the SUMO env with the full KDDRL stack, compiled vs eager (2-core
-    CPU, arms in paired turns on one simulation): **+73 %** at K = 8 roads, +46 % at K = 32, +122 % at K = 1,
-    from ``python benchmarks/transform_overhead.py`` (``benchmarks/results/transform_overhead.json``).
+    Its gain (collection ego-frames/s with the full KDDRL stack, compiled vs eager) is measured by
+    ``python benchmarks/transform_overhead.py`` (``benchmarks/results/transform_overhead.json``).
 
     Each call runs under :func:`~kddrl_trl.compiling.specializing_floats` (the members' float constants traced
     as constants: one trace, not two)."""

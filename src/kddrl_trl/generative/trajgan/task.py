@@ -24,7 +24,7 @@ from kddrl_trl.gan_inputs import DRIVER_TYPES, KEY_STEPS
 from .figures import plot_errors, plot_samples
 from .model import FEATURES_VERSION, KIND, TrajDiscriminator, TrajGenerator, cond_dim, condition_features, refine
 
-#: ``PretrainConfig`` values for one hour of traffic (340k samples: ~5-8 s per epoch on a 2-core CPU)
+#: ``PretrainConfig`` values for one hour of traffic (340k samples)
 RECOMMENDED_PRETRAIN = {"epochs": 20, "batch_size": 256, "max_train_samples": 0, "patience": 5}
 _LAST = KEY_STEPS[-1]  # the last key step (20): the per-driver and spread metrics are taken there
 #: a test sample is a braking event when its leader decelerates at BRAKING_DECEL m/s² or harder at some step of
