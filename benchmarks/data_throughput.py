@@ -8,6 +8,7 @@ recordings read back from disk, and the reading itself. Prints a table and write
 
     python benchmarks/data_throughput.py [--duration 900] [--roads 4] [--seed 0]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -62,17 +63,26 @@ def main(argv=None) -> int:
         ("read CSV", f"{len(recordings)} recordings", t_read, ""),
         ("extract", f"{total:,d} samples", t_extract, f"{total / t_extract:,.0f} samples / s"),
     ]
-    print(f"\ndata pipeline, {args.scenario}, {args.roads} x {args.duration:g} s, seed {args.seed}: "
-          f"{stats['vehicles']:,d} vehicles, {100 * stats['lane_changer_share']:.1f} % lane changers")
+    print(
+        f"\ndata pipeline, {args.scenario}, {args.roads} x {args.duration:g} s, seed {args.seed}: "
+        f"{stats['vehicles']:,d} vehicles, {100 * stats['lane_changer_share']:.1f} % lane changers"
+    )
     print(f"{'step':10s} {'work':>24s} {'wall s':>8s} {'rate':>26s}")
     for name, work, wall, rate in rows:
         print(f"{name:10s} {work:>24s} {wall:8.2f} {rate:>26s}")
     result = {
         "machine": {"platform": platform.platform(), "python": sys.version.split()[0], "torch": torch.__version__},
-        "args": vars(args), "vehicles": stats["vehicles"], "lane_changer_share": stats["lane_changer_share"],
-        "samples": samples, "lane_change_per_class": {s: counts["lane_changes"][s]["per_class"] for s in meta["splits"]},
-        "record_wall_s": t_record, "record_sim_s_per_wall_s": sim_seconds / t_record, "write_wall_s": t_write,
-        "read_wall_s": t_read, "extract_wall_s": t_extract, "extract_samples_per_s": total / t_extract,
+        "args": vars(args),
+        "vehicles": stats["vehicles"],
+        "lane_changer_share": stats["lane_changer_share"],
+        "samples": samples,
+        "lane_change_per_class": {s: counts["lane_changes"][s]["per_class"] for s in meta["splits"]},
+        "record_wall_s": t_record,
+        "record_sim_s_per_wall_s": sim_seconds / t_record,
+        "write_wall_s": t_write,
+        "read_wall_s": t_read,
+        "extract_wall_s": t_extract,
+        "extract_samples_per_s": total / t_extract,
     }
     write_json_atomic(args.out, result)
     print(f"results written to {args.out}")

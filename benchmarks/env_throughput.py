@@ -43,6 +43,7 @@ Quick check::
 Results are printed as a table and written to ``benchmarks/results/env_throughput.json`` (``--out``),
 atomically, after every completed setting.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -75,8 +76,9 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "env_throughput.json
 
 
 # ------------------------------------------------------------------------------------ measurements
-def measure_sim(scenario: str, k: int, seed: int, frames: int, warmup: int,
-                timer=time.perf_counter) -> tuple[float, int]:
+def measure_sim(
+    scenario: str, k: int, seed: int, frames: int, warmup: int, timer=time.perf_counter
+) -> tuple[float, int]:
     """(a) HighwaySim alone with numpy random actions; returns (ego-frames per second, episodes ended). ``timer``:
     the clock (``time.process_time``: CPU seconds of this process, for a machine shared with other jobs)."""
     cfg = make_config(scenario)
@@ -231,28 +233,57 @@ def write_json(path: Path, payload: dict) -> None:
 
 
 def format_table(rows: list[dict]) -> str:
-    header = ["scenario", "K", "sim_limit_fps", "env_random_fps", "env_rule_fps", "collector_random_fps",
-              "random/sim", "rule/sim", "collector/sim", "goal"]
-    body = [[r["scenario"], str(r["num_roads"]), f"{r['sim_limit_fps']:.1f}", f"{r['env_random_fps']:.1f}",
-             f"{r['env_rule_fps']:.1f}", f"{r['env_random_collector_fps']:.1f}", f"{r['random_over_sim']:.3f}",
-             f"{r['rule_over_sim']:.3f}", f"{r['collector_over_sim']:.3f}", _goal(r)]
-            for r in rows]
+    header = [
+        "scenario",
+        "K",
+        "sim_limit_fps",
+        "env_random_fps",
+        "env_rule_fps",
+        "collector_random_fps",
+        "random/sim",
+        "rule/sim",
+        "collector/sim",
+        "goal",
+    ]
+    body = [
+        [
+            r["scenario"],
+            str(r["num_roads"]),
+            f"{r['sim_limit_fps']:.1f}",
+            f"{r['env_random_fps']:.1f}",
+            f"{r['env_rule_fps']:.1f}",
+            f"{r['env_random_collector_fps']:.1f}",
+            f"{r['random_over_sim']:.3f}",
+            f"{r['rule_over_sim']:.3f}",
+            f"{r['collector_over_sim']:.3f}",
+            _goal(r),
+        ]
+        for r in rows
+    ]
     widths = [max(len(h), *(len(b[i]) for b in body)) if body else len(h) for i, h in enumerate(header)]
     left = {0}  # scenario left-aligned, numbers right-aligned
-    fmt = lambda cells: "  ".join(c.ljust(w) if i in left else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))
+    fmt = lambda cells: "  ".join(
+        c.ljust(w) if i in left else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))
+    )
     lines = [fmt(header), "  ".join("-" * w for w in widths)] + [fmt(b) for b in body]
     return "\n".join(lines)
 
 
 # -------------------------------------------------------------------------------------------- main
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--roads", type=int, nargs="+", default=[1, 8, 32], help="road counts K (default: 1 8 32)")
-    p.add_argument("--scenarios", nargs="+", default=["baseline", "congested"],
-                   help="scenario names (default: baseline congested)")
-    p.add_argument("--frames", type=int, default=2000,
-                   help="timed env steps per measurement; ego-frames = frames x K (default: 2000)")
+    p.add_argument(
+        "--scenarios", nargs="+", default=["baseline", "congested"], help="scenario names (default: baseline congested)"
+    )
+    p.add_argument(
+        "--frames",
+        type=int,
+        default=2000,
+        help="timed env steps per measurement; ego-frames = frames x K (default: 2000)",
+    )
     p.add_argument("--warmup", type=int, default=20, help="untimed steps before each measurement (default: 20)")
     p.add_argument("--repeats", type=int, default=1, help="repeats per measurement, median reported (default: 1)")
     p.add_argument("--seed", type=int, default=0, help="seed shared by the three measurements of a setting")
@@ -302,16 +333,27 @@ def main(argv=None) -> int:
         if errors:
             row["errors"] = errors
         rows.append(row)
-        tqdm.write(f"{scenario} K={k}: sim {row['sim_limit_fps']:.1f}  random {row['env_random_fps']:.1f}  "
-                   f"rule {row['env_rule_fps']:.1f} ego-frames/s")
-        write_json(args.out, {"machine": info, "arguments": arguments,
-                              "goal": f"env_random_fps / sim_limit_fps >= {GOAL_RATIO} at K >= {GOAL_MIN_K}",
-                              "unit": "ego-frames per second (frames x K / wall seconds)", "rows": rows})
+        tqdm.write(
+            f"{scenario} K={k}: sim {row['sim_limit_fps']:.1f}  random {row['env_random_fps']:.1f}  "
+            f"rule {row['env_rule_fps']:.1f} ego-frames/s"
+        )
+        write_json(
+            args.out,
+            {
+                "machine": info,
+                "arguments": arguments,
+                "goal": f"env_random_fps / sim_limit_fps >= {GOAL_RATIO} at K >= {GOAL_MIN_K}",
+                "unit": "ego-frames per second (frames x K / wall seconds)",
+                "rows": rows,
+            },
+        )
     bar.close()
 
     print()
-    print(f"Ego-frames per second (frames x K / wall s), {args.frames} frames, {args.repeats} repeat(s), "
-          f"seed {args.seed}; torch {info['torch']}, torchrl {info['torchrl']}, libsumo {info['libsumo']}")
+    print(
+        f"Ego-frames per second (frames x K / wall s), {args.frames} frames, {args.repeats} repeat(s), "
+        f"seed {args.seed}; torch {info['torch']}, torchrl {info['torchrl']}, libsumo {info['libsumo']}"
+    )
     print(format_table(rows))
     goal_rows = [r for r in rows if r["num_roads"] >= GOAL_MIN_K]
     if goal_rows:

@@ -8,6 +8,7 @@ and key gaps from the transforms ``IDMPrior`` + ``KeyGapsFromPrior``, i.e. input
 
     python benchmarks/gan_inference.py [--envs 1 8 32] [--calls 300] [--device cpu]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -73,9 +74,19 @@ def main(argv=None) -> int:
     print(f"{'model':22s} {'envs':>5s} {'µs / call':>11s} {'µs / env':>10s}")
     for r in rows:
         print(f"{r['model']:22s} {r['envs']:5d} {r['us_per_call']:11.1f} {r['us_per_env']:10.1f}")
-    write_json_atomic(args.out, {"machine": {"platform": platform.platform(), "python": sys.version.split()[0],
-                                             "torch": torch.__version__, "device": str(device)},
-                                 "args": vars(args), "rows": rows})
+    write_json_atomic(
+        args.out,
+        {
+            "machine": {
+                "platform": platform.platform(),
+                "python": sys.version.split()[0],
+                "torch": torch.__version__,
+                "device": str(device),
+            },
+            "args": vars(args),
+            "rows": rows,
+        },
+    )
     print(f"results written to {args.out}")
     return 0
 

@@ -18,6 +18,7 @@ figures depend on the machine and its load.
 
 Writes ``benchmarks/results/highwayenv_throughput.json`` (``--out``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,8 +46,13 @@ def bare(k: int, frames: int, vehicles: int, seed: int) -> float:
     """(a) HighwayEnv alone, k instances stepped in turn, random meta-actions."""
     from highway_env.envs.highway_env import HighwayEnv
 
-    config = {"lanes_count": 3, "vehicles_count": vehicles, "policy_frequency": 10, "simulation_frequency": 10,
-              "duration": 1e9}
+    config = {
+        "lanes_count": 3,
+        "vehicles_count": vehicles,
+        "policy_frequency": 10,
+        "simulation_frequency": 10,
+        "duration": 1e9,
+    }
     envs = [HighwayEnv(config=config) for _ in range(k)]
     rng = np.random.default_rng(seed)
     for i, env in enumerate(envs):
@@ -95,13 +101,20 @@ def main() -> None:
         row["adapter_over_bare"] = row["adapter_fps"] / row["bare_fps"]
         row["stack_over_adapter"] = row["stack_fps"] / row["adapter_fps"]
         rows.append(row)
-    print(f"{'K':>3} {'bare fps':>10} {'adapter fps':>12} {'+stack fps':>11} {'adapter/bare':>13} {'stack/adapter':>14}")
+    print(
+        f"{'K':>3} {'bare fps':>10} {'adapter fps':>12} {'+stack fps':>11} {'adapter/bare':>13} {'stack/adapter':>14}"
+    )
     for r in rows:
-        print(f"{r['num_roads']:>3} {r['bare_fps']:>10.1f} {r['adapter_fps']:>12.1f} {r['stack_fps']:>11.1f} "
-              f"{r['adapter_over_bare']:>13.2f} {r['stack_over_adapter']:>14.2f}")
+        print(
+            f"{r['num_roads']:>3} {r['bare_fps']:>10.1f} {r['adapter_fps']:>12.1f} {r['stack_fps']:>11.1f} "
+            f"{r['adapter_over_bare']:>13.2f} {r['stack_over_adapter']:>14.2f}"
+        )
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}, "rows": rows,
-               "machine": {"platform": platform.platform(), "torch": torch.__version__}}
+    payload = {
+        "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+        "rows": rows,
+        "machine": {"platform": platform.platform(), "torch": torch.__version__},
+    }
     tmp = args.out.with_suffix(".tmp")
     tmp.write_text(json.dumps(payload, indent=2))
     tmp.replace(args.out)

@@ -17,6 +17,7 @@ Prints a table (mean and sd over seeds) and writes ``benchmarks/results/lcgan_ab
 
     python benchmarks/lcgan_ablation.py [--seeds 0 1 2] [--data-dir data/datasets/synthetic_baseline_seed0]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,17 +45,27 @@ def operating_points(p: torch.Tensor, label: torch.Tensor) -> dict:
     for s in torch.logspace(-3, 3, 61).tolist():
         q = p * torch.tensor([s, 1.0, s])
         m = classification_metrics(q.argmax(-1), label)
-        rows.append({"scale": s, "accuracy": m["accuracy"], "recall_left": m["recall_left"],
-                     "recall_right": m["recall_right"], "recall_keep": m["recall_keep"]})
+        rows.append(
+            {
+                "scale": s,
+                "accuracy": m["accuracy"],
+                "recall_left": m["recall_left"],
+                "recall_right": m["recall_right"],
+                "recall_keep": m["recall_keep"],
+            }
+        )
     ok = [r for r in rows if min(r["recall_left"], r["recall_right"]) >= 0.9]
     acc95 = [r for r in rows if r["accuracy"] >= 0.95]
     best = max(rows, key=lambda r: min(r["recall_left"], r["recall_right"]))
-    return {"best_min_recall_any": min(best["recall_left"], best["recall_right"]),
-            "accuracy_at_best_min_recall": best["accuracy"],
-            "best_accuracy_with_recalls_ge_90": max((r["accuracy"] for r in ok), default=float("nan")),
-            "best_min_recall_with_accuracy_ge_95": max((min(r["recall_left"], r["recall_right"]) for r in acc95),
-                                                       default=float("nan")),
-            "curve": rows}
+    return {
+        "best_min_recall_any": min(best["recall_left"], best["recall_right"]),
+        "accuracy_at_best_min_recall": best["accuracy"],
+        "best_accuracy_with_recalls_ge_90": max((r["accuracy"] for r in ok), default=float("nan")),
+        "best_min_recall_with_accuracy_ge_95": max(
+            (min(r["recall_left"], r["recall_right"]) for r in acc95), default=float("nan")
+        ),
+        "curve": rows,
+    }
 
 
 def measure(task: LCGANTask, test) -> dict:
@@ -88,21 +99,44 @@ def main(argv=None) -> int:
         for variant in runs:
             torch.manual_seed(seed)
             task = LCGANTask({"seed": seed, "adversarial": variant == "adversarial"}, splits["train"])
-            cfg = PretrainConfig(epochs=args.epochs, patience=args.patience, batch_size=512,
-                                 max_train_samples=args.max_train_samples, seed=seed, resume=False)
+            cfg = PretrainConfig(
+                epochs=args.epochs,
+                patience=args.patience,
+                batch_size=512,
+                max_train_samples=args.max_train_samples,
+                seed=seed,
+                resume=False,
+            )
             with tempfile.TemporaryDirectory() as tmp:
-                trained = run_pretraining(task, splits["train"], splits["val"], splits["test"], cfg, tmp, "ablation",
-                                          progress=False)
+                trained = run_pretraining(
+                    task, splits["train"], splits["val"], splits["test"], cfg, tmp, "ablation", progress=False
+                )
             m = measure(task, splits["test"])
             m.update(seed=seed, best_epoch=trained["best_epoch"], epochs_run=trained["epochs_run"])
             runs[variant].append(m)
-            print(f"seed {seed} {variant:12s} acc {100 * m['accuracy']:.2f}  recall L/K/R {100 * m['recall_left']:.1f}"
-                  f" / {100 * m['recall_keep']:.1f} / {100 * m['recall_right']:.1f}  best epoch {m['best_epoch']} of "
-                  f"{m['epochs_run']}", flush=True)
-    cols = ("accuracy", "recall_left", "recall_keep", "recall_right", "balanced_accuracy", "precision_left",
-            "precision_right", "recall_left_moving", "recall_left_still", "recall_right_moving", "recall_right_still",
-            "best_accuracy_with_recalls_ge_90", "best_min_recall_with_accuracy_ge_95", "best_min_recall_any",
-            "accuracy_at_best_min_recall")
+            print(
+                f"seed {seed} {variant:12s} acc {100 * m['accuracy']:.2f}  recall L/K/R {100 * m['recall_left']:.1f}"
+                f" / {100 * m['recall_keep']:.1f} / {100 * m['recall_right']:.1f}  best epoch {m['best_epoch']} of "
+                f"{m['epochs_run']}",
+                flush=True,
+            )
+    cols = (
+        "accuracy",
+        "recall_left",
+        "recall_keep",
+        "recall_right",
+        "balanced_accuracy",
+        "precision_left",
+        "precision_right",
+        "recall_left_moving",
+        "recall_left_still",
+        "recall_right_moving",
+        "recall_right_still",
+        "best_accuracy_with_recalls_ge_90",
+        "best_min_recall_with_accuracy_ge_95",
+        "best_min_recall_any",
+        "accuracy_at_best_min_recall",
+    )
     summary = {}
     print(f"\n{'metric (%)':38s}" + "".join(f"{v:>20s}" for v in runs))
     for c in cols:
@@ -116,18 +150,32 @@ def main(argv=None) -> int:
             summary.setdefault(variant, {})[c] = {"mean": mean, "sd": sd}
             line += f"{mean:14.2f} ± {sd:4.2f}"
         print(line)
-    shares = {f"share_{n}_{p}": runs["plain"][0][f"share_{n}_{p}"] for n in ("left", "right") for p in ("moving", "still")}
-    print("test lane-change windows already moving sideways at t:",
-          {k: f"{100 * v:.1f} %" for k, v in shares.items() if k.endswith("moving")})
+    shares = {
+        f"share_{n}_{p}": runs["plain"][0][f"share_{n}_{p}"] for n in ("left", "right") for p in ("moving", "still")
+    }
+    print(
+        "test lane-change windows already moving sideways at t:",
+        {k: f"{100 * v:.1f} %" for k, v in shares.items() if k.endswith("moving")},
+    )
     ratio = summary["adversarial"]["balanced_accuracy"]["mean"] / summary["plain"]["balanced_accuracy"]["mean"]
     print(f"balanced accuracy ratio adversarial / plain: {ratio:.3f}")
-    write_json_atomic(args.out, {
-        "args": vars(args), "summary": summary, "ratio_balanced_accuracy_adversarial_over_plain": ratio,
-        "moving_threshold_m_s": MOVING, "shares": shares,
-        "runs": {v: [{k: x for k, x in r.items() if k != "curve"} for r in rows] for v, rows in runs.items()},
-        "curve_seed0": {v: rows[0]["curve"] for v, rows in runs.items()},
-        "machine": {"platform": platform.platform(), "python": platform.python_version(), "torch": torch.__version__},
-    })
+    write_json_atomic(
+        args.out,
+        {
+            "args": vars(args),
+            "summary": summary,
+            "ratio_balanced_accuracy_adversarial_over_plain": ratio,
+            "moving_threshold_m_s": MOVING,
+            "shares": shares,
+            "runs": {v: [{k: x for k, x in r.items() if k != "curve"} for r in rows] for v, rows in runs.items()},
+            "curve_seed0": {v: rows[0]["curve"] for v, rows in runs.items()},
+            "machine": {
+                "platform": platform.platform(),
+                "python": platform.python_version(),
+                "torch": torch.__version__,
+            },
+        },
+    )
     print(f"wrote {args.out}")
     return 0
 

@@ -17,6 +17,7 @@ seconds per minibatch. Where TorchRL's C++ segment
 trees do not load (TorchRL 0.14.1 with torch 2.13), the prioritized arm runs on the tensor trees of
 ``kddrl_trl/training/priority_trees.py`` (``trees`` in the JSON). Writes ``benchmarks/results/replay_sampling.json``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -85,8 +86,10 @@ def main() -> None:
     torch.set_num_threads(1)
     gen = torch.Generator().manual_seed(args.seed)
     rows = frame_rows(args.capacity, args.seed)
-    buffers = {name: filled(rows, args.batch_size, name == "prioritized", args.seed)
-               for name in ("uniform", "uniform_grouped", "prioritized")}
+    buffers = {
+        name: filled(rows, args.batch_size, name == "prioritized", args.seed)
+        for name in ("uniform", "uniform_grouped", "prioritized")
+    }
     per_batch = {"uniform_grouped": args.per_batch}
     for name, rb in buffers.items():
         seconds_per_call(rb, 2 * args.per_batch, gen, per_batch.get(name, 0))  # warm-up
@@ -95,14 +98,21 @@ def main() -> None:
         for name, rb in buffers.items():
             turns[name].append(seconds_per_call(rb, args.calls, gen, per_batch.get(name, 0)))
     med = {name: statistics.median(v) for name, v in turns.items()}
-    result = {"args": vars(args), "trees": "torchrl" if native_trees_available() else "tensor",
-              "machine": {"platform": platform.platform(), "python": platform.python_version(),
-                          "torch": torch.__version__, "cpu_count": os.cpu_count()},
-              "ms_per_call": {k: 1e3 * v for k, v in med.items()}, "turns_ms": {k: [1e3 * x for x in v]
-                                                                            for k, v in turns.items()},
-              "prioritized_ratio": med["prioritized"] / med["uniform"],
-              "grouped_ratio": med["uniform_grouped"] / med["uniform"],
-              "row_leaves": len(rows.keys(True, True))}
+    result = {
+        "args": vars(args),
+        "trees": "torchrl" if native_trees_available() else "tensor",
+        "machine": {
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "cpu_count": os.cpu_count(),
+        },
+        "ms_per_call": {k: 1e3 * v for k, v in med.items()},
+        "turns_ms": {k: [1e3 * x for x in v] for k, v in turns.items()},
+        "prioritized_ratio": med["prioritized"] / med["uniform"],
+        "grouped_ratio": med["uniform_grouped"] / med["uniform"],
+        "row_leaves": len(rows.keys(True, True)),
+    }
     print(f"{'arm':<18}{'ms per minibatch':>17}")
     for name, v in med.items():
         print(f"{name:<18}{1e3 * v:>17.3f}")

@@ -38,6 +38,7 @@ Measure on an idle machine: a busy one shares its cores with the sweep.
     python benchmarks/scale_out.py --episodes 2 --eval-episodes 2 --set env.num_roads=2 compile=false \
         train.eval_every=0 train.warmup_frames=50 env.max_steps=120 --out /tmp/scale_out.json    # a smoke run
 """
+
 from __future__ import annotations
 
 import argparse
@@ -60,9 +61,20 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "scale_out.json"
 
 def sweep_command(args, launcher: list[str], sweep_dir: Path) -> list[str]:
     """The sweep as a user types it, with ``launcher``'s overrides."""
-    return [sys.executable, "-m", "kddrl_trl.train", "-m", f"algo={','.join(args.algos)}",
-            f"seed={','.join(map(str, args.seeds))}", f"episodes={args.episodes}",
-            f"eval_episodes={args.eval_episodes}", "progress=false", *args.set, *launcher, f"hydra.sweep.dir={sweep_dir}"]
+    return [
+        sys.executable,
+        "-m",
+        "kddrl_trl.train",
+        "-m",
+        f"algo={','.join(args.algos)}",
+        f"seed={','.join(map(str, args.seeds))}",
+        f"episodes={args.episodes}",
+        f"eval_episodes={args.eval_episodes}",
+        "progress=false",
+        *args.set,
+        *launcher,
+        f"hydra.sweep.dir={sweep_dir}",
+    ]
 
 
 def timed_sweep(args, name: str, launcher: list[str], root: Path, parallel: int) -> dict:
@@ -81,8 +93,12 @@ def timed_sweep(args, name: str, launcher: list[str], root: Path, parallel: int)
     if len(summaries) != expected:
         raise SystemExit(f"the {name} sweep left {len(summaries)} finished runs of {expected} in {sweep_dir}")
     runs = {p.parent.name: json.loads(p.read_text())["wall_s"] for p in summaries}
-    return {"wall_s": wall, "run_wall_s": runs, "runs_sum_s": sum(runs.values()),
-            "outside_runs_s": wall - sum(runs.values()) / parallel}
+    return {
+        "wall_s": wall,
+        "run_wall_s": runs,
+        "runs_sum_s": sum(runs.values()),
+        "outside_runs_s": wall - sum(runs.values()) / parallel,
+    }
 
 
 def measure_sweep(args) -> tuple[dict, dict]:
@@ -90,10 +106,21 @@ def measure_sweep(args) -> tuple[dict, dict]:
     with tempfile.TemporaryDirectory(prefix="scale_out_") as tmp:
         root = Path(tmp)
         sequential = timed_sweep(args, "sequential", ["hydra/launcher=basic"], root, parallel=1)
-        ray = timed_sweep(args, "ray", ["hydra/launcher=ray", f"+hydra.launcher.init.num_cpus={args.ray_cpus}"], root,
-                          parallel=args.ray_cpus)
-    details = {"runs": len(args.algos) * len(args.seeds), "algos": args.algos, "seeds": args.seeds,
-               "ray_cpus": args.ray_cpus, "sequential": sequential, "ray": ray}
+        ray = timed_sweep(
+            args,
+            "ray",
+            ["hydra/launcher=ray", f"+hydra.launcher.init.num_cpus={args.ray_cpus}"],
+            root,
+            parallel=args.ray_cpus,
+        )
+    details = {
+        "runs": len(args.algos) * len(args.seeds),
+        "algos": args.algos,
+        "seeds": args.seeds,
+        "ray_cpus": args.ray_cpus,
+        "sequential": sequential,
+        "ray": ray,
+    }
     return details, {"sweep_time_ratio": ray["wall_s"] / sequential["wall_s"]}
 
 
@@ -101,9 +128,10 @@ def print_sweep(details: dict, ratios: dict) -> None:
     seeds = " ".join(map(str, details["seeds"]))
     title = f"sweep of {details['runs']} runs ({', '.join(details['algos'])} x seeds {seeds})"
     print(f"\n{title:<52}{'wall s':>9}{'sum of runs s':>15}{'outside runs s':>16}{'ratio':>8}")
-    for label, key, ratio in (("sequential (Hydra's basic launcher)", "sequential", 1.0),
-                              (f"local Ray, {details['ray_cpus']} CPUs (hydra/launcher=ray)", "ray",
-                               ratios["sweep_time_ratio"])):
+    for label, key, ratio in (
+        ("sequential (Hydra's basic launcher)", "sequential", 1.0),
+        (f"local Ray, {details['ray_cpus']} CPUs (hydra/launcher=ray)", "ray", ratios["sweep_time_ratio"]),
+    ):
         r = details[key]
         print(f"{label:<52}{r['wall_s']:>9.1f}{r['runs_sum_s']:>15.1f}{r['outside_runs_s']:>16.1f}{ratio:>8.2f}")
 
@@ -114,8 +142,9 @@ def measure_collect(args) -> tuple[dict, dict]:
 
     os.environ.setdefault("OMP_NUM_THREADS", str(args.threads or 1))
     compile = {"true": True, "false": False}.get(args.compile, args.compile)
-    details = measure_collect_workers(args.collect_roads, [1, 2], args.collect_frames, seed=0, compile=compile,
-                                      backend="ray")
+    details = measure_collect_workers(
+        args.collect_roads, [1, 2], args.collect_frames, seed=0, compile=compile, backend="ray"
+    )
     fps = {r["workers"]: r["collect_fps"] for r in details["runs"]}
     return details, {"collect_scaling": fps[2] / fps[1]}
 
@@ -130,13 +159,17 @@ def print_collect(details: dict, ratios: dict) -> None:
 
 def medians(per_ratio: dict[str, list[float]]) -> dict:
     """Each ratio as the median of its repeats (the figure the issue's goal reads), and every repeat's value."""
-    return {**{key: statistics.median(values) for key, values in per_ratio.items()},
-            **{f"{key}_repeats": values for key, values in per_ratio.items()}}
+    return {
+        **{key: statistics.median(values) for key, values in per_ratio.items()},
+        **{f"{key}_repeats": values for key, values in per_ratio.items()},
+    }
 
 
 #: name -> (measure: args -> (details, ratios), print: (details, ratios) -> None)
-MEASUREMENTS: dict[str, tuple[Callable, Callable]] = {"sweep": (measure_sweep, print_sweep),
-                                                      "collect": (measure_collect, print_collect)}
+MEASUREMENTS: dict[str, tuple[Callable, Callable]] = {
+    "sweep": (measure_sweep, print_sweep),
+    "collect": (measure_collect, print_collect),
+}
 
 
 def main(argv=None) -> int:
@@ -147,16 +180,33 @@ def main(argv=None) -> int:
     p.add_argument("--episodes", type=int, default=150, help="training episodes per run")
     p.add_argument("--eval-episodes", type=int, default=20, help="final evaluation episodes per run")
     p.add_argument("--ray-cpus", type=int, default=2, help="CPUs of the local Ray (runs at once)")
-    p.add_argument("--threads", type=int, default=1,
-                   help="torch threads of every run, both sweeps (OMP_NUM_THREADS); 0: each launcher's default")
-    p.add_argument("--set", nargs="*", default=["train.eval_every=0"], metavar="KEY=VALUE",
-                   help="further overrides of every run (default: no periodic evaluation)")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch threads of every run, both sweeps (OMP_NUM_THREADS); 0: each launcher's default",
+    )
+    p.add_argument(
+        "--set",
+        nargs="*",
+        default=["train.eval_every=0"],
+        metavar="KEY=VALUE",
+        help="further overrides of every run (default: no periodic evaluation)",
+    )
     p.add_argument("--collect-roads", type=int, default=8, help="collect: roads K of each Ray actor's env")
     p.add_argument("--collect-frames", type=int, default=4000, help="collect: frames timed per arm")
-    p.add_argument("--compile", default="false", choices=["auto", "true", "false"],
-                   help="collect: torch.compile the transform stack in each actor")
-    p.add_argument("--repeats", type=int, default=1,
-                   help="every measurement this many times, interleaved; the ratios written are the medians")
+    p.add_argument(
+        "--compile",
+        default="false",
+        choices=["auto", "true", "false"],
+        help="collect: torch.compile the transform stack in each actor",
+    )
+    p.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="every measurement this many times, interleaved; the ratios written are the medians",
+    )
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = p.parse_args(argv)
     if args.repeats < 1:
@@ -178,8 +228,13 @@ def main(argv=None) -> int:
             print(f"\n(repeat {repeat + 1} of {args.repeats})", end="")
             show(details, ratios)
             write_json(args.out, {**result, **medians(per_ratio)})  # each finished repeat kept
-    print("\n" + "  ".join(f"{key} = {statistics.median(values):.2f} "
-                           f"(median of {', '.join(f'{v:.2f}' for v in values)})" for key, values in per_ratio.items()))
+    print(
+        "\n"
+        + "  ".join(
+            f"{key} = {statistics.median(values):.2f} (median of {', '.join(f'{v:.2f}' for v in values)})"
+            for key, values in per_ratio.items()
+        )
+    )
     print(f"\nwritten {args.out}")
     return 0
 

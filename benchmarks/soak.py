@@ -17,6 +17,7 @@ Training uses the package's config (``conf/config.yaml``: KDDRL, periodic evalua
 checkpoints with both buffers into a temporary run folder); ``--set key=value`` overrides it (e.g.
 ``--set compile=false env.num_roads=4``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -121,21 +122,31 @@ def soak_evaluation(args) -> dict:
     env = SumoHighwayEnv(args.scenario, num_roads=args.roads, seed=args.seed)
     t0 = time.perf_counter()
     try:
+
         def on_episode(ep):
             nonlocal lost
             lost += ep["outcome"] == "lost"
             probe.episode_done()
 
-        evaluate_policy(env, IDMMobilPolicy(), args.eval_episodes, seed=args.seed, progress=args.progress,
-                        on_episode=on_episode)
+        evaluate_policy(
+            env, IDMMobilPolicy(), args.eval_episodes, seed=args.seed, progress=args.progress, on_episode=on_episode
+        )
         wall = time.perf_counter() - t0
         stats = dict(env.stats)
         cost = finite_check_cost(env)
     finally:
         env.close()
-    return {"episodes": args.eval_episodes, "wall_s": wall, "rss_mib": probe.samples, "open_fds": probe.fds,
-            "growth_after_warmup": probe.growth_after_warmup(), "lost": lost, "sumo_errors": stats["sumo_errors"],
-            "env_stats": stats, "finite_check": cost}
+    return {
+        "episodes": args.eval_episodes,
+        "wall_s": wall,
+        "rss_mib": probe.samples,
+        "open_fds": probe.fds,
+        "growth_after_warmup": probe.growth_after_warmup(),
+        "lost": lost,
+        "sumo_errors": stats["sumo_errors"],
+        "env_stats": stats,
+        "finite_check": cost,
+    }
 
 
 def soak_training(args) -> dict:
@@ -144,8 +155,12 @@ def soak_training(args) -> dict:
     from kddrl_trl.factories import make_job
     from kddrl_trl.train import train
 
-    overrides = [f"episodes={args.train_episodes}", f"seed={args.seed}", f"progress={str(args.progress).lower()}",
-                 *args.set]
+    overrides = [
+        f"episodes={args.train_episodes}",
+        f"seed={args.seed}",
+        f"progress={str(args.progress).lower()}",
+        *args.set,
+    ]
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
         job = make_job(compose(config_name="config", overrides=overrides))
     probe = MemoryProbe(args.every)
@@ -154,14 +169,22 @@ def soak_training(args) -> dict:
         _, summary = train(job, Path(run_dir), TrainingProbe(probe), resuming=False)
         history = pd.read_csv(Path(run_dir) / "train_episodes.csv")
     lost = int((history["outcome"] == "lost").sum())
-    return {"episodes": args.train_episodes, "overrides": overrides, "wall_s": time.perf_counter() - t0,
-            "rss_mib": probe.samples, "open_fds": probe.fds, "growth_after_warmup": probe.growth_after_warmup(),
-            "lost": lost, "frames": summary.get("frames")}
+    return {
+        "episodes": args.train_episodes,
+        "overrides": overrides,
+        "wall_s": time.perf_counter() - t0,
+        "rss_mib": probe.samples,
+        "open_fds": probe.fds,
+        "growth_after_warmup": probe.growth_after_warmup(),
+        "lost": lost,
+        "frames": summary.get("frames"),
+    }
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--eval-episodes", type=int, default=10_000, help="IDM+MOBIL evaluation episodes (0: skip)")
     p.add_argument("--train-episodes", type=int, default=1_000, help="KDDRL training episodes (0: skip)")
     p.add_argument("--every", type=int, default=500, help="episodes between memory samples")
@@ -188,29 +211,44 @@ def main(argv=None) -> int:
         phases["training"] = soak_training(args)
     procs = descendants()  # multiprocessing's resource tracker lives as long as this process: not a leak
     leftover = [(pid, cmd) for pid, cmd in procs if "resource_tracker" not in cmd]
-    end = {"open_fds_start": fds_start, "open_fds_end": open_fds(), "child_processes": len(leftover),
-           "sumo_processes": sum("sumo" in cmd.lower() for _, cmd in leftover), "processes": procs}
+    end = {
+        "open_fds_start": fds_start,
+        "open_fds_end": open_fds(),
+        "child_processes": len(leftover),
+        "sumo_processes": sum("sumo" in cmd.lower() for _, cmd in leftover),
+        "processes": procs,
+    }
 
     print(f"\nsoak, {args.scenario}, seed {args.seed}, memory sampled every {args.every} episodes")
-    print(f"{'phase':11s} {'episodes':>9s} {'wall s':>8s} {'RSS MiB first -> last':>24s} {'growth':>7s} "
-          f"{'lost':>5s}")
+    print(f"{'phase':11s} {'episodes':>9s} {'wall s':>8s} {'RSS MiB first -> last':>24s} {'growth':>7s} {'lost':>5s}")
     for name, ph in phases.items():
         samples = ph["rss_mib"]
         growth = "n/a" if ph["growth_after_warmup"] is None else f"{ph['growth_after_warmup']:.3f}"
-        print(f"{name:11s} {ph['episodes']:>9,d} {ph['wall_s']:8.0f} "
-              f"{f'{samples[0][1]:.0f} -> {samples[-1][1]:.0f}':>24s} {growth:>7s} {str(ph['lost']):>5s}")
+        print(
+            f"{name:11s} {ph['episodes']:>9,d} {ph['wall_s']:8.0f} "
+            f"{f'{samples[0][1]:.0f} -> {samples[-1][1]:.0f}':>24s} {growth:>7s} {str(ph['lost']):>5s}"
+        )
         print(f"{'':11s} RSS (episodes: MiB): " + ", ".join(f"{n}: {m:.0f}" for n, m in samples))
         print(f"{'':11s} open fds (episodes: fds): " + ", ".join(f"{n}: {f}" for n, f in ph["open_fds"]))
     if "evaluation" in phases:
         c = phases["evaluation"]["finite_check"]
         print(f"NaN check: {c['check_us']:.1f} us per call, {100 * c['share']:.2f} % of a {c['frame_us']:.0f} us frame")
-    print(f"end: {end['child_processes']} child processes left (besides multiprocessing's resource tracker; "
-          f"{end['sumo_processes']} naming SUMO), open fds "
-          f"{end['open_fds_start']} -> {end['open_fds_end']}")
-    result = {"machine": {"platform": platform.platform(), "python": sys.version.split()[0],
-                          "torch": torch.__version__, "cpus": os.cpu_count()},
-              "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
-              "phases": phases, "end": end}
+    print(
+        f"end: {end['child_processes']} child processes left (besides multiprocessing's resource tracker; "
+        f"{end['sumo_processes']} naming SUMO), open fds "
+        f"{end['open_fds_start']} -> {end['open_fds_end']}"
+    )
+    result = {
+        "machine": {
+            "platform": platform.platform(),
+            "python": sys.version.split()[0],
+            "torch": torch.__version__,
+            "cpus": os.cpu_count(),
+        },
+        "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+        "phases": phases,
+        "end": end,
+    }
     write_json_atomic(args.out, result)
     print(f"results written to {args.out}")
     return 0

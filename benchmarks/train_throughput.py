@@ -47,6 +47,7 @@ update's speed as a ratio of it, both measured in the run) besides the CPU ratio
 
 Prints a table and writes ``benchmarks/results/train_throughput.json``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -103,9 +104,10 @@ def transform_kwargs(compile: bool | str | None = None) -> dict:
 def collect_env(k: int, compile: bool | str | None = None, *, seed: int) -> TransformedEnv:
     """The env of (b): ``SumoHighwayEnv`` with ``k`` roads + the KDDRL transform stack + the decision clock."""
     lc_period = learner_kwargs(False)[1]
-    return TransformedEnv(SumoHighwayEnv("baseline", num_roads=k, seed=seed),
-                          Compose(make_kddrl_transforms(seed=seed, **transform_kwargs(compile)),
-                                  DecisionClock(lc_period)))
+    return TransformedEnv(
+        SumoHighwayEnv("baseline", num_roads=k, seed=seed),
+        Compose(make_kddrl_transforms(seed=seed, **transform_kwargs(compile)), DecisionClock(lc_period)),
+    )
 
 
 # ------------------------------------------------------------------------------------ plain reference
@@ -147,8 +149,8 @@ class PlainKDDRL:
         device = L.device
         if L.embedding is None or len(L.embedding) != 2:
             raise ValueError("PlainKDDRL mirrors the KDDRL learner (priors and key gaps on): got another embedding")
-        self.fusion = copy.deepcopy(L.embedding[0].module)          # PriorFusion net (Eq. 23)
-        self.embed = copy.deepcopy(L.embedding[1].module)           # SharedEmbedding net (Eq. 24)
+        self.fusion = copy.deepcopy(L.embedding[0].module)  # PriorFusion net (Eq. 23)
+        self.embed = copy.deepcopy(L.embedding[1].module)  # SharedEmbedding net (Eq. 24)
         self.t_fusion = copy.deepcopy(L.target_embedding[0].module)
         self.t_embed = copy.deepcopy(L.target_embedding[1].module)
         self.lc_state = copy.deepcopy(L.lc_state.module)
@@ -161,10 +163,23 @@ class PlainKDDRL:
         self.actor = _loaded(L.td3.actor.module, td3.actor_network_params, "module.")
         self.actor_t = _loaded(self.actor, td3.target_actor_network_params, "module.")
         self.critics = [_loaded(L.td3.critic.module, td3.qvalue_network_params[k], "module.") for k in range(2)]
-        self.critics_t = [_loaded(c, td3.target_qvalue_network_params[k], "module.")
-                          for k, c in enumerate(self.critics)]
-        for m in (self.fusion, self.embed, self.t_fusion, self.t_embed, self.lc_state, self.cf_state, self.q,
-                  self.q_t, self.actor, self.actor_t, *self.critics, *self.critics_t):
+        self.critics_t = [
+            _loaded(c, td3.target_qvalue_network_params[k], "module.") for k, c in enumerate(self.critics)
+        ]
+        for m in (
+            self.fusion,
+            self.embed,
+            self.t_fusion,
+            self.t_embed,
+            self.lc_state,
+            self.cf_state,
+            self.q,
+            self.q_t,
+            self.actor,
+            self.actor_t,
+            *self.critics,
+            *self.critics_t,
+        ):
             m.to(device)
         for m in (self.t_fusion, self.t_embed, self.q_t, self.actor_t, *self.critics_t):
             m.requires_grad_(False)
@@ -182,8 +197,10 @@ class PlainKDDRL:
         self.opt_actor = adam(self.actor.parameters(), L.lr_actor, device)
         self.opt_critic = adam([p for c in self.critics for p in c.parameters()], L.lr_critic, device)
         emb_pairs = [(self.t_fusion, self.fusion), (self.t_embed, self.embed)]
-        self.soft_cf = [(self.tau_cf, [(self.actor_t, self.actor), *zip(self.critics_t, self.critics)]),
-                        (self.tau_embed, emb_pairs)]
+        self.soft_cf = [
+            (self.tau_cf, [(self.actor_t, self.actor), *zip(self.critics_t, self.critics)]),
+            (self.tau_embed, emb_pairs),
+        ]
         self.soft_lc = [(self.tau_lc, [(self.q_t, self.q)]), (self.tau_embed, emb_pairs)]
         self.updates = 0
 
@@ -224,8 +241,9 @@ class PlainKDDRL:
         self.opt_embed.step()
         self.updates += 1
         if self.updates % self.delay == 0:
-            obs_d = self.cf_state(x["ego"], x["rel"], x["mask"], self._s_e(x, False).detach(), x["lc_action"],
-                                  x["accel"])
+            obs_d = self.cf_state(
+                x["ego"], x["rel"], x["mask"], self._s_e(x, False).detach(), x["lc_action"], x["accel"]
+            )
             for p in self.critics[0].parameters():
                 p.requires_grad_(False)
             actor_loss = -self.critics[0](obs_d, self.actor(obs_d)).mean()
@@ -258,27 +276,42 @@ def tensors(td, device: torch.device | str = "cpu") -> tuple[dict, dict]:
     td = td.to(device)
 
     def one(t):
-        return {"ego": t[K.EGO_STATE], "rel": t[K.NEIGHBORS_REL], "mask": t[K.NEIGHBORS_MASK],
-                "accel": t[K.EGO_ACCEL], "p_lcgan": t[K.PRIOR_P_LCGAN], "p_mobil": t[K.PRIOR_P_MOBIL],
-                "gaps": t[K.PRED_KEY_GAPS], "action_mask": t[K.LC_ACTION_MASK]}
+        return {
+            "ego": t[K.EGO_STATE],
+            "rel": t[K.NEIGHBORS_REL],
+            "mask": t[K.NEIGHBORS_MASK],
+            "accel": t[K.EGO_ACCEL],
+            "p_lcgan": t[K.PRIOR_P_LCGAN],
+            "p_mobil": t[K.PRIOR_P_MOBIL],
+            "gaps": t[K.PRED_KEY_GAPS],
+            "action_mask": t[K.LC_ACTION_MASK],
+        }
+
     x, nx = one(td), one(td["next"])
     x.update(lc_action=td[K.LC_ACTION].float(), cf_action=td[K.CF_ACTION])
-    nx.update(r_cf=td["next", K.CF_REWARD], r_lc=td["next", K.LC_REWARD], terminated=td["next", "terminated"],
-              decide=td["next", K.LC_DECIDE].reshape(*td.batch_size, 1).bool() if ("next", *K.LC_DECIDE) in
-              td.keys(True) else None)
+    nx.update(
+        r_cf=td["next", K.CF_REWARD],
+        r_lc=td["next", K.LC_REWARD],
+        terminated=td["next", "terminated"],
+        decide=td["next", K.LC_DECIDE].reshape(*td.batch_size, 1).bool()
+        if ("next", *K.LC_DECIDE) in td.keys(True)
+        else None,
+    )
     return x, nx
 
 
 def sample_batches(n_frames: int, seed: int, keys: list, batch_size_cf: int | None = None):
     """Frames and macro-transitions with every key the learner reads (from the fake env: only shapes and
     plausible values matter for timing); TD3 minibatches of ``batch_size_cf`` (None: training's)."""
-    env = TransformedEnv(FakeHighwayEnv(num_roads=8, seed=seed), Compose(make_kddrl_transforms(seed=seed),
-                                                                          DecisionClock(20)))
+    env = TransformedEnv(
+        FakeHighwayEnv(num_roads=8, seed=seed), Compose(make_kddrl_transforms(seed=seed), DecisionClock(20))
+    )
     learner = HierarchicalLearner(**learner_kwargs(False)[0])
     rb_cf = make_buffer(10 * n_frames, batch_size_cf or batch_sizes()[0], seed)
     rb_lc = make_buffer(10 * n_frames, batch_sizes()[1], seed)
-    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=50, frame_buffer=rb_cf,
-                                           macro_buffer=rb_lc, frame_keys=keys)
+    mtc = MultiTimescaleCollector.from_env(
+        env, learner.policy(), frames_per_env=50, frame_buffer=rb_cf, macro_buffer=rb_lc, frame_keys=keys
+    )
     for _ in mtc:
         if len(rb_cf) >= n_frames and len(rb_lc) >= batch_sizes()[1]:
             break
@@ -291,8 +324,9 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def time_updates(update_cf, update_lc, cf_batches, lc_batches, lc_period: int,
-                 device: torch.device = torch.device("cpu")) -> tuple[float, float, float]:
+def time_updates(
+    update_cf, update_lc, cf_batches, lc_batches, lc_period: int, device: torch.device = torch.device("cpu")
+) -> tuple[float, float, float]:
     """Seconds per TD3 update, per D3QN update, and per frame (TD3 + D3QN / lc_period)."""
     n = len(cf_batches)
     for b in cf_batches[:10]:
@@ -313,8 +347,9 @@ def time_updates(update_cf, update_lc, cf_batches, lc_batches, lc_period: int,
     return t_cf, t_lc, t_cf + t_lc / lc_period
 
 
-def measure_update(updates: int, seed: int, repeats: int, device: torch.device = torch.device("cpu"),
-                   batch_size_cf: int | None = None) -> dict:
+def measure_update(
+    updates: int, seed: int, repeats: int, device: torch.device = torch.device("cpu"), batch_size_cf: int | None = None
+) -> dict:
     """The three arms (plain reference, eager learner, compiled learner) on the same batches, taking turns
     ``repeats`` times (the drifts of a shared machine hit all alike); medians over the turns. On ``device``
     (CUDA: the compiled arms are also CUDA-graphed; the batches are on the device beforehand, as the learner's
@@ -331,12 +366,17 @@ def measure_update(updates: int, seed: int, repeats: int, device: torch.device =
     on_device = [b.to(device) for b in cf_batches], [b.to(device) for b in lc_batches]  # as the buffers sample
     for name in names:
         compiled = name.startswith("compiled")
-        learner = HierarchicalLearner(**learner_kwargs(compiled)[0], device=device,
-                                      cudagraphs=compiled and device.type == "cuda")
+        learner = HierarchicalLearner(
+            **learner_kwargs(compiled)[0], device=device, cudagraphs=compiled and device.type == "cuda"
+        )
         if name == "plain":
             ref = PlainKDDRL(learner)
-            arms[name] = (lambda b: ref.update_cf(*b), lambda b: ref.update_lc(*b),
-                          [tensors(b, device) for b in cf_batches], [tensors(b, device) for b in lc_batches])
+            arms[name] = (
+                lambda b: ref.update_cf(*b),
+                lambda b: ref.update_lc(*b),
+                [tensors(b, device) for b in cf_batches],
+                [tensors(b, device) for b in lc_batches],
+            )
         elif name == "compiled_cpu_batches":  # the batches moved by the learner, update by update
             arms[name] = (learner.update_cf, learner.update_lc, cf_batches, lc_batches)
         else:
@@ -349,14 +389,24 @@ def measure_update(updates: int, seed: int, repeats: int, device: torch.device =
             wall[name] += time.perf_counter() - t0
     rows = {}
     for name in arms:
-        rows[name] = {"td3_update_s": statistics.median(r[0] for r in runs[name]),
-                      "d3qn_update_s": statistics.median(r[1] for r in runs[name]),
-                      "per_frame_s": statistics.median(r[2] for r in runs[name]),
-                      "wall_s_incl_compile": wall[name]}
-        print(f"  update {name}: {1 / rows[name]['td3_update_s']:.0f} TD3 updates/s, "
-              f"{1 / rows[name]['d3qn_update_s']:.0f} D3QN updates/s", flush=True)
-    return {"device": str(device), "lc_period": lc_period, "batch_size_cf": int(cf_batches[0].numel()),
-            "batch_size_lc": int(lc_batches[0].numel()), **rows}
+        rows[name] = {
+            "td3_update_s": statistics.median(r[0] for r in runs[name]),
+            "d3qn_update_s": statistics.median(r[1] for r in runs[name]),
+            "per_frame_s": statistics.median(r[2] for r in runs[name]),
+            "wall_s_incl_compile": wall[name],
+        }
+        print(
+            f"  update {name}: {1 / rows[name]['td3_update_s']:.0f} TD3 updates/s, "
+            f"{1 / rows[name]['d3qn_update_s']:.0f} D3QN updates/s",
+            flush=True,
+        )
+    return {
+        "device": str(device),
+        "lc_period": lc_period,
+        "batch_size_cf": int(cf_batches[0].numel()),
+        "batch_size_lc": int(lc_batches[0].numel()),
+        **rows,
+    }
 
 
 def update_flops(seed: int, updates: int = 8) -> dict:
@@ -394,7 +444,7 @@ def gemm_rate(threads: int, size: int = 128, batch: int = 2, seconds: float = 1.
             for _ in range(100):
                 torch.bmm(a, b)
             n += 100
-        return 2.0 * batch * size ** 3 * n / (time.perf_counter() - t0)
+        return 2.0 * batch * size**3 * n / (time.perf_counter() - t0)
     finally:
         torch.set_num_threads(before)
 
@@ -429,11 +479,19 @@ def measure_torchrl_td3(updates: int, repeats: int, device: torch.device, batch_
 
     obs, act, b = 17, 6, batch_size
     torch.manual_seed(0)
-    actor = TensorDictModule(torch.nn.Sequential(MLP(obs, act, num_cells=[256, 256]), torch.nn.Tanh()),
-                             ["observation"], ["action"]).to(device)
+    actor = TensorDictModule(
+        torch.nn.Sequential(MLP(obs, act, num_cells=[256, 256]), torch.nn.Tanh()), ["observation"], ["action"]
+    ).to(device)
     critic = ValueOperator(MLP(obs + act, 1, num_cells=[256, 256]), in_keys=["observation", "action"]).to(device)
-    loss = TD3Loss(actor, critic, action_spec=Bounded(-torch.ones(act), torch.ones(act), device=device),
-                   num_qvalue_nets=2, loss_function="l2", delay_actor=True, delay_qvalue=True)
+    loss = TD3Loss(
+        actor,
+        critic,
+        action_spec=Bounded(-torch.ones(act), torch.ones(act), device=device),
+        num_qvalue_nets=2,
+        loss_function="l2",
+        delay_actor=True,
+        delay_qvalue=True,
+    )
     loss.make_value_estimator(gamma=0.99)
     target = SoftUpdate(loss, tau=0.005)
     graphs = device.type == "cuda"
@@ -462,10 +520,18 @@ def measure_torchrl_td3(updates: int, repeats: int, device: torch.device, batch_
 
     def batch():
         flags = {k: torch.zeros(b, 1, dtype=torch.bool, device=device) for k in ("done", "terminated")}
-        return TensorDict({"observation": torch.randn(b, obs, device=device),
-                           "action": torch.rand(b, act, device=device) * 2 - 1,
-                           "next": {"observation": torch.randn(b, obs, device=device),
-                                    "reward": torch.randn(b, 1, device=device), **flags}}, [b])
+        return TensorDict(
+            {
+                "observation": torch.randn(b, obs, device=device),
+                "action": torch.rand(b, act, device=device) * 2 - 1,
+                "next": {
+                    "observation": torch.randn(b, obs, device=device),
+                    "reward": torch.randn(b, 1, device=device),
+                    **flags,
+                },
+            },
+            [b],
+        )
 
     batches = [batch() for _ in range(updates)]
     for i, td in enumerate(batches[:12]):
@@ -506,8 +572,10 @@ def measure_acting(k: int, calls: int, seed: int, devices: list[torch.device]) -
     learner on each of ``devices``: the policy run on that device, its inputs moved there and its actions back
     (for a CUDA learner what TorchRL's ``policy_device`` does). Tells where acting is fastest: training acts on the
     CPU (:class:`~kddrl_trl.collectors.PolicySnapshot`) because the CPU measured faster."""
-    env = TransformedEnv(FakeHighwayEnv(num_roads=k, seed=seed),
-                         Compose(make_kddrl_transforms(seed=seed), DecisionClock(learner_kwargs(False)[1])))
+    env = TransformedEnv(
+        FakeHighwayEnv(num_roads=k, seed=seed),
+        Compose(make_kddrl_transforms(seed=seed), DecisionClock(learner_kwargs(False)[1])),
+    )
     td = env.reset()
     rows = {}
     for device in devices:
@@ -535,8 +603,14 @@ def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile
     learner = HierarchicalLearner(**learner_kwargs(False)[0])
     env = collect_env(k, compile, seed=seed)
     rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
-    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=20, frame_buffer=rb_cf,
-                                           macro_buffer=rb_lc, frame_keys=learner.buffer_keys())
+    mtc = MultiTimescaleCollector.from_env(
+        env,
+        learner.policy(),
+        frames_per_env=20,
+        frame_buffer=rb_cf,
+        macro_buffer=rb_lc,
+        frame_keys=learner.buffer_keys(),
+    )
     try:
         it = iter(mtc)
         for _ in range(3):  # warm-up batches (and the one-off compile of the stack), untimed
@@ -548,12 +622,18 @@ def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile
     finally:
         mtc.shutdown(close_env=False)
         env.close()
-    return {"num_roads": k, "clock": clock, "sim_limit_fps": sim_fps, "collect_fps": fps,
-            "collect_ratio_vs_sim": fps / sim_fps}
+    return {
+        "num_roads": k,
+        "clock": clock,
+        "sim_limit_fps": sim_fps,
+        "collect_fps": fps,
+        "collect_ratio_vs_sim": fps / sim_fps,
+    }
 
 
-def measure_collect_workers(k: int, workers: list[int], frames: int, seed: int,
-                            compile: bool | str | None = None, backend: str = "process") -> dict:
+def measure_collect_workers(
+    k: int, workers: list[int], frames: int, seed: int, compile: bool | str | None = None, backend: str = "process"
+) -> dict:
     """(w): collection frames/s (wall clock) with each N of ``workers`` env processes (``backend="ray"``: Ray
     actors, N = 1 included; ``benchmarks/scale_out.py``) at ``k`` roads each, and ``collect_scaling`` per N =
     fps(N) / (N x fps(1))."""
@@ -567,8 +647,16 @@ def measure_collect_workers(k: int, workers: list[int], frames: int, seed: int,
         make = partial(collect_env, k, compile)
         envs = [WorkerEnv(make, worker_seed(seed, i), seed_torch=n > 1) for i in range(n)]
         rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
-        mtc = MultiTimescaleCollector.from_env(envs, learner.policy(), frames_per_env=20, rows=k, frame_buffer=rb_cf,
-                                               macro_buffer=rb_lc, frame_keys=learner.buffer_keys(), backend=backend)
+        mtc = MultiTimescaleCollector.from_env(
+            envs,
+            learner.policy(),
+            frames_per_env=20,
+            rows=k,
+            frame_buffer=rb_cf,
+            macro_buffer=rb_lc,
+            frame_keys=learner.buffer_keys(),
+            backend=backend,
+        )
         try:
             it = iter(mtc)
             for _ in range(3):  # warm-up batches (and one-off compiles), untimed
@@ -584,8 +672,11 @@ def measure_collect_workers(k: int, workers: list[int], frames: int, seed: int,
         rows.append({"workers": n, "num_roads": k, "backend": backend, "collect_fps": fps})
         print(f"  collect with {n} {backend} worker(s), K={k}: {fps:.0f} frames/s", flush=True)
     one = next(r["collect_fps"] for r in rows if r["workers"] == 1)
-    return {"clock": "wall", "runs": rows,
-            "collect_scaling": {str(r["workers"]): r["collect_fps"] / (r["workers"] * one) for r in rows}}
+    return {
+        "clock": "wall",
+        "runs": rows,
+        "collect_scaling": {str(r["workers"]): r["collect_fps"] / (r["workers"] * one) for r in rows},
+    }
 
 
 def compare_runs(run: Path, baseline: Path) -> dict:
@@ -599,10 +690,15 @@ def compare_runs(run: Path, baseline: Path) -> dict:
         return (run / name).read_bytes() == (baseline / name).read_bytes()
 
     evals = [json.loads((d / "summary.json").read_text()).get("episodes") for d in (run, baseline)]
-    return {"baseline_dir": str(baseline), "elapsed_s": a, "baseline_elapsed_s": b, "time_ratio": a / b,
-            "train_records_identical": same("train_episodes.csv"),
-            # evaluations of different lengths (eval_episodes=) do not compare
-            "eval_records_identical": same("eval_episodes.csv") if evals[0] == evals[1] else None}
+    return {
+        "baseline_dir": str(baseline),
+        "elapsed_s": a,
+        "baseline_elapsed_s": b,
+        "time_ratio": a / b,
+        "train_records_identical": same("train_episodes.csv"),
+        # evaluations of different lengths (eval_episodes=) do not compare
+        "eval_records_identical": same("eval_episodes.csv") if evals[0] == evals[1] else None,
+    }
 
 
 def learner_compile_gain(update: dict, collect_fps: float) -> float:
@@ -613,8 +709,7 @@ def learner_compile_gain(update: dict, collect_fps: float) -> float:
 
 
 #: keys of the results file that describe a run rather than hold a measurement
-def same_batch(batches: list[int], updates: int, seed: int, repeats: int, device: torch.device,
-               update: dict) -> dict:
+def same_batch(batches: list[int], updates: int, seed: int, repeats: int, device: torch.device, update: dict) -> dict:
     """Our compiled, CUDA-graphed TD3 update and TorchRL's own (r) at the same TD3 minibatch, for each of
     ``batches`` (``update``: (a) already measured at training's batch, reused there). Per batch: both rates in
     updates/s and their ratio (ours / TorchRL's; above 1: ours is faster)."""
@@ -622,13 +717,18 @@ def same_batch(batches: list[int], updates: int, seed: int, repeats: int, device
     for b in batches:
         ours = update if b == update["batch_size_cf"] else measure_update(updates, seed, repeats, device, b)
         ref = measure_torchrl_td3(updates, repeats, device, batch_size=b)
-        out[str(b)] = {"td3_updates_per_s": 1.0 / ours["compiled"]["td3_update_s"],
-                       "d3qn_updates_per_s": 1.0 / ours["compiled"]["d3qn_update_s"],
-                       "torchrl_td3_updates_per_s": 1.0 / ref["td3_update_s"],
-                       "td3_ratio_vs_torchrl_same_batch": ref["td3_update_s"] / ours["compiled"]["td3_update_s"]}
-        print(f"  batch {b}: ours {out[str(b)]['td3_updates_per_s']:.0f} TD3 updates/s, TorchRL's "
-              f"{out[str(b)]['torchrl_td3_updates_per_s']:.0f}: ratio "
-              f"{out[str(b)]['td3_ratio_vs_torchrl_same_batch']:.2f}", flush=True)
+        out[str(b)] = {
+            "td3_updates_per_s": 1.0 / ours["compiled"]["td3_update_s"],
+            "d3qn_updates_per_s": 1.0 / ours["compiled"]["d3qn_update_s"],
+            "torchrl_td3_updates_per_s": 1.0 / ref["td3_update_s"],
+            "td3_ratio_vs_torchrl_same_batch": ref["td3_update_s"] / ours["compiled"]["td3_update_s"],
+        }
+        print(
+            f"  batch {b}: ours {out[str(b)]['td3_updates_per_s']:.0f} TD3 updates/s, TorchRL's "
+            f"{out[str(b)]['torchrl_td3_updates_per_s']:.0f}: ratio "
+            f"{out[str(b)]['td3_ratio_vs_torchrl_same_batch']:.2f}",
+            flush=True,
+        )
     return out
 
 
@@ -661,37 +761,73 @@ def main(argv=None) -> int:
     p.add_argument("--roads", type=int, nargs="+", default=[8, 32])
     p.add_argument("--updates", type=int, default=200, help="TD3 updates timed per repeat")
     p.add_argument("--frames", type=int, default=4000, help="ego-frames timed for collection")
-    p.add_argument("--clock", choices=sorted(CLOCKS), default="wall",
-                   help="collection timing: wall seconds, or CPU seconds of this process (a shared machine)")
+    p.add_argument(
+        "--clock",
+        choices=sorted(CLOCKS),
+        default="wall",
+        help="collection timing: wall seconds, or CPU seconds of this process (a shared machine)",
+    )
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--full-run", type=Path, default=None, help="run dir of a finished 1000-episode training")
-    p.add_argument("--baseline-run", type=Path, default=None,
-                   help="with --full-run: a run of the same job and seed made with other code, side by side with it")
+    p.add_argument(
+        "--baseline-run",
+        type=Path,
+        default=None,
+        help="with --full-run: a run of the same job and seed made with other code, side by side with it",
+    )
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "train_throughput.json")
     p.add_argument("--device", default="cpu", help="where (a) runs: cpu | cuda (cuda adds the 'gpu' entry)")
     p.add_argument("--skip-collect", action="store_true", help="leave (b) out")
     p.add_argument("--batch-size-cf", type=int, default=None, help="(a): TD3 minibatch (default: training's 128)")
-    p.add_argument("--acting-calls", type=int, default=0,
-                   help="(p): time this many acting-policy calls at each K of --roads, learner on the CPU and on "
-                        "--device (0: skip)")
+    p.add_argument(
+        "--acting-calls",
+        type=int,
+        default=0,
+        help="(p): time this many acting-policy calls at each K of --roads, learner on the CPU and on "
+        "--device (0: skip)",
+    )
     p.add_argument("--skip-update", action="store_true", help="leave (a) out")
-    p.add_argument("--floor", action="store_true",
-                   help="(a): also the compute floor: the updates' FLOPs over the GEMM rate at their shapes (floor)")
+    p.add_argument(
+        "--floor",
+        action="store_true",
+        help="(a): also the compute floor: the updates' FLOPs over the GEMM rate at their shapes (floor)",
+    )
     p.add_argument("--floor-threads", type=int, nargs="+", default=[1, 2], help="--floor: GEMM rates at these")
-    p.add_argument("--gpu-batches", type=int, nargs="*", default=[],
-                   help="with --device cuda: (a)'s compiled TD3 and (r) again at each of these TD3 minibatches, "
-                        "side by side (gpu.by_batch; gpu.td3_ratio_vs_torchrl_same_batch at training's batch)")
-    p.add_argument("--torchrl-reference", choices=["auto", "on", "off"], default="auto",
-                   help="(r): TorchRL's own compiled TD3 as the GPU goal's reference (auto: with --device cuda)")
-    p.add_argument("--update-threads", type=int, default=len(os.sched_getaffinity(0)),
-                   help="(a): torch threads of the updates (default: the cores, torch's default and so training's)")
+    p.add_argument(
+        "--gpu-batches",
+        type=int,
+        nargs="*",
+        default=[],
+        help="with --device cuda: (a)'s compiled TD3 and (r) again at each of these TD3 minibatches, "
+        "side by side (gpu.by_batch; gpu.td3_ratio_vs_torchrl_same_batch at training's batch)",
+    )
+    p.add_argument(
+        "--torchrl-reference",
+        choices=["auto", "on", "off"],
+        default="auto",
+        help="(r): TorchRL's own compiled TD3 as the GPU goal's reference (auto: with --device cuda)",
+    )
+    p.add_argument(
+        "--update-threads",
+        type=int,
+        default=len(os.sched_getaffinity(0)),
+        help="(a): torch threads of the updates (default: the cores, torch's default and so training's)",
+    )
     p.add_argument("--workers", default="", help="(w): comma-separated worker counts, e.g. 1,2 (1 must be in)")
     p.add_argument("--workers-roads", type=int, default=8, help="(w): roads per worker")
-    p.add_argument("--note", default=None, help="free text stored in the JSON (e.g. how --full-run / --baseline-run "
-                                                  "were run: side by side, one core each, which codes)")
-    p.add_argument("--compile", default=None, choices=["auto", "true", "false"],
-                   help="the transform stack's compile in (b) and (w) (default: conf/config.yaml's)")
+    p.add_argument(
+        "--note",
+        default=None,
+        help="free text stored in the JSON (e.g. how --full-run / --baseline-run "
+        "were run: side by side, one core each, which codes)",
+    )
+    p.add_argument(
+        "--compile",
+        default=None,
+        choices=["auto", "true", "false"],
+        help="the transform stack's compile in (b) and (w) (default: conf/config.yaml's)",
+    )
     args = p.parse_args(argv)
     compile = {"true": True, "false": False}.get(args.compile, args.compile)
 
@@ -700,53 +836,82 @@ def main(argv=None) -> int:
         raise SystemExit(f"--device {args.device}: no CUDA device is available here")
     env_threads = torch.get_num_threads()  # env_throughput set 1 on import (for the env); the updates get their own
     torch.set_num_threads(args.update_threads)
-    update = None if args.skip_update else measure_update(args.updates, args.seed, args.repeats, device,
-                                                          args.batch_size_cf)
+    update = (
+        None if args.skip_update else measure_update(args.updates, args.seed, args.repeats, device, args.batch_size_cf)
+    )
     if update is not None:
         update["torch_threads"] = torch.get_num_threads()
-    floor = measure_floor(update, args.seed, args.floor_threads) if args.floor and update is not None \
-        and device.type == "cpu" else None
-    reference = (measure_torchrl_td3(args.updates, args.repeats, device)
-                 if args.torchrl_reference == "on" or (args.torchrl_reference == "auto" and device.type == "cuda")
-                 else None)
+    floor = (
+        measure_floor(update, args.seed, args.floor_threads)
+        if args.floor and update is not None and device.type == "cpu"
+        else None
+    )
+    reference = (
+        measure_torchrl_td3(args.updates, args.repeats, device)
+        if args.torchrl_reference == "on" or (args.torchrl_reference == "auto" and device.type == "cuda")
+        else None
+    )
     torch.set_num_threads(env_threads)
-    acting = [measure_acting(k, args.acting_calls, args.seed, list(dict.fromkeys([torch.device("cpu"), device])))
-              for k in args.roads] if args.acting_calls else []
-    collect = [] if args.skip_collect else [measure_collect(k, args.frames, args.seed, args.clock, compile)
-                                            for k in args.roads]
+    acting = (
+        [
+            measure_acting(k, args.acting_calls, args.seed, list(dict.fromkeys([torch.device("cpu"), device])))
+            for k in args.roads
+        ]
+        if args.acting_calls
+        else []
+    )
+    collect = (
+        []
+        if args.skip_collect
+        else [measure_collect(k, args.frames, args.seed, args.clock, compile) for k in args.roads]
+    )
     for c in collect:
         if update is not None:
             c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])
-    result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "update": update,
-              **({"torchrl_td3_reference": reference} if reference is not None and device.type != "cuda" else {}),
-              "collect": collect, **({"note": args.note} if args.note else {}), **({"floor": floor} if floor else {})}
+    result = {
+        "args": {k: str(v) for k, v in vars(args).items()},
+        "machine": machine_info(),
+        "update": update,
+        **({"torchrl_td3_reference": reference} if reference is not None and device.type != "cuda" else {}),
+        "collect": collect,
+        **({"note": args.note} if args.note else {}),
+        **({"floor": floor} if floor else {}),
+    }
     if args.workers:
-        workers = measure_collect_workers(args.workers_roads, [int(n) for n in args.workers.split(",")], args.frames,
-                                          args.seed, compile)
+        workers = measure_collect_workers(
+            args.workers_roads, [int(n) for n in args.workers.split(",")], args.frames, args.seed, compile
+        )
         result["collect_workers"] = workers["runs"]
         result["collect_scaling"] = workers["collect_scaling"]
     if update is not None and device.type == "cuda":
-        result["gpu"] = {"device_name": torch.cuda.get_device_name(device),
-                         **{f"{arm}_{agent}_updates_per_s": 1.0 / update[arm][f"{agent}_update_s"]
-                            for arm in ("compiled", "compiled_cpu_batches", "eager", "plain")
-                            for agent in ("td3", "d3qn")},
-                         "td3_updates_per_s": 1.0 / update["compiled"]["td3_update_s"],
-                         "d3qn_updates_per_s": 1.0 / update["compiled"]["d3qn_update_s"],
-                         "batch_size_cf": update["batch_size_cf"],
-                         "ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]}
+        result["gpu"] = {
+            "device_name": torch.cuda.get_device_name(device),
+            **{
+                f"{arm}_{agent}_updates_per_s": 1.0 / update[arm][f"{agent}_update_s"]
+                for arm in ("compiled", "compiled_cpu_batches", "eager", "plain")
+                for agent in ("td3", "d3qn")
+            },
+            "td3_updates_per_s": 1.0 / update["compiled"]["td3_update_s"],
+            "d3qn_updates_per_s": 1.0 / update["compiled"]["d3qn_update_s"],
+            "batch_size_cf": update["batch_size_cf"],
+            "ratio_vs_plain": update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"],
+        }
         if reference is not None:
             result["gpu"]["torchrl_td3_reference"] = reference
-            result["gpu"]["td3_ratio_vs_torchrl_reference"] = (reference["td3_update_s"]
-                                                               / update["compiled"]["td3_update_s"])
+            result["gpu"]["td3_ratio_vs_torchrl_reference"] = (
+                reference["td3_update_s"] / update["compiled"]["td3_update_s"]
+            )
         if acting:
             result["gpu"]["acting"] = acting
         if args.gpu_batches:
-            result["gpu"]["by_batch"] = same_batch(args.gpu_batches, args.updates, args.seed, args.repeats, device,
-                                                   update)
+            result["gpu"]["by_batch"] = same_batch(
+                args.gpu_batches, args.updates, args.seed, args.repeats, device, update
+            )
             train_batch = str(update["batch_size_cf"])
             if train_batch in result["gpu"]["by_batch"]:
-                result["gpu"]["td3_ratio_vs_torchrl_same_batch"] = (
-                    result["gpu"]["by_batch"][train_batch]["td3_ratio_vs_torchrl_same_batch"])
+                result["gpu"]["td3_ratio_vs_torchrl_same_batch"] = result["gpu"]["by_batch"][train_batch][
+                    "td3_ratio_vs_torchrl_same_batch"
+                ]
     elif acting:
         result["acting"] = acting
     elif update is not None:
@@ -757,8 +922,11 @@ def main(argv=None) -> int:
     if args.full_run is not None:
         summary = json.loads((args.full_run / "summary.json").read_text())
         result["train_1000_episodes_s"] = summary["training"]["elapsed_s"]
-        result["full_run"] = {"dir": str(args.full_run), "episodes": summary["training"]["episodes"],
-                              "frames": summary["training"]["frames"]}
+        result["full_run"] = {
+            "dir": str(args.full_run),
+            "episodes": summary["training"]["episodes"],
+            "frames": summary["training"]["frames"],
+        }
         if args.baseline_run is not None:
             result["full_run_vs_baseline"] = compare_runs(args.full_run, args.baseline_run)
     if args.out.is_file():  # keep what this run did not measure (a CPU run keeps the gpu entry and vice versa)
@@ -766,41 +934,60 @@ def main(argv=None) -> int:
 
     update = result.get("update")
     if update:
-        print(f"\n{'learner (per collected frame)':<34}{'TD3 upd/s':>10}{'D3QN upd/s':>11}{'frame cost ms':>14}"
-              f"{'ratio vs plain':>15}")
+        print(
+            f"\n{'learner (per collected frame)':<34}{'TD3 upd/s':>10}{'D3QN upd/s':>11}{'frame cost ms':>14}"
+            f"{'ratio vs plain':>15}"
+        )
         print(f"(device {update['device']})")
         for name in [n for n in ("plain", "eager", "compiled", "compiled_cpu_batches") if n in update]:
             r = update[name]
-            print(f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}"
-                  f"{1e3 * r['per_frame_s']:>14.2f}{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}")
+            print(
+                f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}"
+                f"{1e3 * r['per_frame_s']:>14.2f}{update['plain']['per_frame_s'] / r['per_frame_s']:>15.2f}"
+            )
     if floor:
-        print(f"\n{'compute floor (FLOPs / GEMM rate)':<34}{'MFLOP':>8}{'floor ms':>10}{'ours/floor':>12}"
-              f"{'plain/floor':>13}   GEMM GFLOP/s by threads: "
-              + ", ".join(f"{t}: {r / 1e9:.0f}" for t, r in floor["gemm_flop_per_s"].items()))
+        print(
+            f"\n{'compute floor (FLOPs / GEMM rate)':<34}{'MFLOP':>8}{'floor ms':>10}{'ours/floor':>12}"
+            f"{'plain/floor':>13}   GEMM GFLOP/s by threads: "
+            + ", ".join(f"{t}: {r / 1e9:.0f}" for t, r in floor["gemm_flop_per_s"].items())
+        )
         for agent in ("td3", "d3qn"):
-            print(f"{agent:<34}{floor[f'{agent}_flops_per_update'] / 1e6:>8.1f}{1e3 * floor[f'{agent}_floor_s']:>10.3f}"
-                  f"{floor[f'{agent}_compiled_over_floor']:>12.2f}{floor[f'{agent}_plain_over_floor']:>13.2f}")
+            print(
+                f"{agent:<34}{floor[f'{agent}_flops_per_update'] / 1e6:>8.1f}{1e3 * floor[f'{agent}_floor_s']:>10.3f}"
+                f"{floor[f'{agent}_compiled_over_floor']:>12.2f}{floor[f'{agent}_plain_over_floor']:>13.2f}"
+            )
     if result.get("collect"):
-        print(f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}"
-              f"{'ratio':>8}{'compiled learner saves':>24}")
+        print(
+            f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}"
+            f"{'ratio':>8}{'compiled learner saves':>24}"
+        )
     for c in result.get("collect", []):
         gain = f"{100 * c['learner_compile_gain']:>17.1f}% of wall" if "learner_compile_gain" in c else ""
-        print(f"{'':<38}{c['num_roads']:>3}{c['sim_limit_fps']:>15.0f}{c['collect_fps']:>13.0f}"
-              f"{c['collect_ratio_vs_sim']:>8.2f}{gain}")
+        print(
+            f"{'':<38}{c['num_roads']:>3}{c['sim_limit_fps']:>15.0f}{c['collect_fps']:>13.0f}"
+            f"{c['collect_ratio_vs_sim']:>8.2f}{gain}"
+        )
     if result.get("collect_workers"):
-        print(f"\n{'collection with worker processes':<38}{'N':>3}{'K':>4}{'collect fps':>13}"
-              f"{'fps(N) / (N fps(1))':>21}")
+        print(
+            f"\n{'collection with worker processes':<38}{'N':>3}{'K':>4}{'collect fps':>13}{'fps(N) / (N fps(1))':>21}"
+        )
         for r in result["collect_workers"]:
-            print(f"{'':<38}{r['workers']:>3}{r['num_roads']:>4}{r['collect_fps']:>13.0f}"
-                  f"{result['collect_scaling'][str(r['workers'])]:>21.2f}")
+            print(
+                f"{'':<38}{r['workers']:>3}{r['num_roads']:>4}{r['collect_fps']:>13.0f}"
+                f"{result['collect_scaling'][str(r['workers'])]:>21.2f}"
+            )
     if "train_1000_episodes_s" in result:
-        print(f"\nfull training run: {result['train_1000_episodes_s']:.0f} s for {result['full_run']['episodes']} "
-              f"episodes ({result['full_run']['frames']} frames)")
+        print(
+            f"\nfull training run: {result['train_1000_episodes_s']:.0f} s for {result['full_run']['episodes']} "
+            f"episodes ({result['full_run']['frames']} frames)"
+        )
     if args.full_run is not None and args.baseline_run is not None:
         ab = result["full_run_vs_baseline"]
-        print(f"against {ab['baseline_dir']}: training time ratio {ab['time_ratio']:.3f} ({ab['elapsed_s']:.0f} / "
-              f"{ab['baseline_elapsed_s']:.0f} s); training records identical: {ab['train_records_identical']}, "
-              f"evaluation records identical: {ab['eval_records_identical']}")
+        print(
+            f"against {ab['baseline_dir']}: training time ratio {ab['time_ratio']:.3f} ({ab['elapsed_s']:.0f} / "
+            f"{ab['baseline_elapsed_s']:.0f} s); training records identical: {ab['train_records_identical']}, "
+            f"evaluation records identical: {ab['eval_records_identical']}"
+        )
     write_json(args.out, result)
     print(f"\nwritten {args.out}")
     return 0

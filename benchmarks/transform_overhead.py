@@ -20,6 +20,7 @@ and writes ``benchmarks/results/transform_overhead.json``.
 
     python benchmarks/transform_overhead.py [--roads 1 8 32] [--frames 1500] [--segment 50]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -101,21 +102,43 @@ def main(argv=None) -> int:
         turn = {a: statistics.median(1.0 - t0 / t for t0, t in zip(times["none"], times[a])) for a in ARMS}
         gain = fps["compiled"] / fps["eager"] - 1.0
         turn_gain = statistics.median(te / tc - 1.0 for te, tc in zip(times["eager"], times["compiled"]))
-        rows.append({"num_roads": k, "fps": fps, "cost": cost, "median_turn_cost": turn, "compile_gain": gain,
-                     "median_turn_compile_gain": turn_gain, "seconds_per_turn": times})
+        rows.append(
+            {
+                "num_roads": k,
+                "fps": fps,
+                "cost": cost,
+                "median_turn_cost": turn,
+                "compile_gain": gain,
+                "median_turn_compile_gain": turn_gain,
+                "seconds_per_turn": times,
+            }
+        )
         print(f"K={k}: " + "  ".join(f"{a} {fps[a]:,.0f}" for a in ARMS) + " ego-frames/s", flush=True)
-    print(f"\nKDDRL transform stack on SumoHighwayEnv (baseline, IDM+MOBIL policy), {args.frames} frames per arm "
-          f"in turns of {args.segment}: ego-frames/s, cost = 1 - fps / fps(none) (median over turns in brackets)")
-    print(f"{'K':>3s} {'none fps':>9s} " + " ".join(f"{a:>25s}" for a in ARMS[1:])
-          + f" {'compile gain':>17s}  goal (compiled <= 25 % at K=32)")
+    print(
+        f"\nKDDRL transform stack on SumoHighwayEnv (baseline, IDM+MOBIL policy), {args.frames} frames per arm "
+        f"in turns of {args.segment}: ego-frames/s, cost = 1 - fps / fps(none) (median over turns in brackets)"
+    )
+    print(
+        f"{'K':>3s} {'none fps':>9s} "
+        + " ".join(f"{a:>25s}" for a in ARMS[1:])
+        + f" {'compile gain':>17s}  goal (compiled <= 25 % at K=32)"
+    )
     for r in rows:
-        cells = " ".join(f"{r['fps'][a]:>7,.0f} {100 * r['cost'][a]:6.1f}% ({100 * r['median_turn_cost'][a]:5.1f}%)"
-                         for a in ARMS[1:])
+        cells = " ".join(
+            f"{r['fps'][a]:>7,.0f} {100 * r['cost'][a]:6.1f}% ({100 * r['median_turn_cost'][a]:5.1f}%)"
+            for a in ARMS[1:]
+        )
         gain = f"{100 * r['compile_gain']:+6.1f}% ({100 * r['median_turn_compile_gain']:+5.1f}%)"
         goal = ("PASS" if r["cost"]["compiled"] <= 0.25 else "FAIL") if r["num_roads"] >= 32 else "-"
         print(f"{r['num_roads']:3d} {r['fps']['none']:9,.0f} {cells} {gain:>17s}  {goal}")
-    write_json_atomic(args.out, {"machine": {"platform": platform.platform(), "python": sys.version.split()[0],
-                                             "torch": torch.__version__}, "args": vars(args), "rows": rows})
+    write_json_atomic(
+        args.out,
+        {
+            "machine": {"platform": platform.platform(), "python": sys.version.split()[0], "torch": torch.__version__},
+            "args": vars(args),
+            "rows": rows,
+        },
+    )
     print(f"results written to {args.out}")
     return 0
 

@@ -1,4 +1,5 @@
 """Shared helpers for the test suite."""
+
 from __future__ import annotations
 
 import os
@@ -22,8 +23,9 @@ def command(env, lc=K.KEEP, accel=0.0) -> TensorDict:
     lc = torch.as_tensor(lc).expand(k) if torch.as_tensor(lc).dim() == 0 else torch.as_tensor(lc)
     accel = torch.as_tensor(accel, dtype=torch.float32)
     accel = accel.expand(k) if accel.dim() == 0 else accel
-    return TensorDict({K.LC_ACTION: F.one_hot(lc.long(), 3).float(), K.CF_ACTION: accel.reshape(k, 1).float()},
-                      batch_size=[k])
+    return TensorDict(
+        {K.LC_ACTION: F.one_hot(lc.long(), 3).float(), K.CF_ACTION: accel.reshape(k, 1).float()}, batch_size=[k]
+    )
 
 
 @pytest.fixture
@@ -36,8 +38,12 @@ def no_sumo_open():
 
 
 #: a small hierarchical learner for the learner tests (test_learner.py, test_learner_update.py)
-SMALL = {"embed_dim": 8, "embed_hidden": 16, "d3qn": {"hidden": [32, 32], "eps_decisions": 50},
-         "td3": {"hidden": [32, 32]}}
+SMALL = {
+    "embed_dim": 8,
+    "embed_hidden": 16,
+    "d3qn": {"hidden": [32, 32], "eps_decisions": 50},
+    "td3": {"hidden": [32, 32]},
+}
 
 
 def fake_samples(n_frames: int, n_macros: int) -> tuple[list, list]:
@@ -54,8 +60,9 @@ def fake_samples(n_frames: int, n_macros: int) -> tuple[list, list]:
     env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), Compose(make_kddrl_transforms(), DecisionClock(5)))
     learner = HierarchicalLearner(**SMALL)
     rb_l, rb_h = make_buffer(5000, 32, 0), make_buffer(5000, 16, 0)
-    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=40, frame_buffer=rb_l,
-                                           macro_buffer=rb_h, frame_keys=learner.buffer_keys())
+    mtc = MultiTimescaleCollector.from_env(
+        env, learner.policy(), frames_per_env=40, frame_buffer=rb_l, macro_buffer=rb_h, frame_keys=learner.buffer_keys()
+    )
     next(iter(mtc))
     mtc.shutdown()
     return [rb_l.sample() for _ in range(n_frames)], [rb_h.sample() for _ in range(n_macros)]

@@ -7,6 +7,7 @@ change)::
 
     PYTHONPATH=src python tests/env_reference.py
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -17,8 +18,11 @@ import torch
 FIXTURE = Path(__file__).resolve().parent / "data" / "env_reference.npz"
 # (scenario, K, frames, seed, overrides): baseline and braking (its leader queries), congested (dense traffic,
 # many neighbours); max_steps short so that truncations and partial resets happen too
-CASES = [("baseline", 3, 300, 0, {"max_steps": 120}), ("braking", 2, 300, 1, {}),
-         ("congested", 4, 200, 2, {"max_steps": 150})]
+CASES = [
+    ("baseline", 3, 300, 0, {"max_steps": 120}),
+    ("braking", 2, 300, 1, {}),
+    ("congested", 4, 200, 2, {"max_steps": 150}),
+]
 
 
 def actions(k: int, frames: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

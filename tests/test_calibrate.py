@@ -8,6 +8,7 @@ Observed positions carry 2 cm of noise. The leader profiles excite every paramet
 approach term), then a long acceleration to 45 m/s that the follower cannot match, so it leaves the leader
 and accelerates freely toward its own v0 (a, and v0 partially).
 """
+
 from __future__ import annotations
 
 import math
@@ -37,8 +38,16 @@ from kddrl_trl.physics.mobil import MOBILParams, mobil_utilities
 torch.set_num_threads(1)
 
 HZ, DT = 10.0, 0.1
-ID_COLS = ("preceding_id", "following_id", "left_preceding_id", "left_alongside_id", "left_following_id",
-           "right_preceding_id", "right_alongside_id", "right_following_id")
+ID_COLS = (
+    "preceding_id",
+    "following_id",
+    "left_preceding_id",
+    "left_alongside_id",
+    "left_following_id",
+    "right_preceding_id",
+    "right_alongside_id",
+    "right_following_id",
+)
 
 
 def track_rows(rec, vid, frames, y, v, lane, length=4.5, driver_type="", **ids) -> pd.DataFrame:
@@ -46,12 +55,22 @@ def track_rows(rec, vid, frames, y, v, lane, length=4.5, driver_type="", **ids) 
     n = len(frames)
     y, v = np.broadcast_to(np.asarray(y, float), (n,)), np.broadcast_to(np.asarray(v, float), (n,))
     a = np.gradient(v, DT) if n > 1 else np.zeros(n)
-    df = pd.DataFrame({
-        "recording_id": np.int64(rec), "vehicle_id": np.int64(vid), "frame": np.asarray(frames, np.int64),
-        "t": np.asarray(frames) / HZ, "y": y, "v": v, "a": a, "x_lat": 1.6, "vx_lat": 0.0,
-        "lane": np.broadcast_to(np.asarray(lane, np.int64), (n,)), "length": float(length),
-        "driver_type": driver_type,
-    })
+    df = pd.DataFrame(
+        {
+            "recording_id": np.int64(rec),
+            "vehicle_id": np.int64(vid),
+            "frame": np.asarray(frames, np.int64),
+            "t": np.asarray(frames) / HZ,
+            "y": y,
+            "v": v,
+            "a": a,
+            "x_lat": 1.6,
+            "vx_lat": 0.0,
+            "lane": np.broadcast_to(np.asarray(lane, np.int64), (n,)),
+            "length": float(length),
+            "driver_type": driver_type,
+        }
+    )
     for col in ID_COLS:
         df[col] = np.broadcast_to(np.asarray(ids.get(col, 0), np.int64), (n,))
     return df
@@ -87,8 +106,10 @@ def synthetic_following(per_class: int = 10, seconds: float = 36.0, seed: int = 
     vid = 1
     for cls in default_drivers():
         for _ in range(per_class):
-            p = {k: getattr(cls, k) * float(np.clip(rng.normal(1.0, 0.05), 0.9, 1.1))
-                 for k in ("v0", "T", "s0", "a", "b")}
+            p = {
+                k: getattr(cls, k) * float(np.clip(rng.normal(1.0, 0.05), 0.9, 1.1))
+                for k in ("v0", "T", "s0", "a", "b")
+            }
             lv = leader_speed(rng, n)
             ly = 200.0 + np.concatenate([[0.0], np.cumsum(lv[1:] * DT)])
             L = 4.5
@@ -137,8 +158,15 @@ def test_segments_split_at_lane_and_leader_changes():
     l3["y"] = 90 + 20 * l3["frame"] * DT
     tracks = pd.concat([fol, l1, l2, fol2, l3], ignore_index=True)
     seg = car_following_segments(tracks, min_duration_s=3.5)
-    got = sorted(zip(seg["vehicle_id"].tolist(), seg["frame0"].tolist(), seg["num_frames"].tolist(),
-                     seg["leader_id"].tolist(), seg["lane"].tolist()))
+    got = sorted(
+        zip(
+            seg["vehicle_id"].tolist(),
+            seg["frame0"].tolist(),
+            seg["num_frames"].tolist(),
+            seg["leader_id"].tolist(),
+            seg["lane"].tolist(),
+        )
+    )
     # 10: [0,80) lane 1 leader 1; [80,120) lane 2 leader 1; [120,200) lane 2 leader 2
     # 11: [0,50) and [55,90) behind 3 (35 frames = 3.4 s < 3.5 s -> dropped)
     assert got == [(10, 0, 80, 1, 1), (10, 80, 40, 1, 2), (10, 120, 80, 2, 2), (11, 0, 50, 3, 1)]
@@ -200,11 +228,19 @@ def test_vehicle_fit_beats_table_a1(synthetic, segments):
     true = truth.set_index("vehicle_id")
     vid = [g[1] for g in res["group"]]
     for k in ("v0", "T", "s0", "a", "b"):
-        rel = (res[k].to_numpy() / true.loc[vid, k].to_numpy() - 1)
+        rel = res[k].to_numpy() / true.loc[vid, k].to_numpy() - 1
         print(f"per-vehicle {k}: median |err| {np.median(np.abs(rel)):.4f} max {np.abs(rel).max():.4f}")
         assert np.abs(rel).max() < (0.05 if k in ("T", "s0", "a") else 0.15), k
-    print("rmse median", res["rmse"].median(), "fit s", res.attrs["fit_seconds"], "segments/s",
-          res.attrs["segments_per_second"], "iterations", res.attrs["iterations"])
+    print(
+        "rmse median",
+        res["rmse"].median(),
+        "fit s",
+        res.attrs["fit_seconds"],
+        "segments/s",
+        res.attrs["segments_per_second"],
+        "iterations",
+        res.attrs["iterations"],
+    )
 
 
 def test_fit_is_finite_on_degenerate_data():
@@ -223,8 +259,9 @@ def random_decisions(n: int, seed: int = 0):
     r = lambda *s: torch.rand(*s, generator=g, dtype=torch.float64)  # noqa: E731
     ego_y = torch.zeros(n, dtype=torch.float64)
     ego_v = 20 + 15 * r(n)
-    dy = torch.stack([30 + 80 * r(n), 10 + 60 * r(n), 30 + 80 * r(n),
-                      -(15 + 60 * r(n)), -(15 + 60 * r(n)), -(15 + 60 * r(n))], -1)
+    dy = torch.stack(
+        [30 + 80 * r(n), 10 + 60 * r(n), 30 + 80 * r(n), -(15 + 60 * r(n)), -(15 + 60 * r(n)), -(15 + 60 * r(n))], -1
+    )
     v = ego_v[:, None] + torch.cat([4 * (r(n, 3) - 0.2) * 3, 8 * (r(n, 3) - 0.5)], -1)
     kin = torch.stack([dy, v, torch.zeros_like(v)], -1)
     mask = r(n, 6) < 0.85
@@ -240,11 +277,25 @@ def test_fit_mobil_recovers_rule_parameters():
     U, safe = mobil_utilities(ego_y, ego_v, kin, mask, lane, 3, IDMParams(), true)
     label = mobil_decision(U, safe, true.threshold)
     assert (label == K.LEFT).sum() > 100 and (label == K.RIGHT).sum() > 100
-    td = TensorDict({"ego_y": ego_y, "ego_v": ego_v, K.NEIGHBORS_KIN: kin, K.NEIGHBORS_MASK: mask, "lane": lane,
-                     "num_lanes": torch.full_like(lane, 3), "label": label}, batch_size=[4000])
+    td = TensorDict(
+        {
+            "ego_y": ego_y,
+            "ego_v": ego_v,
+            K.NEIGHBORS_KIN: kin,
+            K.NEIGHBORS_MASK: mask,
+            "lane": lane,
+            "num_lanes": torch.full_like(lane, 3),
+            "label": label,
+        },
+        batch_size=[4000],
+    )
     res = fit_mobil(td)
-    print("MOBIL", {k: res[k] for k in ("politeness", "threshold", "b_safe", "balanced_accuracy", "n_ties")},
-          "table A.1", res["table_a1"]["balanced_accuracy"])
+    print(
+        "MOBIL",
+        {k: res[k] for k in ("politeness", "threshold", "b_safe", "balanced_accuracy", "n_ties")},
+        "table A.1",
+        res["table_a1"]["balanced_accuracy"],
+    )
     assert res["balanced_accuracy"] == pytest.approx(1.0)  # the true point is on the grid
     assert abs(res["politeness"] - true.politeness) <= 0.1
     assert abs(res["threshold"] - true.threshold) <= 0.1
@@ -256,8 +307,16 @@ def test_fit_mobil_recovers_rule_parameters():
 def test_decision_points_labels_and_slots():
     f = np.arange(60)
     # vehicle 5 drives in lane 0, crosses to lane 1 at frame 30; vehicle 6 is its leader, 7 its left leader
-    ego = track_rows(2, 5, f, 10 + 25 * f * DT, 25.0, np.where(f < 30, 0, 1), preceding_id=6,
-                     left_preceding_id=np.where(f < 30, 7, 0))
+    ego = track_rows(
+        2,
+        5,
+        f,
+        10 + 25 * f * DT,
+        25.0,
+        np.where(f < 30, 0, 1),
+        preceding_id=6,
+        left_preceding_id=np.where(f < 30, 7, 0),
+    )
     lead = track_rows(2, 6, f, 60 + 20 * f * DT, 20.0, 0, length=10.0, following_id=5)
     left = track_rows(2, 7, f[:40], 80 + 30 * f[:40] * DT, 30.0, 1)
     other = track_rows(2, 8, f, 0.0 + 25 * f * DT, 25.0, 2)  # lane 2 exists: 3 lanes
@@ -279,9 +338,14 @@ def test_decision_points_labels_and_slots():
 # ------------------------------------------------------------------------------------------ end to end
 def test_calibrate_and_write_loads_with_make_config(synthetic, tmp_path):
     tracks, _ = synthetic
-    result = calibrate(tracks, per_vehicle=True, progress=False, steps=30,
-                       mobil_grid={"politeness": (0.0, 0.5), "threshold": (0.1, 0.3), "b_safe": (4.0,)},
-                       source="synthetic IDM test data")
+    result = calibrate(
+        tracks,
+        per_vehicle=True,
+        progress=False,
+        steps=30,
+        mobil_grid={"politeness": (0.0, 0.5), "threshold": (0.1, 0.3), "b_safe": (4.0,)},
+        source="synthetic IDM test data",
+    )
     path = tmp_path / "sub" / "calibration.yaml"
     write_calibration(result, path)
     text = path.read_text()
@@ -319,4 +383,9 @@ def test_sumo_recordings_recover_desired_speed_and_headway_per_class(tmp_path):
     fits = class_parameters(fit_idm(seg, groups=None, progress=False)).set_index("group")
     for cls in truth.index:
         for p, rtol in (("v0", 0.05), ("T", 0.08)):
-            assert np.isclose(fits.loc[cls, p], truth.loc[cls, p], rtol=rtol), (cls, p, fits.loc[cls, p], truth.loc[cls, p])
+            assert np.isclose(fits.loc[cls, p], truth.loc[cls, p], rtol=rtol), (
+                cls,
+                p,
+                fits.loc[cls, p],
+                truth.loc[cls, p],
+            )

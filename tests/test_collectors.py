@@ -1,4 +1,5 @@
 """Multi-timescale collection: decision clock, two-clock policy, macro-transitions of buffer H."""
+
 from __future__ import annotations
 
 import pytest
@@ -25,9 +26,17 @@ def episode_frames(lengths_per_row: list[list[int]], period: int):
             for t in range(n):
                 fid = 1000 * r + 100 * e + t
                 last = t == n - 1
-                frames.append({"obs": fid, "decide": t % period == 0, "next_obs": fid + 1,
-                               "next_decide": (t + 1) % period == 0 and not last, "reward": float(fid),
-                               "done": last, "start": 100 * e})
+                frames.append(
+                    {
+                        "obs": fid,
+                        "decide": t % period == 0,
+                        "next_obs": fid + 1,
+                        "next_decide": (t + 1) % period == 0 and not last,
+                        "reward": float(fid),
+                        "done": last,
+                        "start": 100 * e,
+                    }
+                )
         rows.append(frames)
     t_len = min(len(f) for f in rows)
     rows = [f[:t_len] for f in rows]
@@ -36,14 +45,23 @@ def episode_frames(lengths_per_row: list[list[int]], period: int):
         return torch.tensor([[f[name] for f in row] for row in rows], dtype=dtype).unsqueeze(-1)
 
     b = len(rows)
-    td = TensorDict({
-        "obs": col("obs"), K.LC_DECIDE: col("decide", torch.bool),
-        K.LC_ACTION: torch.nn.functional.one_hot(col("obs", torch.long).squeeze(-1) % 3, 3).float(),
-        "collector": {"traj_ids": torch.zeros(b, t_len, dtype=torch.long)},
-        "next": {"obs": col("next_obs"), K.LC_DECIDE: col("next_decide", torch.bool), K.LC_REWARD: col("reward"),
-                 "done": col("done", torch.bool), "terminated": col("done", torch.bool),
-                 "truncated": torch.zeros(b, t_len, 1, dtype=torch.bool)},
-    }, batch_size=[b, t_len])
+    td = TensorDict(
+        {
+            "obs": col("obs"),
+            K.LC_DECIDE: col("decide", torch.bool),
+            K.LC_ACTION: torch.nn.functional.one_hot(col("obs", torch.long).squeeze(-1) % 3, 3).float(),
+            "collector": {"traj_ids": torch.zeros(b, t_len, dtype=torch.long)},
+            "next": {
+                "obs": col("next_obs"),
+                K.LC_DECIDE: col("next_decide", torch.bool),
+                K.LC_REWARD: col("reward"),
+                "done": col("done", torch.bool),
+                "terminated": col("done", torch.bool),
+                "truncated": torch.zeros(b, t_len, 1, dtype=torch.bool),
+            },
+        },
+        batch_size=[b, t_len],
+    )
     return td, rows
 
 
@@ -62,17 +80,29 @@ def reference_macros(rows, period: int) -> list[tuple]:
                     break
             if j == len(frames):
                 break  # interval still open at the end of the data
-            out.append((f["obs"], frames[j]["next_obs"], sum(frames[k]["reward"] for k in range(i, j + 1)),
-                        j - i + 1, frames[j]["done"]))
+            out.append(
+                (
+                    f["obs"],
+                    frames[j]["next_obs"],
+                    sum(frames[k]["reward"] for k in range(i, j + 1)),
+                    j - i + 1,
+                    frames[j]["done"],
+                )
+            )
             i = j + 1
     return sorted(out)
 
 
 def as_tuples(macros) -> list[tuple]:
-    return sorted(zip(macros["obs"].squeeze(-1).tolist(), macros["next", "obs"].squeeze(-1).tolist(),
-                      macros["next", K.LC_REWARD].squeeze(-1).tolist(),
-                      macros["next", K.LC_MACRO_FRAMES].squeeze(-1).tolist(),
-                      macros["next", "done"].squeeze(-1).tolist()))
+    return sorted(
+        zip(
+            macros["obs"].squeeze(-1).tolist(),
+            macros["next", "obs"].squeeze(-1).tolist(),
+            macros["next", K.LC_REWARD].squeeze(-1).tolist(),
+            macros["next", K.LC_MACRO_FRAMES].squeeze(-1).tolist(),
+            macros["next", "done"].squeeze(-1).tolist(),
+        )
+    )
 
 
 # --------------------------------------------------------------------------------- macro writer
@@ -85,13 +115,13 @@ def test_macro_transition_by_hand():
     macros = MacroTransitionWriter()(td)
     assert macros.batch_size == (4,)
     first, second = macros[0], macros[1]
-    assert first["obs"].item() == 0 and first["next", "obs"].item() == 3           # next state = next decision
-    assert first["next", K.LC_REWARD].item() == 0 + 1 + 2                           # undiscounted sum
+    assert first["obs"].item() == 0 and first["next", "obs"].item() == 3  # next state = next decision
+    assert first["next", K.LC_REWARD].item() == 0 + 1 + 2  # undiscounted sum
     assert first["next", K.LC_MACRO_FRAMES].item() == 3 and not first["next", "done"].item()
-    assert second["obs"].item() == 3 and second["next", "obs"].item() == 5          # the terminal frame
+    assert second["obs"].item() == 3 and second["next", "obs"].item() == 5  # the terminal frame
     assert second["next", K.LC_REWARD].item() == 3 + 4 and second["next", "done"].item()
     assert second["next", K.LC_MACRO_FRAMES].item() == 2
-    assert torch.equal(first[K.LC_ACTION], td[0, 0][K.LC_ACTION])                  # action taken at the decision
+    assert torch.equal(first[K.LC_ACTION], td[0, 0][K.LC_ACTION])  # action taken at the decision
     assert "collector" not in macros.keys()
 
 
@@ -104,7 +134,7 @@ def test_macro_transitions_match_reference_across_batches_and_partial_resets(chu
     writer = MacroTransitionWriter()
     got = []
     for s in range(0, td.shape[1], chunk):
-        out = writer(td[:, s:s + chunk])
+        out = writer(td[:, s : s + chunk])
         if out is not None:
             got += as_tuples(out)
     assert sorted(got) == reference_macros(rows, period)
@@ -114,6 +144,7 @@ def test_macro_transitions_match_reference_across_batches_and_partial_resets(chu
 def test_decision_reading_counts_the_efficiency_term_once_per_decision():
     """F5, ``algo.lc_reward=decision`` (§III.G, "calculated at each 2-second decision step"): sum(r - e) + mean(e) over
     the interval, e the per-frame efficiency term; the same across batch cuts."""
+
     def efficiency(nxt):
         return 0.5 * nxt.get("obs")[..., 0]
 
@@ -126,7 +157,7 @@ def test_decision_reading_counts_the_efficiency_term_once_per_decision():
     whole = MacroTransitionWriter(efficiency=efficiency)(td)
     writer, parts = MacroTransitionWriter(efficiency=efficiency), []
     for s in range(td.shape[1]):
-        out = writer(td[:, s:s + 1])
+        out = writer(td[:, s : s + 1])
         if out is not None:
             parts.append(out)
     parts = torch.cat(parts)
@@ -250,8 +281,9 @@ def test_collector_fills_both_buffers_with_consistent_macro_steps():
         n = int(m["next", K.LC_MACRO_FRAMES])
         assert frames[r, c][K.LC_DECIDE].item()
         assert ny[r, c + n - 1] == m["next", *K.EGO_STATE][0]
-        assert m["next", K.LC_REWARD].item() == pytest.approx(frames["next", *K.LC_REWARD][r, c:c + n].sum().item(),
-                                                              rel=1e-5, abs=1e-4)
+        assert m["next", K.LC_REWARD].item() == pytest.approx(
+            frames["next", *K.LC_REWARD][r, c : c + n].sum().item(), rel=1e-5, abs=1e-4
+        )
         assert n == period or m["next", "done"].item()
 
 
@@ -291,8 +323,13 @@ def _recording_policy():
 def test_works_with_multisync_collector_workers():
     from torchrl.collectors import MultiSyncCollector
 
-    collector = MultiSyncCollector([_fake_clocked_env, _fake_clocked_env], policy_factory=_recording_policy,
-                                   frames_per_batch=2 * 2 * 10, total_frames=-1, cat_results=0)
+    collector = MultiSyncCollector(
+        [_fake_clocked_env, _fake_clocked_env],
+        policy_factory=_recording_policy,
+        frames_per_batch=2 * 2 * 10,
+        total_frames=-1,
+        cat_results=0,
+    )
     writer = MacroTransitionWriter()
     mtc = MultiTimescaleCollector(collector, writer=writer)
     try:

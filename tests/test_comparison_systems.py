@@ -1,5 +1,6 @@
 """The learners of the comparison systems Peng et al. (D3QN + DDPG + MOBIL criteria), unified D3QN and PASAC:
 their pieces (joint action, MOBIL criteria), which parameters each update moves, and their policies' masks."""
+
 from __future__ import annotations
 
 import pytest
@@ -17,8 +18,14 @@ from kddrl_trl.physics import mobil_utilities
 from kddrl_trl.training import HierarchicalLearner, JointD3QNLearner, PASACLearner, make_buffer
 from kddrl_trl.transforms import MOBILCriteria
 
-PENG = {"priors": False, "key_gaps": False, "mobil_criteria": True, "cf_agent": "ddpg",
-        "d3qn": {"hidden": [32, 32]}, "ddpg": {"hidden": [32, 32]}}
+PENG = {
+    "priors": False,
+    "key_gaps": False,
+    "mobil_criteria": True,
+    "cf_agent": "ddpg",
+    "d3qn": {"hidden": [32, 32]},
+    "ddpg": {"hidden": [32, 32]},
+}
 
 
 def collect(learner, transforms, frames=30):
@@ -26,8 +33,14 @@ def collect(learner, transforms, frames=30):
     torch.manual_seed(0)
     env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), Compose(*transforms, DecisionClock(1)))
     rb_l, rb_h = make_buffer(5000, 32, 0), make_buffer(5000, 16, 0)
-    mtc = MultiTimescaleCollector.from_env(env, learner.policy(), frames_per_env=frames, frame_buffer=rb_l,
-                                           macro_buffer=rb_h, frame_keys=learner.buffer_keys())
+    mtc = MultiTimescaleCollector.from_env(
+        env,
+        learner.policy(),
+        frames_per_env=frames,
+        frame_buffer=rb_l,
+        macro_buffer=rb_h,
+        frame_keys=learner.buffer_keys(),
+    )
     batch = next(iter(mtc)).frames
     mtc.shutdown()
     return batch, rb_l.sample(), rb_h.sample()
@@ -46,8 +59,13 @@ def test_joint_action_split_mask_and_reward_by_hand():
     levels = accel_levels(7)
     torch.testing.assert_close(levels, torch.tensor([-5.0, -10 / 3, -5 / 3, 0.0, 5 / 3, 10 / 3, 5.0]))
     index = torch.tensor([0, 6, 7 + 3, 20])  # left -5, left +5, keep 0, right +5
-    td = TensorDict({K.JOINT_ACTION: torch.nn.functional.one_hot(index, 21).float(),
-                     K.LC_ACTION_MASK: torch.tensor([[True, True, False]] * 4)}, [4])
+    td = TensorDict(
+        {
+            K.JOINT_ACTION: torch.nn.functional.one_hot(index, 21).float(),
+            K.LC_ACTION_MASK: torch.tensor([[True, True, False]] * 4),
+        },
+        [4],
+    )
     joint_action_split(levels)(td)
     assert td[K.LC_ACTION].argmax(-1).tolist() == [K.LEFT, K.LEFT, K.KEEP, K.RIGHT]
     torch.testing.assert_close(td[K.CF_ACTION].squeeze(-1), torch.tensor([-5.0, 5.0, 0.0, 5.0]))
@@ -63,8 +81,13 @@ def test_mobil_criteria_transform_specs_and_values():
     env = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=1), MOBILCriteria())
     check_env_specs(env)
     td = env.rollout(4)["next"]
-    u, safe = mobil_utilities(td[K.EGO_STATE][..., 0], td[K.EGO_STATE][..., 1], td[K.NEIGHBORS_KIN],
-                              td[K.NEIGHBORS_MASK], td[K.EGO_LANE][..., 0])
+    u, safe = mobil_utilities(
+        td[K.EGO_STATE][..., 0],
+        td[K.EGO_STATE][..., 1],
+        td[K.NEIGHBORS_KIN],
+        td[K.NEIGHBORS_MASK],
+        td[K.EGO_LANE][..., 0],
+    )
     torch.testing.assert_close(td[K.MOBIL_INCENTIVE], u)
     assert torch.equal(td[K.MOBIL_SAFE], safe) and td[K.MOBIL_SAFE][..., K.KEEP].all()
     # the lane-change state of Peng et al. appends the criteria (scaled utilities, flags)
@@ -136,8 +159,10 @@ def test_every_comparison_learner_acts_and_learns_with_the_headway_and_ttc_extra
 
     if system == "peng":
         learner, transforms = HierarchicalLearner(**PENG, state_extras=EXTRAS), [MOBILCriteria()]
-        states = {K.LC_OBS: (learner.lc_state, lc_obs_dim(0, mobil=True) + 2),
-                  K.CF_OBS: (learner.cf_state, cf_obs_dim(0) + 2)}
+        states = {
+            K.LC_OBS: (learner.lc_state, lc_obs_dim(0, mobil=True) + 2),
+            K.CF_OBS: (learner.cf_state, cf_obs_dim(0) + 2),
+        }
     elif system == "d3qn_unified":
         learner, transforms = JointD3QNLearner(num_levels=5, d3qn={"hidden": [32]}, state_extras=EXTRAS), []
         states = {K.JOINT_OBS: (learner.state, cf_obs_dim(0) + 2)}
@@ -156,8 +181,9 @@ def test_every_comparison_learner_acts_and_learns_with_the_headway_and_ttc_extra
     if system == "peng":
         learner.update_decision(sample_h)
         assert moved(before, learner, "lc_loss.value_network_params")
-    assert moved(before, learner, "cf_loss." if system == "peng" else
-                 ("q_loss." if system == "d3qn_unified" else "sac_loss."))
+    assert moved(
+        before, learner, "cf_loss." if system == "peng" else ("q_loss." if system == "d3qn_unified" else "sac_loss.")
+    )
 
 
 # ------------------------------------------------------------------ every learner on a GPU (issue 15)
@@ -172,6 +198,7 @@ def test_every_comparison_learner_updates_on_cuda_with_cudagraphs(system, compil
     """On a GPU, each comparison learner with CUDA-graphed update functions (eager- or compile-captured): updates
     without a random draw (Peng's DDPG and D3QN, the unified D3QN) give the CPU learner's parameters; PASAC's
     (sampled actions) give finite losses and move its networks. Its policy acts on CPU TensorDicts."""
+
     def build(**kw):
         if system == "peng":
             return HierarchicalLearner(**PENG, **kw)

@@ -1,4 +1,5 @@
 """Bad input fails before SUMO starts, with a message naming the key."""
+
 from __future__ import annotations
 
 import pytest
@@ -6,24 +7,27 @@ import pytest
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv, make_config, scenario_names, sim
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"scenario": "rainy"}, "unknown scenario 'rainy'"),
-    ({"flow_vph": -10.0}, "'flow_vph'"),
-    ({"num_roads": 0}, "num_roads"),
-    ({"num_roads": 2.5}, "num_roads"),
-    ({"ego_lane": 3}, "'ego_lane'"),
-    ({"ego_lane": -1}, "'ego_lane'"),
-    ({"flow_vph": "lots"}, "'flow_vph'"),
-    ({"flow_vhp": 100.0}, "'flow_vhp'"),
-    ({"braking": {"stand_time": "long"}}, "'braking.stand_time'"),
-    ({"braking": {"min_distance": 400.0}}, "'braking.min_distance'"),
-    ({"drivers": [{"name": "x", "v0": -1.0}]}, r"'drivers\[0\].v0'"),
-    ({"drivers": [{"name": "x", "colour": 1}]}, "colour"),
-    ({"lc_duration": 1.25}, "'lc_duration'"),
-    ({"section_length": 0.0}, "'section_length'"),
-    ({"scenario": "mixed", "braking": {"probability": 0.0}}, "'braking.probability' = 0.0 must be in"),
-    ({"scenario": "braking", "braking": {"probability": 1.5}}, "'braking.probability' = 1.5 must be in"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"scenario": "rainy"}, "unknown scenario 'rainy'"),
+        ({"flow_vph": -10.0}, "'flow_vph'"),
+        ({"num_roads": 0}, "num_roads"),
+        ({"num_roads": 2.5}, "num_roads"),
+        ({"ego_lane": 3}, "'ego_lane'"),
+        ({"ego_lane": -1}, "'ego_lane'"),
+        ({"flow_vph": "lots"}, "'flow_vph'"),
+        ({"flow_vhp": 100.0}, "'flow_vhp'"),
+        ({"braking": {"stand_time": "long"}}, "'braking.stand_time'"),
+        ({"braking": {"min_distance": 400.0}}, "'braking.min_distance'"),
+        ({"drivers": [{"name": "x", "v0": -1.0}]}, r"'drivers\[0\].v0'"),
+        ({"drivers": [{"name": "x", "colour": 1}]}, "colour"),
+        ({"lc_duration": 1.25}, "'lc_duration'"),
+        ({"section_length": 0.0}, "'section_length'"),
+        ({"scenario": "mixed", "braking": {"probability": 0.0}}, "'braking.probability' = 0.0 must be in"),
+        ({"scenario": "braking", "braking": {"probability": 1.5}}, "'braking.probability' = 1.5 must be in"),
+    ],
+)
 @pytest.mark.parametrize("env_cls", [SumoHighwayEnv, FakeHighwayEnv])
 def test_bad_input_names_the_key_before_sumo_starts(env_cls, kwargs, match):
     kwargs = dict(kwargs)
@@ -42,11 +46,11 @@ def test_error_message_is_one_clear_line():
 
 def test_scenarios_and_overrides():
     assert scenario_names() == ["baseline", "braking", "congested", "congested_text", "mixed"]
-    assert make_config("braking").braking.probability == 1.0                # every episode, as the paper's
+    assert make_config("braking").braking.probability == 1.0  # every episode, as the paper's
     mixed = make_config("mixed").braking
     assert mixed.enabled and mixed.probability == 0.5 and mixed.min_distance == 100.0
-    assert make_config("congested").flow == pytest.approx(1.5 * 2325)       # Table A.1's flow + 50 % (default)
-    assert make_config("congested_text").flow == pytest.approx(3 * 1329)    # §IV.D: 886 -> 1329 veh/h/lane
+    assert make_config("congested").flow == pytest.approx(1.5 * 2325)  # Table A.1's flow + 50 % (default)
+    assert make_config("congested_text").flow == pytest.approx(3 * 1329)  # §IV.D: 886 -> 1329 veh/h/lane
     assert make_config("braking").braking.enabled and not make_config("baseline").braking.enabled
     cfg = make_config("congested", {"flow_vph": 2658.0, "braking": {"stand_time": 5.0}})
     assert cfg.flow == pytest.approx(1.5 * 2658) and cfg.braking.stand_time == 5.0 and cfg.scenario == "congested"
@@ -59,7 +63,6 @@ def test_a_ready_config_is_not_given_its_scenario_preset_again():
     again = make_config(cfg, {"flow_vph": 2000.0})
     assert again.scenario == "braking" and not again.braking.enabled and again.braking.stand_time == 9.0
     assert again.flow_vph == 2000.0
-
 
 
 def test_a_run_saved_with_the_old_per_algo_compile_keys_still_loads():
@@ -125,8 +128,10 @@ def test_a_mixed_run_is_evaluated_on_each_scenario_it_names():
     from omegaconf import OmegaConf
 
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["+scenario=mixed", "eval_scenarios=[baseline,braking]",
-                                                       "env.num_roads=3", "env.flow_vph=2658"])
+        cfg = compose(
+            config_name="config",
+            overrides=["+scenario=mixed", "eval_scenarios=[baseline,braking]", "env.num_roads=3", "env.flow_vph=2658"],
+        )
         plain = compose(config_name="config")
     job = OmegaConf.to_object(cfg)
     assert job.env.scenario == "mixed" and job.env.braking.probability == 0.5
@@ -176,8 +181,9 @@ def test_state_extras_reach_every_learner_and_default_off(name):
         algo_from_node(bad)
     torch.manual_seed(0)
     learners = [make_learner(algo_from_node(node.algo)) for node in (plain, extras)]
-    builders = [[m for m in (getattr(lr, "cf_state", None), getattr(lr, "state", None)) if m is not None][0]
-                for lr in learners]
+    builders = [
+        [m for m in (getattr(lr, "cf_state", None), getattr(lr, "state", None)) if m is not None][0] for lr in learners
+    ]
     assert [b.module.extras for b in builders] == [(), ("thw", "ttc")]
     sizes = [sum(p.numel() for p in lr.parameters()) for lr in learners]
     assert sizes[1] > sizes[0]  # the first layers take the two extra inputs
@@ -197,10 +203,10 @@ def test_the_plus_preset_sets_the_same_options_for_every_algo(name, scenario):
 
     extra = [] if scenario == "baseline" else [f"+scenario={scenario}"]
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
-        plain = OmegaConf.to_container(compose(config_name="config", overrides=[f"algo={name}", *extra]),
-                                       resolve=True)
-        plus = OmegaConf.to_container(compose(config_name="config", overrides=[f"algo={name}", *extra,
-                                                                              "+preset=plus"]), resolve=True)
+        plain = OmegaConf.to_container(compose(config_name="config", overrides=[f"algo={name}", *extra]), resolve=True)
+        plus = OmegaConf.to_container(
+            compose(config_name="config", overrides=[f"algo={name}", *extra, "+preset=plus"]), resolve=True
+        )
         mine = compose(config_name="config", overrides=[f"algo={name}", *extra, "+preset=plus", "algo.shield=ttc"])
         assert option_label(plus, name, scenario) == "algo.shield=idm"
     assert algo_from_node(OmegaConf.create(plus["algo"])).shield == "idm" and mine.algo.shield == "ttc"

@@ -1,4 +1,5 @@
 """FakeHighwayEnv: same specs as the SUMO env, deterministic, same command semantics."""
+
 from __future__ import annotations
 
 from functools import partial

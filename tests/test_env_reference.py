@@ -2,6 +2,7 @@
 (produced by ``tests/env_reference.py`` from the code before the observation building was vectorised): same seed,
 same actions -> every observation key, reward, done flag and episode event identical, frame by frame, on the
 baseline, braking and congested scenarios at K = 2-4, with partial resets, collisions and truncations."""
+
 import numpy as np
 import pytest
 from env_reference import CASES, FIXTURE, rollout

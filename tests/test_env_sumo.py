@@ -1,4 +1,5 @@
 """Real-SUMO tests of the batched highway environment (paper §III.G, §IV.A-D, Table A.1)."""
+
 from __future__ import annotations
 
 import logging
@@ -101,7 +102,11 @@ def test_unsafe_lane_change_into_occupied_gap_collides():
         other = next(v for v in env.sim.road_vehicles(0) if v != ego)
         y_ego = env.sim.longitudinal(ego)
         for v in env.sim.road_vehicles(0):  # clear lane 2 around the ego, so only `other` is there
-            if v not in (ego, other) and libsumo.vehicle.getLaneIndex(v) == 2 and abs(env.sim.longitudinal(v) - y_ego) < 60:
+            if (
+                v not in (ego, other)
+                and libsumo.vehicle.getLaneIndex(v) == 2
+                and abs(env.sim.longitudinal(v) - y_ego) < 60
+            ):
                 libsumo.vehicle.remove(v)
         edge, pos = libsumo.vehicle.getRoadID(ego), libsumo.vehicle.getLanePosition(ego)
         libsumo.vehicle.moveTo(other, f"{edge}_2", pos)  # put a car right beside the ego, on its left
@@ -216,7 +221,9 @@ def test_driver_classes_are_drawn_and_recorded():
             cls = next(d for d in sim.cfg.drivers if d.name == name)
             v0 = np.array([p["v0"] for p in mine])
             assert abs(v0.mean() - cls.v0) < 0.02 * cls.v0 and np.all(np.abs(v0 / cls.v0 - 1) <= 2 * cls.spread + 1e-9)
-            vid = next(v for v, p in sim.vehicle_params.items() if p["driver"] == name and v in libsumo.vehicle.getIDList())
+            vid = next(
+                v for v, p in sim.vehicle_params.items() if p["driver"] == name and v in libsumo.vehicle.getIDList()
+            )
             assert libsumo.vehicle.getTau(vid) == pytest.approx(sim.vehicle_params[vid]["T"])
     finally:
         sim.close()
@@ -243,6 +250,7 @@ def _observations(seed, road2_random):
     env = SumoHighwayEnv("baseline", num_roads=3, seed=seed)
     rule, rand = IDMMobilPolicy(), RandomDrivingPolicy(generator=torch.Generator().manual_seed(5))
     try:
+
         def policy(td):
             td = rule(td)
             if road2_random:
@@ -261,6 +269,7 @@ def test_roads_never_interact_and_seeds_reproduce():
     wild, wild_eps = _observations(0, road2_random=True)
     # roads 0 and 1 are bit-identical whatever road 2 does
     assert (calm[:2] == wild[:2]).all()
+
     # (``start`` numbers episodes in start order, as the old ``index`` did; ``index`` counts finishes on all roads)
     def mine(eps):
         return [{k: v for k, v in e.items() if k != "index"} for e in eps if e["road"] < 2]
@@ -366,9 +375,13 @@ def test_ego_starts_at_the_section_entry_by_default():
             cfg = env.config
             for r in range(8):
                 ego = env.sim.ego[r]
-                others = [v for v in libsumo.edge.getLastStepVehicleIDs(edge_ids(r)[0])
-                          if v != ego and libsumo.vehicle.getLateralSpeed(v) == 0.0
-                          and libsumo.vehicle.getLanePosition(v) >= cfg.entry_length - cfg.pick_window]
+                others = [
+                    v
+                    for v in libsumo.edge.getLastStepVehicleIDs(edge_ids(r)[0])
+                    if v != ego
+                    and libsumo.vehicle.getLateralSpeed(v) == 0.0
+                    and libsumo.vehicle.getLanePosition(v) >= cfg.entry_length - cfg.pick_window
+                ]
                 assert all(libsumo.vehicle.getLanePosition(v) <= libsumo.vehicle.getLanePosition(ego) for v in others)
         starts[mode] = float(y.mean())
         env.close()
@@ -405,9 +418,9 @@ def _draws(probability: float, seed: int, episodes: int = 500) -> np.ndarray:
 @pytest.mark.parametrize("p", [0.2, 0.5, 0.9])
 def test_braking_event_fires_in_about_p_of_the_episodes_reproducibly(p):
     drawn = _draws(p, seed=3)
-    assert abs(drawn.mean() - p) < 0.05, drawn.mean()   # 2000 episodes: sd of the share <= 0.012
+    assert abs(drawn.mean() - p) < 0.05, drawn.mean()  # 2000 episodes: sd of the share <= 0.012
     assert all(abs(drawn[:, r].mean() - p) < 0.1 for r in range(drawn.shape[1]))  # on every road
-    assert np.array_equal(drawn, _draws(p, seed=3))       # the seed gives the same mix
+    assert np.array_equal(drawn, _draws(p, seed=3))  # the seed gives the same mix
     assert not np.array_equal(drawn, _draws(p, seed=4))
 
 

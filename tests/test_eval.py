@@ -1,5 +1,6 @@
 """The one episode-metrics path: ``EpisodeTracker`` on collected frames and ``evaluate_policy`` on the fake and the
 SUMO env (bare or transformed), checked against the metrics the frames imply."""
+
 from __future__ import annotations
 
 import math
@@ -39,10 +40,18 @@ def implied_episodes(frames) -> list[dict]:
             ep["r_lc"] += float(nxt[K.LC_REWARD][r, j, 0])
             ep["r_cf"] += float(nxt[K.CF_REWARD][r, j, 0])
             if nxt["done"][r, j, 0]:
-                out.append({"road": r, "frames": ep["frames"], "mean_speed": ep["speed"] / ep["frames"],
-                            "mean_accel": ep["accel"] / ep["frames"], "lane_changes": ep["lc"],
-                            "return_lc": ep["r_lc"], "return_cf": ep["r_cf"],
-                            "outcome": K.OUTCOMES[int(nxt[K.OUTCOME][r, j, 0])]})
+                out.append(
+                    {
+                        "road": r,
+                        "frames": ep["frames"],
+                        "mean_speed": ep["speed"] / ep["frames"],
+                        "mean_accel": ep["accel"] / ep["frames"],
+                        "lane_changes": ep["lc"],
+                        "return_lc": ep["r_lc"],
+                        "return_cf": ep["r_cf"],
+                        "outcome": K.OUTCOMES[int(nxt[K.OUTCOME][r, j, 0])],
+                    }
+                )
                 open_[r] = dict(frames=0, speed=0.0, accel=0.0, lc=0, r_lc=0.0, r_cf=0.0)
     return out
 
@@ -101,8 +110,13 @@ def test_evaluate_policy_on_the_fake_in_start_order():
     assert [e["start"] for e in episodes] == list(range(10))
     assert [e["start"] for e in sorted(seen, key=lambda e: e["start"])] == list(range(10))
     # the same seed gives the same episodes, bare or transformed; the episodes are the frames'
-    again = evaluate_policy(TransformedEnv(FakeHighwayEnv("baseline", num_roads=4), StepCounter()), IDMMobilPolicy(),
-                            10, seed=5, progress=False)
+    again = evaluate_policy(
+        TransformedEnv(FakeHighwayEnv("baseline", num_roads=4), StepCounter()),
+        IDMMobilPolicy(),
+        10,
+        seed=5,
+        progress=False,
+    )
     assert_match(again, episodes)
     env.set_seed(5)
     frames = rollout(env, IDMMobilPolicy(), 600)

@@ -1,5 +1,6 @@
 """Tests of the 10 Hz track table (:mod:`kddrl_trl.data.tracks`) and sample extraction
 (:mod:`kddrl_trl.data.extract`) on small recordings synthesised here (both directions, platoons, lane changes)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -50,23 +51,48 @@ def _neighbors(df: pd.DataFrame) -> pd.DataFrame:
         q["row"] = np.arange(len(q))
         cand = df[["frame", "dir", "lane", "s", "rear", "id"]]
         # preceding: nearest with its rear at or ahead of the ego's front
-        a = pd.merge_asof(q.sort_values("s"), cand.rename(columns={"s": "s_o", "rear": "key"}).sort_values("key"),
-                          left_on="s", right_on="key", by=grp, direction="forward")
+        a = pd.merge_asof(
+            q.sort_values("s"),
+            cand.rename(columns={"s": "s_o", "rear": "key"}).sort_values("key"),
+            left_on="s",
+            right_on="key",
+            by=grp,
+            direction="forward",
+        )
         df.loc[df.index[a["row"]], f"{side}PrecedingId"] = a["id"].fillna(0).to_numpy()
         # following: nearest with its front at or behind the ego's rear
-        f = pd.merge_asof(q.sort_values("rear"), cand.rename(columns={"s": "key", "rear": "r_o"}).sort_values("key"),
-                          left_on="rear", right_on="key", by=grp, direction="backward")
+        f = pd.merge_asof(
+            q.sort_values("rear"),
+            cand.rename(columns={"s": "key", "rear": "r_o"}).sort_values("key"),
+            left_on="rear",
+            right_on="key",
+            by=grp,
+            direction="backward",
+        )
         df.loc[df.index[f["row"]], f"{side}FollowingId"] = f["id"].fillna(0).to_numpy()
         # alongside: the first front beyond the ego's rear, if that vehicle's rear is before the ego's front
-        g = pd.merge_asof(q.sort_values("rear"), cand.rename(columns={"s": "key", "rear": "r_o"}).sort_values("key"),
-                          left_on="rear", right_on="key", by=grp, direction="forward", allow_exact_matches=False)
+        g = pd.merge_asof(
+            q.sort_values("rear"),
+            cand.rename(columns={"s": "key", "rear": "r_o"}).sort_values("key"),
+            left_on="rear",
+            right_on="key",
+            by=grp,
+            direction="forward",
+            allow_exact_matches=False,
+        )
         along = np.where(g["r_o"].to_numpy() < g["s"].to_numpy(), g["id"].fillna(0).to_numpy(), 0)
         df.loc[df.index[g["row"]], f"{side}AlongsideId"] = along
     return df
 
 
-def synth_recording(recording_id: int = 1, duration: float = 20.0, headway: float = 2.5, seed: int = 0,
-                    lane_change_every: int = 4, driver_type: bool = True) -> HighDRecording:
+def synth_recording(
+    recording_id: int = 1,
+    duration: float = 20.0,
+    headway: float = 2.5,
+    seed: int = 0,
+    lane_change_every: int = 4,
+    driver_type: bool = True,
+) -> HighDRecording:
     """Platoons on 3 lanes per direction over a 420 m road; every ``lane_change_every``-th vehicle of the
     right lane changes left and of the left lane changes right, half-way along the road.
 
@@ -86,10 +112,22 @@ def synth_recording(recording_id: int = 1, duration: float = 20.0, headway: floa
                 change = 0
                 if lane_change_every and k % lane_change_every == 1 and lane in (0, 2):
                     change = 1 if lane == 0 else -1
-                veh.append(dict(id=vid, dir=direction, lane0=lane, v=v, te=te, change=change,
-                                L=4.5 if vid % 5 else 12.0, H=1.9 if vid % 5 else 2.5,
-                                amp=rng.uniform(0.2, 1.0), om=rng.uniform(0.3, 0.8), ph=rng.uniform(0, 6.28),
-                                driver=DRIVERS[vid % 3]))
+                veh.append(
+                    dict(
+                        id=vid,
+                        dir=direction,
+                        lane0=lane,
+                        v=v,
+                        te=te,
+                        change=change,
+                        L=4.5 if vid % 5 else 12.0,
+                        H=1.9 if vid % 5 else 2.5,
+                        amp=rng.uniform(0.2, 1.0),
+                        om=rng.uniform(0.3, 0.8),
+                        ph=rng.uniform(0, 6.28),
+                        driver=DRIVERS[vid % 3],
+                    )
+                )
     vt = pd.DataFrame(veh)
     # rows: every frame during which the vehicle's front is on the road
     t_all = np.arange(n_frames) / fr
@@ -106,52 +144,106 @@ def synth_recording(recording_id: int = 1, duration: float = 20.0, headway: floa
     amp, om, ph, v = g["amp"].to_numpy(), g["om"].to_numpy(), g["ph"].to_numpy(), g["v"].to_numpy()
     s = v * tau + amp * np.sin(om * tau + ph) - amp * np.sin(ph)
     speed = v + amp * om * np.cos(om * tau + ph)
-    acc = -amp * om ** 2 * np.sin(om * tau + ph)
+    acc = -amp * om**2 * np.sin(om * tau + ph)
     # lateral: smoothstep lane change starting when the front passes mid-road
     t_lc = ROAD / 2 / v
     u = np.clip((tau - t_lc) / LC_TIME, 0.0, 1.0)
     du = np.where((u > 0) & (u < 1), 1.0 / LC_TIME, 0.0)
     ch = g["change"].to_numpy()
-    lat = (g["lane0"].to_numpy() + 0.5) * W + ch * W * (3 * u ** 2 - 2 * u ** 3)
-    vlat = ch * W * (6 * u - 6 * u ** 2) * du
+    lat = (g["lane0"].to_numpy() + 0.5) * W + ch * W * (3 * u**2 - 2 * u**3)
+    vlat = ch * W * (6 * u - 6 * u**2) * du
     lane = np.clip(np.floor(lat / W), 0, 2).astype(int)
     d2 = g["dir"].to_numpy() == 2
     L, H = g["L"].to_numpy(), g["H"].to_numpy()
     upper, lower = np.array(UPPER.split(";"), float), np.array(LOWER.split(";"), float)
     centre = np.where(d2, lower[-1] - lat, upper[0] + lat)
-    df = pd.DataFrame({
-        "frame": frame, "id": g["id"].to_numpy(), "x": np.where(d2, s - L, ROAD - s),
-        "y": centre - H / 2, "width": L, "height": H, "xVelocity": np.where(d2, speed, -speed),
-        "yVelocity": np.where(d2, -vlat, vlat), "xAcceleration": np.where(d2, acc, -acc),
-        "yAcceleration": 0.0, "frontSightDistance": 100.0, "backSightDistance": 100.0, "dhw": -1.0,
-        "thw": -1.0, "ttc": -1.0, "precedingXVelocity": 0.0, "laneId": lane + 2,
-        "dir": g["dir"].to_numpy(), "lane": lane, "s": s, "L": L,
-    })
-    for c in ("precedingId", "followingId", "leftPrecedingId", "leftAlongsideId", "leftFollowingId",
-              "rightPrecedingId", "rightAlongsideId", "rightFollowingId"):
+    df = pd.DataFrame(
+        {
+            "frame": frame,
+            "id": g["id"].to_numpy(),
+            "x": np.where(d2, s - L, ROAD - s),
+            "y": centre - H / 2,
+            "width": L,
+            "height": H,
+            "xVelocity": np.where(d2, speed, -speed),
+            "yVelocity": np.where(d2, -vlat, vlat),
+            "xAcceleration": np.where(d2, acc, -acc),
+            "yAcceleration": 0.0,
+            "frontSightDistance": 100.0,
+            "backSightDistance": 100.0,
+            "dhw": -1.0,
+            "thw": -1.0,
+            "ttc": -1.0,
+            "precedingXVelocity": 0.0,
+            "laneId": lane + 2,
+            "dir": g["dir"].to_numpy(),
+            "lane": lane,
+            "s": s,
+            "L": L,
+        }
+    )
+    for c in (
+        "precedingId",
+        "followingId",
+        "leftPrecedingId",
+        "leftAlongsideId",
+        "leftFollowingId",
+        "rightPrecedingId",
+        "rightAlongsideId",
+        "rightFollowingId",
+    ):
         df[c] = 0
     df = _neighbors(df)
     truth = df[["id", "frame", "dir", "lane", "s"]].reset_index(drop=True)
-    tracks = df[list(TRACKS_COLUMNS)].astype({c: "int64" for c in TRACKS_COLUMNS if c.endswith("Id") or
-                                              c in ("frame", "id")}).reset_index(drop=True)
+    tracks = (
+        df[list(TRACKS_COLUMNS)]
+        .astype({c: "int64" for c in TRACKS_COLUMNS if c.endswith("Id") or c in ("frame", "id")})
+        .reset_index(drop=True)
+    )
     per = tracks.groupby("id")
-    meta = pd.DataFrame({
-        "id": vt["id"].to_numpy(), "width": vt["L"].to_numpy(), "height": vt["H"].to_numpy(),
-        "initialFrame": per["frame"].min().reindex(vt["id"]).to_numpy(),
-        "finalFrame": per["frame"].max().reindex(vt["id"]).to_numpy(),
-        "numFrames": per.size().reindex(vt["id"]).to_numpy(), "class": np.where(vt["L"] > 10, "Truck", "Car"),
-        "drivingDirection": vt["dir"].to_numpy(), "traveledDistance": 100.0, "minXVelocity": 20.0,
-        "maxXVelocity": 30.0, "meanXVelocity": 25.0, "minDHW": -1.0, "minTHW": -1.0, "minTTC": -1.0,
-        "numLaneChanges": (vt["change"] != 0).astype(int).to_numpy(),
-    })
+    meta = pd.DataFrame(
+        {
+            "id": vt["id"].to_numpy(),
+            "width": vt["L"].to_numpy(),
+            "height": vt["H"].to_numpy(),
+            "initialFrame": per["frame"].min().reindex(vt["id"]).to_numpy(),
+            "finalFrame": per["frame"].max().reindex(vt["id"]).to_numpy(),
+            "numFrames": per.size().reindex(vt["id"]).to_numpy(),
+            "class": np.where(vt["L"] > 10, "Truck", "Car"),
+            "drivingDirection": vt["dir"].to_numpy(),
+            "traveledDistance": 100.0,
+            "minXVelocity": 20.0,
+            "maxXVelocity": 30.0,
+            "meanXVelocity": 25.0,
+            "minDHW": -1.0,
+            "minTHW": -1.0,
+            "minTTC": -1.0,
+            "numLaneChanges": (vt["change"] != 0).astype(int).to_numpy(),
+        }
+    )
     if driver_type:
         meta["driverType"] = vt["driver"].to_numpy()
-    rmeta = pd.DataFrame([{
-        "id": recording_id, "frameRate": fr, "locationId": 1, "speedLimit": -1.0, "month": "01.2020",
-        "weekDay": "Mon", "startTime": "10:00", "duration": duration, "totalDrivenDistance": 1.0,
-        "totalDrivenTime": 1.0, "numVehicles": len(meta), "numCars": len(meta), "numTrucks": 0,
-        "upperLaneMarkings": UPPER, "lowerLaneMarkings": LOWER,
-    }])
+    rmeta = pd.DataFrame(
+        [
+            {
+                "id": recording_id,
+                "frameRate": fr,
+                "locationId": 1,
+                "speedLimit": -1.0,
+                "month": "01.2020",
+                "weekDay": "Mon",
+                "startTime": "10:00",
+                "duration": duration,
+                "totalDrivenDistance": 1.0,
+                "totalDrivenTime": 1.0,
+                "numVehicles": len(meta),
+                "numCars": len(meta),
+                "numTrucks": 0,
+                "upperLaneMarkings": UPPER,
+                "lowerLaneMarkings": LOWER,
+            }
+        ]
+    )
     rec = HighDRecording(recording_id, tracks, meta, rmeta)
     rec.truth = truth
     return rec
@@ -220,11 +312,16 @@ def test_tracks10_both_directions_travel_toward_plus_y(tracks, rec):
 
 def test_tracks10_interpolation_matches_25hz(tracks, rec):
     # 10 Hz frame 2k is 25 Hz frame 5k exactly; odd 10 Hz frames lie half-way between 25 Hz frames 5k+2, 5k+3
-    pos = pd.Series(longitudinal_position(rec).to_numpy(),
-                    index=pd.MultiIndex.from_arrays([rec.tracks["id"], rec.tracks["frame"]]))
+    pos = pd.Series(
+        longitudinal_position(rec).to_numpy(), index=pd.MultiIndex.from_arrays([rec.tracks["id"], rec.tracks["frame"]])
+    )
     even = tracks[tracks["frame"] % 2 == 0]
-    np.testing.assert_allclose(even["y"], pos.reindex(pd.MultiIndex.from_arrays(
-        [even["vehicle_id"], even["frame"] * 5 // 2])).to_numpy(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        even["y"],
+        pos.reindex(pd.MultiIndex.from_arrays([even["vehicle_id"], even["frame"] * 5 // 2])).to_numpy(),
+        rtol=0,
+        atol=1e-9,
+    )
     odd = tracks[tracks["frame"] % 2 == 1]
     f = odd["frame"].to_numpy() * 5 // 2
     a = pos.reindex(pd.MultiIndex.from_arrays([odd["vehicle_id"], f])).to_numpy()
@@ -250,10 +347,20 @@ def test_tracks10_other_rate_and_num_lanes(rec):
 def test_lane_change_samples_schema(changes, tracks):
     n = changes.batch_size[0]
     assert n > 0
-    shapes = {"label": [n], "s_av": [n, 4], "rel": [n, 6, 4], "lane_offset": [n, 6], "mask": [n, 6],
-              "key_gaps": [n, 3, 2],
-              "key_gaps_mask": [n, 3], "num_lanes": [n], "recording_id": [n], "vehicle_id": [n], "frame": [n],
-              "driver": [n]}
+    shapes = {
+        "label": [n],
+        "s_av": [n, 4],
+        "rel": [n, 6, 4],
+        "lane_offset": [n, 6],
+        "mask": [n, 6],
+        "key_gaps": [n, 3, 2],
+        "key_gaps_mask": [n, 3],
+        "num_lanes": [n],
+        "recording_id": [n],
+        "vehicle_id": [n],
+        "frame": [n],
+        "driver": [n],
+    }
     assert set(changes.keys()) == set(shapes)
     for k, s in shapes.items():
         assert list(changes[k].shape) == s, k
@@ -265,13 +372,18 @@ def test_lane_change_samples_schema(changes, tracks):
     assert (changes["rel"][~changes["mask"]] == 0).all()
     assert (changes["lane_offset"][~changes["mask"]] == 0).all()
     # the ego's lane offset (S_AV[3]) is the tracks' one; the current leader's is its own at the same frame
-    np.testing.assert_allclose(changes["s_av"][:, 3].numpy(),
-                               _at(tracks, changes["vehicle_id"].numpy(), changes["frame"].numpy(), "lane_offset"),
-                               atol=1e-5)
+    np.testing.assert_allclose(
+        changes["s_av"][:, 3].numpy(),
+        _at(tracks, changes["vehicle_id"].numpy(), changes["frame"].numpy(), "lane_offset"),
+        atol=1e-5,
+    )
     has_b = changes["mask"][:, 1].numpy()
     pid = _at(tracks, changes["vehicle_id"].numpy()[has_b], changes["frame"].numpy()[has_b], "preceding_id")
-    np.testing.assert_allclose(changes["lane_offset"][has_b, 1].numpy(),
-                               _at(tracks, pid, changes["frame"].numpy()[has_b], "lane_offset"), atol=1e-5)
+    np.testing.assert_allclose(
+        changes["lane_offset"][has_b, 1].numpy(),
+        _at(tracks, pid, changes["frame"].numpy()[has_b], "lane_offset"),
+        atol=1e-5,
+    )
     assert (changes["key_gaps"][~changes["key_gaps_mask"]] == 0).all()
     assert not (changes["key_gaps_mask"] & ~changes["mask"][:, :3]).any()
     names = [DRIVER_TYPES[i] for i in changes["driver"].tolist()]
@@ -350,24 +462,32 @@ def test_leader_samples_schema_and_future(leaders, tracks):
     assert set(leaders["slot"].tolist()) == {0, 1, 2}
     vid, lid, frame = (leaders[k].numpy() for k in ("vehicle_id", "leader_id", "frame"))
     slot = leaders["slot"].numpy()
-    col = np.select([slot == 0, slot == 1], [_at(tracks, vid, frame, "left_preceding_id"),
-                                             _at(tracks, vid, frame, "preceding_id")],
-                    _at(tracks, vid, frame, "right_preceding_id"))
-    along = np.select([slot == 0, slot == 2], [_at(tracks, vid, frame, "left_alongside_id"),
-                                               _at(tracks, vid, frame, "right_alongside_id")], 0)
+    col = np.select(
+        [slot == 0, slot == 1],
+        [_at(tracks, vid, frame, "left_preceding_id"), _at(tracks, vid, frame, "preceding_id")],
+        _at(tracks, vid, frame, "right_preceding_id"),
+    )
+    along = np.select(
+        [slot == 0, slot == 2],
+        [_at(tracks, vid, frame, "left_alongside_id"), _at(tracks, vid, frame, "right_alongside_id")],
+        0,
+    )
     assert ((col == lid) | ((col == 0) & (along == lid))).all()
     # the alongside fallback was exercised and only for leaders whose front is ahead
     fallback = col != lid
     assert fallback.any()
     assert (_at(tracks, lid, frame, "y")[fallback] > _at(tracks, vid, frame, "y")[fallback]).all()
     for k in range(20):
-        np.testing.assert_allclose(leaders["future"][:, k].numpy(), _at(tracks, lid, frame + k + 1, "y"),
-                                   rtol=0, atol=1e-4)
+        np.testing.assert_allclose(
+            leaders["future"][:, k].numpy(), _at(tracks, lid, frame + k + 1, "y"), rtol=0, atol=1e-4
+        )
     for k in range(10):
-        np.testing.assert_allclose(leaders["history"][:, k, 0].numpy(), _at(tracks, lid, frame - 9 + k, "y"),
-                                   rtol=0, atol=1e-4)
-        np.testing.assert_allclose(leaders["history"][:, k, 1].numpy(), _at(tracks, lid, frame - 9 + k, "v"),
-                                   rtol=0, atol=1e-5)
+        np.testing.assert_allclose(
+            leaders["history"][:, k, 0].numpy(), _at(tracks, lid, frame - 9 + k, "y"), rtol=0, atol=1e-4
+        )
+        np.testing.assert_allclose(
+            leaders["history"][:, k, 1].numpy(), _at(tracks, lid, frame - 9 + k, "v"), rtol=0, atol=1e-5
+        )
     np.testing.assert_allclose(leaders["ego"][:, 0].numpy(), _at(tracks, vid, frame, "y"), atol=1e-4)
     np.testing.assert_allclose(leaders["leader_length"].numpy(), _at(tracks, lid, frame, "length"), atol=1e-6)
     # the leader's own preceding vehicle
@@ -376,8 +496,9 @@ def test_leader_samples_schema_and_future(leaders, tracks):
     assert has.any() and (~has).any()
     assert (aid[has] > 0).all()
     np.testing.assert_allclose(leaders["ahead"][has, 0].numpy(), _at(tracks, aid[has], frame[has], "y"), atol=1e-4)
-    np.testing.assert_allclose(leaders["ahead_length"][has].numpy(),
-                               _at(tracks, aid[has], frame[has], "length"), atol=1e-6)
+    np.testing.assert_allclose(
+        leaders["ahead_length"][has].numpy(), _at(tracks, aid[has], frame[has], "length"), atol=1e-6
+    )
     assert (leaders["ahead"][~has] == 0).all()
     drivers = [DRIVER_TYPES[i] for i in leaders["leader_driver"].tolist()]
     assert drivers == list(_at(tracks, lid, frame, "driver_type"))
@@ -386,14 +507,29 @@ def test_leader_samples_schema_and_future(leaders, tracks):
 def test_prior_equals_direct_idm_rollout(leaders):
     idm = IDMParams()
     a = leaders["ahead"]
-    direct = idm_rollout(leaders["history"][:, -1, 0], leaders["history"][:, -1, 1], a[:, 0], a[:, 1], a[:, 2] > 0,
-                         steps=20, dt=0.1, params=dataclasses.replace(idm, length=leaders["ahead_length"]))
+    direct = idm_rollout(
+        leaders["history"][:, -1, 0],
+        leaders["history"][:, -1, 1],
+        a[:, 0],
+        a[:, 1],
+        a[:, 2] > 0,
+        steps=20,
+        dt=0.1,
+        params=dataclasses.replace(idm, length=leaders["ahead_length"]),
+    )
     torch.testing.assert_close(leaders["prior"], direct, rtol=1e-6, atol=1e-4)
     # one sample on its own gives the same prior
     i = int(torch.nonzero(a[:, 2] > 0)[0])
-    one = idm_rollout(float(leaders["history"][i, -1, 0]), float(leaders["history"][i, -1, 1]), float(a[i, 0]),
-                      float(a[i, 1]), True, steps=20, dt=0.1,
-                      params=dataclasses.replace(idm, length=float(leaders["ahead_length"][i])))
+    one = idm_rollout(
+        float(leaders["history"][i, -1, 0]),
+        float(leaders["history"][i, -1, 1]),
+        float(a[i, 0]),
+        float(a[i, 1]),
+        True,
+        steps=20,
+        dt=0.1,
+        params=dataclasses.replace(idm, length=float(leaders["ahead_length"][i])),
+    )
     torch.testing.assert_close(leaders["prior"][i], one, rtol=1e-6, atol=1e-4)
     # the prior is a forward motion that starts from the leader's position at t
     assert (leaders["prior"][:, 0] >= leaders["history"][:, -1, 0]).all()
@@ -503,20 +639,23 @@ def test_nan_column_is_named(rec):
         leader_samples(t)
 
 
-@pytest.mark.parametrize("call, match", [
-    (lambda t: leader_samples(t, history=0), "history"),
-    (lambda t: leader_samples(t, horizon=-1), "horizon"),
-    (lambda t: leader_samples(t, stride=0), "stride"),
-    (lambda t: leader_samples(t, sensing_range=0.0), "sensing_range"),
-    (lambda t: leader_samples(t, idm=IDMParams(T=-1.0)), "idm.T"),
-    (lambda t: lane_change_samples(t, window=0), "window"),
-    (lambda t: lane_change_samples(t, sensing_range=float("nan")), "sensing_range"),
-    (lambda t: lane_change_samples(t.drop(columns=["lane"])), "lane"),
-    (lambda t: lane_change_samples(t.drop(index=[5])), "not consecutive"),
-    (lambda t: lane_change_samples(t.assign(driver_type="reckless")), "reckless"),
-    (lambda t: split_by_vehicle(lane_change_samples(t), fractions=(0.5, 0.2, 0.2)), "fractions"),
-    (lambda t: split_by_vehicle(lane_change_samples(t), fractions=(1.2, -0.1, -0.1)), "fractions"),
-])
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda t: leader_samples(t, history=0), "history"),
+        (lambda t: leader_samples(t, horizon=-1), "horizon"),
+        (lambda t: leader_samples(t, stride=0), "stride"),
+        (lambda t: leader_samples(t, sensing_range=0.0), "sensing_range"),
+        (lambda t: leader_samples(t, idm=IDMParams(T=-1.0)), "idm.T"),
+        (lambda t: lane_change_samples(t, window=0), "window"),
+        (lambda t: lane_change_samples(t, sensing_range=float("nan")), "sensing_range"),
+        (lambda t: lane_change_samples(t.drop(columns=["lane"])), "lane"),
+        (lambda t: lane_change_samples(t.drop(index=[5])), "not consecutive"),
+        (lambda t: lane_change_samples(t.assign(driver_type="reckless")), "reckless"),
+        (lambda t: split_by_vehicle(lane_change_samples(t), fractions=(0.5, 0.2, 0.2)), "fractions"),
+        (lambda t: split_by_vehicle(lane_change_samples(t), fractions=(1.2, -0.1, -0.1)), "fractions"),
+    ],
+)
 def test_bad_parameters(call, match):
     t = longitudinal_tracks(synth_recording(1, duration=4.0))
     with pytest.raises(ValueError, match=match):
@@ -544,8 +683,10 @@ def test_extraction_speed(tmp_path):
     meta = extract_dataset([r], tmp_path, progress=False)
     dt = time.perf_counter() - t0
     n = sum(c["samples"] for kind in ("leaders", "lane_changes") for c in meta["counts"][kind].values())
-    print(f"\n{meta['counts']['vehicles']} vehicles, {len(r.tracks)} 25 Hz rows -> {n} samples in {dt:.2f} s "
-          f"({n / dt:,.0f} samples/s)")
+    print(
+        f"\n{meta['counts']['vehicles']} vehicles, {len(r.tracks)} 25 Hz rows -> {n} samples in {dt:.2f} s "
+        f"({n / dt:,.0f} samples/s)"
+    )
     assert dt < 60.0
 
 
@@ -561,10 +702,14 @@ def test_window_labels_within_and_end():
     """'within' takes the first lane change in the window, 'end' the net change: they differ on a window with
     a change and a change back (left then right: within says left, end says keep)."""
     now = np.array([1, 1, 1, 1])
-    after = np.array([[1, 2, 2, 1],    # left and back
-                      [1, 1, 0, 0],    # right
-                      [1, 1, 1, 1],    # keep
-                      [2, 2, 2, 2]])   # left at the first step
+    after = np.array(
+        [
+            [1, 2, 2, 1],  # left and back
+            [1, 1, 0, 0],  # right
+            [1, 1, 1, 1],  # keep
+            [2, 2, 2, 2],
+        ]
+    )  # left at the first step
     np.testing.assert_array_equal(window_labels(now, after, "within"), [0, 2, 1, 0])
     np.testing.assert_array_equal(window_labels(now, after, "end"), [1, 2, 1, 0])
     with pytest.raises(ValueError, match="label must be one of"):

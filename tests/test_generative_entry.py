@@ -1,4 +1,5 @@
 """Shipped default weights and ``python -m kddrl_trl.pretrain`` as a user types it."""
+
 from __future__ import annotations
 
 import json
@@ -73,24 +74,35 @@ def test_shipped_metrics_belong_to_the_shipped_weights(kind):
 
 def test_rl_runtime_does_not_import_the_data_layer():
     """The transforms, the generative models and the modules load without ``kddrl_trl.data`` (and pandas)."""
-    code = ("import sys; import kddrl_trl.transforms, kddrl_trl.generative, kddrl_trl.modules; "
-            "print(sorted(m for m in sys.modules if m.startswith('kddrl_trl.data') or m.split('.')[0] == 'pandas'))")
+    code = (
+        "import sys; import kddrl_trl.transforms, kddrl_trl.generative, kddrl_trl.modules; "
+        "print(sorted(m for m in sys.modules if m.startswith('kddrl_trl.data') or m.split('.')[0] == 'pandas'))"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]", done.stdout
 
 
 def run(module, args, cwd):
-    return subprocess.run([sys.executable, "-m", module, "progress=false", *args], cwd=cwd, capture_output=True,
-                          text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", module, "progress=false", *args], cwd=cwd, capture_output=True, text=True, timeout=600
+    )
 
 
 def test_pretrain_runs_as_typed_and_exports(tmp_path):
     prep = run("kddrl_trl.data.prepare", ["record.duration_s=60", "record.num_roads=1", "calibrate=false"], tmp_path)
     assert prep.returncode == 0, prep.stderr
     for kind in ("trajgan", "lcgan"):
-        done = run("kddrl_trl.pretrain", [f"gan={kind}", "gan.train.epochs=1", f"export={tmp_path}/{kind}.pt",
-                                          f"hydra.run.dir={tmp_path}/run_{kind}"], tmp_path)
+        done = run(
+            "kddrl_trl.pretrain",
+            [
+                f"gan={kind}",
+                "gan.train.epochs=1",
+                f"export={tmp_path}/{kind}.pt",
+                f"hydra.run.dir={tmp_path}/run_{kind}",
+            ],
+            tmp_path,
+        )
         assert done.returncode == 0, done.stderr
         metrics = json.loads((tmp_path / f"run_{kind}" / "metrics.json").read_text())
         key = "mae_step20" if kind == "trajgan" else "recall_left"
@@ -101,12 +113,16 @@ def test_pretrain_runs_as_typed_and_exports(tmp_path):
         assert str(shipped["test"][key]) == str(metrics[key]) and f"gan={kind}" in shipped["command"]  # NaN-safe
     # evaluate=PATH re-measures shipped weights without training, and refuses weights of another dataset
     (tmp_path / "lcgan.metrics.json").unlink()
-    done = run("kddrl_trl.pretrain", ["gan=lcgan", f"evaluate={tmp_path}/lcgan.pt", f"hydra.run.dir={tmp_path}/ev"],
-               tmp_path)
+    done = run(
+        "kddrl_trl.pretrain", ["gan=lcgan", f"evaluate={tmp_path}/lcgan.pt", f"hydra.run.dir={tmp_path}/ev"], tmp_path
+    )
     assert done.returncode == 0, done.stderr
     assert "evaluate=" in json.loads((tmp_path / "lcgan.metrics.json").read_text())["command"]
-    other = run("kddrl_trl.pretrain", ["gan=lcgan", f"evaluate={default_checkpoint('lcgan')}",
-                                       f"hydra.run.dir={tmp_path}/ev2"], tmp_path)
+    other = run(
+        "kddrl_trl.pretrain",
+        ["gan=lcgan", f"evaluate={default_checkpoint('lcgan')}", f"hydra.run.dir={tmp_path}/ev2"],
+        tmp_path,
+    )
     assert other.returncode != 0 and "another dataset" in other.stderr
     bad = run("kddrl_trl.pretrain", ["gan=trajgan", "device=cuda"], tmp_path) if not torch.cuda.is_available() else None
     if bad is not None:

@@ -1,4 +1,5 @@
 """Gymnasium registration and API conformance."""
+
 from __future__ import annotations
 
 import gymnasium as gym

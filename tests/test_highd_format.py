@@ -1,4 +1,5 @@
 """Tests of the HighD file-format layer (:mod:`kddrl_trl.data.highd`) on small synthesised recordings."""
+
 from __future__ import annotations
 
 import sys
@@ -65,39 +66,80 @@ def make_recording(recording_id: int = 1, driver_type: bool = True, seed: int = 
         accel = rng.normal(0.0, 0.3, N_FRAMES)
         lane_id = (2 + lane_from_top) if direction == 1 else (6 + lane_from_top)
         for k, frame in enumerate(frames):
-            track_rows.append({
-                "frame": frame, "id": vid, "x": x0 + sign * speed * t[k], "y": centre - width / 2,
-                "width": length, "height": width, "xVelocity": sign * speed + rng.normal(0.0, 0.1),
-                "yVelocity": rng.normal(0.0, 0.05), "xAcceleration": sign * accel[k],
-                "yAcceleration": rng.normal(0.0, 0.02), "frontSightDistance": 300.0 * rng.random(),
-                "backSightDistance": 100.0 * rng.random(), "dhw": -1.0 if k % 3 else 35.0 + rng.random(),
-                "thw": -1.0 if k % 3 else 1.2 + rng.random(), "ttc": [-1.0, 0.0, 12.5 + rng.random()][k % 3],
-                "precedingXVelocity": 0.0, "precedingId": 0, "followingId": 0, "leftPrecedingId": 0,
-                "leftAlongsideId": 0, "leftFollowingId": 0, "rightPrecedingId": 0, "rightAlongsideId": 0,
-                "rightFollowingId": 0, "laneId": lane_id,
-            })
+            track_rows.append(
+                {
+                    "frame": frame,
+                    "id": vid,
+                    "x": x0 + sign * speed * t[k],
+                    "y": centre - width / 2,
+                    "width": length,
+                    "height": width,
+                    "xVelocity": sign * speed + rng.normal(0.0, 0.1),
+                    "yVelocity": rng.normal(0.0, 0.05),
+                    "xAcceleration": sign * accel[k],
+                    "yAcceleration": rng.normal(0.0, 0.02),
+                    "frontSightDistance": 300.0 * rng.random(),
+                    "backSightDistance": 100.0 * rng.random(),
+                    "dhw": -1.0 if k % 3 else 35.0 + rng.random(),
+                    "thw": -1.0 if k % 3 else 1.2 + rng.random(),
+                    "ttc": [-1.0, 0.0, 12.5 + rng.random()][k % 3],
+                    "precedingXVelocity": 0.0,
+                    "precedingId": 0,
+                    "followingId": 0,
+                    "leftPrecedingId": 0,
+                    "leftAlongsideId": 0,
+                    "leftFollowingId": 0,
+                    "rightPrecedingId": 0,
+                    "rightAlongsideId": 0,
+                    "rightFollowingId": 0,
+                    "laneId": lane_id,
+                }
+            )
         vx = np.array([r["xVelocity"] for r in track_rows[-N_FRAMES:]])
         row = {
-            "id": vid, "width": length, "height": width, "initialFrame": first,
-            "finalFrame": first + N_FRAMES - 1, "numFrames": N_FRAMES, "class": cls,
-            "drivingDirection": direction, "traveledDistance": speed * t[-1], "minXVelocity": float(vx.min()),
-            "maxXVelocity": float(vx.max()), "meanXVelocity": float(vx.mean()), "minDHW": -1.0,
-            "minTHW": -1.0, "minTTC": -1.0, "numLaneChanges": 0,
+            "id": vid,
+            "width": length,
+            "height": width,
+            "initialFrame": first,
+            "finalFrame": first + N_FRAMES - 1,
+            "numFrames": N_FRAMES,
+            "class": cls,
+            "drivingDirection": direction,
+            "traveledDistance": speed * t[-1],
+            "minXVelocity": float(vx.min()),
+            "maxXVelocity": float(vx.max()),
+            "meanXVelocity": float(vx.mean()),
+            "minDHW": -1.0,
+            "minTHW": -1.0,
+            "minTTC": -1.0,
+            "numLaneChanges": 0,
         }
         if driver_type:
             row["driverType"] = driver
         meta_rows.append(row)
     tracks = pd.DataFrame(track_rows, columns=list(TRACKS_COLUMNS))
     tracks_meta = pd.DataFrame(meta_rows)
-    recording_meta = pd.DataFrame([{
-        "id": recording_id, "frameRate": 25, "locationId": 2, "speedLimit": -1.0, "month": "09.2017",
-        "weekDay": "Wed", "startTime": "08:38", "duration": N_FRAMES / 25.0,
-        "totalDrivenDistance": float(tracks_meta["traveledDistance"].sum()),
-        "totalDrivenTime": len(VEHICLES) * N_FRAMES / 25.0, "numVehicles": len(VEHICLES),
-        "numCars": int((tracks_meta["class"] == "Car").sum()),
-        "numTrucks": int((tracks_meta["class"] == "Truck").sum()),
-        "upperLaneMarkings": UPPER, "lowerLaneMarkings": LOWER,
-    }])
+    recording_meta = pd.DataFrame(
+        [
+            {
+                "id": recording_id,
+                "frameRate": 25,
+                "locationId": 2,
+                "speedLimit": -1.0,
+                "month": "09.2017",
+                "weekDay": "Wed",
+                "startTime": "08:38",
+                "duration": N_FRAMES / 25.0,
+                "totalDrivenDistance": float(tracks_meta["traveledDistance"].sum()),
+                "totalDrivenTime": len(VEHICLES) * N_FRAMES / 25.0,
+                "numVehicles": len(VEHICLES),
+                "numCars": int((tracks_meta["class"] == "Car").sum()),
+                "numTrucks": int((tracks_meta["class"] == "Truck").sum()),
+                "upperLaneMarkings": UPPER,
+                "lowerLaneMarkings": LOWER,
+            }
+        ]
+    )
     return HighDRecording(recording_id, tracks, tracks_meta, recording_meta)
 
 
@@ -124,8 +166,7 @@ def test_round_trip_is_exact(tmp_path, driver_type):
 def test_layout_dtypes_and_file_names(tmp_path):
     rec = make_recording()
     paths = write_recording(rec, tmp_path)
-    assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "01_recordingMeta.csv", "01_tracks.csv", "01_tracksMeta.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["01_recordingMeta.csv", "01_tracks.csv", "01_tracksMeta.csv"]
     assert paths["tracks"].read_text().splitlines()[0] == ",".join(TRACKS_COLUMNS)
     assert paths["tracksMeta"].read_text().splitlines()[0] == ",".join((*TRACKS_META_COLUMNS, "driverType"))
     assert paths["recordingMeta"].read_text().splitlines()[0] == ",".join(RECORDING_META_COLUMNS)

@@ -1,6 +1,7 @@
 """KDDRL on HighwayEnv (``kddrl_trl.envs.highwayenv``, the optional extra ``.[highway]``): specs, the keys' values
 against HighwayEnv's own state, the KDDRL stack on it, episodes, and ``train env=highwayenv``. Skipped without
 ``highway_env``."""
+
 from __future__ import annotations
 
 import json
@@ -59,8 +60,10 @@ def test_keys_are_highwayenv_state_in_si_units():
         assert int(td.get(K.EGO_LANE)) == 0 and ego.lane_index[2] == 2  # rightmost: HighwayEnv's lane id 2 of 3
         assert float(td.get(K.EGO_ACCEL)) == pytest.approx(1.0, abs=1e-4)  # the command, executed
         assert bool(td.get(K.NEIGHBORS_MASK)[0, K.SLOT["b"]])  # seed 0 has a leader in the ego's lane
-        leader = min((v for v in hw.road.vehicles if v is not ego and v.lane_index[2] == 2
-                      and v.position[0] > ego.position[0]), key=lambda v: v.position[0])
+        leader = min(
+            (v for v in hw.road.vehicles if v is not ego and v.lane_index[2] == 2 and v.position[0] > ego.position[0]),
+            key=lambda v: v.position[0],
+        )
         rel, kin = td.get(K.NEIGHBORS_REL)[0, K.SLOT["b"]], td.get(K.NEIGHBORS_KIN)[0, K.SLOT["b"]]
         assert float(rel[1]) == pytest.approx(leader.position[0] - ego.position[0], abs=1e-3)
         assert float(kin[1]) == pytest.approx(leader.speed * np.cos(leader.heading), abs=1e-3)
@@ -78,15 +81,15 @@ def test_a_lane_change_moves_left_masks_commands_and_ends():
         env.reset()
         td = env.step(command(env, K.LEFT))["next"]
         assert bool(td.get(K.LC_STARTED)) and bool(td.get(K.LC_ACTIVE))
-        assert not bool(td.get(K.LC_ACTION_MASK)[0, K.LEFT])          # no new command while it is active
-        assert float(td.get(K.EGO_STATE)[0, 2]) > 0                   # lateral speed to the left
+        assert not bool(td.get(K.LC_ACTION_MASK)[0, K.LEFT])  # no new command while it is active
+        assert float(td.get(K.EGO_STATE)[0, 2]) > 0  # lateral speed to the left
         lanes, frames = [], 1
         while bool(td.get(K.LC_ACTIVE)) and frames < 60:
-            td = env.step(command(env, K.LEFT))["next"]               # ignored: masked
+            td = env.step(command(env, K.LEFT))["next"]  # ignored: masked
             assert not bool(td.get(K.LC_STARTED))
             lanes.append(int(td.get(K.EGO_LANE)))
             frames += 1
-        assert lanes[-1] == 1 and frames < 60                         # one lane to the left, then over
+        assert lanes[-1] == 1 and frames < 60  # one lane to the left, then over
         assert float(td.get(K.LC_REWARD)) == pytest.approx(float(td.get(K.EGO_STATE)[0, 1] - 20.0) / 30.0, abs=1e-4)
     finally:
         env.close()
@@ -101,7 +104,7 @@ def test_kddrl_stack_passes_check_env_specs_and_rolls_out_episodes():
         td = env.rollout(12, break_when_any_done=False)
         assert td["next", "pred", "key_gaps"].shape == (2, 12, 3, 2)
         assert td["next", "prior", "p_lcgan"].shape == (2, 12, 3)
-        hist = td["next", "leaders", "history"]                       # kept by LeaderHistory
+        hist = td["next", "leaders", "history"]  # kept by LeaderHistory
         assert hist.shape == (2, 12, 3, 10, 2) and torch.isfinite(hist).all()
         present = td["next", "neighbors", "mask"][..., 1]
         assert torch.equal(hist[..., 1, -1, 0][present], td["next", "neighbors", "kin"][..., 1, 0][present])
@@ -115,8 +118,7 @@ def test_episodes_end_as_on_sumo_and_are_evaluated():
 
     env = HighwayEnvAdapter(num_roads=2, seed=0, section_length=120.0, **SMALL)  # short episodes: a fast test
     try:
-        episodes = evaluate_policy(env, IDMMobilPolicy(num_lanes=3, lane_width=4.0), episodes=3, seed=5,
-                                   progress=False)
+        episodes = evaluate_policy(env, IDMMobilPolicy(num_lanes=3, lane_width=4.0), episodes=3, seed=5, progress=False)
     finally:
         env.close()
     assert len(episodes) == 3
@@ -141,11 +143,26 @@ def test_highwayenv_config_is_typed_and_checked_before_any_simulator_starts():
 
 @pytest.mark.slow
 def test_kddrl_trains_on_highwayenv_as_typed(tmp_path):
-    cmd = [sys.executable, "-m", "kddrl_trl.train", "env=highwayenv", "episodes=2", "eval_episodes=1",
-           "env.num_roads=2", "env.max_steps=150", "env.highwayenv.vehicles_count=12",
-           "env.highwayenv.observed_vehicles=10",
-           "progress=false", "train.warmup_frames=50", "train.batch_size_cf=32", "train.batch_size_lc=8",
-           "train.eval_every=0", "compile=false", "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "kddrl_trl.train",
+        "env=highwayenv",
+        "episodes=2",
+        "eval_episodes=1",
+        "env.num_roads=2",
+        "env.max_steps=150",
+        "env.highwayenv.vehicles_count=12",
+        "env.highwayenv.observed_vehicles=10",
+        "progress=false",
+        "train.warmup_frames=50",
+        "train.batch_size_cf=32",
+        "train.batch_size_lc=8",
+        "train.eval_every=0",
+        "compile=false",
+        "algo.learner.d3qn.hidden=[32,32]",
+        "algo.learner.td3.hidden=[32,32]",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
     (run,) = list((tmp_path / "runs").glob("highwayenv__kddrl__0__*"))

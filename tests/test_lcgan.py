@@ -1,4 +1,5 @@
 """lcGAN (paper Eq. 16-19): networks, losses, the pretraining run, checkpoints and the batched predictor."""
+
 from __future__ import annotations
 
 import json
@@ -41,7 +42,7 @@ def samples(n: int, seed: int, rare: float = 0.04) -> TensorDict:
     mask[:, 2] &= lane > 0
     mask[:, 5] &= lane > 0
     rel = torch.randn(n, 6, 4, generator=g)
-    rel[:, :3, 1] = 10.0 + 40.0 * torch.rand(n, 3, generator=g)   # leaders ahead
+    rel[:, :3, 1] = 10.0 + 40.0 * torch.rand(n, 3, generator=g)  # leaders ahead
     rel[:, 3:, 1] = -10.0 - 40.0 * torch.rand(n, 3, generator=g)  # followers behind
     rel[:, 1, 3] = torch.where(label == K.LEFT, -6.0, 0.0) + 0.5 * torch.randn(n, generator=g)
     mask[label == K.LEFT, 1] = True
@@ -52,12 +53,23 @@ def samples(n: int, seed: int, rare: float = 0.04) -> TensorDict:
     gaps = torch.where(key_mask.unsqueeze(-1), gaps, torch.zeros_like(gaps))
     offset = torch.where(label == K.LEFT, 0.8, torch.where(label == K.RIGHT, -0.8, 0.0))
     nb_offset = torch.where(mask, 0.2 * torch.randn(n, 6, generator=g), torch.zeros(n, 6))
-    return TensorDict({
-        "label": label, "s_av": torch.stack([v, lat, lane.float(), offset], -1), "rel": rel, "mask": mask,
-        "lane_offset": nb_offset,
-        "key_gaps": gaps, "key_gaps_mask": key_mask, "num_lanes": torch.full((n,), 3),
-        "recording_id": torch.zeros(n, dtype=torch.int64), "vehicle_id": torch.arange(n), "frame": torch.zeros(
-            n, dtype=torch.int64), "driver": torch.zeros(n, dtype=torch.int64)}, batch_size=[n])
+    return TensorDict(
+        {
+            "label": label,
+            "s_av": torch.stack([v, lat, lane.float(), offset], -1),
+            "rel": rel,
+            "mask": mask,
+            "lane_offset": nb_offset,
+            "key_gaps": gaps,
+            "key_gaps_mask": key_mask,
+            "num_lanes": torch.full((n,), 3),
+            "recording_id": torch.zeros(n, dtype=torch.int64),
+            "vehicle_id": torch.arange(n),
+            "frame": torch.zeros(n, dtype=torch.int64),
+            "driver": torch.zeros(n, dtype=torch.int64),
+        },
+        batch_size=[n],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +114,7 @@ def test_focal_loss_matches_hand_computation():
     p = torch.tensor([[0.2, 0.7, 0.1], [0.5, 0.3, 0.2]])
     target = torch.tensor([K.KEEP, K.RIGHT])
     alpha = torch.tensor([2.0, 0.5, 3.0])
-    hand = (-0.5 * 0.3 ** 2 * math.log(0.7) - 3.0 * 0.8 ** 2 * math.log(0.2)) / 2
+    hand = (-0.5 * 0.3**2 * math.log(0.7) - 3.0 * 0.8**2 * math.log(0.2)) / 2
     assert focal_loss(p.log(), target, alpha, gamma=2.0).item() == pytest.approx(hand, rel=1e-6)
     # γ = 0 and α = 1: plain cross-entropy
     ce = torch.nn.functional.nll_loss(p.log(), target)
@@ -112,8 +124,11 @@ def test_focal_loss_matches_hand_computation():
 def test_class_weights():
     freq = torch.tensor([0.01, 0.98, 0.01])
     a = class_weights(freq, "inv_sqrt")
-    assert a.mean().item() == pytest.approx(1.0) and a[0] == pytest.approx(a[2]) and a[0] / a[1] == pytest.approx(
-        math.sqrt(98), rel=1e-4)
+    assert (
+        a.mean().item() == pytest.approx(1.0)
+        and a[0] == pytest.approx(a[2])
+        and a[0] / a[1] == pytest.approx(math.sqrt(98), rel=1e-4)
+    )
     assert class_weights(freq, "none").tolist() == [1.0, 1.0, 1.0]
     assert class_weights(freq, [1, 2, 3]).tolist() == [1.0, 2.0, 3.0]
     with pytest.raises(ValueError):
@@ -159,11 +174,24 @@ def test_metrics():
 def test_run_pretraining_end_to_end(data, tmp_path, adversarial):
     train, val, test = data
     task = LCGANTask(dict(SMALL, adversarial=adversarial), train)
-    m = run_pretraining(task, train, val, test, PretrainConfig(epochs=2, batch_size=128), tmp_path, "hash-a",
-                        progress=False)
+    m = run_pretraining(
+        task, train, val, test, PretrainConfig(epochs=2, batch_size=128), tmp_path, "hash-a", progress=False
+    )
     saved = json.loads((tmp_path / "metrics.json").read_text())
-    for key in ("accuracy", "recall_left", "recall_keep", "recall_right", "balanced_accuracy", "confusion",
-                "true_shares", "pred_shares", "n_per_class", "mobil", "best_epoch", "epochs_run"):
+    for key in (
+        "accuracy",
+        "recall_left",
+        "recall_keep",
+        "recall_right",
+        "balanced_accuracy",
+        "confusion",
+        "true_shares",
+        "pred_shares",
+        "n_per_class",
+        "mobil",
+        "best_epoch",
+        "epochs_run",
+    ):
         assert key in saved, key
     assert saved["epochs_run"] == 2 and saved["adversarial"] == adversarial
     assert len(saved["confusion"]) == 3 and set(saved["mobil"]) >= {"accuracy", "recall_left", "confusion"}
@@ -175,8 +203,13 @@ def test_run_pretraining_end_to_end(data, tmp_path, adversarial):
     assert sum(t.numel() * t.element_size() for t in payload["modules"]["generator"].values()) < 1_000_000
     # a fresh shell restores the same predictions from the checkpoint
     shell = LCGANTask(dict(SMALL, adversarial=adversarial))
-    st = load_checkpoint(tmp_path / "best.pt", kind="lcgan", architecture=shell.architecture(),
-                         modules=shell.modules(), dataset_hash="hash-a")
+    st = load_checkpoint(
+        tmp_path / "best.pt",
+        kind="lcgan",
+        architecture=shell.architecture(),
+        modules=shell.modules(),
+        dataset_hash="hash-a",
+    )
     shell.load_state(st["state"]["task"])
     assert torch.equal(shell.predict(test), task.predict(test))
     pred = LCGANPredictor.from_checkpoint(tmp_path / "best.pt", dataset_hash="hash-a")
@@ -186,16 +219,18 @@ def test_run_pretraining_end_to_end(data, tmp_path, adversarial):
 def test_checkpoint_mismatches_are_refused(data, tmp_path):
     train, val, test = data
     task = LCGANTask(SMALL, train)
-    run_pretraining(task, train, val, test, PretrainConfig(epochs=1, batch_size=256), tmp_path, "hash-a",
-                    progress=False)
+    run_pretraining(
+        task, train, val, test, PretrainConfig(epochs=1, batch_size=256), tmp_path, "hash-a", progress=False
+    )
     best = tmp_path / "best.pt"
     for other in (dict(SMALL, hidden=16), dict(SMALL, adversarial=False), dict(SMALL, noise_dim=2)):
         t = LCGANTask(other)
         with pytest.raises(CheckpointError, match="another architecture"):
             load_checkpoint(best, kind="lcgan", architecture=t.architecture(), modules=t.modules())
     with pytest.raises(CheckpointError, match="another dataset"):
-        load_checkpoint(best, kind="lcgan", architecture=task.architecture(), modules=task.modules(),
-                        dataset_hash="hash-b")
+        load_checkpoint(
+            best, kind="lcgan", architecture=task.architecture(), modules=task.modules(), dataset_hash="hash-b"
+        )
     with pytest.raises(CheckpointError, match="another dataset"):
         LCGANPredictor.from_checkpoint(best, dataset_hash="hash-b")
     with pytest.raises(CheckpointError, match="not 'trajgan'"):
@@ -207,16 +242,27 @@ def observation(batch: tuple[int, ...], seed: int = 0) -> TensorDict:
     mask = torch.rand(*batch, 6, generator=g) < 0.5
     rel = torch.randn(*batch, 6, 4, generator=g) * 10
     rel = torch.where(mask.unsqueeze(-1), rel, torch.full_like(rel, float("nan")))  # garbage where absent
-    return TensorDict({
-        K.EGO_STATE: torch.cat([100 * torch.rand(*batch, 1, generator=g), 20 + 10 * torch.rand(
-            *batch, 1, generator=g), torch.randn(*batch, 1, generator=g)], -1),
-        K.EGO_LANE: torch.randint(0, 3, (*batch, 1), generator=g),
-        K.NEIGHBORS_REL: rel, K.NEIGHBORS_MASK: mask,
-        K.EGO_LANE_OFFSET: 0.5 * torch.randn(*batch, 1, generator=g),
-        K.NEIGHBORS_LANE_OFFSET: torch.where(mask, 0.5 * torch.randn(*batch, 6, generator=g), float("nan")),
-        K.PRED_KEY_GAPS: torch.where(mask[..., :3, None], 30 * torch.rand(*batch, 3, 2, generator=g),
-                                     torch.zeros(*batch, 3, 2)),
-    }, batch_size=batch)
+    return TensorDict(
+        {
+            K.EGO_STATE: torch.cat(
+                [
+                    100 * torch.rand(*batch, 1, generator=g),
+                    20 + 10 * torch.rand(*batch, 1, generator=g),
+                    torch.randn(*batch, 1, generator=g),
+                ],
+                -1,
+            ),
+            K.EGO_LANE: torch.randint(0, 3, (*batch, 1), generator=g),
+            K.NEIGHBORS_REL: rel,
+            K.NEIGHBORS_MASK: mask,
+            K.EGO_LANE_OFFSET: 0.5 * torch.randn(*batch, 1, generator=g),
+            K.NEIGHBORS_LANE_OFFSET: torch.where(mask, 0.5 * torch.randn(*batch, 6, generator=g), float("nan")),
+            K.PRED_KEY_GAPS: torch.where(
+                mask[..., :3, None], 30 * torch.rand(*batch, 3, 2, generator=g), torch.zeros(*batch, 3, 2)
+            ),
+        },
+        batch_size=batch,
+    )
 
 
 @pytest.mark.parametrize("batch", [(), (4,), (2, 3)])
@@ -242,16 +288,30 @@ def test_predictor_matches_task_on_samples(data):
     epochs(task, train, 1)
     s = test[:50]
     n = 50
-    obs = TensorDict({
-        K.EGO_STATE: torch.stack([torch.zeros(n), s["s_av"][:, 0], s["s_av"][:, 1]], -1),
-        K.EGO_LANE: s["s_av"][:, 2:3].long(), K.NEIGHBORS_REL: s["rel"], K.NEIGHBORS_MASK: s["mask"],
-        K.EGO_LANE_OFFSET: s["s_av"][:, 3:4], K.NEIGHBORS_LANE_OFFSET: s["lane_offset"],
-        K.PRED_KEY_GAPS: s["key_gaps"]}, batch_size=[n])
+    obs = TensorDict(
+        {
+            K.EGO_STATE: torch.stack([torch.zeros(n), s["s_av"][:, 0], s["s_av"][:, 1]], -1),
+            K.EGO_LANE: s["s_av"][:, 2:3].long(),
+            K.NEIGHBORS_REL: s["rel"],
+            K.NEIGHBORS_MASK: s["mask"],
+            K.EGO_LANE_OFFSET: s["s_av"][:, 3:4],
+            K.NEIGHBORS_LANE_OFFSET: s["lane_offset"],
+            K.PRED_KEY_GAPS: s["key_gaps"],
+        },
+        batch_size=[n],
+    )
     pred = LCGANPredictor.from_task(task, draws=1)
     c_task, a_task = task._condition(s)
-    fields = lane_change_condition(obs[K.EGO_STATE][:, 1], obs[K.EGO_STATE][:, 2], obs[K.EGO_LANE][:, 0],
-                                   obs[K.EGO_LANE_OFFSET][:, 0], obs[K.NEIGHBORS_REL], obs[K.NEIGHBORS_MASK],
-                                   obs[K.NEIGHBORS_LANE_OFFSET], obs[K.PRED_KEY_GAPS])
+    fields = lane_change_condition(
+        obs[K.EGO_STATE][:, 1],
+        obs[K.EGO_STATE][:, 2],
+        obs[K.EGO_LANE][:, 0],
+        obs[K.EGO_LANE_OFFSET][:, 0],
+        obs[K.NEIGHBORS_REL],
+        obs[K.NEIGHBORS_MASK],
+        obs[K.NEIGHBORS_LANE_OFFSET],
+        obs[K.PRED_KEY_GAPS],
+    )
     c_pred, a_pred = pred.net.condition(**fields, num_lanes=3)
     assert torch.allclose(c_task, c_pred) and torch.equal(a_task, a_pred)
     p = pred(obs)[K.PRIOR_P_LCGAN]
@@ -265,8 +325,9 @@ def test_condition_marks_unknown_key_gaps_absent():
     gaps = torch.tensor([[[10.0, 20.0], [float("nan"), 5.0], [1.0, 2.0]]])
     rel = torch.where(mask.unsqueeze(-1), 1.0, float("nan")).expand(1, 6, 4)  # garbage where absent
     nb_offset = torch.where(mask, 0.3, float("nan"))
-    f = lane_change_condition(torch.tensor([25.0]), torch.tensor([0.5]), torch.tensor([1]), torch.tensor([-0.4]),
-                              rel, mask, nb_offset, gaps)
+    f = lane_change_condition(
+        torch.tensor([25.0]), torch.tensor([0.5]), torch.tensor([1]), torch.tensor([-0.4]), rel, mask, nb_offset, gaps
+    )
     assert f["key_gaps_mask"].tolist() == [[True, False, False]] and torch.equal(f["mask"], mask)
     assert f["key_gaps"].tolist() == [[[10.0, 20.0], [0.0, 0.0], [0.0, 0.0]]]
     assert torch.equal(f["rel"], mask.unsqueeze(-1).float().expand(1, 6, 4))

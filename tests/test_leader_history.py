@@ -1,6 +1,7 @@
 """``LeaderHistory``: the leaders' window kept from the instantaneous raw keys, for envs without
 ``("leaders","history")`` — bare, in the KDDRL stack, on serial and parallel envs with partial resets, and against the
 SUMO env's own history."""
+
 from __future__ import annotations
 
 from functools import partial
@@ -21,8 +22,9 @@ ENV_HISTORY = ("leaders", "env_history")  # the env's own window, kept aside to 
 
 def fake_without_history(num_roads=3, seed=0, keep_env_history=False):
     """The fake env as an env writing only instantaneous raw keys (its history removed, or renamed aside)."""
-    hide = (RenameTransform([K.LEADERS_HISTORY], [ENV_HISTORY]) if keep_env_history
-            else ExcludeTransform(K.LEADERS_HISTORY))
+    hide = (
+        RenameTransform([K.LEADERS_HISTORY], [ENV_HISTORY]) if keep_env_history else ExcludeTransform(K.LEADERS_HISTORY)
+    )
     return TransformedEnv(FakeHighwayEnv(num_roads=num_roads, seed=seed), hide)
 
 
@@ -47,20 +49,23 @@ def test_continuing_vehicles_roll_new_ones_restart_and_moves_follow_their_vehicl
     w0 = t.fresh(first)
     assert torch.allclose(w0[0, 0, :, 0], torch.tensor([41.0, 44.0, 47.0, 50.0])) and (w0[0, 2] == 0).all()
     # a keeps its vehicle (50 + 3 m), b's vehicle is replaced (a jump of 20 m), c appears
-    w1 = t.advance(w0, torch.tensor([[True, True, False]]), frame([53.0, 50.0, 90.0], [30.0, 20.0, 25.0],
-                                                                  [True, True, True]))
+    w1 = t.advance(
+        w0, torch.tensor([[True, True, False]]), frame([53.0, 50.0, 90.0], [30.0, 20.0, 25.0], [True, True, True])
+    )
     assert torch.allclose(w1[0, 0, :, 0], torch.tensor([44.0, 47.0, 50.0, 53.0]))
     assert torch.allclose(w1[0, 1], restart_window(torch.tensor(50.0), torch.tensor(20.0), 4, 0.1))
     assert torch.allclose(w1[0, 2], restart_window(torch.tensor(90.0), torch.tensor(25.0), 4, 0.1))
     # the ego changes lane to the left: the old a becomes b, and its window moves with it; a is now empty
-    w2 = t.advance(w1, torch.tensor([[True, True, True]]), frame([0.0, 56.0, 52.0], [0.0, 30.0, 20.0],
-                                                                 [False, True, True]))
+    w2 = t.advance(
+        w1, torch.tensor([[True, True, True]]), frame([0.0, 56.0, 52.0], [0.0, 30.0, 20.0], [False, True, True])
+    )
     assert (w2[0, 0] == 0).all()
     assert torch.allclose(w2[0, 1, :, 0], torch.tensor([47.0, 50.0, 53.0, 56.0]))
     assert torch.allclose(w2[0, 2], torch.cat([w1[0, 1, 1:], torch.tensor([[52.0, 20.0]])]))  # the old b
     # a speed jump beyond any braking is another vehicle, even at the expected position
-    w3 = t.advance(w2, torch.tensor([[False, True, True]]), frame([0.0, 59.0, 54.0], [0.0, 10.0, 20.0],
-                                                                  [False, True, True]))
+    w3 = t.advance(
+        w2, torch.tensor([[False, True, True]]), frame([0.0, 59.0, 54.0], [0.0, 10.0, 20.0], [False, True, True])
+    )
     assert torch.allclose(w3[0, 1], restart_window(torch.tensor(59.0), torch.tensor(10.0), 4, 0.1))
 
 
@@ -145,8 +150,13 @@ def test_on_the_sumo_env_it_reproduces_its_history_where_the_leaders_stay():
             for r in range(base.num_roads):
                 for s in range(3):
                     window = [frame[r][s] for frame in ids[-h:]]
-                    if len(window) == h and window[0] is not None and len(set(window)) == 1 \
-                            and base.sim.frame[r] >= h and not full["next", "done"][r]:
+                    if (
+                        len(window) == h
+                        and window[0] is not None
+                        and len(set(window)) == 1
+                        and base.sim.frame[r] >= h
+                        and not full["next", "done"][r]
+                    ):
                         torch.testing.assert_close(ours[r, s], theirs[r, s], atol=1e-4, rtol=0)
                         compared += 1
             if full["next", "done"].any():  # the roads that reset: compare from their new episodes only

@@ -1,4 +1,5 @@
 """The two agents' updates: which parameters each loss moves, targets, shared embedding, checkpoints."""
+
 from __future__ import annotations
 
 import io
@@ -106,8 +107,9 @@ def test_actor_loss_never_reaches_the_embedding(batches):
 
 def test_plain_states_without_embedding(batches):
     frames, macros = batches
-    learner = HierarchicalLearner(priors=False, key_gaps=False, d3qn={"hidden": [16], "dueling": False},
-                                  td3={"hidden": [16]})
+    learner = HierarchicalLearner(
+        priors=False, key_gaps=False, d3qn={"hidden": [16], "dueling": False}, td3={"hidden": [16]}
+    )
     assert learner.embedding is None and learner.opt_embed is None
     assert K.PRIOR_P_MOBIL not in learner.buffer_keys()
     learner.update_cf(frames)
@@ -192,10 +194,10 @@ def test_td3_target_reads_the_new_lane_change_decision_on_the_frame_before_a_dec
     roll = env.rollout(3, learner.policy(explore=False), break_when_any_done=False).reshape(-1)
     left = torch.zeros(roll.batch_size[0], 3)
     left[:, K.LEFT] = 1.0
-    roll.set(K.LC_ACTION, left)                               # held: a left change
+    roll.set(K.LC_ACTION, left)  # held: a left change
     keep_only = torch.zeros(roll.batch_size[0], 3, dtype=torch.bool)
     keep_only[:, K.KEEP] = True
-    roll.set(("next", *K.LC_ACTION_MASK), keep_only)          # at t+1 only keep is allowed
+    roll.set(("next", *K.LC_ACTION_MASK), keep_only)  # at t+1 only keep is allowed
     decide = torch.arange(roll.batch_size[0]) % 2 == 0
     roll.set(("next", *K.LC_DECIDE), decide[:, None])
     seen = {}
@@ -206,7 +208,7 @@ def test_td3_target_reads_the_new_lane_change_decision_on_the_frame_before_a_dec
 
     learner.cf_loss.value_loss = capture
     learner.loss("cf_value", roll.select(*learner.buffer_keys(), strict=False))
-    next_action = seen["states"].get(("next", *K.CF_OBS))[:, -4:-1]   # the one-hot a_D3QN block of Eq. 30
+    next_action = seen["states"].get(("next", *K.CF_OBS))[:, -4:-1]  # the one-hot a_D3QN block of Eq. 30
     assert (next_action[decide].argmax(-1) == K.KEEP).all()
     assert (next_action[~decide].argmax(-1) == K.LEFT).all()
     assert (seen["states"].get(K.CF_OBS)[:, -4:-1].argmax(-1) == K.LEFT).all()
@@ -227,14 +229,24 @@ def test_double_dqn_target_argmax_respects_the_next_action_mask():
         q_next = parts.actor.module[0](TensorDict({K.LC_OBS: nobs}, [1]))[K.LC_ACTION_VALUE][0]
     best = int(q_next.argmax())
     mask = torch.ones(1, 3, dtype=torch.bool)
-    mask[0, best] = False                                       # the next state's best action is forbidden
-    td = TensorDict({K.LC_OBS: obs, K.LC_ACTION: torch.tensor([[0.0, 1.0, 0.0]]),
-                     K.LC_ACTION_MASK: torch.ones(1, 3, dtype=torch.bool),
-                     "next": {K.LC_OBS: nobs, K.LC_ACTION_MASK: mask, K.LC_REWARD: torch.zeros(1, 1),
-                              "done": torch.zeros(1, 1, dtype=torch.bool),
-                              "terminated": torch.zeros(1, 1, dtype=torch.bool)}}, [1])
+    mask[0, best] = False  # the next state's best action is forbidden
+    td = TensorDict(
+        {
+            K.LC_OBS: obs,
+            K.LC_ACTION: torch.tensor([[0.0, 1.0, 0.0]]),
+            K.LC_ACTION_MASK: torch.ones(1, 3, dtype=torch.bool),
+            "next": {
+                K.LC_OBS: nobs,
+                K.LC_ACTION_MASK: mask,
+                K.LC_REWARD: torch.zeros(1, 1),
+                "done": torch.zeros(1, 1, dtype=torch.bool),
+                "terminated": torch.zeros(1, 1, dtype=torch.bool),
+            },
+        },
+        [1],
+    )
     loss = float(parts.loss(td)["loss"])
-    allowed = q_next.masked_fill(~mask[0], -torch.inf).max()   # the target network is still the online copy
+    allowed = q_next.masked_fill(~mask[0], -torch.inf).max()  # the target network is still the online copy
     assert loss == pytest.approx(float((q_s[K.KEEP] - 0.5 * allowed) ** 2), rel=1e-5)
     assert loss != pytest.approx(float((q_s[K.KEEP] - 0.5 * q_next.max()) ** 2), rel=1e-5)
 
@@ -255,7 +267,7 @@ def test_acting_noise_is_clipped_as_in_algorithm_1():
     assert noisy.abs().max() <= 0.5 + 1e-6 and noisy.std() > 0.3
     with set_exploration_type(ExplorationType.RANDOM):
         unclipped = make_td3(4, hidden=[8], exploration_sigma=50.0, exploration_clip=None).explore(td.clone())
-    assert unclipped[K.CF_ACTION].abs().max() > 4.0           # only the action bounds [-5, 5]
+    assert unclipped[K.CF_ACTION].abs().max() > 4.0  # only the action bounds [-5, 5]
 
 
 def test_semi_mdp_option_discounts_the_bootstrap_by_gamma_to_the_frames_spanned():
@@ -272,13 +284,25 @@ def test_semi_mdp_option_discounts_the_bootstrap_by_gamma_to_the_frames_spanned(
             q_s = parts.actor.module[0](TensorDict({K.LC_OBS: obs}, [1]))[K.LC_ACTION_VALUE][0]
             q_n = parts.actor.module[0](TensorDict({K.LC_OBS: nobs}, [1]))[K.LC_ACTION_VALUE][0]
         ones = torch.ones(1, 3, dtype=torch.bool)
-        td = TensorDict({K.LC_OBS: obs, K.LC_ACTION: torch.tensor([[0.0, 1.0, 0.0]]), K.LC_ACTION_MASK: ones,
-                         "next": {K.LC_OBS: nobs, K.LC_ACTION_MASK: ones, K.LC_REWARD: torch.ones(1, 1),
-                                  K.LC_MACRO_FRAMES: torch.tensor([[20]]), "done": torch.zeros(1, 1, dtype=torch.bool),
-                                  "terminated": torch.zeros(1, 1, dtype=torch.bool)}}, [1])
+        td = TensorDict(
+            {
+                K.LC_OBS: obs,
+                K.LC_ACTION: torch.tensor([[0.0, 1.0, 0.0]]),
+                K.LC_ACTION_MASK: ones,
+                "next": {
+                    K.LC_OBS: nobs,
+                    K.LC_ACTION_MASK: ones,
+                    K.LC_REWARD: torch.ones(1, 1),
+                    K.LC_MACRO_FRAMES: torch.tensor([[20]]),
+                    "done": torch.zeros(1, 1, dtype=torch.bool),
+                    "terminated": torch.zeros(1, 1, dtype=torch.bool),
+                },
+            },
+            [1],
+        )
         return float(parts.loss(td)["loss"]), q_s[K.KEEP], q_n.max()
 
     loss, q, q_next = loss_of(False)
     assert loss == pytest.approx(float((q - (1.0 + 0.9 * q_next)) ** 2), rel=1e-5)
     loss, q, q_next = loss_of(True)
-    assert loss == pytest.approx(float((q - (1.0 + 0.9 ** 20 * q_next)) ** 2), rel=1e-5)
+    assert loss == pytest.approx(float((q - (1.0 + 0.9**20 * q_next)) ** 2), rel=1e-5)

@@ -1,5 +1,6 @@
 """Issue 15: the learners' update functions (one per gradient step, compiled at the one compile site, CUDA-graphed
 on a GPU) against the TorchRL reference loop they replace, and the ``device`` / ``cudagraphs`` options."""
+
 from __future__ import annotations
 
 import contextlib
@@ -22,6 +23,7 @@ def samples():
 def reference_steps(learner: HierarchicalLearner, frames, macros) -> None:
     """The update loop before issue 15, step by step: the learner's losses, its optimisers, TorchRL's
     ``SoftUpdate.step()`` (tensor by tensor) and the target embedding lerped parameter by parameter."""
+
     def soft_embedding():
         with torch.no_grad():
             for t, s in zip(learner.target_embedding.parameters(), learner.embedding.parameters()):
@@ -197,10 +199,14 @@ def train_throughput():
 
 def plain_tensors(ref) -> dict:
     """The plain reference's networks as named tensors, under the names of the learner's losses."""
-    out = {"embedding": [*ref.fusion.parameters(), *ref.embed.parameters()],
-           "target_embedding": [*ref.t_fusion.parameters(), *ref.t_embed.parameters()],
-           "q": list(ref.q.parameters()), "q_target": list(ref.q_t.parameters()),
-           "actor": list(ref.actor.net.parameters()), "actor_target": list(ref.actor_t.net.parameters())}
+    out = {
+        "embedding": [*ref.fusion.parameters(), *ref.embed.parameters()],
+        "target_embedding": [*ref.t_fusion.parameters(), *ref.t_embed.parameters()],
+        "q": list(ref.q.parameters()),
+        "q_target": list(ref.q_t.parameters()),
+        "actor": list(ref.actor.net.parameters()),
+        "actor_target": list(ref.actor_t.net.parameters()),
+    }
     for k in range(2):
         out[f"critic{k}"] = list(ref.critics[k].parameters())
         out[f"critic{k}_target"] = list(ref.critics_t[k].parameters())
@@ -212,10 +218,15 @@ def learner_tensors(learner: HierarchicalLearner) -> dict:
 
     def leaves(params, skip=("loc", "scale")):
         return [v for k, v in params.flatten_keys(".").items() if k.split(".")[-1] not in skip]
-    out = {"embedding": list(learner.embedding.parameters()),
-           "target_embedding": list(learner.target_embedding.parameters()),
-           "q": leaves(d3.value_network_params), "q_target": leaves(d3.target_value_network_params),
-           "actor": leaves(td3.actor_network_params), "actor_target": leaves(td3.target_actor_network_params)}
+
+    out = {
+        "embedding": list(learner.embedding.parameters()),
+        "target_embedding": list(learner.target_embedding.parameters()),
+        "q": leaves(d3.value_network_params),
+        "q_target": leaves(d3.target_value_network_params),
+        "actor": leaves(td3.actor_network_params),
+        "actor_target": leaves(td3.target_actor_network_params),
+    }
     for k in range(2):
         out[f"critic{k}"] = leaves(td3.qvalue_network_params[k])
         out[f"critic{k}_target"] = leaves(td3.target_qvalue_network_params[k])
@@ -275,8 +286,11 @@ def test_benchmark_results_keep_what_a_run_did_not_measure_and_say_which_run_did
     assert full["update"] == {"x": 2} and full["gpu"] == {"td3": 2125} and full["train_1000_episodes_s"] == 569.0
     notes = [r["note"] for r in full["runs"]]
     assert notes == ["full", "cpu", "gpu"]
-    assert {k: notes[i] for k, i in full["measured_by"].items()} == {"train_1000_episodes_s": "full", "update": "cpu",
-                                                                     "gpu": "gpu"}
+    assert {k: notes[i] for k, i in full["measured_by"].items()} == {
+        "train_1000_episodes_s": "full",
+        "update": "cpu",
+        "gpu": "gpu",
+    }
 
 
 def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_recompiles_on_a_new_shape():
@@ -347,8 +361,12 @@ def test_partitioning_saves_floats_not_relu_masks_and_keeps_the_gradient():
             saved.extend(o.meta["val"].dtype for o in outputs[1:] if isinstance(o.meta.get("val"), torch.Tensor))
             return gm
 
-        backend = aot_autograd(fw_compiler=forward, bw_compiler=lambda gm, inputs: gm,  # partitioned as Inductor does
-                               partition_fn=min_cut_rematerialization_partition, decompositions=select_decomp_table())
+        backend = aot_autograd(
+            fw_compiler=forward,
+            bw_compiler=lambda gm, inputs: gm,  # partitioned as Inductor does
+            partition_fn=min_cut_rematerialization_partition,
+            decompositions=select_decomp_table(),
+        )
         torch._dynamo.reset()
         x = torch.randn(2, 8, 6, requires_grad=True)
         with context:
@@ -363,8 +381,10 @@ def test_partitioning_saves_floats_not_relu_masks_and_keeps_the_gradient():
     torch.testing.assert_close(x.grad, x_eager.grad)
 
 
-@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
-    not torch.cuda.is_available(), reason="needs a GPU"))])
+@pytest.mark.parametrize(
+    "device",
+    ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU"))],
+)
 def test_buffers_live_on_the_learners_device_and_reload_there(samples, device):
     """``make_buffer(device=...)``: CPU frames extended into the buffer are stored and sampled on ``device``; a
     checkpointed buffer (read onto the CPU, as checkpoints are) reloads onto ``device`` with the same contents."""

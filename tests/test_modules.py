@@ -1,5 +1,6 @@
 """Fusion (Eq. 23), shared embedding (Eq. 24), agent states (Eq. 24, 30) and the gradient routing of the
 shared embedding through real TorchRL losses (DQNLoss double+dueling, TD3Loss) — kddrl_trl.modules."""
+
 from __future__ import annotations
 
 import pytest
@@ -40,8 +41,10 @@ def _obs(batch, g):
     b = tuple(batch)
     rel = torch.randn(*b, 6, 4, generator=g) * torch.tensor([3.0, 60.0, 1.0, 5.0])
     return {
-        K.EGO_STATE: torch.stack([torch.rand(b, generator=g) * 420, 20 + 15 * torch.rand(b, generator=g),
-                                  torch.randn(b, generator=g) * 0.5], -1),
+        K.EGO_STATE: torch.stack(
+            [torch.rand(b, generator=g) * 420, 20 + 15 * torch.rand(b, generator=g), torch.randn(b, generator=g) * 0.5],
+            -1,
+        ),
         K.EGO_ACCEL: (torch.rand(*b, 1, generator=g) - 0.5) * 10,
         K.NEIGHBORS_REL: rel,
         K.NEIGHBORS_MASK: torch.rand(*b, 6, generator=g) > 0.3,
@@ -113,15 +116,15 @@ def test_state_builder_shapes(batch, embed):
 
 def test_ablation_variants():
     td = make_batch((5,), next_=False)
-    gaps_only = make_shared_embedding(d=D, priors=False)       # "without LG"
+    gaps_only = make_shared_embedding(d=D, priors=False)  # "without LG"
     assert list(gaps_only.in_keys) == [K.PRED_KEY_GAPS]
     out = gaps_only(td.exclude(K.PRIOR_P_MOBIL, K.PRIOR_P_LCGAN))
     assert out[K.EMBED_S_E].shape == (5, D) and K.PRIOR_P_LC not in out.keys(True)
-    prior_only = make_shared_embedding(d=D, key_gaps=False, prior_dim=4)   # d3qn_td3_lg
+    prior_only = make_shared_embedding(d=D, key_gaps=False, prior_dim=4)  # d3qn_td3_lg
     assert set(prior_only.in_keys) == {K.PRIOR_P_LCGAN, K.PRIOR_P_MOBIL}
     out = prior_only(td.exclude(K.PRED_KEY_GAPS))
     assert out[K.PRIOR_P_LC].shape == (5, 4) and out[K.EMBED_S_E].shape == (5, D)
-    assert make_shared_embedding(priors=False, key_gaps=False) is None     # d3qn_td3
+    assert make_shared_embedding(priors=False, key_gaps=False) is None  # d3qn_td3
     assert embedding_parameters(None) == []
     with pytest.raises(ValueError):
         SharedEmbedding(prior_dim=None, key_gaps=False)
@@ -146,9 +149,17 @@ def test_embedding_reads_its_inputs_and_clips_gaps():
 def test_state_scaling_and_absent_slots():
     rel = torch.arange(24.0).reshape(6, 4) + 1
     mask = torch.tensor([True, False, True, False, False, True])
-    td = TensorDict({K.EGO_STATE: torch.tensor([200.0, 30.0, 1.0]), K.NEIGHBORS_REL: rel,
-                     K.NEIGHBORS_MASK: mask, K.LC_ACTION: torch.tensor([0.0, 1.0, 0.0]),
-                     K.EGO_ACCEL: torch.tensor([-2.5]), K.EMBED_S_E: torch.full((D,), 0.25)}, [])
+    td = TensorDict(
+        {
+            K.EGO_STATE: torch.tensor([200.0, 30.0, 1.0]),
+            K.NEIGHBORS_REL: rel,
+            K.NEIGHBORS_MASK: mask,
+            K.LC_ACTION: torch.tensor([0.0, 1.0, 0.0]),
+            K.EGO_ACCEL: torch.tensor([-2.5]),
+            K.EMBED_S_E: torch.full((D,), 0.25),
+        },
+        [],
+    )
     lc = lc_state(embed=False)(td.clone())[K.LC_OBS]
     torch.testing.assert_close(lc[:3], torch.tensor([2.0, 0.6, 0.2]))
     expected_rel = torch.where(mask[:, None], rel / torch.tensor([10.0, 100.0, 5.0, 50.0]), 0.0).clamp(-5, 5)
@@ -157,7 +168,7 @@ def test_state_scaling_and_absent_slots():
     cf = cf_state()(td.clone())[K.CF_OBS]
     assert cf.shape == (BASE_DIM + D + 4,)
     torch.testing.assert_close(cf[:BASE_DIM], lc)
-    torch.testing.assert_close(cf[BASE_DIM:BASE_DIM + D], torch.full((D,), 0.25))
+    torch.testing.assert_close(cf[BASE_DIM : BASE_DIM + D], torch.full((D,), 0.25))
     torch.testing.assert_close(cf[-4:], torch.tensor([0.0, 1.0, 0.0, -0.5]))
 
 
@@ -167,8 +178,8 @@ def test_headway_and_ttc_extras_by_hand():
 
     # rows: closing in; leader faster; no leader; ego standing behind a standing leader; overlap; far and slow
     ego_v = torch.tensor([20.0, 25.0, 30.0, 0.0, 10.0, 5.0])
-    dy = torch.tensor([35.0, 55.0, 40.0, 15.0, 3.0, 205.0])     # front to front: gap = dy - 5 m
-    dvy = torch.tensor([-5.0, 2.0, 0.0, 0.0, -1.0, -1.0])     # leader minus ego
+    dy = torch.tensor([35.0, 55.0, 40.0, 15.0, 3.0, 205.0])  # front to front: gap = dy - 5 m
+    dvy = torch.tensor([-5.0, 2.0, 0.0, 0.0, -1.0, -1.0])  # leader minus ego
     present = torch.tensor([True, True, False, True, True, True])
     ego = torch.stack([torch.zeros(6), ego_v, torch.zeros(6)], -1)
     rel = torch.zeros(6, 6, 4)
@@ -182,8 +193,16 @@ def test_headway_and_ttc_extras_by_hand():
     torch.testing.assert_close(thw * 2, torch.tensor([1.5, 2.0, 10.0, 10.0, 0.0, 10.0]))
     #                                  30/5  opening  none  not closing  0 gap  200/1 -> cap
     torch.testing.assert_close(ttc * 2, torch.tensor([6.0, 10.0, 10.0, 10.0, 0.0, 10.0]))
-    td = TensorDict({K.EGO_STATE: ego, K.NEIGHBORS_REL: rel, K.NEIGHBORS_MASK: mask,
-                     K.LC_ACTION: torch.zeros(6, 3), K.EGO_ACCEL: torch.zeros(6, 1)}, [6])
+    td = TensorDict(
+        {
+            K.EGO_STATE: ego,
+            K.NEIGHBORS_REL: rel,
+            K.NEIGHBORS_MASK: mask,
+            K.LC_ACTION: torch.zeros(6, 3),
+            K.EGO_ACCEL: torch.zeros(6, 1),
+        },
+        [6],
+    )
     for extras in (("thw", "ttc"), ("ttc", "thw")):  # always in STATE_EXTRAS order, appended last
         lc = lc_state(embed=False, extras=extras)(td.clone())[K.LC_OBS]
         cf = cf_state(embed=False, extras=extras)(td.clone())[K.CF_OBS]
@@ -203,13 +222,13 @@ def test_detach_flag_and_detach_embedding():
     emb = make_shared_embedding(d=D)
     td = emb(make_batch((4,), next_=False))
     assert td[K.EMBED_S_E].requires_grad
-    assert not lc_state(detach_s_e=True)(td)[K.LC_OBS].requires_grad       # nothing to backprop into
+    assert not lc_state(detach_s_e=True)(td)[K.LC_OBS].requires_grad  # nothing to backprop into
     assert not cf_state(detach_s_e=True)(td)[K.CF_OBS].requires_grad
     td = emb(make_batch((4,), next_=False))
     cf_state()(td)
     det = detach_embedding(td)
     assert not det[K.CF_OBS].requires_grad and not det[K.EMBED_S_E].requires_grad
-    assert td[K.CF_OBS].requires_grad            # the input is not modified
+    assert td[K.CF_OBS].requires_grad  # the input is not modified
     td[K.CF_OBS].sum().backward()
     assert all(_nonzero(p) for p in embedding_parameters(emb))
 
@@ -219,16 +238,16 @@ def test_build_agent_states_next_and_target():
     emb = make_shared_embedding(d=D)
     target = make_target_embedding(emb)
     assert all(not p.requires_grad for p in target.parameters())
-    with torch.no_grad():                         # make online and target differ
+    with torch.no_grad():  # make online and target differ
         for p in emb.parameters():
             p.add_(0.1)
     batch = make_batch((6,))
     keys_before = set(batch.keys(True, True))
     out = build_agent_states(batch, emb, lc_state(), cf_state(), target_embedding=target)
-    assert set(batch.keys(True, True)) == keys_before              # the sample is untouched
+    assert set(batch.keys(True, True)) == keys_before  # the sample is untouched
     assert out[K.LC_OBS].requires_grad and out[K.CF_OBS].requires_grad
     assert not out["next", K.LC_OBS].requires_grad and not out["next", K.CF_OBS].requires_grad
-    torch.testing.assert_close(out["next", K.LC_ACTION], batch[K.LC_ACTION])   # held action copied
+    torch.testing.assert_close(out["next", K.LC_ACTION], batch[K.LC_ACTION])  # held action copied
     torch.testing.assert_close(out["next", K.EMBED_S_E], target(batch["next"].clone())[K.EMBED_S_E])
     assert not torch.allclose(out["next", K.EMBED_S_E], emb(batch["next"].clone())[K.EMBED_S_E])
     # a collector-written next lane-change action is kept
@@ -266,22 +285,47 @@ class _QNet(nn.Module):
 
 def make_agents(d: int = D):
     lc_dim, cf_dim = lc_obs_dim(d), cf_obs_dim(d)
-    qnet = DuelingMlpDQNet(3, mlp_kwargs_feature={"in_features": lc_dim, "num_cells": [32], "out_features": 32},
-                           mlp_kwargs_output={"num_cells": 32})
-    q_actor = QValueActor(qnet, in_keys=[K.LC_OBS], spec=OneHot(3), action_key=K.LC_ACTION,
-                          action_value_key=("lc", "action_value"),
-                          chosen_action_value_key=("lc", "chosen_action_value"))
+    qnet = DuelingMlpDQNet(
+        3,
+        mlp_kwargs_feature={"in_features": lc_dim, "num_cells": [32], "out_features": 32},
+        mlp_kwargs_output={"num_cells": 32},
+    )
+    q_actor = QValueActor(
+        qnet,
+        in_keys=[K.LC_OBS],
+        spec=OneHot(3),
+        action_key=K.LC_ACTION,
+        action_value_key=("lc", "action_value"),
+        chosen_action_value_key=("lc", "chosen_action_value"),
+    )
     dqn = DQNLoss(q_actor, double_dqn=True, delay_value=True, action_space="one-hot")
-    dqn.set_keys(action=K.LC_ACTION, action_value=("lc", "action_value"), value=("lc", "chosen_action_value"),
-                 reward=K.LC_REWARD, done="done", terminated="terminated", priority=("lc", "td_error"))
+    dqn.set_keys(
+        action=K.LC_ACTION,
+        action_value=("lc", "action_value"),
+        value=("lc", "chosen_action_value"),
+        reward=K.LC_REWARD,
+        done="done",
+        terminated="terminated",
+        priority=("lc", "td_error"),
+    )
     dqn.make_value_estimator(ValueEstimators.TD0, gamma=0.99)
 
-    actor = Actor(nn.Sequential(MLP(in_features=cf_dim, out_features=1, num_cells=[32]), nn.Tanh(), _Scale(5.0)),
-                  in_keys=[K.CF_OBS], out_keys=[K.CF_ACTION], spec=Bounded(-5.0, 5.0, (1,)))
+    actor = Actor(
+        nn.Sequential(MLP(in_features=cf_dim, out_features=1, num_cells=[32]), nn.Tanh(), _Scale(5.0)),
+        in_keys=[K.CF_OBS],
+        out_keys=[K.CF_ACTION],
+        spec=Bounded(-5.0, 5.0, (1,)),
+    )
     critic = ValueOperator(_QNet(cf_dim), in_keys=[K.CF_OBS, K.CF_ACTION], out_keys=[("cf", "state_action_value")])
     td3 = TD3Loss(actor, critic, bounds=(-5.0, 5.0), num_qvalue_nets=2)
-    td3.set_keys(action=K.CF_ACTION, state_action_value=("cf", "state_action_value"), reward=K.CF_REWARD,
-                 done="done", terminated="terminated", priority=("cf", "td_error"))
+    td3.set_keys(
+        action=K.CF_ACTION,
+        state_action_value=("cf", "state_action_value"),
+        reward=K.CF_REWARD,
+        done="done",
+        terminated="terminated",
+        priority=("cf", "td_error"),
+    )
     td3.make_value_estimator(ValueEstimators.TD0, gamma=0.99)
     dqn.updater, td3.updater = SoftUpdate(dqn, tau=0.005), SoftUpdate(td3, tau=0.005)
     return q_actor, dqn, actor, td3
@@ -289,7 +333,8 @@ def make_agents(d: int = D):
 
 def _targets(loss):
     out = [p for name, p in loss.named_parameters() if "target_" in name] + [
-        t for name, t in loss.named_buffers() if "target_" in name]
+        t for name, t in loss.named_buffers() if "target_" in name
+    ]
     assert out, "the loss keeps target parameters"
     return out
 
@@ -322,7 +367,7 @@ def test_dqn_td_loss_trains_the_embedding(setup):
     loss = dqn(states)["loss"]
     assert loss.ndim == 0 and torch.isfinite(loss)
     loss.backward()
-    assert all(_nonzero(p) for p in embedding_parameters(emb))          # fusion + shared, every tensor
+    assert all(_nonzero(p) for p in embedding_parameters(emb))  # fusion + shared, every tensor
     assert any(_nonzero(p) for p in q_actor.parameters())
     assert all(p.grad is None for p in _targets(dqn))
     assert all(p.grad is None for p in target_emb.parameters())
@@ -377,7 +422,7 @@ def test_one_shared_update_step(setup):
     assert all(torch.equal(a, p) for a, p in zip(target_before, target_emb.parameters()))
     dqn.updater.step()
     td3.updater.step()
-    soft_update_embedding_(target_emb, emb, 0.005)                 # alongside the losses' SoftUpdate
+    soft_update_embedding_(target_emb, emb, 0.005)  # alongside the losses' SoftUpdate
     assert all(not torch.equal(a, p) for a, p in zip(target_before, target_emb.parameters()))
 
 

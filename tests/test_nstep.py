@@ -1,5 +1,6 @@
 """Option ``train.n_steps`` (issue 14, "Learning signal"): n-step returns in buffer L for every frame learner
 (:class:`kddrl_trl.collectors.nstep.NStepReturns`), by hand and wired through training on the fake env."""
+
 from __future__ import annotations
 
 import pytest
@@ -16,10 +17,23 @@ def frames(steps: int = 6, done_at: int = 3) -> TensorDict:
     done = torch.zeros(2, steps, 1, dtype=torch.bool)
     done[0, done_at] = True
     t = torch.arange(steps).float().expand(2, steps).unsqueeze(-1)
-    return TensorDict({"obs": t, "next": TensorDict({
-        "obs": t + 1, K.LC_REWARD: torch.ones(2, steps, 1), K.CF_REWARD: t.clone(), "done": done,
-        "terminated": done.clone(), K.LC_HELD: torch.nn.functional.one_hot(t.long().squeeze(-1) % 3, 3).float()},
-        [2, steps])}, [2, steps])
+    return TensorDict(
+        {
+            "obs": t,
+            "next": TensorDict(
+                {
+                    "obs": t + 1,
+                    K.LC_REWARD: torch.ones(2, steps, 1),
+                    K.CF_REWARD: t.clone(),
+                    "done": done,
+                    "terminated": done.clone(),
+                    K.LC_HELD: torch.nn.functional.one_hot(t.long().squeeze(-1) % 3, 3).float(),
+                },
+                [2, steps],
+            ),
+        },
+        [2, steps],
+    )
 
 
 def test_nstep_returns_by_hand():
@@ -57,8 +71,9 @@ def test_every_frame_learner_trains_on_nstep_returns(algo, tmp_path):
     nets = SMALL_NETS.get(algo, ["algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]"])
     job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", "train.n_steps=3", *nets)
     assert job.train.n_steps == 3
-    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
-                                                    batch_size_lc=4, frames_per_env=10)
+    env, learner, trainer, collector = fake_trainer(
+        job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10
+    )
     history = trainer.run(collector)
     env.close()
     assert len(history) == 3 and trainer.counters["cf_updates"] > 0

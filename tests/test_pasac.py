@@ -1,5 +1,6 @@
 """PASACLoss (parameterised-action SAC), tested as TorchRL tests its losses: a batch built by hand with a "next"
 subtree, which parameters each loss reaches, frozen targets, the temperatures, the value estimator."""
+
 from __future__ import annotations
 
 import pytest
@@ -23,10 +24,24 @@ def _state(gen: torch.Generator) -> dict:
 def batch(terminated: bool = False, seed: int = 0) -> TensorDict:
     gen = torch.Generator().manual_seed(seed)
     flags = torch.full((B, 1), terminated)
-    nxt = TensorDict({**_state(gen), K.JOINT_REWARD: torch.randn(B, 1, generator=gen), "done": flags.clone(),
-                      "terminated": flags.clone()}, [B])
-    return TensorDict({**_state(gen), K.LC_ACTION: one_hot(torch.randint(1, 3, (B,), generator=gen), 3).float(),
-                       K.CF_ACTION: torch.rand(B, 1, generator=gen) * 10 - 5, "next": nxt}, [B])
+    nxt = TensorDict(
+        {
+            **_state(gen),
+            K.JOINT_REWARD: torch.randn(B, 1, generator=gen),
+            "done": flags.clone(),
+            "terminated": flags.clone(),
+        },
+        [B],
+    )
+    return TensorDict(
+        {
+            **_state(gen),
+            K.LC_ACTION: one_hot(torch.randint(1, 3, (B,), generator=gen), 3).float(),
+            K.CF_ACTION: torch.rand(B, 1, generator=gen) * 10 - 5,
+            "next": nxt,
+        },
+        [B],
+    )
 
 
 @pytest.fixture
@@ -191,10 +206,26 @@ def bandit_batch(n: int, gen: torch.Generator) -> TensorDict:
     reward = (choice == obs[:, :3].argmax(-1)).float() - 4 * ((x.squeeze(-1) - OPT_PARAM[choice]) / 5) ** 2
     mask = torch.ones(n, 3, dtype=torch.bool)
     done = torch.ones(n, 1, dtype=torch.bool)
-    nxt = TensorDict({K.JOINT_OBS: torch.randn(n, 4, generator=gen), K.LC_ACTION_MASK: mask.clone(),
-                      K.JOINT_REWARD: reward.unsqueeze(-1), "done": done, "terminated": done.clone()}, [n])
-    return TensorDict({K.JOINT_OBS: obs, K.LC_ACTION_MASK: mask, K.LC_ACTION: one_hot(choice, 3).float(),
-                       K.CF_ACTION: x, "next": nxt}, [n])
+    nxt = TensorDict(
+        {
+            K.JOINT_OBS: torch.randn(n, 4, generator=gen),
+            K.LC_ACTION_MASK: mask.clone(),
+            K.JOINT_REWARD: reward.unsqueeze(-1),
+            "done": done,
+            "terminated": done.clone(),
+        },
+        [n],
+    )
+    return TensorDict(
+        {
+            K.JOINT_OBS: obs,
+            K.LC_ACTION_MASK: mask,
+            K.LC_ACTION: one_hot(choice, 3).float(),
+            K.CF_ACTION: x,
+            "next": nxt,
+        },
+        [n],
+    )
 
 
 def train_on_bandit(updates: int, actor_lr: float = 3e-3) -> tuple[float, float, torch.Tensor]:
@@ -205,9 +236,11 @@ def train_on_bandit(updates: int, actor_lr: float = 3e-3) -> tuple[float, float,
     gen = torch.Generator().manual_seed(1)
     parts = make_pasac(4, hidden=[64, 64], gamma=0.9, alpha_init=0.05, target_entropy_lane=0.169)
     loss = parts.loss
-    opts = [torch.optim.Adam(loss.qvalue_network_params.flatten_keys().values(), lr=3e-3),
-            torch.optim.Adam(loss.actor_network_params.flatten_keys().values(), lr=actor_lr),
-            torch.optim.Adam([loss.log_alpha_lane, loss.log_alpha_param], lr=3e-3)]
+    opts = [
+        torch.optim.Adam(loss.qvalue_network_params.flatten_keys().values(), lr=3e-3),
+        torch.optim.Adam(loss.actor_network_params.flatten_keys().values(), lr=actor_lr),
+        torch.optim.Adam([loss.log_alpha_lane, loss.log_alpha_param], lr=3e-3),
+    ]
     for _ in range(updates):
         out = loss(bandit_batch(256, gen))
         for opt in opts:
@@ -246,7 +279,7 @@ def test_temperatures_stay_inside_their_bounds():
     parts = make_pasac(D, hidden=[16], alpha_init=0.5, alpha_min=0.1, alpha_max=1.0)
     loss = parts.loss
     opt = torch.optim.SGD([loss.log_alpha_lane, loss.log_alpha_param], lr=1.0)
-    loss.target_entropy_lane.fill_(50.0)    # below target: α_d rises
+    loss.target_entropy_lane.fill_(50.0)  # below target: α_d rises
     loss.target_entropy_param.fill_(-50.0)  # log π_c + H̄_c < 0: α_c falls
     for _ in range(20):
         out = loss(batch())

@@ -1,5 +1,6 @@
 """``PeriodicEvaluator``: validation episodes in a worker process, without touching the training process's torch
 threads (a thread-count change mid-run re-traces every compiled graph: TorchDynamo guards it)."""
+
 from __future__ import annotations
 
 from functools import partial

@@ -1,4 +1,5 @@
 """Hand-checked cases for the IDM (paper Eq. 11-12), MOBIL (Eq. 20-22) and the IDM+MOBIL baseline."""
+
 import math
 
 import pytest
@@ -54,8 +55,9 @@ def test_idm_gap_clamp_is_finite():
     assert torch.isfinite(a).all()
     assert (a < -100).all()  # very strong braking at (or past) contact
     # absent leader with garbage gap / speed: free road, no NaN
-    a = idm_acceleration(torch.tensor(10.0), torch.tensor(float("nan")), torch.tensor(float("nan")),
-                         has_leader=torch.tensor(False))
+    a = idm_acceleration(
+        torch.tensor(10.0), torch.tensor(float("nan")), torch.tensor(float("nan")), has_leader=torch.tensor(False)
+    )
     assert a.item() == pytest.approx(5.0 * (1 - (10 / V0) ** 4), rel=1e-5)
 
 
@@ -72,8 +74,15 @@ def test_idm_broadcast_per_vehicle_params():
 
 # -------------------------------------------------------------------------------------------- rollout
 def test_rollout_free_at_desired_speed():
-    y = idm_rollout(torch.tensor([10.0]), torch.tensor([V0]), torch.tensor([0.0]), torch.tensor([0.0]),
-                    torch.tensor([False]), steps=20, dt=0.1)
+    y = idm_rollout(
+        torch.tensor([10.0]),
+        torch.tensor([V0]),
+        torch.tensor([0.0]),
+        torch.tensor([0.0]),
+        torch.tensor([False]),
+        steps=20,
+        dt=0.1,
+    )
     assert y.shape == (1, 20)
     expected = 10.0 + V0 * 0.1 * torch.arange(1, 21, dtype=torch.float32)
     torch.testing.assert_close(y[0], expected, rtol=1e-5, atol=1e-4)
@@ -81,8 +90,15 @@ def test_rollout_free_at_desired_speed():
 
 def test_rollout_stops_behind_stopped_vehicle():
     y_stop = 150.0
-    y = idm_rollout(torch.tensor(0.0), torch.tensor(30.0), torch.tensor(y_stop), torch.tensor(0.0),
-                    torch.tensor(True), steps=400, dt=0.1)
+    y = idm_rollout(
+        torch.tensor(0.0),
+        torch.tensor(30.0),
+        torch.tensor(y_stop),
+        torch.tensor(0.0),
+        torch.tensor(True),
+        steps=400,
+        dt=0.1,
+    )
     assert y.shape == (400,)
     v = torch.diff(y, prepend=torch.zeros(1)) / 0.1  # speeds v' of the semi-implicit Euler steps
     assert (y < y_stop - L).all()  # never reaches the stopped vehicle's rear bumper
@@ -188,22 +204,25 @@ def make_td(batch):
     mask[..., SLOT["b"]] = True
     ego = torch.zeros(*batch, 3)
     ego[..., 0], ego[..., 1] = 150.0, 25.0
-    return TensorDict({
-        EGO_STATE: ego,
-        EGO_LANE: torch.ones(*batch, 1, dtype=torch.int64),
-        NEIGHBORS_KIN: kin,
-        NEIGHBORS_MASK: mask,
-        NEIGHBORS_REL: torch.zeros(*batch, 6, 4),
-        LC_ACTION_MASK: torch.ones(*batch, 3, dtype=torch.bool),
-    }, batch_size=batch)
+    return TensorDict(
+        {
+            EGO_STATE: ego,
+            EGO_LANE: torch.ones(*batch, 1, dtype=torch.int64),
+            NEIGHBORS_KIN: kin,
+            NEIGHBORS_MASK: mask,
+            NEIGHBORS_REL: torch.zeros(*batch, 6, 4),
+            LC_ACTION_MASK: torch.ones(*batch, 3, dtype=torch.bool),
+        },
+        batch_size=batch,
+    )
 
 
 def test_policy_batch_respects_mask():
     policy = IDMMobilPolicy(IDMParams(), MOBILParams())
     assert LC_ACTION in policy.out_keys and EGO_STATE in policy.in_keys
     td = make_td([4])
-    td[LC_ACTION_MASK][1] = torch.tensor([False, True, True])   # left not allowed
-    td[LC_ACTION_MASK][2] = torch.tensor([True, True, False])   # right not allowed
+    td[LC_ACTION_MASK][1] = torch.tensor([False, True, True])  # left not allowed
+    td[LC_ACTION_MASK][2] = torch.tensor([True, True, False])  # right not allowed
     td[LC_ACTION_MASK][3] = torch.tensor([False, True, False])  # only keep
     td[NEIGHBORS_KIN][..., SLOT["b"], 0] = torch.tensor([155.5, 205.0, 205.0, 205.0])  # row 0: 0.5 m gap
     out = policy(td)
@@ -233,7 +252,7 @@ def test_policy_brakes_for_target_lane_leader_during_lane_change():
     td = make_td([2])
     td[NEIGHBORS_KIN][..., SLOT["a"], :] = torch.tensor([150.0 + 8.0 + L, 20.0, 0.0])  # 8 m gap, left lane
     td[NEIGHBORS_MASK][..., SLOT["a"]] = True
-    td[NEIGHBORS_REL][0, SLOT["a"], 0] = 1.6   # row 0: mid-manoeuvre, leader a half a lane away
-    td[NEIGHBORS_REL][1, SLOT["a"], 0] = 3.2   # row 1: a is a full lane away: ignored
+    td[NEIGHBORS_REL][0, SLOT["a"], 0] = 1.6  # row 0: mid-manoeuvre, leader a half a lane away
+    td[NEIGHBORS_REL][1, SLOT["a"], 0] = 3.2  # row 1: a is a full lane away: ignored
     cf = IDMMobilPolicy()(td)[CF_ACTION].squeeze(-1)
     assert cf[0] == -5.0 and cf[1] > -5.0

@@ -1,4 +1,5 @@
 """``python -m kddrl_trl.data.prepare`` end to end, as a user types it (small recordings)."""
+
 from __future__ import annotations
 
 import json
@@ -11,8 +12,13 @@ from kddrl_trl.envs import make_config
 
 
 def run(args, cwd):
-    return subprocess.run([sys.executable, "-m", "kddrl_trl.data.prepare", "progress=false", *args],
-                          cwd=cwd, capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "kddrl_trl.data.prepare", "progress=false", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def test_prepare_synthetic_then_highd_source(tmp_path):

@@ -1,4 +1,5 @@
 """The generic pretraining loop and checkpoints, with a tiny stand-in model (fast, exact)."""
+
 from __future__ import annotations
 
 import json
@@ -65,8 +66,16 @@ def data(n, seed):
 
 def test_loop_trains_stops_early_and_evaluates(tmp_path):
     task = LinearTask()
-    m = run_pretraining(task, data(256, 0), data(64, 1), data(64, 2),
-                        PretrainConfig(epochs=50, batch_size=32, patience=2), tmp_path, "hash-a", progress=False)
+    m = run_pretraining(
+        task,
+        data(256, 0),
+        data(64, 1),
+        data(64, 2),
+        PretrainConfig(epochs=50, batch_size=32, patience=2),
+        tmp_path,
+        "hash-a",
+        progress=False,
+    )
     assert m["mse"] < 1e-3 and m["epochs_run"] < 50  # converged, then stopped early
     history = json.loads((tmp_path / "history.json").read_text())
     assert history[0]["val_loss"] > history[-1]["val_loss"]
@@ -75,19 +84,49 @@ def test_loop_trains_stops_early_and_evaluates(tmp_path):
 
 def test_killed_run_resumes(tmp_path):
     cfg = dict(batch_size=32, patience=100, seed=3)
-    full = run_pretraining(LinearTask(lr=0.01), data(256, 0), data(64, 1), data(64, 2),
-                           PretrainConfig(epochs=6, **cfg), tmp_path / "a", "h", progress=False)
-    run_pretraining(LinearTask(lr=0.01), data(256, 0), data(64, 1), data(64, 2),
-                    PretrainConfig(epochs=3, **cfg), tmp_path / "b", "h", progress=False)  # "killed" after 3
-    resumed = run_pretraining(LinearTask(lr=0.01), data(256, 0), data(64, 1), data(64, 2),
-                              PretrainConfig(epochs=6, **cfg), tmp_path / "b", "h", progress=False)
+    full = run_pretraining(
+        LinearTask(lr=0.01),
+        data(256, 0),
+        data(64, 1),
+        data(64, 2),
+        PretrainConfig(epochs=6, **cfg),
+        tmp_path / "a",
+        "h",
+        progress=False,
+    )
+    run_pretraining(
+        LinearTask(lr=0.01),
+        data(256, 0),
+        data(64, 1),
+        data(64, 2),
+        PretrainConfig(epochs=3, **cfg),
+        tmp_path / "b",
+        "h",
+        progress=False,
+    )  # "killed" after 3
+    resumed = run_pretraining(
+        LinearTask(lr=0.01),
+        data(256, 0),
+        data(64, 1),
+        data(64, 2),
+        PretrainConfig(epochs=6, **cfg),
+        tmp_path / "b",
+        "h",
+        progress=False,
+    )
     assert resumed["epochs_run"] == 6 and resumed["mse"] == pytest.approx(full["mse"], rel=1e-6)
 
 
 def test_checkpoint_checks_kind_architecture_and_data(tmp_path):
     task = LinearTask(hidden=2)
-    path = save_checkpoint(tmp_path / "c.pt", kind="toy", architecture=task.architecture(), modules=task.modules(),
-                           dataset_hash="abc", state={"epoch": 1})
+    path = save_checkpoint(
+        tmp_path / "c.pt",
+        kind="toy",
+        architecture=task.architecture(),
+        modules=task.modules(),
+        dataset_hash="abc",
+        state={"epoch": 1},
+    )
     assert read_checkpoint(path)["state"]["epoch"] == 1
     torch.load(path, weights_only=True)
     other = LinearTask(hidden=3)

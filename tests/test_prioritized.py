@@ -1,6 +1,7 @@
 """Option ``train.prioritized`` (issue 14, "Learning signal"): prioritized replay in buffers L and H with TorchRL's
 ``TensorDictPrioritizedReplayBuffer``; every learner reports its transitions' ``|δ|`` and weights its losses by the
 importance weights; the trainer updates the priorities, anneals beta and keeps both across a resume."""
+
 from __future__ import annotations
 
 import pytest
@@ -71,8 +72,9 @@ def test_every_learner_reports_priorities_and_weights_its_losses(algo, tmp_path)
     """Each learner's value loss gives one finite ``|δ|`` per transition, and its losses read the sample's
     importance weights: all-ones weights leave the loss as it is, uneven ones change it."""
     job = small_job(algo, "train.prioritized=true")
-    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
-                                                    batch_size_lc=4, frames_per_env=10)
+    env, learner, trainer, collector = fake_trainer(
+        job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10
+    )
     trainer.run(collector)
     env.close()
     assert is_prioritized(trainer.buffer_cf) and trainer.counters["cf_updates"] > 0
@@ -102,8 +104,9 @@ def test_trainer_updates_priorities_anneals_beta_and_resumes(tmp_path):
     """Training with ``train.prioritized=true`` on the fake env: both buffers' priorities move away from the
     uniform start, beta is annealed toward 1 with the episodes, and a resumed trainer keeps the priority trees."""
     job = small_job("kddrl", "train.prioritized=true", "train.priority_beta=0.4")
-    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
-                                                    batch_size_lc=4, frames_per_env=10)
+    env, learner, trainer, collector = fake_trainer(
+        job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10
+    )
     trainer.run(collector)
     env.close()
     assert trainer.counters["cf_updates"] > 0 and trainer.counters["lc_updates"] > 0
@@ -112,14 +115,16 @@ def test_trainer_updates_priorities_anneals_beta_and_resumes(tmp_path):
         p = torch.tensor([tree[i] for i in range(len(rb))])
         assert p.std() > 0, "the priorities were never updated"
         assert 0.4 < rb.sampler.beta <= 1.0
-    env, _, resumed, _ = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4,
-                                      frames_per_env=10)
+    env, _, resumed, _ = fake_trainer(
+        job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10
+    )
     env.close()
     assert resumed.load(tmp_path) == 3
     for old, new in ((trainer.buffer_cf, resumed.buffer_cf), (trainer.buffer_lc, resumed.buffer_lc)):
         assert is_prioritized(new)
-        assert [new.sampler._sum_tree[i] for i in range(len(old))] == \
-            [old.sampler._sum_tree[i] for i in range(len(old))]
+        assert [new.sampler._sum_tree[i] for i in range(len(old))] == [
+            old.sampler._sum_tree[i] for i in range(len(old))
+        ]
 
 
 def test_tensor_trees_answer_as_segment_trees():

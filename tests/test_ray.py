@@ -3,6 +3,7 @@ Ray, as typed, read by the report and resumed; and the launcher's refusals, whic
 
 The sweep needs the optional extra ``.[ray]``: it is marked ``ray`` and skipped without Ray
 (``python -m pytest -m ray -n0 tests/test_ray.py``, as ``.ci/run`` does after installing the extra)."""
+
 from __future__ import annotations
 
 import json
@@ -14,9 +15,20 @@ import pytest
 
 #: one run of each kind: a rule-based one and a KDDRL one that trains, checkpoints and validates (in a process of
 #: its own, inside the Ray worker) with a tiny budget
-TINY = ["episodes=3", "eval_episodes=2", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
-        "train.batch_size_cf=32", "train.batch_size_lc=8", "compile=false", "train.eval_every=2",
-        "train.eval_episodes=1", "train.checkpoint_every=2", "env.max_steps=120"]
+TINY = [
+    "episodes=3",
+    "eval_episodes=2",
+    "env.num_roads=2",
+    "progress=false",
+    "train.warmup_frames=50",
+    "train.batch_size_cf=32",
+    "train.batch_size_lc=8",
+    "compile=false",
+    "train.eval_every=2",
+    "train.eval_episodes=1",
+    "train.checkpoint_every=2",
+    "env.max_steps=120",
+]
 
 
 def _run(cmd, cwd, timeout=900):
@@ -30,8 +42,16 @@ def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_p
     """On a local Ray of one CPU, so the second run takes the worker process (and libsumo) the first one left."""
     pytest.importorskip("ray")
     sweep = tmp_path / "sweep"
-    cmd = ["kddrl_trl.train", "-m", "algo=idm_mobil,kddrl", "+scenario=braking", "hydra/launcher=ray",
-           "+hydra.launcher.init.num_cpus=1", f"hydra.sweep.dir={sweep}", *TINY]
+    cmd = [
+        "kddrl_trl.train",
+        "-m",
+        "algo=idm_mobil,kddrl",
+        "+scenario=braking",
+        "hydra/launcher=ray",
+        "+hydra.launcher.init.num_cpus=1",
+        f"hydra.sweep.dir={sweep}",
+        *TINY,
+    ]
     done = _run(cmd, tmp_path)
     assert "Ray launcher (local Ray; 1 CPUs and 0 GPUs per run) is launching 2 jobs" in done.stdout + done.stderr
     jobs = sorted(p.name for p in sweep.iterdir() if p.is_dir())
@@ -68,8 +88,17 @@ def test_training_collects_on_two_ray_actors(tmp_path):
     the macro-transition writer in the learner process; the run trains, checkpoints and evaluates as any other."""
     pytest.importorskip("ray")
     tiny = [t for t in TINY if not t.startswith(("train.eval_every", "train.eval_episodes"))]
-    _run(["kddrl_trl.train", "collector.backend=ray", "collector.workers=2", "train.eval_every=0",
-          "hydra.run.dir=run", *tiny], tmp_path)
+    _run(
+        [
+            "kddrl_trl.train",
+            "collector.backend=ray",
+            "collector.workers=2",
+            "train.eval_every=0",
+            "hydra.run.dir=run",
+            *tiny,
+        ],
+        tmp_path,
+    )
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["training"]["episodes"] == 3 and summary["training"]["frames"] > 0
     assert summary["training"]["decisions"] > 0 and summary["training"]["lc_updates"] > 0
@@ -91,10 +120,15 @@ def test_without_ray_the_launcher_names_the_extra(monkeypatch):
         _launcher().setup(hydra_context=None, task_function=None, config=None)
 
 
-@pytest.mark.parametrize("kwargs, key", [({"num_cpus": 0}, "hydra.launcher.num_cpus=0"),
-                                         ({"num_gpus": -1}, "hydra.launcher.num_gpus=-1"),
-                                         ({"num_cpus": "two"}, "hydra.launcher.num_cpus='two'"),
-                                         ({"init": {"address": "auto"}}, "hydra.launcher.init.address='auto'")])
+@pytest.mark.parametrize(
+    "kwargs, key",
+    [
+        ({"num_cpus": 0}, "hydra.launcher.num_cpus=0"),
+        ({"num_gpus": -1}, "hydra.launcher.num_gpus=-1"),
+        ({"num_cpus": "two"}, "hydra.launcher.num_cpus='two'"),
+        ({"init": {"address": "auto"}}, "hydra.launcher.init.address='auto'"),
+    ],
+)
 def test_bad_launcher_values_are_refused_naming_the_key(kwargs, key):
     from hydra_plugins.kddrl_trl_ray_launcher._core import init_kwargs
 
@@ -108,9 +142,16 @@ def test_launcher_config_is_registered_and_reaches_ray_init():
     from hydra_plugins.kddrl_trl_ray_launcher._core import init_kwargs
 
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["hydra/launcher=ray", "hydra.launcher.address=auto",
-                                                       "hydra.launcher.num_cpus=2", "+hydra.launcher.init.log_to_driver=false"],
-                      return_hydra_config=True)
+        cfg = compose(
+            config_name="config",
+            overrides=[
+                "hydra/launcher=ray",
+                "hydra.launcher.address=auto",
+                "hydra.launcher.num_cpus=2",
+                "+hydra.launcher.init.log_to_driver=false",
+            ],
+            return_hydra_config=True,
+        )
     launcher = cfg.hydra.launcher
     assert launcher._target_ == "hydra_plugins.kddrl_trl_ray_launcher.ray_launcher.RayLauncher"
     assert (launcher.num_cpus, launcher.num_gpus) == (2, 0)

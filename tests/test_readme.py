@@ -1,5 +1,6 @@
 """The README's and the guide's code stays true: the two set-up commands are CI's, the transform-reuse example of
 docs/reuse.md runs as written, and the README stays a front door."""
+
 from __future__ import annotations
 
 import re
@@ -43,11 +44,16 @@ def test_readme_is_a_front_door():
 
 def test_the_guide_home_is_the_readme():
     """docs/index.md is README.md with its links made relative to docs/ (regenerate it when the README changes)."""
-    readme = README.read_text().replace("](docs/", "](").replace(
-        "([LICENSE](LICENSE))", "(the file LICENSE at the repository root)").replace(
-        "[CITATION.cff](CITATION.cff)", "the file CITATION.cff")
+    readme = (
+        README.read_text()
+        .replace("](docs/", "](")
+        .replace("([LICENSE](LICENSE))", "(the file LICENSE at the repository root)")
+        .replace("[CITATION.cff](CITATION.cff)", "the file CITATION.cff")
+    )
     home = (ROOT / "docs" / "index.md").read_text()
-    marker = "<!-- the guide's home: README.md with links relative to docs/ (tests/test_readme.py keeps them in step) -->\n"
+    marker = (
+        "<!-- the guide's home: README.md with links relative to docs/ (tests/test_readme.py keeps them in step) -->\n"
+    )
     assert home.replace(marker, "").replace("# kddrl_trl\n\n", "# kddrl_trl\n", 1) == readme
 
 

@@ -1,4 +1,5 @@
 """The traffic recorder: HighD-format recordings of the simulator's background traffic."""
+
 from __future__ import annotations
 
 import subprocess
@@ -61,12 +62,18 @@ def test_write_read_round_trip(recorded, tmp_path):
     assert list_recordings(tmp_path) == [1, 2]
     for rec in recs:
         back = read_recording(tmp_path, rec.recording_id)
-        for a, b in ((rec.recording.tracks, back.tracks), (rec.recording.tracks_meta, back.tracks_meta),
-                     (rec.recording.recording_meta, back.recording_meta)):
+        for a, b in (
+            (rec.recording.tracks, back.tracks),
+            (rec.recording.tracks_meta, back.tracks_meta),
+            (rec.recording.recording_meta, back.recording_meta),
+        ):
             pd.testing.assert_frame_equal(a.reset_index(drop=True), b.reset_index(drop=True), check_dtype=False)
-            assert all(str(b[c].dtype) != "object" or c in ("class", "driverType", "month", "weekDay", "startTime",
-                                                              "upperLaneMarkings", "lowerLaneMarkings")
-                       for c in b.columns)
+            assert all(
+                str(b[c].dtype) != "object"
+                or c
+                in ("class", "driverType", "month", "weekDay", "startTime", "upperLaneMarkings", "lowerLaneMarkings")
+                for c in b.columns
+            )
         params = read_driver_params(tmp_path, rec.recording_id)
         assert list(params.columns) == list(DRIVER_PARAMS_COLUMNS)
         pd.testing.assert_frame_equal(params, rec.driver_params.reset_index(drop=True), check_dtype=False)
@@ -96,7 +103,7 @@ def test_lane_index_matches_simulator_lane(recorded):
     for rec in recs:
         tracks = rec.recording.tracks
         lane = lane_index_in_direction(rec.recording).to_numpy()
-        assert np.array_equal(lane, rec.sim_lane)                       # SUMO's lane behind each row
+        assert np.array_equal(lane, rec.sim_lane)  # SUMO's lane behind each row
         assert np.array_equal(tracks["laneId"].to_numpy(), 2 * n + 2 - lane)  # HighD numbering, lower half
         markings = rec.recording.lower_markings
         assert len(markings) == n + 1 and np.allclose(np.diff(markings), cfg.lane_width)
@@ -172,8 +179,9 @@ def test_side_neighbours(recorded):
                 # ids come from the latest 0.1 s sample: exact on frames that fall on a sample (every 5th
                 # 25 Hz frame), elsewhere off by what the relative speed covers in under 0.1 s
                 exact = (rows["frame"].to_numpy() % 5) == 0
-                tol = np.where(exact, 1e-9, np.abs(rows["xVelocity"].to_numpy() - other["xVelocity"].to_numpy())
-                               * 0.1 + 0.05)
+                tol = np.where(
+                    exact, 1e-9, np.abs(rows["xVelocity"].to_numpy() - other["xVelocity"].to_numpy()) * 0.1 + 0.05
+                )
                 if kind == "Preceding":
                     assert np.all(o_rear >= front - tol), col
                 elif kind == "Following":
@@ -182,7 +190,11 @@ def test_side_neighbours(recorded):
                     assert np.all((o_rear < front + tol) & (o_front > rear - tol)), col
                 assert exact.any()
         # lanes that do not exist have no neighbours
-        assert (tracks.loc[tracks["lane"] == 0, ["rightPrecedingId", "rightAlongsideId", "rightFollowingId"]] == 0).all().all()
+        assert (
+            (tracks.loc[tracks["lane"] == 0, ["rightPrecedingId", "rightAlongsideId", "rightFollowingId"]] == 0)
+            .all()
+            .all()
+        )
 
 
 def test_first_frame_is_where_the_vehicle_enters_the_view(recorded):
@@ -201,13 +213,22 @@ def test_first_frame_is_where_the_vehicle_enters_the_view(recorded):
         # and a vehicle is dropped when its rear leaves the section (or the recording ends)
         left = last[last["frame"] < DURATION * FRAME_RATE - 1]
         rear = left["x"].to_numpy()
-        assert np.all(rear < cfg.section_length) and np.all(rear >= cfg.section_length - left["xVelocity"] / FRAME_RATE - 0.05)
+        assert np.all(rear < cfg.section_length) and np.all(
+            rear >= cfg.section_length - left["xVelocity"] / FRAME_RATE - 0.05
+        )
 
 
 def test_record_entry_point_runs_from_any_directory(tmp_path):
     out = tmp_path / "recs"
-    cmd = [sys.executable, "-m", "kddrl_trl.data.record", "duration_s=20", "num_roads=1", "progress=false",
-           f"out_dir={out}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "kddrl_trl.data.record",
+        "duration_s=20",
+        "num_roads=1",
+        "progress=false",
+        f"out_dir={out}",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 0, done.stderr
     names = sorted(p.name for p in out.iterdir())

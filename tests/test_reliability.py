@@ -1,5 +1,6 @@
 """Reliability: damaged checkpoints, a writer killed mid-write, refused configs leaving no run folder, and
 faults injected into the simulator and the observations."""
+
 from __future__ import annotations
 
 import logging
@@ -113,8 +114,15 @@ def test_the_next_checkpoint_save_sweeps_every_killed_writes_temp_file(tmp_path)
     assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["ep000004.pt", "latest"]
 
 
-@pytest.mark.parametrize("override, sweep", [("env.flow_vph=-1", []), ("env.flow_vphh=3", []),
-                                             ("train.batch_size_cf=0", []), ("env.flow_vph=-1", ["-m", "seed=0,1"])])
+@pytest.mark.parametrize(
+    "override, sweep",
+    [
+        ("env.flow_vph=-1", []),
+        ("env.flow_vphh=3", []),
+        ("train.batch_size_cf=0", []),
+        ("env.flow_vph=-1", ["-m", "seed=0,1"]),
+    ],
+)
 def test_a_refused_config_leaves_no_run_folder(tmp_path, override, sweep):
     cmd = [sys.executable, "-m", "kddrl_trl.train", *sweep, override, "episodes=1", "progress=false"]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
@@ -158,8 +166,9 @@ def _fail_for(monkeypatch, name, vid, result=None):
 
 
 @pytest.mark.parametrize("call", ["setSpeed", "getLateralSpeed", "getLeader"])
-def test_a_sumo_fault_mid_episode_truncates_that_road_as_lost_and_the_others_go_on(monkeypatch, caplog, no_sumo_open,
-                                                                                    call):
+def test_a_sumo_fault_mid_episode_truncates_that_road_as_lost_and_the_others_go_on(
+    monkeypatch, caplog, no_sumo_open, call
+):
     from kddrl_trl import keys as K
     from kddrl_trl.baselines import IDMMobilPolicy
     from kddrl_trl.eval import EpisodeTracker
@@ -207,8 +216,9 @@ def test_a_nan_from_sumo_is_refused_naming_the_key(monkeypatch, no_sumo_open):
 def test_a_trainer_resumes_from_the_previous_checkpoint_when_the_newest_is_truncated(tmp_path, caplog):
     from test_train import compose_job, fake_trainer
 
-    job = compose_job("env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]",
-                      "algo.learner.td3.hidden=[16]")
+    job = compose_job(
+        "env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]"
+    )
     small = dict(warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10, checkpoint_every=1)
     env, _, trainer, collector = fake_trainer(job, tmp_path, **small)
     trainer.run(collector)

@@ -1,4 +1,5 @@
 """Evidence: the evaluation protocol, a tiny sweep as typed, the report on it, determinism, traces and videos."""
+
 from __future__ import annotations
 
 import json
@@ -14,9 +15,19 @@ from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoi
 from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
 
 #: a tiny KDDRL budget that still trains, validates and evaluates
-TINY = ["episodes=4", "eval_episodes=4", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
-        "train.batch_size_cf=32", "train.batch_size_lc=8", "compile=false", "train.eval_every=2",
-        "train.eval_episodes=2", "env.max_steps=120"]
+TINY = [
+    "episodes=4",
+    "eval_episodes=4",
+    "env.num_roads=2",
+    "progress=false",
+    "train.warmup_frames=50",
+    "train.batch_size_cf=32",
+    "train.batch_size_lc=8",
+    "compile=false",
+    "train.eval_every=2",
+    "train.eval_episodes=2",
+    "env.max_steps=120",
+]
 
 
 def _run(cmd, cwd, timeout=900):
@@ -28,8 +39,12 @@ def _run(cmd, cwd, timeout=900):
 # ------------------------------------------------------------------------------------------ protocol
 def test_evaluation_seeds_never_repeat_training_traffic():
     p = protocol(seed=3, episodes=1000, eval_seed=None, eval_episodes=1000)
-    assert p == {"train_seeds": [3, 1002], "validation_seed": 3 + VALIDATION_OFFSET, "eval_seed": 3 + TEST_OFFSET,
-                 "eval_episodes": 1000}
+    assert p == {
+        "train_seeds": [3, 1002],
+        "validation_seed": 3 + VALIDATION_OFFSET,
+        "eval_seed": 3 + TEST_OFFSET,
+        "eval_episodes": 1000,
+    }
     with pytest.raises(ValueError, match=r"eval_seed=500 lies in the training seeds \[0, 1000\)"):
         protocol(seed=0, episodes=1000, eval_seed=500, eval_episodes=10)
     check_disjoint("eval_seed", 1000, 0, 1000)  # just past the last training seed: allowed
@@ -65,17 +80,29 @@ def test_bootstrap_intervals_over_seeds():
 
 
 # -------------------------------------------------------------------------------------------- records
-def _fake_run(folder, algo="kddrl", seed=0, speeds=(100.0, 110.0), collisions=(False, True), scenario="baseline",
-              **fields):
+def _fake_run(
+    folder, algo="kddrl", seed=0, speeds=(100.0, 110.0), collisions=(False, True), scenario="baseline", **fields
+):
     folder.mkdir(parents=True)
     n = len(speeds)
-    pd.DataFrame({"mean_speed_kmh": speeds, "mean_speed": np.asarray(speeds) / 3.6, "mean_sq_speed": (np.asarray(speeds) / 3.6) ** 2,
-                  "mean_accel": [0.1] * n, "mean_sq_accel": [0.01] * n, "mean_abs_accel": [0.1] * n,
-                  "lane_changes": [1] * n, "frames": [100] * n, "return_lc": [1.0] * n, "return_cf": [2.0] * n,
-                  "collision": list(collisions), "outcome": ["collision" if c else "left_section" for c in collisions],
-                  "collision_kind": ["rear_end" if c else "none" for c in collisions],
-                  "collision_with": ["b" if c else "" for c in collisions]}).to_csv(folder / "eval_episodes.csv",
-                                                                                       index=False)
+    pd.DataFrame(
+        {
+            "mean_speed_kmh": speeds,
+            "mean_speed": np.asarray(speeds) / 3.6,
+            "mean_sq_speed": (np.asarray(speeds) / 3.6) ** 2,
+            "mean_accel": [0.1] * n,
+            "mean_sq_accel": [0.01] * n,
+            "mean_abs_accel": [0.1] * n,
+            "lane_changes": [1] * n,
+            "frames": [100] * n,
+            "return_lc": [1.0] * n,
+            "return_cf": [2.0] * n,
+            "collision": list(collisions),
+            "outcome": ["collision" if c else "left_section" for c in collisions],
+            "collision_kind": ["rear_end" if c else "none" for c in collisions],
+            "collision_with": ["b" if c else "" for c in collisions],
+        }
+    ).to_csv(folder / "eval_episodes.csv", index=False)
     (folder / "summary.json").write_text(json.dumps({"algo": algo, "scenario": scenario, "seed": seed, **fields}))
     return folder
 
@@ -143,8 +170,12 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
     # against the rule baseline: 125 / 90 km/h, no collisions on either side; no shield column without a shield
     assert "| kddrl | 3 | 1.389 | [" in md and "| 0.0% | +0.0 | [+0.0, +0.0] |" in md
     assert "shield interventions" not in md
-    two = build_report(find_runs([tmp_path / "runs" / "k0", tmp_path / "runs" / "k1", tmp_path / "runs" / "i0",
-                                  tmp_path / "runs" / "i1"]), tmp_path / "rep2")
+    two = build_report(
+        find_runs(
+            [tmp_path / "runs" / "k0", tmp_path / "runs" / "k1", tmp_path / "runs" / "i0", tmp_path / "runs" / "i1"]
+        ),
+        tmp_path / "rep2",
+    )
     assert two["rows"] and "too few seeds for a verdict (2 vs 2" in (tmp_path / "rep2" / "report.md").read_text()
     assert out["figures"]["Figs. 9 / 15: evaluation returns"]
 
@@ -156,8 +187,9 @@ def test_shield_interventions_and_collisions_are_read_against_the_rules(tmp_path
     from kddrl_trl.eval.report import build_report
 
     for seed in range(3):
-        run = _fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(110.0, 110.0 + seed),
-                        collisions=(seed == 0, False))
+        run = _fake_run(
+            tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(110.0, 110.0 + seed), collisions=(seed == 0, False)
+        )
         frame = pd.read_csv(run / "eval_episodes.csv")
         frame.assign(shield_interventions=[50, 25]).to_csv(run / "eval_episodes.csv", index=False)
         _fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(100.0, 100.0), collisions=(False, False))
@@ -180,17 +212,35 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
         _fake_run(tmp_path / "runs" / f"b{seed}", seed=seed, scenario="braking", speeds=(100.0, 100.0))
         mixed = tmp_path / "runs" / f"m{seed}"
         mixed.mkdir(parents=True)
-        (mixed / "summary.json").write_text(json.dumps({"algo": "kddrl", "scenario": "mixed", "seed": seed,
-                                                        "final_evaluations": ["final__baseline", "final__braking"],
-                                                        "wall_s": 4000.0, "training": {"elapsed_s": 3600.0}}))
+        (mixed / "summary.json").write_text(
+            json.dumps(
+                {
+                    "algo": "kddrl",
+                    "scenario": "mixed",
+                    "seed": seed,
+                    "final_evaluations": ["final__baseline", "final__braking"],
+                    "wall_s": 4000.0,
+                    "training": {"elapsed_s": 3600.0},
+                }
+            )
+        )
         for scenario in ("baseline", "braking"):
-            _fake_run(mixed / f"final__{scenario}", seed=seed, scenario=scenario, speeds=(130.0, 130.0),
-                      collisions=(False, False), trained_on="mixed", final=True)
+            _fake_run(
+                mixed / f"final__{scenario}",
+                seed=seed,
+                scenario=scenario,
+                speeds=(130.0, 130.0),
+                collisions=(False, False),
+                trained_on="mixed",
+                final=True,
+            )
     evaluated = _fake_run(tmp_path / "runs" / "b0" / "eval__baseline__0__t", scenario="baseline", trained_on="braking")
     runs = find_runs([tmp_path / "runs"])  # evaluate's eval__ folders are left out of a sweep's search
     assert sorted((r.scenario, r.algo) for r in runs) == sorted(
-        [("braking", "kddrl")] * 3 + [("braking", "kddrl (trained on mixed)")] * 3
-        + [("baseline", "kddrl (trained on mixed)")] * 3)
+        [("braking", "kddrl")] * 3
+        + [("braking", "kddrl (trained on mixed)")] * 3
+        + [("baseline", "kddrl (trained on mixed)")] * 3
+    )
     build_report(runs, tmp_path / "rep")
     rows = {(r["scenario"], r["algo"]): r for r in json.loads((tmp_path / "rep" / "report.json").read_text())}
     assert rows[("braking", "kddrl")]["metrics"]["collision_rate"]["mean"] == 0.5
@@ -239,8 +289,19 @@ def test_a_run_records_the_commit_its_code_was_loaded_from(monkeypatch):
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
     root = tmp_path_factory.mktemp("sweep")
-    cmd = ["kddrl_trl.train", "-m", "algo=idm_mobil,kddrl", "+scenario=braking", "seed=0,1", "hydra/launcher=joblib",
-           "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={root / 'sweep'}", "video=true", "video_episodes=1", *TINY]
+    cmd = [
+        "kddrl_trl.train",
+        "-m",
+        "algo=idm_mobil,kddrl",
+        "+scenario=braking",
+        "seed=0,1",
+        "hydra/launcher=joblib",
+        "hydra.launcher.n_jobs=2",
+        f"hydra.sweep.dir={root / 'sweep'}",
+        "video=true",
+        "video_episodes=1",
+        *TINY,
+    ]
     _run(cmd, root)
     return root, cmd
 
@@ -252,21 +313,33 @@ def test_sweep_runs_every_job_and_resumes_job_by_job(sweep):
     for job in jobs:
         summary = json.loads((root / "sweep" / job / "summary.json").read_text())
         seed = summary["seed"]
-        assert summary["protocol"] == {"train_seeds": [seed, seed + 3], "validation_seed": seed + VALIDATION_OFFSET,
-                                       "eval_seed": seed + TEST_OFFSET, "eval_episodes": 4}
+        assert summary["protocol"] == {
+            "train_seeds": [seed, seed + 3],
+            "validation_seed": seed + VALIDATION_OFFSET,
+            "eval_seed": seed + TEST_OFFSET,
+            "eval_episodes": 4,
+        }
         records = pd.read_csv(root / "sweep" / job / "eval_episodes.csv", keep_default_na=False)
-        assert len(records) == 4 and {"outcome", "collision_kind", "collision_with", "ended_changing_lane"} <= set(records)
+        assert len(records) == 4 and {"outcome", "collision_kind", "collision_with", "ended_changing_lane"} <= set(
+            records
+        )
         assert {"commit", "machine", "packages"} <= set(summary) and summary["packages"]["torchrl"].startswith("0.14")
-        assert list((root / "sweep" / job / "videos").glob("*.mp4")) and list((root / "sweep" / job / "traces").glob("*.json"))
+        assert list((root / "sweep" / job / "videos").glob("*.mp4")) and list(
+            (root / "sweep" / job / "traces").glob("*.json")
+        )
     kddrl = root / "sweep" / "braking__kddrl__0"
     validation = pd.read_csv(kddrl / "validation.csv")
     assert len(validation) >= 1 and (validation["episodes"] == 2).all()
-    assert (kddrl / "checkpoints" / "best.pt").is_file() and (kddrl / "logs" / "scalars" / "eval" / "score.csv").is_file()
+    assert (kddrl / "checkpoints" / "best.pt").is_file() and (
+        kddrl / "logs" / "scalars" / "eval" / "score.csv"
+    ).is_file()
 
     # the sweep again with resume=true after one job's folder was lost: the finished jobs are skipped, the lost one
     # is computed again, and the same config and seed give identical records (determinism on one machine)
     lost = root / "sweep" / "braking__kddrl__1"
-    first = {name: pd.read_csv(lost / name, keep_default_na=False) for name in ("eval_episodes.csv", "train_episodes.csv")}
+    first = {
+        name: pd.read_csv(lost / name, keep_default_na=False) for name in ("eval_episodes.csv", "train_episodes.csv")
+    }
     shutil.rmtree(lost)
     before = (kddrl / "eval_episodes.csv").stat().st_mtime_ns
     done = _run(cmd + ["resume=true"], root)
@@ -282,11 +355,16 @@ def test_report_of_the_sweep_as_typed(sweep, tmp_path):
     rows = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert sorted((r["algo"], r["scenario"]) for r in rows) == [("idm_mobil", "braking"), ("kddrl", "braking")]
     for row in rows:
-        runs = [json.loads((root / "sweep" / f"braking__{row['algo']}__{s}" / "summary.json").read_text())
-                for s in (0, 1)]
+        runs = [
+            json.loads((root / "sweep" / f"braking__{row['algo']}__{s}" / "summary.json").read_text()) for s in (0, 1)
+        ]
         assert row["seeds"] == [0, 1] and row["episodes"] == 8
-        for name, key in (("mean_speed_kmh", "mean_speed_kmh"), ("mean_accel", "mean_accel"),
-                          ("collision_rate", "collision_rate"), ("lane_changes_per_episode", "lane_changes")):
+        for name, key in (
+            ("mean_speed_kmh", "mean_speed_kmh"),
+            ("mean_accel", "mean_accel"),
+            ("collision_rate", "collision_rate"),
+            ("lane_changes_per_episode", "lane_changes"),
+        ):
             m = row["metrics"][name]
             assert m["mean"] == pytest.approx(np.mean([r[key] for r in runs]))
             assert m["ci_low"] <= m["mean"] + 1e-12 and m["mean"] <= m["ci_high"] + 1e-12
@@ -294,8 +372,12 @@ def test_report_of_the_sweep_as_typed(sweep, tmp_path):
     assert "## Tables II-V" in md and "## Comparison with KDDRL" in md and "## Collisions by kind" in md
     assert "Report made at commit" in md and "Evaluation protocol" in md
     assert "Runs made at commits:" in md and "not recorded" not in md.split("Runs made at commits:")[1].split("\n")[0]
-    for fig in ("fig08_training_curves.png", "fig09_returns.png", "fig13_distributions_braking.png",
-                "fig14_space_time_braking.png"):
+    for fig in (
+        "fig08_training_curves.png",
+        "fig09_returns.png",
+        "fig13_distributions_braking.png",
+        "fig14_space_time_braking.png",
+    ):
         assert (tmp_path / "rep" / fig).read_bytes()[:4] == b"\x89PNG", fig
 
 
@@ -353,16 +435,28 @@ def test_runs_with_options_are_rows_of_their_own(tmp_path):
     from kddrl_trl.eval.records import default_config, find_runs
 
     defaults = default_config("kddrl", "braking")
-    options = OmegaConf.to_container(OmegaConf.merge(defaults, {"train": {"n_steps": 3}, "algo": {
-        "shield": "idm", "state_extras": ["thw", "ttc"]}, "collector": {"sync": False}}))
+    options = OmegaConf.to_container(
+        OmegaConf.merge(
+            defaults,
+            {
+                "train": {"n_steps": 3},
+                "algo": {"shield": "idm", "state_extras": ["thw", "ttc"]},
+                "collector": {"sync": False},
+            },
+        )
+    )
     for seed in range(2):
         for name, cfg in (("paper", defaults), ("options", options), ("old", {"seed": seed, "episodes": 1000})):
             run = _fake_run(tmp_path / "runs" / f"{name}{seed}", seed=seed, scenario="braking")
             (run / "config.yaml").write_text(yaml.safe_dump(cfg))
     runs = find_runs([tmp_path / "runs" / "paper0", tmp_path / "runs" / "options0", tmp_path / "runs" / "old1"])
     assert sorted(r.algo for r in runs) == sorted(
-        ["kddrl", "kddrl",
-         "kddrl [algo.shield=idm, algo.state_extras=[thw,ttc], train.n_steps=3, collector.sync=False]"])
+        [
+            "kddrl",
+            "kddrl",
+            "kddrl [algo.shield=idm, algo.state_extras=[thw,ttc], train.n_steps=3, collector.sync=False]",
+        ]
+    )
 
 
 def test_figures_keep_one_colour_per_system_and_few_series_per_axes():

@@ -1,4 +1,5 @@
 """The reward variants (``env.reward``): Eq. 26-29, 32-33 as written, and ``safe``, which removes the reward trap."""
+
 from __future__ import annotations
 
 import pytest
@@ -7,7 +8,7 @@ import torch
 from kddrl_trl.envs import FakeHighwayEnv, make_config
 from kddrl_trl.envs.rewards import car_following_reward, efficiency_reward, lane_change_reward
 
-GAMMA, DT = 0.99, 0.1          # per-frame discount of the TD3 agent, frame length (s)
+GAMMA, DT = 0.99, 0.1  # per-frame discount of the TD3 agent, frame length (s)
 V0, GAP0, LEADER_DECEL = 36.0, 100.0, 8.0
 
 
@@ -24,7 +25,7 @@ def discounted_return(cfg, decel: float, horizon: int = 1000) -> tuple[float, bo
         vl = max(vl - LEADER_DECEL * DT, 0.0)
         yl += vl * DT
         collided = yl - y - cfg.vehicle_length <= 0.0
-        total += GAMMA ** t * car_following_reward(v, a, float(collided), cfg)
+        total += GAMMA**t * car_following_reward(v, a, float(collided), cfg)
         if collided:
             return total, True
     return total, False
@@ -44,7 +45,7 @@ def test_the_paper_reward_prefers_a_crash_to_stopping_behind_a_braking_leader():
     for the rest of the episode, so the best crash (-40) beats the best stop (-55) at γ = 0.99 per frame."""
     stop, crash = best_stop_and_best_crash(make_config())
     assert crash > stop + 10.0
-    assert discounted_return(make_config(), 0.0)[1]              # driving on crashes within 5 s
+    assert discounted_return(make_config(), 0.0)[1]  # driving on crashes within 5 s
 
 
 def test_the_safe_reward_makes_the_best_stop_clearly_better_than_any_crash():
@@ -59,7 +60,7 @@ def test_safe_differs_from_the_paper_only_below_v_min():
     r_paper = car_following_reward(v, torch.full_like(v, -5.0), torch.zeros_like(v), paper)
     r_safe = car_following_reward(v, torch.full_like(v, -5.0), torch.zeros_like(v), safe)
     assert torch.equal(r_paper[~below], r_safe[~below])
-    assert torch.allclose(r_safe[below], torch.full_like(v[below], -1.0))   # Eq. 33's -1 at -5 m/s² only
+    assert torch.allclose(r_safe[below], torch.full_like(v[below], -1.0))  # Eq. 33's -1 at -5 m/s² only
     assert torch.allclose(r_paper[below], torch.full_like(v[below], -2.0))
     assert efficiency_reward(60.0, paper) == -1.0 and lane_change_reward(60.0, True, False, safe) == -2.0
     assert car_following_reward(25.0, 0.0, 1.0, safe) == pytest.approx(5.0 / 30.0 - 100.0)
@@ -72,11 +73,14 @@ def test_both_envs_use_the_configured_variant():
     from kddrl_trl import keys as K
 
     def stop(td):
-        return td.update({K.LC_ACTION: F.one_hot(torch.ones(2, dtype=torch.long), 3).float(),
-                          K.CF_ACTION: torch.full((2, 1), -5.0)})
+        return td.update(
+            {K.LC_ACTION: F.one_hot(torch.ones(2, dtype=torch.long), 3).float(), K.CF_ACTION: torch.full((2, 1), -5.0)}
+        )
 
-    rolls = {r: FakeHighwayEnv(num_roads=2, seed=0, reward=r).rollout(80, stop, break_when_any_done=False)
-             for r in ("paper", "safe")}
+    rolls = {
+        r: FakeHighwayEnv(num_roads=2, seed=0, reward=r).rollout(80, stop, break_when_any_done=False)
+        for r in ("paper", "safe")
+    }
     slow = rolls["paper"]["next", "ego", "state"][..., 1] < make_config().v_min
     slow &= ~rolls["paper"]["next", K.COLLISION][..., 0] & ~rolls["safe"]["next", K.COLLISION][..., 0]
     assert slow.any()

@@ -1,4 +1,5 @@
 """The Hydra entry point: config composition, and the command a user types, as a subprocess."""
+
 from __future__ import annotations
 
 import json
@@ -20,8 +21,16 @@ def test_scenario_is_appended_not_required():
 
 
 def test_rule_based_algo_runs_as_typed_from_any_directory(tmp_path):
-    cmd = [sys.executable, "-m", "kddrl_trl.train", "+scenario=braking", "algo=idm_mobil", "eval_episodes=4",
-           "env.num_roads=2", "progress=false"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "kddrl_trl.train",
+        "+scenario=braking",
+        "algo=idm_mobil",
+        "eval_episodes=4",
+        "env.num_roads=2",
+        "progress=false",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     runs = list((tmp_path / "runs").glob("braking__idm_mobil__0__*"))
@@ -33,8 +42,16 @@ def test_rule_based_algo_runs_as_typed_from_any_directory(tmp_path):
 
 
 #: a tiny, fast KDDRL budget: 2 roads, small networks, no compiling, updates from the first batches
-TINY = ["env.num_roads=2", "progress=false", "train.warmup_frames=50", "train.batch_size_cf=32",
-        "train.batch_size_lc=8", "compile=false", "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]"]
+TINY = [
+    "env.num_roads=2",
+    "progress=false",
+    "train.warmup_frames=50",
+    "train.batch_size_cf=32",
+    "train.batch_size_lc=8",
+    "compile=false",
+    "algo.learner.d3qn.hidden=[32,32]",
+    "algo.learner.td3.hidden=[32,32]",
+]
 
 
 def test_kddrl_trains_end_to_end_as_typed(tmp_path):
@@ -53,8 +70,16 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
         assert (run / "logs" / "scalars" / f"{name}.csv").is_file(), name
 
     # the trained policy, evaluated on another scenario from its checkpoint (paper §IV.D)
-    cmd = [sys.executable, "-m", "kddrl_trl.evaluate", f"run={run}", "+scenario=congested", "eval_episodes=2",
-           "env.num_roads=2", "progress=false"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "kddrl_trl.evaluate",
+        f"run={run}",
+        "+scenario=congested",
+        "eval_episodes=2",
+        "env.num_roads=2",
+        "progress=false",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     (ev,) = list(run.glob("eval__congested__0__*"))
@@ -64,15 +89,34 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("algo, small", [("peng", "algo.learner.ddpg.hidden=[32,32]"),
-                                         ("d3qn_unified", "algo.learner.d3qn.hidden=[32,32]"),
-                                         ("pasac_unified", "algo.learner.pasac.hidden=[32,32]")])
+@pytest.mark.parametrize(
+    "algo, small",
+    [
+        ("peng", "algo.learner.ddpg.hidden=[32,32]"),
+        ("d3qn_unified", "algo.learner.d3qn.hidden=[32,32]"),
+        ("pasac_unified", "algo.learner.pasac.hidden=[32,32]"),
+    ],
+)
 def test_the_new_systems_train_and_evaluate_on_sumo_as_typed(algo, small, tmp_path):
     """``python -m kddrl_trl.train algo=<new system> +scenario=braking``, a few episodes with updates: every frame
     is a decision (lc_period 1), the summary and the evaluation records are the same as for every algo."""
-    cmd = [sys.executable, "-m", "kddrl_trl.train", f"algo={algo}", "+scenario=braking", "episodes=3",
-           "eval_episodes=2", "train.eval_every=0", "env.num_roads=2", "progress=false", "train.warmup_frames=50",
-           "train.batch_size_cf=32", "train.batch_size_lc=8", "compile=false", small]
+    cmd = [
+        sys.executable,
+        "-m",
+        "kddrl_trl.train",
+        f"algo={algo}",
+        "+scenario=braking",
+        "episodes=3",
+        "eval_episodes=2",
+        "train.eval_every=0",
+        "env.num_roads=2",
+        "progress=false",
+        "train.warmup_frames=50",
+        "train.batch_size_cf=32",
+        "train.batch_size_lc=8",
+        "compile=false",
+        small,
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
     (run,) = list((tmp_path / "runs").glob(f"braking__{algo}__0__*"))
@@ -103,8 +147,13 @@ def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     import time
 
     args = ["episodes=8", "eval_episodes=1", "train.checkpoint_every=2", *TINY]
-    proc = subprocess.Popen([sys.executable, "-m", "kddrl_trl.train", *args], cwd=tmp_path,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "kddrl_trl.train", *args],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 400
     run = None
     try:
@@ -121,8 +170,13 @@ def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     killed_at = _latest_episodes(run)
     assert not (run / "summary.json").exists()
 
-    done = subprocess.run([sys.executable, "-m", "kddrl_trl.train", *args, "resume=true"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=600)
+    done = subprocess.run(
+        [sys.executable, "-m", "kddrl_trl.train", *args, "resume=true"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     summary = json.loads((run / "summary.json").read_text())  # written into the resumed run's directory
     assert list((tmp_path / "runs").iterdir()) == [run]  # the resumed invocation made no folder of its own
@@ -145,17 +199,39 @@ def test_summary_statistics_by_hand():
     from kddrl_trl.eval.metrics import summarize
 
     eps = [
-        {"mean_speed_kmh": 36.0, "mean_speed": 10.0, "mean_sq_speed": 100.0, "mean_accel": 0.0, "mean_sq_accel": 1.0,
-         "mean_abs_accel": 1.0, "lane_changes": 1, "frames": 10, "return_lc": 1.0, "return_cf": 2.0,
-         "collision": False, "outcome": "left_section"},
-        {"mean_speed_kmh": 72.0, "mean_speed": 20.0, "mean_sq_speed": 400.0, "mean_accel": 0.0, "mean_sq_accel": 1.0,
-         "mean_abs_accel": 1.0, "lane_changes": 0, "frames": 30, "return_lc": 1.0, "return_cf": 2.0,
-         "collision": True, "outcome": "collision"},
+        {
+            "mean_speed_kmh": 36.0,
+            "mean_speed": 10.0,
+            "mean_sq_speed": 100.0,
+            "mean_accel": 0.0,
+            "mean_sq_accel": 1.0,
+            "mean_abs_accel": 1.0,
+            "lane_changes": 1,
+            "frames": 10,
+            "return_lc": 1.0,
+            "return_cf": 2.0,
+            "collision": False,
+            "outcome": "left_section",
+        },
+        {
+            "mean_speed_kmh": 72.0,
+            "mean_speed": 20.0,
+            "mean_sq_speed": 400.0,
+            "mean_accel": 0.0,
+            "mean_sq_accel": 1.0,
+            "mean_abs_accel": 1.0,
+            "lane_changes": 0,
+            "frames": 30,
+            "return_lc": 1.0,
+            "return_cf": 2.0,
+            "collision": True,
+            "outcome": "collision",
+        },
     ]
     s = summarize(eps)
     assert s["mean_speed_kmh"] == 54.0 and s["mean_speed_kmh_sd"] == 18.0
     # frames: 10 at 10 m/s and 30 at 20 m/s -> mean 17.5, sd sqrt(325 - 306.25) = 4.33 m/s
-    assert abs(s["frame_speed_kmh_sd"] - 3.6 * 18.75 ** 0.5) < 1e-9
+    assert abs(s["frame_speed_kmh_sd"] - 3.6 * 18.75**0.5) < 1e-9
     assert s["frame_accel_sd"] == 1.0 and s["collision_rate"] == 0.5 and s["lane_changes_total"] == 1
     assert s["outcomes"] == {"left_section": 1, "collision": 1}
 
@@ -181,28 +257,44 @@ def fake_trainer(job, tmp_path, **train):
     learner = make_learner(job.algo, compile=False)
     train_cfg = replace(job.train, **train)
     buffers = make_buffers(train_cfg, seed=0)
-    trainer = Trainer(learner, buffers, train_cfg, tmp_path, make_logger(LoggerConfig(csv=True, tensorboard=False),
-                                                                         tmp_path), episodes=3, progress=False)
-    return env, learner, trainer, make_collector(env, learner, buffers, train_cfg, job.algo.lc_reward,
-                                                 job.env.highway())
+    trainer = Trainer(
+        learner,
+        buffers,
+        train_cfg,
+        tmp_path,
+        make_logger(LoggerConfig(csv=True, tensorboard=False), tmp_path),
+        episodes=3,
+        progress=False,
+    )
+    return (
+        env,
+        learner,
+        trainer,
+        make_collector(env, learner, buffers, train_cfg, job.algo.lc_reward, job.env.highway()),
+    )
 
 
 #: small networks of every learning algo (each override names a node the algo has)
-SMALL_NETS = {"peng": ["algo.learner.d3qn.hidden=[16]", "algo.learner.ddpg.hidden=[16]"],
-              "d3qn_unified": ["algo.learner.d3qn.hidden=[16]"], "pasac_unified": ["algo.learner.pasac.hidden=[16]"]}
+SMALL_NETS = {
+    "peng": ["algo.learner.d3qn.hidden=[16]", "algo.learner.ddpg.hidden=[16]"],
+    "d3qn_unified": ["algo.learner.d3qn.hidden=[16]"],
+    "pasac_unified": ["algo.learner.pasac.hidden=[16]"],
+}
 KINDS = {"d3qn_unified": "joint_d3qn", "pasac_unified": "pasac"}
 
 
-@pytest.mark.parametrize("algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni", "peng",
-                                  "d3qn_unified", "pasac_unified"])
+@pytest.mark.parametrize(
+    "algo", ["kddrl", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock", "ni", "peng", "d3qn_unified", "pasac_unified"]
+)
 def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_path):
     """Each comparison system is a configuration of the same pipeline: compose it, build env + learner, train
     a few episodes on the fake env (fast; the SUMO path is covered by the subprocess tests)."""
     nets = SMALL_NETS.get(algo, ["algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]"])
     job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", *nets)
     assert job.algo.name == algo and job.algo.kind == KINDS.get(algo, "hierarchical")
-    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
-                                                    batch_size_lc=4, frames_per_env=10)
+    env, learner, trainer, collector = fake_trainer(
+        job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10
+    )
     if job.algo.kind == "hierarchical":
         assert (learner.embedding is None) == (algo in ("d3qn_td3", "ni", "peng"))
         assert learner.d3qn.actor.module[0].module.dueling == (algo != "ni")
@@ -219,11 +311,22 @@ def test_every_learning_algo_config_builds_and_learns_on_the_fake_env(algo, tmp_
 def test_every_issue14_option_trains_on_the_fake_env(tmp_path):
     """The safety and learning-signal options together (README "Safety and learning-signal options"): the pipeline
     builds and learns; the shield's interventions reach the episode records."""
-    job = compose_job("algo=d3qn_td3", "env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]",
-                      "algo.learner.td3.hidden=[16]", "algo.mobil_safety_mask=true", "algo.lc_reward=decision",
-                      "algo.shield=idm", "algo.learner.d3qn.semi_mdp=true", "env.reward=safe", "env.ego_start=window")
-    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
-                                                    batch_size_lc=4, frames_per_env=10)
+    job = compose_job(
+        "algo=d3qn_td3",
+        "env.num_roads=2",
+        "compile=false",
+        "algo.learner.d3qn.hidden=[16]",
+        "algo.learner.td3.hidden=[16]",
+        "algo.mobil_safety_mask=true",
+        "algo.lc_reward=decision",
+        "algo.shield=idm",
+        "algo.learner.d3qn.semi_mdp=true",
+        "env.reward=safe",
+        "env.ego_start=window",
+    )
+    env, learner, trainer, collector = fake_trainer(
+        job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10
+    )
     history = trainer.run(collector)
     env.close()
     assert len(history) == 3 and trainer.counters["cf_updates"] > 0 and trainer.counters["lc_updates"] > 0
@@ -237,18 +340,21 @@ def test_new_systems_checkpoint_and_resume_on_the_fake_env(algo, tmp_path):
     import torch
 
     job = compose_job(f"algo={algo}", "env.num_roads=2", "compile=false", *SMALL_NETS[algo])
-    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
-                                                    batch_size_lc=4, frames_per_env=10)
+    env, learner, trainer, collector = fake_trainer(
+        job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10
+    )
     trainer.run(collector)
     env.close()
     unified = not learner.learns_from_decisions
     assert (trainer.counters["lc_updates"] == 0) == unified and (len(trainer.buffer_lc) == 0) == unified
     torch.manual_seed(99)
-    env, fresh, resumed, collector = fake_trainer(job, tmp_path, warmup_frames=20, batch_size_cf=16,
-                                                  batch_size_lc=4, frames_per_env=10)
+    env, fresh, resumed, collector = fake_trainer(
+        job, tmp_path, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10
+    )
     assert resumed.load(tmp_path) == 3
     assert {k: v for k, v in resumed.counters.items() if k != "elapsed_s"} == {
-        k: v for k, v in trainer.counters.items() if k != "elapsed_s"}
+        k: v for k, v in trainer.counters.items() if k != "elapsed_s"
+    }
     for (name, a), (_, b) in zip(learner.state_dict().items(), fresh.state_dict().items()):
         torch.testing.assert_close(a, b, msg=name)
     assert fresh.exploration() == learner.exploration()
@@ -260,22 +366,24 @@ def test_new_systems_checkpoint_and_resume_on_the_fake_env(algo, tmp_path):
 
 def test_a_diverging_loss_stops_training_with_a_clear_error(tmp_path):
     job = compose_job("env.num_roads=2", "compile=false")
-    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=10, batch_size_cf=8,
-                                                    frames_per_env=10)
+    env, learner, trainer, collector = fake_trainer(job, tmp_path, warmup_frames=10, batch_size_cf=8, frames_per_env=10)
     learner.update_cf = lambda batch: {"loss_qvalue": float("nan")}
     with pytest.raises(FloatingPointError, match="loss_qvalue = nan.*diverged"):
         trainer.run(collector)
     env.close()
 
 
-@pytest.mark.parametrize("override, key", [
-    ("train.batch_size_cf=abc", "train.batch_size_cf"),
-    ("train.batch_sise_cf=1", "train.batch_sise_cf"),
-    ("algo.learner.d3qn.lrr=1", "algo.learner.d3qn.lrr"),
-    ("algo.learner.td3.policy_delay=2.5", "algo.learner.td3.policy_delay"),
-    ("algo.lc_period=often", "algo.lc_period"),
-    ("algo.idm.T=slow", "algo.idm.T"),
-])
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("train.batch_size_cf=abc", "train.batch_size_cf"),
+        ("train.batch_sise_cf=1", "train.batch_sise_cf"),
+        ("algo.learner.d3qn.lrr=1", "algo.learner.d3qn.lrr"),
+        ("algo.learner.td3.policy_delay=2.5", "algo.learner.td3.policy_delay"),
+        ("algo.lc_period=often", "algo.lc_period"),
+        ("algo.idm.T=slow", "algo.idm.T"),
+    ],
+)
 def test_a_typo_or_wrong_type_in_algo_or_train_is_refused_naming_the_key(override, key):
     from hydra.errors import ConfigCompositionException
 
@@ -286,31 +394,37 @@ def test_a_typo_or_wrong_type_in_algo_or_train_is_refused_naming_the_key(overrid
     assert key in message, message
 
 
-@pytest.mark.parametrize("override, match", [
-    ("train.batch_size_cf=0", "train.batch_size_cf must be >= 1, got 0"),
-    ("train.checkpoint_every=-1", "train.checkpoint_every must be >= 1"),
-    ("train.warmup_frames=-5", "train.warmup_frames must be >= 0"),
-    ("episodes=0", "episodes must be >= 1"),
-    ("algo.lc_period=0", "algo.lc_period must be >= 1"),
-    ("compile=sometimes", "compile must be true, false or auto"),
-])
+@pytest.mark.parametrize(
+    "override, match",
+    [
+        ("train.batch_size_cf=0", "train.batch_size_cf must be >= 1, got 0"),
+        ("train.checkpoint_every=-1", "train.checkpoint_every must be >= 1"),
+        ("train.warmup_frames=-5", "train.warmup_frames must be >= 0"),
+        ("episodes=0", "episodes must be >= 1"),
+        ("algo.lc_period=0", "algo.lc_period must be >= 1"),
+        ("compile=sometimes", "compile must be true, false or auto"),
+    ],
+)
 def test_out_of_range_values_are_refused_by_the_schema(override, match):
     with pytest.raises(ValueError, match=match):
         compose_job(override)
 
 
-@pytest.mark.parametrize("algo, override, message", [
-    ("peng", "algo.learner.ddpg.tauu=1", "algo.learner.ddpg.tauu"),
-    ("peng", "algo.learner.ddpg.hidden=wide", "algo.learner.ddpg.hidden"),
-    ("d3qn_unified", "algo.learner.num_levels=many", "algo.learner.num_levels"),
-    ("pasac_unified", "algo.learner.pasac.alpha_lrr=1", "algo.learner.pasac.alpha_lrr"),
-    ("pasac_unified", "algo.learner.td3.hidden=[8]", "algo.learner.td3"),
-    ("d3qn_unified", "algo.lc_period=20", "algo.lc_period must be 1 for algo=d3qn_unified"),
-    ("pasac_unified", "algo.lc_period=2", "algo.lc_period must be 1"),
-    ("d3qn_unified", "algo.learner.num_levels=1", "algo.learner.num_levels must be >= 2"),
-    ("peng", "algo.learner.cf_agent=ppo", "algo.learner.cf_agent='ppo': known agents are td3, ddpg"),
-    ("kddrl", "algo.learner.cf_agent=ddpg", "the algo.learner.ddpg node is missing"),
-])
+@pytest.mark.parametrize(
+    "algo, override, message",
+    [
+        ("peng", "algo.learner.ddpg.tauu=1", "algo.learner.ddpg.tauu"),
+        ("peng", "algo.learner.ddpg.hidden=wide", "algo.learner.ddpg.hidden"),
+        ("d3qn_unified", "algo.learner.num_levels=many", "algo.learner.num_levels"),
+        ("pasac_unified", "algo.learner.pasac.alpha_lrr=1", "algo.learner.pasac.alpha_lrr"),
+        ("pasac_unified", "algo.learner.td3.hidden=[8]", "algo.learner.td3"),
+        ("d3qn_unified", "algo.lc_period=20", "algo.lc_period must be 1 for algo=d3qn_unified"),
+        ("pasac_unified", "algo.lc_period=2", "algo.lc_period must be 1"),
+        ("d3qn_unified", "algo.learner.num_levels=1", "algo.learner.num_levels must be >= 2"),
+        ("peng", "algo.learner.cf_agent=ppo", "algo.learner.cf_agent='ppo': known agents are td3, ddpg"),
+        ("kddrl", "algo.learner.cf_agent=ddpg", "the algo.learner.ddpg node is missing"),
+    ],
+)
 def test_the_new_systems_configs_are_typed_and_range_checked(algo, override, message):
     """Typos and wrong types fail while Hydra composes (naming the key), ranges when the config becomes objects."""
     from hydra.errors import ConfigCompositionException
@@ -349,8 +463,17 @@ def test_scenarios_are_the_same_presets_through_hydra_and_python():
 def test_a_mixed_traffic_run_is_evaluated_and_reported_per_scenario(tmp_path):
     """``+scenario=mixed eval_scenarios=[baseline,braking]``: one final evaluation per scenario, each its own folder,
     read by the report as its own row, never mixed with policies trained on the scenario evaluated."""
-    cmd = [sys.executable, "-m", "kddrl_trl.train", "+scenario=mixed", "algo=idm_mobil", "eval_episodes=4",
-           "env.num_roads=2", "progress=false", "eval_scenarios=[baseline,braking]"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "kddrl_trl.train",
+        "+scenario=mixed",
+        "algo=idm_mobil",
+        "eval_episodes=4",
+        "env.num_roads=2",
+        "progress=false",
+        "eval_scenarios=[baseline,braking]",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     (run,) = list((tmp_path / "runs").glob("mixed__idm_mobil__0__*"))
@@ -363,9 +486,16 @@ def test_a_mixed_traffic_run_is_evaluated_and_reported_per_scenario(tmp_path):
         assert final["scenario"] == scenario and final["trained_on"] == "mixed" and final["episodes"] == 4
         distances = pd.read_csv(run / f"final__{scenario}" / "eval_episodes.csv")["braking_distance"]
         assert distances.notna().all() if event else distances.isna().all()  # every braking episode has the event
-    done = subprocess.run([sys.executable, "-m", "kddrl_trl.report", str(tmp_path / "runs"), f"out={tmp_path / 'rep'}"],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [sys.executable, "-m", "kddrl_trl.report", str(tmp_path / "runs"), f"out={tmp_path / 'rep'}"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     rows = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert sorted((r["scenario"], r["algo"], r["trained_on"]) for r in rows) == [
-        ("baseline", "idm_mobil (trained on mixed)", "mixed"), ("braking", "idm_mobil (trained on mixed)", "mixed")]
+        ("baseline", "idm_mobil (trained on mixed)", "mixed"),
+        ("braking", "idm_mobil (trained on mixed)", "mixed"),
+    ]

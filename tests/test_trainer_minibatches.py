@@ -1,5 +1,6 @@
 """``training.trainer.minibatches``: one storage read for a collection batch's updates on a uniform buffer, the same
 minibatches as one ``sample()`` per update; a prioritized buffer still drawn once per update."""
+
 from __future__ import annotations
 
 import torch
@@ -12,8 +13,15 @@ from kddrl_trl.training.trainer import MINIBATCHES_PER_DRAW, minibatches
 def _filled(prioritized=None, seed=7):
     rb = make_buffer(500, 16, seed, prioritized=prioritized)
     n = 300
-    rb.extend(TensorDict({"x": torch.arange(n, dtype=torch.float32)[:, None].repeat(1, 3),
-                          "next": {"y": -torch.arange(n), "done": torch.arange(n) % 2 == 0}}, [n]))
+    rb.extend(
+        TensorDict(
+            {
+                "x": torch.arange(n, dtype=torch.float32)[:, None].repeat(1, 3),
+                "next": {"y": -torch.arange(n), "done": torch.arange(n) % 2 == 0},
+            },
+            [n],
+        )
+    )
     return rb
 
 

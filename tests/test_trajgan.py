@@ -1,4 +1,5 @@
 """trajGAN (paper §III.B, Eq. 13-15): training, checkpoints, evaluation and the batched predictor."""
+
 from __future__ import annotations
 
 import json
@@ -26,22 +27,33 @@ def leader_samples(n: int, seed: int) -> TensorDict:
     u = lambda lo, hi, *shape: lo + (hi - lo) * torch.rand(*shape, generator=g)
     y0, v0, a_hist = u(0, 300, n), u(20, 30, n), u(-0.5, 0.5, n)
     th = (torch.arange(H) - (H - 1)) * DT  # -0.9 .. 0
-    hy = y0[:, None] + v0[:, None] * th + 0.5 * a_hist[:, None] * th ** 2
+    hy = y0[:, None] + v0[:, None] * th + 0.5 * a_hist[:, None] * th**2
     hv = v0[:, None] + a_hist[:, None] * th
     driver = torch.where(torch.rand(n, generator=g) < 0.5, 1, 3)
     a_fut = a_hist + torch.where(driver == 1, -1.5, 1.5)
     tf = torch.arange(1, T + 1) * DT
-    future = y0[:, None] + v0[:, None] * tf + 0.5 * a_fut[:, None] * tf ** 2
+    future = y0[:, None] + v0[:, None] * tf + 0.5 * a_fut[:, None] * tf**2
     present = torch.rand(n, generator=g) < 0.7
     ahead = torch.stack([y0 + u(20, 80, n), v0 + u(-3, 3, n), present.float()], -1) * present[:, None]
     prior = idm_rollout(y0, v0, ahead[:, 0], ahead[:, 1], present, steps=T, dt=DT)
-    return TensorDict({
-        "ego": torch.stack([y0 - 30, v0], -1), "slot": torch.ones(n, dtype=torch.long),
-        "history": torch.stack([hy, hv], -1), "ahead": ahead, "ahead_length": torch.full((n,), 5.0),
-        "prior": prior, "future": future, "leader_length": torch.full((n,), 4.5),
-        "recording_id": torch.ones(n, dtype=torch.long), "vehicle_id": torch.arange(n),
-        "leader_id": torch.arange(n) + n, "frame": torch.arange(n), "leader_driver": driver,
-    }, batch_size=[n])
+    return TensorDict(
+        {
+            "ego": torch.stack([y0 - 30, v0], -1),
+            "slot": torch.ones(n, dtype=torch.long),
+            "history": torch.stack([hy, hv], -1),
+            "ahead": ahead,
+            "ahead_length": torch.full((n,), 5.0),
+            "prior": prior,
+            "future": future,
+            "leader_length": torch.full((n,), 4.5),
+            "recording_id": torch.ones(n, dtype=torch.long),
+            "vehicle_id": torch.arange(n),
+            "leader_id": torch.arange(n) + n,
+            "frame": torch.arange(n),
+            "leader_driver": driver,
+        },
+        batch_size=[n],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -95,8 +107,9 @@ def test_same_seed_same_weights_other_seed_differs(data):
 def test_run_pretraining_end_to_end(data, tmp_path):
     task = TrajGANTask({**SMALL, "num_eval_samples": 4}, data["train"])
     cfg = PretrainConfig(epochs=2, batch_size=64, patience=5, seed=0)
-    metrics = run_pretraining(task, data["train"], data["val"], data["test"], cfg, tmp_path, "hash-a",
-                              config={"gan": SMALL}, progress=False)
+    metrics = run_pretraining(
+        task, data["train"], data["val"], data["test"], cfg, tmp_path, "hash-a", config={"gan": SMALL}, progress=False
+    )
     saved = json.loads((tmp_path / "metrics.json").read_text())
     for block in (saved, saved["idm_prior"], saved["const_velocity"]):
         for key in SIX:
@@ -117,16 +130,31 @@ def test_run_pretraining_end_to_end(data, tmp_path):
 
     # the same architecture reloads; another hidden size or another data set is refused clearly
     same = TrajGANTask(SMALL, data["train"])
-    load_checkpoint(tmp_path / "best.pt", kind="trajgan", architecture=same.architecture(), modules=same.modules(),
-                    dataset_hash="hash-a")
+    load_checkpoint(
+        tmp_path / "best.pt",
+        kind="trajgan",
+        architecture=same.architecture(),
+        modules=same.modules(),
+        dataset_hash="hash-a",
+    )
     assert same.validation_loss(data["val"]) == pytest.approx(metrics["best_val_loss"])
     other = TrajGANTask({**SMALL, "g_hidden": [16, 16]}, data["train"])
     with pytest.raises(CheckpointError, match="g_hidden"):
-        load_checkpoint(tmp_path / "best.pt", kind="trajgan", architecture=other.architecture(),
-                        modules=other.modules(), dataset_hash="hash-a")
+        load_checkpoint(
+            tmp_path / "best.pt",
+            kind="trajgan",
+            architecture=other.architecture(),
+            modules=other.modules(),
+            dataset_hash="hash-a",
+        )
     with pytest.raises(CheckpointError, match="another dataset"):
-        load_checkpoint(tmp_path / "best.pt", kind="trajgan", architecture=same.architecture(),
-                        modules=same.modules(), dataset_hash="hash-b")
+        load_checkpoint(
+            tmp_path / "best.pt",
+            kind="trajgan",
+            architecture=same.architecture(),
+            modules=same.modules(),
+            dataset_hash="hash-b",
+        )
     with pytest.raises(CheckpointError, match="another dataset"):
         TrajGANPredictor.from_checkpoint(tmp_path / "best.pt", dataset_hash="hash-b")
     with pytest.raises(CheckpointError, match="g_hidden"):
@@ -150,12 +178,15 @@ def env_observation(samples: TensorDict, batch: list[int], absent: float = 0.3, 
     present[0] = True
     mask = torch.cat([present.reshape(*batch, 3), torch.ones(*batch, 3, dtype=torch.bool)], -1)
     z = lambda x: x * present.reshape(-1, *[1] * (x.dim() - 1))
-    return TensorDict({
-        K.LEADERS_HISTORY: z(s["history"]).reshape(*batch, 3, H, 2),
-        K.LEADERS_AHEAD: z(s["ahead"]).reshape(*batch, 3, 3),
-        K.NEIGHBORS_MASK: mask,
-        K.PRED_PRIOR_TRAJ: s["prior"].reshape(*batch, 3, T),  # an upstream transform may fill absent ones
-    }, batch_size=batch)
+    return TensorDict(
+        {
+            K.LEADERS_HISTORY: z(s["history"]).reshape(*batch, 3, H, 2),
+            K.LEADERS_AHEAD: z(s["ahead"]).reshape(*batch, 3, 3),
+            K.NEIGHBORS_MASK: mask,
+            K.PRED_PRIOR_TRAJ: s["prior"].reshape(*batch, 3, T),  # an upstream transform may fill absent ones
+        },
+        batch_size=batch,
+    )
 
 
 @pytest.fixture(scope="module")

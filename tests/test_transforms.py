@@ -1,4 +1,5 @@
 """Predictive-state transforms (paper §III.B-C, Eq. 11-13, 16, 20-22, 24; Algorithm 1 lines 15-20)."""
+
 from __future__ import annotations
 
 import math
@@ -39,21 +40,34 @@ torch.set_num_threads(1)
 PRED_KEYS = (K.PRED_PRIOR_TRAJ, K.PRED_TRAJ, K.PRED_KEY_GAPS)
 PRIOR_KEYS = (K.PRIOR_P_MOBIL, K.PRIOR_P_LCGAN)
 DERIVED = PRED_KEYS + PRIOR_KEYS
-SHAPES = {K.PRED_PRIOR_TRAJ: (3, 20), K.PRED_TRAJ: (3, 20), K.PRED_KEY_GAPS: (3, 2),
-          K.PRIOR_P_MOBIL: (3,), K.PRIOR_P_LCGAN: (3,)}
+SHAPES = {
+    K.PRED_PRIOR_TRAJ: (3, 20),
+    K.PRED_TRAJ: (3, 20),
+    K.PRED_KEY_GAPS: (3, 2),
+    K.PRIOR_P_MOBIL: (3,),
+    K.PRIOR_P_LCGAN: (3,),
+}
 L = IDMParams().length
 
 
 def raw_obs(batch=(), history_len=10) -> TensorDict:
     """All-zero raw observation (every leader absent) of batch shape ``batch``."""
     b = tuple(batch)
-    return TensorDict({
-        K.EGO_STATE: torch.zeros(*b, 3), K.EGO_LANE: torch.ones(*b, 1, dtype=torch.long),
-        K.EGO_ACCEL: torch.zeros(*b, 1), K.NEIGHBORS_REL: torch.zeros(*b, 6, 4),
-        K.NEIGHBORS_MASK: torch.zeros(*b, 6, dtype=torch.bool), K.NEIGHBORS_KIN: torch.zeros(*b, 6, 3),
-        K.EGO_LANE_OFFSET: torch.zeros(*b, 1), K.NEIGHBORS_LANE_OFFSET: torch.zeros(*b, 6),
-        K.LEADERS_AHEAD: torch.zeros(*b, 3, 3), K.LEADERS_HISTORY: torch.zeros(*b, 3, history_len, 2),
-    }, batch_size=b)
+    return TensorDict(
+        {
+            K.EGO_STATE: torch.zeros(*b, 3),
+            K.EGO_LANE: torch.ones(*b, 1, dtype=torch.long),
+            K.EGO_ACCEL: torch.zeros(*b, 1),
+            K.NEIGHBORS_REL: torch.zeros(*b, 6, 4),
+            K.NEIGHBORS_MASK: torch.zeros(*b, 6, dtype=torch.bool),
+            K.NEIGHBORS_KIN: torch.zeros(*b, 6, 3),
+            K.EGO_LANE_OFFSET: torch.zeros(*b, 1),
+            K.NEIGHBORS_LANE_OFFSET: torch.zeros(*b, 6),
+            K.LEADERS_AHEAD: torch.zeros(*b, 3, 3),
+            K.LEADERS_HISTORY: torch.zeros(*b, 3, history_len, 2),
+        },
+        batch_size=b,
+    )
 
 
 def place(td: TensorDict, slot: str, y: float, v: float, ego_y: float = 0.0, ego_v: float = 25.0, dx=None):
@@ -75,7 +89,7 @@ def assert_derived(td: TensorDictBase, keys=DERIVED):
     """Every derived key present, of the documented shape, finite; probabilities on the simplex."""
     for key in keys:
         x = td.get(key)
-        assert x.shape[-len(SHAPES[key]):] == SHAPES[key], key
+        assert x.shape[-len(SHAPES[key]) :] == SHAPES[key], key
         assert x.dtype == torch.float32, key
         assert torch.isfinite(x).all(), key
     for key in PRIOR_KEYS:
@@ -88,8 +102,7 @@ def assert_derived(td: TensorDictBase, keys=DERIVED):
 def accelerate(td):
     """Policy: keep the lane, full throttle (rams leaders: collisions -> partial resets of a batched env)."""
     b = td.batch_size
-    return td.update({K.LC_ACTION: F.one_hot(torch.full(b, K.KEEP), 3).float(),
-                      K.CF_ACTION: torch.full((*b, 1), 5.0)})
+    return td.update({K.LC_ACTION: F.one_hot(torch.full(b, K.KEEP), 3).float(), K.CF_ACTION: torch.full((*b, 1), 5.0)})
 
 
 def strip(td: TensorDictBase) -> TensorDictBase:
@@ -125,8 +138,11 @@ def _fake_transformed(seed, num_roads=2):
 @pytest.mark.parametrize("batched", ["serial", "parallel"])
 def test_check_env_specs_batched_fake(batched):
     """The stack outside a batched env (one generator call for all envs), and inside its workers."""
-    make = (lambda fns: SerialEnv(2, fns)) if batched == "serial" else \
-        (lambda fns: ParallelEnv(2, fns, mp_start_method="fork"))
+    make = (
+        (lambda fns: SerialEnv(2, fns))
+        if batched == "serial"
+        else (lambda fns: ParallelEnv(2, fns, mp_start_method="fork"))
+    )
     outer = TransformedEnv(make([partial(_fake, 0), partial(_fake, 1)]), make_kddrl_transforms())
     inner = make([partial(_fake_transformed, 0), partial(_fake_transformed, 1)])
     try:
@@ -221,10 +237,10 @@ def hand_idm(y, v, y_a, v_a, has, p=None, steps=20, dt=0.1):
 
 def test_idm_prior_by_hand():
     td = raw_obs()
-    place(td, "b", 40.0, 30.0)                  # current leader, slower vehicle 25 m ahead of it
+    place(td, "b", 40.0, 30.0)  # current leader, slower vehicle 25 m ahead of it
     td[K.LEADERS_AHEAD][1] = torch.tensor([70.0, 20.0, 1.0])
-    place(td, "c", 60.0, 28.0)                  # right leader, free road
-    td[K.NEIGHBORS_KIN][0] = float("nan")       # a absent, garbage in its slot
+    place(td, "c", 60.0, 28.0)  # right leader, free road
+    td[K.NEIGHBORS_KIN][0] = float("nan")  # a absent, garbage in its slot
     td[K.LEADERS_AHEAD][0] = float("nan")
     out = IDMPrior()(td)[K.PRED_PRIOR_TRAJ]
     assert out.shape == (3, 20)
@@ -289,8 +305,8 @@ def test_mobil_prior_politeness_changes_decision():
 
 def test_mobil_prior_num_lanes():
     td = scene(lane=2, b=(30.0, 15.0))
-    assert p_mobil(td.clone())[K.LEFT] == 0.0                   # lane 2 of 3 is the leftmost
-    assert p_mobil(td.clone(), num_lanes=4)[K.LEFT] > 0.0       # not on a 4-lane road
+    assert p_mobil(td.clone())[K.LEFT] == 0.0  # lane 2 of 3 is the leftmost
+    assert p_mobil(td.clone(), num_lanes=4)[K.LEFT] > 0.0  # not on a 4-lane road
 
 
 def test_absent_neighbours_never_nan():
@@ -395,13 +411,14 @@ def _rollout_and_replay(stack_fn, steps=40):
     env = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=7), stack_fn())
     td = env.rollout(steps, accelerate, break_when_any_done=False)  # [K, T], crosses resets
     assert td["next", "done"].any()
-    replayed = stack_fn()(strip(td).clone())       # forward on the raw [K, T] transition
+    replayed = stack_fn()(strip(td).clone())  # forward on the raw [K, T] transition
     return td, replayed
 
 
 def test_replay_buffer_forward_matches_rollout_exact():
     """Physics transforms, and GAN transforms with deterministic predictors: exactly the rollout values,
     for the root and the "next" observations of a [K, T] batch and through a ReplayBuffer sample."""
+
     def stack_fn():
         return Compose(IDMPrior(), TrajGANPrediction(AffineTraj()), MOBILPrior(), LCGANPrior(SoftmaxGaps()))
 
@@ -411,8 +428,12 @@ def test_replay_buffer_forward_matches_rollout_exact():
         torch.testing.assert_close(replayed["next", key], td["next", key], rtol=0, atol=0)
     # through a replay buffer holding raw transitions, the stack as its transform
     flat = strip(td).reshape(-1)
-    rb = ReplayBuffer(storage=LazyTensorStorage(flat.numel()), sampler=SamplerWithoutReplacement(),
-                      batch_size=16, transform=stack_fn())
+    rb = ReplayBuffer(
+        storage=LazyTensorStorage(flat.numel()),
+        sampler=SamplerWithoutReplacement(),
+        batch_size=16,
+        transform=stack_fn(),
+    )
     rb.extend(flat)
     sample, info = rb.sample(return_info=True)
     idx = torch.as_tensor(info["index"])
@@ -425,6 +446,7 @@ def test_replay_buffer_forward_matches_rollout_exact():
 def test_replay_buffer_forward_matches_rollout_gan_mean():
     """The shipped GANs through ``forward`` on [K, T]: physics keys exact; with mean reduction the GAN keys
     agree up to the Monte-Carlo error of the mean (the draws differ: rollout and replay batch differently)."""
+
     def stack_fn():
         return make_kddrl_transforms(num_samples=256, reduce="mean", seed=3)
 
@@ -445,8 +467,9 @@ def test_without_trajgan_key_gaps_are_the_priors():
     present = td[K.NEIGHBORS_MASK][..., :3]
     expected = key_step_gaps(td[K.PRED_PRIOR_TRAJ], td[K.EGO_STATE][..., 0], present)
     torch.testing.assert_close(td[K.PRED_KEY_GAPS], expected, rtol=0, atol=0)
-    torch.testing.assert_close(td[K.PRED_KEY_GAPS][present],
-                               (td[K.PRED_PRIOR_TRAJ][..., [9, 19]] - td[K.EGO_STATE][..., :1, None])[present])
+    torch.testing.assert_close(
+        td[K.PRED_KEY_GAPS][present], (td[K.PRED_PRIOR_TRAJ][..., [9, 19]] - td[K.EGO_STATE][..., :1, None])[present]
+    )
     assert_derived(td, keys=(K.PRED_PRIOR_TRAJ, K.PRED_KEY_GAPS, *PRIOR_KEYS))
     assert [type(t).__name__ for t in env.transform] == ["IDMPrior", "KeyGapsFromPrior", "MOBILPrior", "LCGANPrior"]
 
@@ -464,9 +487,19 @@ def test_without_priors_has_no_prior_keys():
 def test_factory_order_and_dict_config():
     stack = make_kddrl_transforms()
     assert [type(t).__name__ for t in stack] == ["IDMPrior", "TrajGANPrediction", "MOBILPrior", "LCGANPrior"]
-    cfg = {"trajgan": True, "priors": True, "trajgan_checkpoint": None, "lcgan_checkpoint": None,
-           "num_samples": 4, "reduce": "mean", "seed": 2, "idm": {"T": 1.2, "v0": 30.0},
-           "mobil": {"politeness": 0.5}, "num_lanes": 3, "device": "cpu"}
+    cfg = {
+        "trajgan": True,
+        "priors": True,
+        "trajgan_checkpoint": None,
+        "lcgan_checkpoint": None,
+        "num_samples": 4,
+        "reduce": "mean",
+        "seed": 2,
+        "idm": {"T": 1.2, "v0": 30.0},
+        "mobil": {"politeness": 0.5},
+        "num_lanes": 3,
+        "device": "cpu",
+    }
     stack = make_kddrl_transforms(**cfg)
     assert stack[0].idm.T == 1.2 and stack[2].mobil.politeness == 0.5 and stack[2].idm.v0 == 30.0
     assert stack[1].predictor.num_samples == 4 and stack[1].predictor.reduce == "mean"
@@ -493,12 +526,22 @@ class ToyRoadEnv(EnvBase):
         super().__init__(batch_size=torch.Size([num_envs]))
         b, self.h = (num_envs,), history_len
         self.observation_spec = Composite(
-            ego=Composite(state=Unbounded((*b, 3)), lane=Bounded(0, 2, (*b, 1), dtype=torch.int64),
-                          lane_offset=Unbounded((*b, 1)), shape=b),
-            neighbors=Composite(rel=Unbounded((*b, 6, 4)), mask=Categorical(2, (*b, 6), dtype=torch.bool),
-                                kin=Unbounded((*b, 6, 3)), lane_offset=Unbounded((*b, 6)), shape=b),
+            ego=Composite(
+                state=Unbounded((*b, 3)),
+                lane=Bounded(0, 2, (*b, 1), dtype=torch.int64),
+                lane_offset=Unbounded((*b, 1)),
+                shape=b,
+            ),
+            neighbors=Composite(
+                rel=Unbounded((*b, 6, 4)),
+                mask=Categorical(2, (*b, 6), dtype=torch.bool),
+                kin=Unbounded((*b, 6, 3)),
+                lane_offset=Unbounded((*b, 6)),
+                shape=b,
+            ),
             leaders=Composite(ahead=Unbounded((*b, 3, 3)), history=Unbounded((*b, 3, history_len, 2)), shape=b),
-            shape=b)
+            shape=b,
+        )
         self.action_spec = Bounded(-3.0, 3.0, (*b, 1))
         self.reward_spec = Unbounded((*b, 1))
         self.t = torch.zeros(num_envs, dtype=torch.long)
@@ -510,9 +553,9 @@ class ToyRoadEnv(EnvBase):
         n, dt = self.batch_size[0], 0.1
         t = self.t.float()[:, None, None]
         ego_y, ego_v = 25.0 * self.t.float() * dt, torch.full((n,), 25.0)
-        car_y = self.car_y0 + self.car_v * t * dt                     # [n, lane, car]
+        car_y = self.car_y0 + self.car_v * t * dt  # [n, lane, car]
         rel_y = car_y - ego_y[:, None, None]
-        lanes = (2, 1, 0)                                             # left, current, right of lane 1
+        lanes = (2, 1, 0)  # left, current, right of lane 1
         kin, mask, rel, ahead, hist = [], [], [], [], []
         for leader in (True, False):
             for lane in lanes:
@@ -525,25 +568,42 @@ class ToyRoadEnv(EnvBase):
                 mask.append(ok)
                 rel.append(torch.stack([torch.full((n,), 3.5 * (lane - 1)), y - ego_y, torch.zeros(n), v - ego_v], -1))
                 if leader:
-                    gap = torch.where(car_y[:, lane] > y[:, None], car_y[:, lane] - y[:, None],
-                                      torch.full_like(car_y[:, lane], float("inf")))
+                    gap = torch.where(
+                        car_y[:, lane] > y[:, None],
+                        car_y[:, lane] - y[:, None],
+                        torch.full_like(car_y[:, lane], float("inf")),
+                    )
                     k = gap.argmin(-1)
                     has = torch.isfinite(gap.gather(-1, k[:, None]))[:, 0]
-                    ahead.append(torch.stack([car_y[:, lane].gather(-1, k[:, None])[:, 0] * has,
-                                              self.car_v[lane][k] * has, has.float()], -1))
+                    ahead.append(
+                        torch.stack(
+                            [car_y[:, lane].gather(-1, k[:, None])[:, 0] * has, self.car_v[lane][k] * has, has.float()],
+                            -1,
+                        )
+                    )
                     back = torch.arange(self.h - 1, -1, -1).float() * dt
                     hist.append(torch.stack([y[:, None] - v[:, None] * back, v[:, None].expand(n, self.h)], -1))
-        return TensorDict({
-            K.EGO_STATE: torch.stack([ego_y, ego_v, torch.zeros(n)], -1), K.EGO_LANE: torch.ones(n, 1, dtype=torch.long),
-            K.NEIGHBORS_KIN: torch.stack(kin, 1), K.NEIGHBORS_MASK: torch.stack(mask, 1),
-            K.NEIGHBORS_REL: torch.stack(rel, 1), K.LEADERS_AHEAD: torch.stack(ahead, 1),
-            K.LEADERS_HISTORY: torch.stack(hist, 1),
-            K.EGO_LANE_OFFSET: torch.zeros(n, 1), K.NEIGHBORS_LANE_OFFSET: torch.zeros(n, 6),
-        }, batch_size=self.batch_size)
+        return TensorDict(
+            {
+                K.EGO_STATE: torch.stack([ego_y, ego_v, torch.zeros(n)], -1),
+                K.EGO_LANE: torch.ones(n, 1, dtype=torch.long),
+                K.NEIGHBORS_KIN: torch.stack(kin, 1),
+                K.NEIGHBORS_MASK: torch.stack(mask, 1),
+                K.NEIGHBORS_REL: torch.stack(rel, 1),
+                K.LEADERS_AHEAD: torch.stack(ahead, 1),
+                K.LEADERS_HISTORY: torch.stack(hist, 1),
+                K.EGO_LANE_OFFSET: torch.zeros(n, 1),
+                K.NEIGHBORS_LANE_OFFSET: torch.zeros(n, 6),
+            },
+            batch_size=self.batch_size,
+        )
 
     def _reset(self, tensordict=None, **kwargs):
-        rows = tensordict.get("_reset").reshape(-1) if tensordict is not None and "_reset" in tensordict \
+        rows = (
+            tensordict.get("_reset").reshape(-1)
+            if tensordict is not None and "_reset" in tensordict
             else torch.ones_like(self.t, dtype=torch.bool)
+        )
         self.t[rows] = 0
         out = self._obs()
         out.set("done", torch.zeros(*self.batch_size, 1, dtype=torch.bool))
@@ -624,8 +684,9 @@ def test_fused_stack_equals_members_one_by_one(trajgan, priors):
         assert set(a.keys(include_nested=True)) == set(b.keys(include_nested=True))
     # in an env, with partial resets
     run_f = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=2), make_kddrl_transforms(trajgan, priors, seed=1))
-    run_c = TransformedEnv(FakeHighwayEnv(num_roads=3, seed=2),
-                           Compose(*make_kddrl_transforms(trajgan, priors, seed=1).transforms))
+    run_c = TransformedEnv(
+        FakeHighwayEnv(num_roads=3, seed=2), Compose(*make_kddrl_transforms(trajgan, priors, seed=1).transforms)
+    )
     ra = run_f.rollout(40, accelerate, break_when_any_done=False)
     rb = run_c.rollout(40, accelerate, break_when_any_done=False)
     assert ra["next", "done"].any() and not ra["next", "done"].all()
@@ -646,8 +707,9 @@ def test_fused_stack_falls_back_to_members():
     torch.testing.assert_close(out["prior", "mobil_copy"], out[K.PRIOR_P_MOBIL])
     assert_derived(out)
 
-    user = PredictiveStack(IDMPrior(), TrajGANPrediction(AffineTraj()), MOBILPrior(), LCGANPrior(SoftmaxGaps()),
-                           compile=False)
+    user = PredictiveStack(
+        IDMPrior(), TrajGANPrediction(AffineTraj()), MOBILPrior(), LCGANPrior(SoftmaxGaps()), compile=False
+    )
     assert not user[1].pure and user[0].pure
     ref = Compose(IDMPrior(), TrajGANPrediction(AffineTraj()), MOBILPrior(), LCGANPrior(SoftmaxGaps()))(obs.clone())
     got = user(obs.clone())
@@ -682,9 +744,18 @@ def _one_ego(lane=1, kin=None, mask=None, env_mask=(True, True, True)) -> Tensor
     for slot, values in (kin or {}).items():
         k[0, K.SLOT[slot]] = torch.tensor(values)
         m[0, K.SLOT[slot]] = True
-    return TensorDict({K.EGO_STATE: torch.tensor([[100.0, 30.0, 0.0]]), K.EGO_LANE: torch.tensor([[lane]]),
-                       K.NEIGHBORS_KIN: k, K.NEIGHBORS_MASK: m, K.LC_ACTIVE: torch.zeros(1, 1, dtype=torch.bool),
-                       K.LC_ACTION_MASK: torch.tensor([env_mask]), K.CF_ACTION: torch.full((1, 1), 5.0)}, [1])
+    return TensorDict(
+        {
+            K.EGO_STATE: torch.tensor([[100.0, 30.0, 0.0]]),
+            K.EGO_LANE: torch.tensor([[lane]]),
+            K.NEIGHBORS_KIN: k,
+            K.NEIGHBORS_MASK: m,
+            K.LC_ACTIVE: torch.zeros(1, 1, dtype=torch.bool),
+            K.LC_ACTION_MASK: torch.tensor([env_mask]),
+            K.CF_ACTION: torch.full((1, 1), 5.0),
+        },
+        [1],
+    )
 
 
 def test_mobil_safety_mask_ands_eq_20_21_into_the_command_mask():
@@ -697,12 +768,13 @@ def test_mobil_safety_mask_ands_eq_20_21_into_the_command_mask():
     assert mask(td.clone())[K.LC_ACTION_MASK].tolist() == [[False, True, True]]
     td = _one_ego(kin={"c": (200.0, 30.0, 0.0), "f": (50.0, 30.0, 0.0)}, env_mask=(True, True, False))
     assert mask(td.clone())[K.LC_ACTION_MASK].tolist() == [[True, True, False]]
-    td = _one_ego(kin={"f": (92.0, 30.0, 0.0)})                 # the right follower would brake below -b_safe
+    td = _one_ego(kin={"f": (92.0, 30.0, 0.0)})  # the right follower would brake below -b_safe
     assert mask(td.clone())[K.LC_ACTION_MASK].tolist() == [[True, True, False]]
     # on an env: specs hold, and the mask only ever removes commands
     check_env_specs(TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), MOBILSafetyMask()))
     env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), MOBILSafetyMask())
     raw = FakeHighwayEnv(num_roads=4, seed=0)
+
     def keep(td):
         return td.update({K.LC_ACTION: F.one_hot(torch.full((4,), K.KEEP), 3).float(), K.CF_ACTION: torch.zeros(4, 1)})
 
@@ -736,12 +808,12 @@ def test_safety_bounds():
     kw = dict(idm=IDMParams(v0=math.inf), ttc=3.0, min_gap=2.0, high=5.0)
     assert safe_acceleration(_one_ego(), "idm", **kw).item() == 5.0
     assert safe_acceleration(_one_ego(), "ttc", **kw).item() == 5.0
-    close = _one_ego(kin={"b": (135.0, 20.0, -1.0)})             # gap 30 m, closing at 10 m/s: TTC 3 s
+    close = _one_ego(kin={"b": (135.0, 20.0, -1.0)})  # gap 30 m, closing at 10 m/s: TTC 3 s
     expected = idm_acceleration(torch.tensor(30.0), torch.tensor(20.0), torch.tensor(30.0), IDMParams(v0=math.inf))
     assert safe_acceleration(close, "idm", **kw).item() == pytest.approx(expected.item())
     assert safe_acceleration(close, "ttc", **kw).item() == 5.0  # TTC = 3 s: not below the threshold
-    closer = _one_ego(kin={"b": (125.0, 20.0, -1.0)})            # gap 20 m: TTC 2 s
-    assert safe_acceleration(closer, "ttc", **kw).item() == pytest.approx(-1.0 - 10.0 ** 2 / (2 * 18.0))
+    closer = _one_ego(kin={"b": (125.0, 20.0, -1.0)})  # gap 20 m: TTC 2 s
+    assert safe_acceleration(closer, "ttc", **kw).item() == pytest.approx(-1.0 - 10.0**2 / (2 * 18.0))
     # the left leader counts only during a left lane change
     left = _one_ego(kin={"a": (110.0, 10.0, 0.0)})
     assert safe_acceleration(left, "ttc", **kw).item() == 5.0
@@ -765,20 +837,23 @@ def test_shield_executes_and_records_the_bounded_action_and_counts_interventions
 
     env = env_()
     check_env_specs(env)
-    floor_it = TensorDictModule(lambda s: (F.one_hot(torch.full(s.shape[:-1], K.KEEP), 3).float(),
-                                           torch.full_like(s[..., :1], 5.0)),
-                                in_keys=[K.EGO_STATE], out_keys=[K.LC_ACTION, K.CF_ACTION])
+    floor_it = TensorDictModule(
+        lambda s: (F.one_hot(torch.full(s.shape[:-1], K.KEEP), 3).float(), torch.full_like(s[..., :1], 5.0)),
+        in_keys=[K.EGO_STATE],
+        out_keys=[K.LC_ACTION, K.CF_ACTION],
+    )
     roll = env.rollout(61, floor_it, break_when_any_done=False)[:, :-1]  # TorchRL runs no hook on the last step
     flag = roll["next", *K.CF_SHIELD][..., 0]
     action = roll[K.CF_ACTION][..., 0]
     assert flag.any() and (action[flag] < 5.0).all() and (action[~flag] == 5.0).all()
-    moving = roll["next", *K.EGO_STATE][..., 1] > 0.5             # v' = max(v + a dt, 0): executed = command
+    moving = roll["next", *K.EGO_STATE][..., 1] > 0.5  # v' = max(v + a dt, 0): executed = command
     assert torch.allclose(roll["next", *K.EGO_ACCEL][..., 0][moving], action[moving], atol=1e-3)
     from torchrl.collectors import Collector
 
-    collector = Collector(env_(), floor_it, frames_per_batch=80, total_frames=80, trust_policy=True,
-                          auto_register_policy_transforms=False)
-    batch = next(iter(collector))                                 # what buffer L receives
+    collector = Collector(
+        env_(), floor_it, frames_per_batch=80, total_frames=80, trust_policy=True, auto_register_policy_transforms=False
+    )
+    batch = next(iter(collector))  # what buffer L receives
     collector.shutdown()
     flag, action = batch["next", *K.CF_SHIELD][..., 0], batch[K.CF_ACTION][..., 0]
     assert flag.any() and (action[flag] < 5.0).all() and (action[~flag] == 5.0).all()

@@ -1,5 +1,6 @@
 """The paper's verdict (eval/verdict.py): paired intervals over seeds, Holm's correction, exact collision intervals,
 and the report's ``verdict=true`` form (claims, commits as rows of their own)."""
+
 from __future__ import annotations
 
 import json
@@ -36,8 +37,13 @@ def test_clopper_pearson_reads_zero_in_5000_as_an_interval():
 
 def _rows(a_speeds, b_speeds, seeds_a=None, seeds_b=None):
     def row(algo, speeds, seeds):
-        return {"algo": algo, "scenario": "baseline", "seeds": seeds or list(range(len(speeds))),
-                "per_seed": {"mean_speed_kmh": list(speeds)}}
+        return {
+            "algo": algo,
+            "scenario": "baseline",
+            "seeds": seeds or list(range(len(speeds))),
+            "per_seed": {"mean_speed_kmh": list(speeds)},
+        }
+
     return [row("kddrl", a_speeds, seeds_a), row("ni", b_speeds, seeds_b)]
 
 
@@ -69,8 +75,17 @@ def test_holm_is_applied_over_the_family():
 
 def test_the_claims_cover_the_issue_list():
     text = " ".join(c.claim for c in CLAIMS)
-    for needle in ("(+LG)", "(+TG)", "(two clocks)", "(rules slowest)", "(rules safest)", "(unified slower)",
-                   "(unified changes lanes more)", "Table III", "Table IV"):
+    for needle in (
+        "(+LG)",
+        "(+TG)",
+        "(two clocks)",
+        "(rules slowest)",
+        "(rules safest)",
+        "(unified slower)",
+        "(unified changes lanes more)",
+        "Table III",
+        "Table IV",
+    ):
         assert needle in text, needle
     assert all(c.direction in ("greater", "less") for c in CLAIMS)
 
@@ -80,12 +95,30 @@ def test_verdict_report_keeps_commits_apart_and_writes_claims(tmp_path):
     from kddrl_trl.eval.report import build_report
 
     for seed in range(3):
-        _fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(130.0 + seed, 131.0),
-                  collisions=(False, False), commit="aaaaaaa")
-        _fake_run(tmp_path / "runs" / f"n{seed}", "ni", seed, speeds=(120.0 + seed, 121.0), collisions=(True, False),
-                  commit="aaaaaaa")
-        _fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(100.0, 100.0),
-                  collisions=(False, False), commit="aaaaaaa")
+        _fake_run(
+            tmp_path / "runs" / f"k{seed}",
+            "kddrl",
+            seed,
+            speeds=(130.0 + seed, 131.0),
+            collisions=(False, False),
+            commit="aaaaaaa",
+        )
+        _fake_run(
+            tmp_path / "runs" / f"n{seed}",
+            "ni",
+            seed,
+            speeds=(120.0 + seed, 121.0),
+            collisions=(True, False),
+            commit="aaaaaaa",
+        )
+        _fake_run(
+            tmp_path / "runs" / f"i{seed}",
+            "idm_mobil",
+            seed,
+            speeds=(100.0, 100.0),
+            collisions=(False, False),
+            commit="aaaaaaa",
+        )
     _fake_run(tmp_path / "runs" / "k3", "kddrl", 3, speeds=(10.0, 10.0), collisions=(True, True), commit="bbbbbbb")
     build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep", verdict=True)
     report = json.loads((tmp_path / "rep" / "report.json").read_text())

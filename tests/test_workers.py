@@ -1,6 +1,7 @@
 """Collection worker processes (``collector.workers``, issue 15 "Worker processes"): N envs through TorchRL's
 multi-process collector feeding the learner's two buffers, seeded per worker, acting with the learner's weights and
 exploration state."""
+
 from __future__ import annotations
 
 import json
@@ -72,8 +73,11 @@ class RecordingCollector:
 
     def learner_state(self) -> tuple[float, float, float]:
         learner = self.learner
-        return (float(learner.lc_explore.eps), float(learner.cf_explore.sigma),
-                weights_checksum(learner.policy(explore=True)))
+        return (
+            float(learner.lc_explore.eps),
+            float(learner.cf_explore.sigma),
+            weights_checksum(learner.policy(explore=True)),
+        )
 
     def update_policy_weights_(self) -> None:
         self.mtc.update_policy_weights_()
@@ -95,10 +99,13 @@ def test_worker_env_factories_have_distinct_documented_reproducible_seeds():
     # dataclasses.make_dataclass, which the standard pickle cannot find by name)
     # (loaded in a fresh process, as a worker does: cloudpickle loading classes pickled by value back into the
     # process that defined them rewrites those classes, which broke later tests of the same pytest worker)
-    loaded = subprocess.run([sys.executable, "-c", "import pickle, sys; "
-                             "print([f.seed for f in pickle.loads(sys.stdin.buffer.read())])"],
-                            input=cloudpickle.dumps(factories), capture_output=True, check=True,
-                            env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    loaded = subprocess.run(
+        [sys.executable, "-c", "import pickle, sys; print([f.seed for f in pickle.loads(sys.stdin.buffer.read())])"],
+        input=cloudpickle.dumps(factories),
+        capture_output=True,
+        check=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
     assert loaded.stdout.decode().strip() == str([f.seed for f in factories])
     (single,) = make_env_factories(compose_job("compile=false"), seed=7)
     assert single.seed == 7 and not single.seed_torch  # the learner process's env: as before, torch left alone
@@ -123,13 +130,19 @@ def test_a_worker_env_seeds_the_torch_generator_of_its_process():
     assert torch.equal(torch.rand(3), torch.rand(3, generator=expected))
 
 
-@pytest.mark.parametrize("override, match", [
-    ("collector.workers=0", "collector.workers must be >= 1, got 0"),
-    (f"collector.workers={MAX_WORKERS + 1}", f"collector.workers must be <= {MAX_WORKERS}"),
-    ("collector.backend=threads", "collector.backend must be one of process, ray, got 'threads'"),
-    ("collector.sync=false collector.workers=2", "collector.sync=false runs one worker process: it needs "
-                                                 "collector.workers=1 and collector.backend=process, got workers=2"),
-])
+@pytest.mark.parametrize(
+    "override, match",
+    [
+        ("collector.workers=0", "collector.workers must be >= 1, got 0"),
+        (f"collector.workers={MAX_WORKERS + 1}", f"collector.workers must be <= {MAX_WORKERS}"),
+        ("collector.backend=threads", "collector.backend must be one of process, ray, got 'threads'"),
+        (
+            "collector.sync=false collector.workers=2",
+            "collector.sync=false runs one worker process: it needs "
+            "collector.workers=1 and collector.backend=process, got workers=2",
+        ),
+    ],
+)
 def test_bad_collector_values_are_refused_naming_the_key(override, match):
     with pytest.raises(ValueError, match=match):
         compose_job(*override.split())
@@ -160,14 +173,28 @@ def probe_training(tmp_path, collector_override: str):
     from kddrl_trl.factories import make_buffers, make_collector, make_env_factories, make_learner, make_logger
     from kddrl_trl.training import Trainer
 
-    job = compose_job("env.num_roads=2", "compile=false", collector_override, "env.ego_start=window",
-                      "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]")
+    job = compose_job(
+        "env.num_roads=2",
+        "compile=false",
+        collector_override,
+        "env.ego_start=window",
+        "algo.learner.d3qn.hidden=[16]",
+        "algo.learner.td3.hidden=[16]",
+    )
     learner = make_learner(job.algo, compile=False)
-    train = replace(job.train, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10,
-                    checkpoint_every=1000)
+    train = replace(
+        job.train, warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10, checkpoint_every=1000
+    )
     buffers = make_buffers(train, seed=0)
-    trainer = Trainer(learner, buffers, train, tmp_path, make_logger(LoggerConfig(csv=True, tensorboard=False),
-                                                                     tmp_path), episodes=6, progress=False)
+    trainer = Trainer(
+        learner,
+        buffers,
+        train,
+        tmp_path,
+        make_logger(LoggerConfig(csv=True, tensorboard=False), tmp_path),
+        episodes=6,
+        progress=False,
+    )
     step = learner.explore_step
 
     def explore_step(decisions, frames):  # also anneal σ (constant in kddrl.yaml), so that its sync is seen
@@ -178,8 +205,16 @@ def probe_training(tmp_path, collector_override: str):
     acting = learner.policy
     learner.policy = lambda explore=True: ExplorationProbe(acting(explore))
     before = (float(learner.lc_explore.eps), float(learner.cf_explore.sigma), weights_checksum(acting(True)))
-    mtc = make_collector(make_env_factories(job, seed=0, fake=True), learner, buffers, train, job.algo.lc_reward,
-                         job.env.highway(), collector=job.collector, rows=job.env.num_roads)
+    mtc = make_collector(
+        make_env_factories(job, seed=0, fake=True),
+        learner,
+        buffers,
+        train,
+        job.algo.lc_reward,
+        job.env.highway(),
+        collector=job.collector,
+        rows=job.env.num_roads,
+    )
     learner.policy = acting
     recorder = RecordingCollector(mtc, learner)
     return trainer, recorder, trainer.run(recorder), before, mtc
@@ -222,7 +257,7 @@ def test_two_workers_feed_both_buffers_in_a_stable_row_order_acting_with_the_lea
         assert torch.allclose(f[PROBE_SIGMA], torch.tensor(sigma, dtype=torch.float64))
         assert torch.allclose(f[PROBE_W], torch.tensor(checksum, dtype=torch.float64), rtol=1e-6)
     assert states[len(batches) - 1][0] < before[0] and states[len(batches) - 1][1] < before[1]  # ε and σ moved
-    assert len({s[2] for s in states[:len(batches)]}) > 1  # and the weights were updated
+    assert len({s[2] for s in states[: len(batches)]}) > 1  # and the weights were updated
 
 
 @pytest.mark.slow  # a spawned worker process importing torch / torchrl
@@ -250,17 +285,24 @@ def test_overlapped_collection_acts_with_the_learners_state_of_two_batches_befor
         assert torch.allclose(f[PROBE_EPS], torch.tensor(eps, dtype=torch.float64))
         assert torch.allclose(f[PROBE_SIGMA], torch.tensor(sigma, dtype=torch.float64))
         assert torch.allclose(f[PROBE_W], torch.tensor(checksum, dtype=torch.float64), rtol=1e-6)
-    assert len({s[2] for s in states[:len(batches)]}) > 1  # the weights moved between batches
+    assert len({s[2] for s in states[: len(batches)]}) > 1  # the weights moved between batches
     # and not the synchronous collector's lag: batch j != the state after batch j - 1 once they differ
     lagged_one = [before, *recorder.after]
-    assert any(float(b.frames[PROBE_W][0, 0, 0]) != pytest.approx(s[2], rel=1e-6)
-               for b, s in zip(batches, lagged_one))
+    assert any(float(b.frames[PROBE_W][0, 0, 0]) != pytest.approx(s[2], rel=1e-6) for b, s in zip(batches, lagged_one))
 
 
 #: a tiny KDDRL budget on SUMO (as tests/test_train.py's TINY)
-TINY = ["env.num_roads=2", "progress=false", "train.warmup_frames=50", "train.batch_size_cf=32",
-        "train.batch_size_lc=8", "compile=false", "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]",
-        "train.eval_every=0"]
+TINY = [
+    "env.num_roads=2",
+    "progress=false",
+    "train.warmup_frames=50",
+    "train.batch_size_cf=32",
+    "train.batch_size_lc=8",
+    "compile=false",
+    "algo.learner.d3qn.hidden=[32,32]",
+    "algo.learner.td3.hidden=[32,32]",
+    "train.eval_every=0",
+]
 
 
 @pytest.mark.slow  # two SUMO worker processes + the learner + the final evaluation
@@ -286,8 +328,16 @@ def test_an_overlapped_sumo_run_repeats_exactly(tmp_path):
     snapshot is refreshed only between the worker's batches, so the timing of the two processes does not count)."""
     records = []
     for name in ("a", "b"):
-        cmd = [sys.executable, "-m", "kddrl_trl.train", "collector.sync=false", "episodes=4", "eval_episodes=1",
-               *TINY, f"hydra.run.dir={tmp_path / name}"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "kddrl_trl.train",
+            "collector.sync=false",
+            "episodes=4",
+            "eval_episodes=1",
+            *TINY,
+            f"hydra.run.dir={tmp_path / name}",
+        ]
         done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
         assert done.returncode == 0, done.stderr[-3000:]
         summary = json.loads((tmp_path / name / "summary.json").read_text())
@@ -306,8 +356,9 @@ def test_the_single_process_collector_closes_the_env_it_builds():
     from kddrl_trl.collectors import MultiTimescaleCollector
     from kddrl_trl.envs import SumoHighwayEnv
 
-    mtc = MultiTimescaleCollector.from_env([partial(SumoHighwayEnv, "baseline", num_roads=1, seed=0)],
-                                           IDMMobilPolicy(), frames_per_env=2, rows=1)
+    mtc = MultiTimescaleCollector.from_env(
+        [partial(SumoHighwayEnv, "baseline", num_roads=1, seed=0)], IDMMobilPolicy(), frames_per_env=2, rows=1
+    )
     assert isinstance(mtc.local_env, SumoHighwayEnv)
     mtc.shutdown(close_env=False)
     assert mtc.local_env is None

@@ -2,6 +2,7 @@
 standing still (lane kept, -5 m/s² until stopped) and uniformly random commands (RandomDrivingPolicy).
     python docs/paper/reference_policies.py [episodes] [scenario]  ->  docs/paper/reference_policies.json
 Same env, seed convention (seed 0's test traffic, seed + 1,000,000) and episode metrics as the study's runs."""
+
 from __future__ import annotations
 
 import json
@@ -37,15 +38,19 @@ def main(episodes: int = 200, scenario: str = "baseline") -> dict:
         cfg = compose("config", overrides=[f"+scenario={scenario}", "algo=idm_mobil", "progress=false"])
     job = OmegaConf.to_object(cfg)
     out = {}
-    for name, policy in (("stand_still", StandStill()),
-                         ("random", RandomDrivingPolicy(generator=torch.Generator().manual_seed(0)))):
+    for name, policy in (
+        ("stand_still", StandStill()),
+        ("random", RandomDrivingPolicy(generator=torch.Generator().manual_seed(0))),
+    ):
         env = make_env(job.env, job.algo, 0)
         try:
             eps = evaluate_policy(env, policy, episodes, test_seed(0, None), progress=False)
         finally:
             env.close()
-        out[name] = {k: float(np.mean([e[k] for e in eps])) for k in
-                     ("return_lc", "return_cf", "mean_speed_kmh", "collision", "frames", "lane_changes")}
+        out[name] = {
+            k: float(np.mean([e[k] for e in eps]))
+            for k in ("return_lc", "return_cf", "mean_speed_kmh", "collision", "frames", "lane_changes")
+        }
         out[name]["episodes"] = episodes
         print(name, json.dumps(out[name]))
     path = Path(__file__).with_name("reference_policies.json")

@@ -4,6 +4,7 @@ The sites themselves are :func:`kddrl_trl.transforms.stack.compiled_frames` (the
 and the learner's ``loss`` (:meth:`kddrl_trl.training.Learner._compile`, for every learner, called through
 :class:`WarmCompiled`; its measured gain is stated on :class:`kddrl_trl.training.HierarchicalLearner`).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -60,8 +61,12 @@ def recompute_bool_masks(graph_module, joint_inputs):
 
     for node in graph_module.graph.nodes:
         val = node.meta.get("val")
-        if node.op == "call_function" and node.target in _MASK_OPS and isinstance(val, torch.Tensor) \
-                and val.dtype == torch.bool:
+        if (
+            node.op == "call_function"
+            and node.target in _MASK_OPS
+            and isinstance(val, torch.Tensor)
+            and val.dtype == torch.bool
+        ):
             node.meta["recompute"] = CheckpointPolicy.MUST_RECOMPUTE
     return graph_module
 
@@ -86,8 +91,9 @@ def partitioning():
     cached by TorchInductor; tracing and partitioning run again once per process."""
     from torch._functorch import config as functorch_config
 
-    return functorch_config.patch(recompute_views=True, joint_custom_pass=recompute_bool_masks,
-                                  enable_autograd_cache=False)
+    return functorch_config.patch(
+        recompute_views=True, joint_custom_pass=recompute_bool_masks, enable_autograd_cache=False
+    )
 
 
 def specializing_floats():
@@ -180,8 +186,10 @@ class GraphedUpdate:
         if self.static is None:
             self._capture_inputs(batch)
         elif batch.batch_size != self.static.batch_size:
-            raise ValueError(f"a CUDA-graphed update was captured for minibatches of {tuple(self.static.batch_size)} "
-                             f"rows and got {tuple(batch.batch_size)}; its buffer's batch_size must not change")
+            raise ValueError(
+                f"a CUDA-graphed update was captured for minibatches of {tuple(self.static.batch_size)} "
+                f"rows and got {tuple(batch.batch_size)}; its buffer's batch_size must not change"
+            )
         sources = [batch.get(k) for k in self.keys]
         try:
             for i, j in self.groups:
@@ -190,6 +198,7 @@ class GraphedUpdate:
             missing = [k for k, v in zip(self.keys, sources, strict=True) if v is None]
             if not missing:
                 raise
-            raise KeyError(f"a CUDA-graphed update was captured with the keys {self.keys}; this batch lacks "
-                           f"{missing}") from None
+            raise KeyError(
+                f"a CUDA-graphed update was captured with the keys {self.keys}; this batch lacks {missing}"
+            ) from None
         return self.graph()

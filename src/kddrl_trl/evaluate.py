@@ -6,6 +6,7 @@ off on the requested traffic with the same code as the final evaluation of ``kdd
 (:func:`kddrl_trl.factories.evaluate_and_report`), and writes ``summary.json`` and ``eval_episodes.csv`` into
 ``<run>/eval__<scenario>__<seed>__<time>/``. Wires the parts of :mod:`kddrl_trl.factories` only.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -30,10 +31,20 @@ def main(cfg: DictConfig) -> dict:
     env_seed, trained_on = test_seed(job.seed, job.eval_seed), str(saved.env.scenario)
     check_disjoint("eval_seed", env_seed, int(saved.seed), int(saved.episodes))  # the run's own training traffic
     seed_everything(job.seed)
-    return evaluate_and_report(job, algo, job.env, learner, make_logger(job.logger, out_dir), out_dir,
-                               title=f"{algo.name} trained on {trained_on}, evaluated on {job.env.scenario}, "
-                                     f"seed {job.seed}, exploration off ({ckpt.name})",
-                               trained_on=trained_on, checkpoint=str(ckpt), seed=job.seed, eval_seed=env_seed)
+    return evaluate_and_report(
+        job,
+        algo,
+        job.env,
+        learner,
+        make_logger(job.logger, out_dir),
+        out_dir,
+        title=f"{algo.name} trained on {trained_on}, evaluated on {job.env.scenario}, "
+        f"seed {job.seed}, exploration off ({ckpt.name})",
+        trained_on=trained_on,
+        checkpoint=str(ckpt),
+        seed=job.seed,
+        eval_seed=env_seed,
+    )
 
 
 if __name__ == "__main__":

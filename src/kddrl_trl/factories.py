@@ -28,6 +28,7 @@ only acts is built with ``compile=False``. ``device`` (``auto | cpu | cuda``) pl
 (:func:`make_learner`, :func:`load_trained_learner`) and its buffers (:func:`make_buffers`), ``cudagraphs`` graphs
 its compiled updates on CUDA; the env, SUMO, the transforms and acting stay on the CPU.
 """
+
 from __future__ import annotations
 
 import random
@@ -84,8 +85,10 @@ def make_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name.startswith("cuda") and not torch.cuda.is_available():
-        raise SystemExit(f"device={name} but no CUDA device is available here (torch {torch.__version__}, "
-                         "torch.cuda.is_available() is False): use device=auto or device=cpu")
+        raise SystemExit(
+            f"device={name} but no CUDA device is available here (torch {torch.__version__}, "
+            "torch.cuda.is_available() is False): use device=auto or device=cpu"
+        )
     return torch.device(name)
 
 
@@ -137,8 +140,9 @@ def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> Mul
     return MultiLogger(loggers)
 
 
-def make_transforms(algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayConfig,
-                    compile: bool | str = False) -> Compose:
+def make_transforms(
+    algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayConfig, compile: bool | str = False
+) -> Compose:
     """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
     ``algo.transforms`` (none with ``enabled: false``) and MOBIL's criteria (``mobil_criteria: true``,
     :class:`~kddrl_trl.transforms.MOBILCriteria`); MOBIL's safety mask where ``algo.mobil_safety_mask``
@@ -165,8 +169,9 @@ def make_transforms(algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayCo
     return Compose(*stack)
 
 
-def make_env(env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bool | str = False,
-             fake: bool = False) -> EnvBase:
+def make_env(
+    env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bool | str = False, fake: bool = False
+) -> EnvBase:
     """The env of ``env.simulator`` with ``env.num_roads`` roads on the composed highway config: ``SumoHighwayEnv``
     (``sumo``; ``FakeHighwayEnv`` with ``fake=True``) or ``HighwayEnvAdapter`` (``highwayenv``, the optional extra
     ``.[highway]``), with :func:`make_transforms` (built first: no simulator starts before every option is
@@ -203,13 +208,22 @@ def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[Wor
     return [WorkerEnv(make, worker_seed(seed, i), seed_torch=not in_process) for i in range(workers)]
 
 
-def make_learner(algo: LearningAlgo, compile: bool | str = False, device: torch.device | str | None = None,
-                 cudagraphs: bool | str = False) -> Learner:
+def make_learner(
+    algo: LearningAlgo,
+    compile: bool | str = False,
+    device: torch.device | str | None = None,
+    cudagraphs: bool | str = False,
+) -> Learner:
     """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` and ``algo.state_extras`` (every
     learner's states) on ``device`` (None: the CPU; ``compile``: its update functions, the learner's one compile
     site; ``cudagraphs``: CUDA-graph them)."""
-    return LEARNERS[algo.kind](**asdict(algo.learner), state_extras=tuple(algo.state_extras), compile=compile,
-                               device=device, cudagraphs=cudagraphs)
+    return LEARNERS[algo.kind](
+        **asdict(algo.learner),
+        state_extras=tuple(algo.state_extras),
+        compile=compile,
+        device=device,
+        cudagraphs=cudagraphs,
+    )
 
 
 def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: Learner | None = None):
@@ -219,25 +233,40 @@ def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: 
         from .baselines import IDMMobilPolicy
         from .physics import IDMParams, MOBILParams
 
-        return IDMMobilPolicy(IDMParams(**asdict(algo.idm)), MOBILParams(**asdict(algo.mobil)),
-                              num_lanes=highway.num_lanes, lane_width=highway.lane_width)
+        return IDMMobilPolicy(
+            IDMParams(**asdict(algo.idm)),
+            MOBILParams(**asdict(algo.mobil)),
+            num_lanes=highway.num_lanes,
+            lane_width=highway.lane_width,
+        )
     if learner is None:
         raise ValueError(f"algo={algo.name} is a learning algo: its policy needs the trained learner")
     return learner.policy(explore=False).eval()
 
 
-def make_buffers(train: TrainConfig, seed: int, device: torch.device | str | None = None
-                 ) -> tuple[TensorDictReplayBuffer, TensorDictReplayBuffer]:
+def make_buffers(
+    train: TrainConfig, seed: int, device: torch.device | str | None = None
+) -> tuple[TensorDictReplayBuffer, TensorDictReplayBuffer]:
     """Buffer L (frames: TD3, DDPG, a unified agent) and buffer H (macro-transitions, D3QN) with the ``train``
     sizes, on the learner's ``device`` (None: the CPU); both prioritized with ``train.prioritized``."""
     per = (train.priority_alpha, train.priority_beta) if train.prioritized else None
-    return (make_buffer(train.buffer_cf, train.batch_size_cf, seed, device, prioritized=per),
-            make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1, device, prioritized=per))
+    return (
+        make_buffer(train.buffer_cf, train.batch_size_cf, seed, device, prioritized=per),
+        make_buffer(train.buffer_lc, train.batch_size_lc, seed + 1, device, prioritized=per),
+    )
 
 
-def make_collector(env, learner: Learner, buffers: tuple, train: TrainConfig,
-                   lc_reward: str = "frames", highway: HighwayConfig | None = None, *,
-                   collector: CollectorConfig | None = None, rows: int | None = None) -> MultiTimescaleCollector:
+def make_collector(
+    env,
+    learner: Learner,
+    buffers: tuple,
+    train: TrainConfig,
+    lc_reward: str = "frames",
+    highway: HighwayConfig | None = None,
+    *,
+    collector: CollectorConfig | None = None,
+    rows: int | None = None,
+) -> MultiTimescaleCollector:
     """``train.frames_per_env`` frames per road per iteration with the exploring policy, into ``buffers``
     (restricted to the keys the learner reads; buffer H only for a learner that ``learns_from_decisions``).
     ``env``: a batched env (the caller closes it), or the env factories of :func:`make_env_factories` (``rows``:
@@ -264,13 +293,20 @@ def make_collector(env, learner: Learner, buffers: tuple, train: TrainConfig,
 
         nstep = NStepReturns(train.n_steps, learner.frame_gamma)
         frame_keys = [*frame_keys, K.STEPS_TO_NEXT_OBS, ("next", *K.LC_HELD)]
-    return MultiTimescaleCollector.from_env(env, learner.policy(explore=True), frames_per_env=train.frames_per_env,
-                                            rows=rows, backend=collector.backend, sync=collector.sync,
-                                            frame_buffer=buffers[0],
-                                            macro_buffer=buffers[1] if learner.learns_from_decisions else None,
-                                            frame_keys=frame_keys, frame_transform=nstep,
-                                            macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],
-                                            writer=MacroTransitionWriter(efficiency=efficiency))
+    return MultiTimescaleCollector.from_env(
+        env,
+        learner.policy(explore=True),
+        frames_per_env=train.frames_per_env,
+        rows=rows,
+        backend=collector.backend,
+        sync=collector.sync,
+        frame_buffer=buffers[0],
+        macro_buffer=buffers[1] if learner.learns_from_decisions else None,
+        frame_keys=frame_keys,
+        frame_transform=nstep,
+        macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],
+        writer=MacroTransitionWriter(efficiency=efficiency),
+    )
 
 
 def make_evaluator(job: TrainJob):
@@ -285,35 +321,44 @@ def make_evaluator(job: TrainJob):
     if job.train.eval_every == 0:
         return None
     seed = validation_seed(job.seed)
-    return PeriodicEvaluator(partial(make_env, job.env, job.algo, seed=seed, compile=False),
-                             job.train.eval_episodes, seed, job.train.best_metric)
+    return PeriodicEvaluator(
+        partial(make_env, job.env, job.algo, seed=seed, compile=False),
+        job.train.eval_episodes,
+        seed,
+        job.train.best_metric,
+    )
 
 
-def load_trained_learner(run: Path, checkpoint: str = "latest", device: torch.device | str | None = None
-                         ) -> tuple[LearningAlgo, Learner, Path, DictConfig]:
+def load_trained_learner(
+    run: Path, checkpoint: str = "latest", device: torch.device | str | None = None
+) -> tuple[LearningAlgo, Learner, Path, DictConfig]:
     """(algo, learner on ``device`` with the weights of its ``latest`` or ``best`` checkpoint, that checkpoint,
     the run's saved config) of a training run folder. The learner only acts: it is not compiled. Checkpoints are
     read onto the CPU and then copied to the learner's device, so a run trained on either loads on either."""
     saved = OmegaConf.load(trained_run(run) / "config.yaml")
     algo = algo_from_node(saved.algo)
     if not isinstance(algo, LearningAlgo):
-        raise ValueError(f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "
-                         f"python -m kddrl_trl.train algo={algo.name} +scenario=...")
+        raise ValueError(
+            f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "
+            f"python -m kddrl_trl.train algo={algo.name} +scenario=..."
+        )
     if checkpoint == "latest":  # the newest that loads (a damaged one falls back to the previous, with a warning)
         path, payload = load_latest_training_checkpoint(run)
     else:
         path = checkpoint_dir(run) / "best.pt"
         if not path.is_file():
-            raise FileNotFoundError(f"run={run}: no {checkpoint} checkpoint in {checkpoint_dir(run)}"
-                                    " (train.eval_every=0 writes no best.pt)")
+            raise FileNotFoundError(
+                f"run={run}: no {checkpoint} checkpoint in {checkpoint_dir(run)} (train.eval_every=0 writes no best.pt)"
+            )
         payload = load_training_checkpoint(path)
     learner = make_learner(algo, compile=False, device=device)
     learner.load_full_state_dict(payload["learner"])
     return algo, learner, path, saved
 
 
-def evaluate(env: EnvBase, policy, job: Job, logger, out_dir: Path | None = None, algo: str = ""
-             ) -> tuple[list[dict], dict]:
+def evaluate(
+    env: EnvBase, policy, job: Job, logger, out_dir: Path | None = None, algo: str = ""
+) -> tuple[list[dict], dict]:
     """``job.eval_episodes`` episodes of ``policy`` (in start order, :func:`kddrl_trl.eval.evaluate_policy`) on
     the test seed of :mod:`kddrl_trl.eval.protocol`, logged under ``test/``, and the env's counters; closes
     ``env``. With ``job.video``, ``job.video_episodes`` of them are recorded into ``out_dir``: ``traces/*.json``
@@ -326,18 +371,41 @@ def evaluate(env: EnvBase, policy, job: Job, logger, out_dir: Path | None = None
     recorder = None
     if job.video:
         h = job.env
-        recorder = TraceRecorder(job.video_episodes, scenario=h.scenario, algo=algo, seed=job.seed,
-                                 num_lanes=h.num_lanes, lane_width=h.lane_width, section_length=h.section_length,
-                                 step_length=h.step_length)
+        recorder = TraceRecorder(
+            job.video_episodes,
+            scenario=h.scenario,
+            algo=algo,
+            seed=job.seed,
+            num_lanes=h.num_lanes,
+            lane_width=h.lane_width,
+            section_length=h.section_length,
+            step_length=h.step_length,
+        )
 
     def on_episode(ep: dict) -> None:
-        for key in ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc",
-                    "return_cf", "collision", "shield_rate"):
+        for key in (
+            "mean_speed_kmh",
+            "mean_accel",
+            "mean_abs_accel",
+            "lane_changes",
+            "frames",
+            "return_lc",
+            "return_cf",
+            "collision",
+            "shield_rate",
+        ):
             logger.log_scalar(f"test/{key}", float(ep[key]), step=ep["start"])
 
     try:
-        episodes = evaluate_policy(env, policy, job.eval_episodes, test_seed(job.seed, job.eval_seed),
-                                   progress=job.progress, on_episode=on_episode, trace=recorder)
+        episodes = evaluate_policy(
+            env,
+            policy,
+            job.eval_episodes,
+            test_seed(job.seed, job.eval_seed),
+            progress=job.progress,
+            on_episode=on_episode,
+            trace=recorder,
+        )
         stats = dict(unwrap_env(env).stats)
     finally:
         env.close()
@@ -352,8 +420,9 @@ def evaluate(env: EnvBase, policy, job: Job, logger, out_dir: Path | None = None
     return episodes, stats
 
 
-def evaluate_and_report(job: Job, algo, env_cfg, learner, logger, out_dir: Path, *, title: str,
-                        reference: dict | None = None, **fields) -> dict:
+def evaluate_and_report(
+    job: Job, algo, env_cfg, learner, logger, out_dir: Path, *, title: str, reference: dict | None = None, **fields
+) -> dict:
     """The final evaluation of ``train`` and ``evaluate``: the greedy policy of ``algo`` (its trained ``learner`` 's
     for a learning algo, :func:`make_policy`) on ``env_cfg`` 's traffic from the test seed of ``job``
     (:func:`kddrl_trl.eval.protocol.test_seed`), evaluated (:func:`evaluate`) and reported (:func:`report`, with
@@ -362,8 +431,17 @@ def evaluate_and_report(job: Job, algo, env_cfg, learner, logger, out_dir: Path,
 
     env = make_env(env_cfg, algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
     episodes, stats = evaluate(env, make_policy(algo, env_cfg, learner), job, logger, out_dir, algo.name)
-    return report(out_dir, episodes, title, reference, scenario=env_cfg.scenario, algo=algo.name, env_stats=stats,
-                  flow_vph=env_cfg.flow, **fields)
+    return report(
+        out_dir,
+        episodes,
+        title,
+        reference,
+        scenario=env_cfg.scenario,
+        algo=algo.name,
+        env_stats=stats,
+        flow_vph=env_cfg.flow,
+        **fields,
+    )
 
 
 def report(out_dir: Path, episodes: list[dict], title: str, reference: dict | None = None, **fields) -> dict:
@@ -399,12 +477,21 @@ def dataset_description(data_dir: Path) -> dict:
 
     params = json.loads((Path(data_dir) / "meta.json").read_text())["params"]
     label = params.get("label", "end")  # datasets extracted before the option had the net change
-    return {"params": params, "label_definition": f"{label}: {LABELS[label]} (window = {params['window']} frames "
-                                                  f"at {params['hz']} Hz)"}
+    return {
+        "params": params,
+        "label_definition": f"{label}: {LABELS[label]} (window = {params['window']} frames at {params['hz']} Hz)",
+    }
 
 
-def make_gan_data(kind: str, data_dir: Path, highway: HighwayConfig, recordings_dir: Path, seed: int,
-                  device: torch.device, progress: bool = True) -> tuple[dict, str]:
+def make_gan_data(
+    kind: str,
+    data_dir: Path,
+    highway: HighwayConfig,
+    recordings_dir: Path,
+    seed: int,
+    device: torch.device,
+    progress: bool = True,
+) -> tuple[dict, str]:
     """The train / val / test splits (on ``device``) that model ``kind`` learns from, and the dataset's hash
     (the input recordings and the extraction parameters). ``data_dir`` without a dataset: the default one is
     built first from our own recordings of ``highway`` traffic."""
@@ -418,8 +505,9 @@ def make_gan_data(kind: str, data_dir: Path, highway: HighwayConfig, recordings_
         meta = json.loads((data_dir / "meta.json").read_text())
     else:
         meta = synthetic_dataset(highway, data_dir, recordings_dir, seed=seed, progress=progress)
-    splits = {s: load_dataset(data_dir, GAN_DATA_KIND[kind], s).to_tensordict().to(device)
-              for s in ("train", "val", "test")}
+    splits = {
+        s: load_dataset(data_dir, GAN_DATA_KIND[kind], s).to_tensordict().to(device) for s in ("train", "val", "test")
+    }
     params = {k: v for k, v in meta["params"].items() if k not in _OTHER_KIND_PARAMS[kind]}
     digest = hashlib.sha256(json.dumps([meta["input_hash"], params, kind], sort_keys=True).encode()).hexdigest()
     return splits, digest

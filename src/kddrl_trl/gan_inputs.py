@@ -5,6 +5,7 @@ The naturalistic samples of :mod:`kddrl_trl.data.extract` (training), the genera
 facts from here. Only ``torch`` and :mod:`kddrl_trl.keys` are imported, so the RL runtime never loads
 ``kddrl_trl.data`` (pandas) to get them.
 """
+
 from __future__ import annotations
 
 import torch
@@ -16,8 +17,16 @@ KEY_STEPS = (10, 20)
 DRIVER_TYPES = ("unknown", "timid", "normal", "aggressive")
 
 
-def lane_change_condition(speed: Tensor, lateral_speed: Tensor, lane: Tensor, lane_offset: Tensor, rel: Tensor,
-                          mask: Tensor, neighbor_lane_offset: Tensor, key_gaps: Tensor) -> dict[str, Tensor]:
+def lane_change_condition(
+    speed: Tensor,
+    lateral_speed: Tensor,
+    lane: Tensor,
+    lane_offset: Tensor,
+    rel: Tensor,
+    mask: Tensor,
+    neighbor_lane_offset: Tensor,
+    key_gaps: Tensor,
+) -> dict[str, Tensor]:
     """The unnormalised lcGAN condition ``C = {S_AV, S_SV, y_pre}`` of Eq. 16, as the fields of the
     ``lane_changes`` samples; the training samples (numpy tracks of our recordings or of HighD files) and the
     RL-time predictor (env keys) both build it here.
@@ -44,9 +53,15 @@ def lane_change_condition(speed: Tensor, lateral_speed: Tensor, lane: Tensor, la
     rel, key_gaps = torch.as_tensor(rel, dtype=torch.float32), torch.as_tensor(key_gaps, dtype=torch.float32)
     nb_offset = torch.as_tensor(neighbor_lane_offset, dtype=torch.float32)
     key_gaps_mask = mask[..., :3] & torch.isfinite(key_gaps).all(-1)
-    s_av = torch.stack([torch.as_tensor(x, dtype=torch.float32) for x in (speed, lateral_speed, lane, lane_offset)],
-                       dim=-1)
+    s_av = torch.stack(
+        [torch.as_tensor(x, dtype=torch.float32) for x in (speed, lateral_speed, lane, lane_offset)], dim=-1
+    )
     zero = torch.zeros((), dtype=torch.float32, device=rel.device)
-    return {"s_av": s_av, "rel": torch.where(mask.unsqueeze(-1), rel, zero),
-            "lane_offset": torch.where(mask, nb_offset, zero), "mask": mask,
-            "key_gaps": torch.where(key_gaps_mask.unsqueeze(-1), key_gaps, zero), "key_gaps_mask": key_gaps_mask}
+    return {
+        "s_av": s_av,
+        "rel": torch.where(mask.unsqueeze(-1), rel, zero),
+        "lane_offset": torch.where(mask, nb_offset, zero),
+        "mask": mask,
+        "key_gaps": torch.where(key_gaps_mask.unsqueeze(-1), key_gaps, zero),
+        "key_gaps_mask": key_gaps_mask,
+    }

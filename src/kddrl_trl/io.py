@@ -3,6 +3,7 @@
 Everything is written to a temporary file in the target folder, flushed and fsynced, then moved into
 place with ``os.replace`` (atomic on POSIX and Windows); on any error the temporary file is removed.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,8 +38,9 @@ def remove_killed_writes(folder: str | os.PathLike) -> None:
         stale.unlink(missing_ok=True)
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newline: str | None = None,
-                 binary: bool = False) -> Path:
+def write_atomic(
+    path: str | os.PathLike, write: Callable[[TextIO], Any], newline: str | None = None, binary: bool = False
+) -> Path:
     """Call ``write(fh)`` on a temporary file (text, or bytes with ``binary=True``) beside ``path``, then move
     it onto ``path``."""
     path = Path(path)
@@ -46,7 +48,7 @@ def write_atomic(path: str | os.PathLike, write: Callable[[TextIO], Any], newlin
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=_TMP_SUFFIX)
     try:
         _ordinary_permissions(tmp)
-        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline=newline)) as fh:
+        with os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", newline=newline) as fh:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())

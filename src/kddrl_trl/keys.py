@@ -8,6 +8,7 @@ Neighbour slots are always ordered ``a, b, c, d, e, f`` = (left leader, current 
 left follower, current follower, right follower) — paper Fig. 6. Lane-change actions are always ordered
 (left, keep, right) — paper Eq. 25.
 """
+
 from __future__ import annotations
 
 # ----------------------------------------------------------------------------------------- orderings
@@ -29,20 +30,20 @@ AHEAD_FEATURES = ("y", "v", "present")
 HISTORY_FEATURES = ("y", "v")
 
 # ------------------------------------------------------------------------------- raw (environment)
-EGO_STATE = ("ego", "state")            # [3]  y, v_y, v_x
-EGO_LANE = ("ego", "lane")              # [1]  int64, 0 = rightmost
-EGO_ACCEL = ("ego", "accel")            # [1]  acceleration executed in the last frame (m/s²)
+EGO_STATE = ("ego", "state")  # [3]  y, v_y, v_x
+EGO_LANE = ("ego", "lane")  # [1]  int64, 0 = rightmost
+EGO_ACCEL = ("ego", "accel")  # [1]  acceleration executed in the last frame (m/s²)
 EGO_LANE_OFFSET = ("ego", "lane_offset")  # [1]  lateral offset from the centre of the ego's lane (m, + = left)
-NEIGHBORS_REL = ("neighbors", "rel")    # [6, 4]
+NEIGHBORS_REL = ("neighbors", "rel")  # [6, 4]
 NEIGHBORS_MASK = ("neighbors", "mask")  # [6]  bool, neighbour present within sensing range
-NEIGHBORS_KIN = ("neighbors", "kin")    # [6, 3]
+NEIGHBORS_KIN = ("neighbors", "kin")  # [6, 3]
 NEIGHBORS_LANE_OFFSET = ("neighbors", "lane_offset")  # [6] each neighbour's offset from its lane's centre (m, + left)
-LEADERS_AHEAD = ("leaders", "ahead")    # [3, 3]
+LEADERS_AHEAD = ("leaders", "ahead")  # [3, 3]
 LEADERS_HISTORY = ("leaders", "history")  # [3, H, 2], oldest first, last entry = current frame
 LC_ACTION_MASK = ("lc", "action_mask")  # [3]  bool, which lane-change commands would be executed now
-LC_ACTIVE = ("lc", "active")            # [1]  bool, a lane-change manoeuvre is in progress
-LC_STARTED = ("lc", "started")          # [1]  bool, a lane-change manoeuvre started in this frame
-COLLISION = "collision"                 # [1]  bool, the ego collided in this frame (read under "next")
+LC_ACTIVE = ("lc", "active")  # [1]  bool, a lane-change manoeuvre is in progress
+LC_STARTED = ("lc", "started")  # [1]  bool, a lane-change manoeuvre started in this frame
+COLLISION = "collision"  # [1]  bool, the ego collided in this frame (read under "next")
 
 # ---------------------------------------------------------------- episode events (environment, under "next")
 # Per-frame facts the episode metrics (``kddrl_trl.eval.EpisodeTracker``) need beyond the observation above.
@@ -61,68 +62,83 @@ NO_CONTACT, REAR_END, HIT_FROM_BEHIND, SIDE_CONTACT = range(len(COLLISION_KINDS)
 BRAKING_PHASES = ("none", "braking", "standing", "resumed", "vanished")
 BRAKE_NONE, BRAKE_BRAKING, BRAKE_STANDING, BRAKE_RESUMED, BRAKE_VANISHED = range(len(BRAKING_PHASES))
 
-OUTCOME = ("episode", "outcome")                # [1]  int64, code in OUTCOMES (running while the episode goes on)
+OUTCOME = ("episode", "outcome")  # [1]  int64, code in OUTCOMES (running while the episode goes on)
 COLLISION_KIND = ("episode", "collision_kind")  # [1]  int64, code in COLLISION_KINDS of this frame's collision
 COLLISION_SLOT = ("episode", "collision_slot")  # [1]  int64, NEIGHBOR_SLOTS index of the other vehicle in the last
 #                                                      observation before the collision; -1 none / not a neighbour
-BRAKING_PHASE = ("braking", "phase")            # [1]  int64, code in BRAKING_PHASES
-BRAKING_DISTANCE = ("braking", "distance")      # [1]  gap (m) to the braking leader when it started; 0 before
+BRAKING_PHASE = ("braking", "phase")  # [1]  int64, code in BRAKING_PHASES
+BRAKING_DISTANCE = ("braking", "distance")  # [1]  gap (m) to the braking leader when it started; 0 before
 
 RAW_OBSERVATION_KEYS = (
-    EGO_STATE, EGO_LANE, EGO_ACCEL, NEIGHBORS_REL, NEIGHBORS_MASK, NEIGHBORS_KIN,
-    LEADERS_AHEAD, LEADERS_HISTORY, LC_ACTION_MASK, LC_ACTIVE, LC_STARTED, COLLISION,
-    EGO_LANE_OFFSET, NEIGHBORS_LANE_OFFSET,
-    OUTCOME, COLLISION_KIND, COLLISION_SLOT, BRAKING_PHASE, BRAKING_DISTANCE,
+    EGO_STATE,
+    EGO_LANE,
+    EGO_ACCEL,
+    NEIGHBORS_REL,
+    NEIGHBORS_MASK,
+    NEIGHBORS_KIN,
+    LEADERS_AHEAD,
+    LEADERS_HISTORY,
+    LC_ACTION_MASK,
+    LC_ACTIVE,
+    LC_STARTED,
+    COLLISION,
+    EGO_LANE_OFFSET,
+    NEIGHBORS_LANE_OFFSET,
+    OUTCOME,
+    COLLISION_KIND,
+    COLLISION_SLOT,
+    BRAKING_PHASE,
+    BRAKING_DISTANCE,
 )
 
 # ------------------------------------------------------------------------------ derived (transforms)
 PRED_PRIOR_TRAJ = ("pred", "prior_traj")  # [3, 20] IDM-rolled prior positions TC of a, b, c
-PRED_TRAJ = ("pred", "traj")              # [3, 20] trajGAN-refined positions TG of a, b, c
-PRED_KEY_GAPS = ("pred", "key_gaps")      # [3, 2]  TG at steps 10 and 20 minus ego position
-PRIOR_P_MOBIL = ("prior", "p_mobil")      # [3]     P_MOBIL over (left, keep, right), Eq. 22
-PRIOR_P_LCGAN = ("prior", "p_lcgan")      # [3]     P_lcGAN over (left, keep, right), Eq. 16
-PRIOR_P_LC = ("prior", "p_lc")            # [d]     fused prior, Eq. 23
-EMBED_S_E = ("embed", "s_e")              # [d]     shared embedding, Eq. 24
+PRED_TRAJ = ("pred", "traj")  # [3, 20] trajGAN-refined positions TG of a, b, c
+PRED_KEY_GAPS = ("pred", "key_gaps")  # [3, 2]  TG at steps 10 and 20 minus ego position
+PRIOR_P_MOBIL = ("prior", "p_mobil")  # [3]     P_MOBIL over (left, keep, right), Eq. 22
+PRIOR_P_LCGAN = ("prior", "p_lcgan")  # [3]     P_lcGAN over (left, keep, right), Eq. 16
+PRIOR_P_LC = ("prior", "p_lc")  # [d]     fused prior, Eq. 23
+EMBED_S_E = ("embed", "s_e")  # [d]     shared embedding, Eq. 24
 MOBIL_INCENTIVE = ("prior", "mobil_incentive")  # [3] MOBIL utilities U_left, U_keep, U_right (m/s², Eq. 21-22)
-MOBIL_SAFE = ("prior", "mobil_safe")            # [3] bool, MOBIL safety criterion per direction (Eq. 20-21)
+MOBIL_SAFE = ("prior", "mobil_safe")  # [3] bool, MOBIL safety criterion per direction (Eq. 20-21)
 
 # ------------------------------------------------------------------------- agent states (modules/)
 # Written by the state builders of ``kddrl_trl.modules.state`` from raw keys (scaled to ~unit range) and,
 # when present, ``EMBED_S_E``. Not stored in replay buffers: recomputed at update time because s_e is trained.
-LC_OBS = ("lc", "obs")    # [33 + d] D3QN state s_D3QN = [s_AV, Δs_i, mask, s_e], Eq. 24 (d = 0 without s_e)
-CF_OBS = ("cf", "obs")    # [37 + d] TD3 state s_TD3 = [s_AV, Δs_i, mask, s_e, a_D3QN, a_TD3^{t-1}], Eq. 30
+LC_OBS = ("lc", "obs")  # [33 + d] D3QN state s_D3QN = [s_AV, Δs_i, mask, s_e], Eq. 24 (d = 0 without s_e)
+CF_OBS = ("cf", "obs")  # [37 + d] TD3 state s_TD3 = [s_AV, Δs_i, mask, s_e, a_D3QN, a_TD3^{t-1}], Eq. 30
 JOINT_OBS = ("joint", "obs")  # [37] state of a unified agent = [s_AV, Δs_i, mask, a_lc^{t-1}, a^{t-1}]
 
 # --------------------------------------------------------------------------------- actions, rewards
-LC_ACTION = ("lc", "action")    # [3] one-hot (left, keep, right), held between decisions
-LC_DECIDE = ("lc", "decide")    # [1] bool, the lane-change agent decides on this frame
-CF_ACTION = ("cf", "action")    # [1] acceleration in [-5, 5] m/s²
-LC_REWARD = ("lc", "reward")    # [1] paper Eq. 26-29
-CF_REWARD = ("cf", "reward")    # [1] paper Eq. 32-33
-CF_SHIELD = ("cf", "shield")    # [1] bool, the car-following shield lowered the command in this frame (under "next";
+LC_ACTION = ("lc", "action")  # [3] one-hot (left, keep, right), held between decisions
+LC_DECIDE = ("lc", "decide")  # [1] bool, the lane-change agent decides on this frame
+CF_ACTION = ("cf", "action")  # [1] acceleration in [-5, 5] m/s²
+LC_REWARD = ("lc", "reward")  # [1] paper Eq. 26-29
+CF_REWARD = ("cf", "reward")  # [1] paper Eq. 32-33
+CF_SHIELD = ("cf", "shield")  # [1] bool, the car-following shield lowered the command in this frame (under "next";
 #                                     transforms.SafetyShield, algo.shield; absent without a shield)
 JOINT_ACTION = ("joint", "action")  # [3 x levels] one-hot joint (lane command, acceleration level) of d3qn_unified
 JOINT_ACTION_MASK = ("joint", "action_mask")  # [3 x levels] bool, LC_ACTION_MASK repeated over the levels
 JOINT_REWARD = ("joint", "reward")  # [1] reward of a unified agent: LC_REWARD + CF_REWARD (under "next")
 
 # ------------------------------------------------------------------------- clocks (collectors/)
-LC_HELD = ("lc", "held")                # [3] one-hot lane-change action in force (executed last frame; keep at reset)
+LC_HELD = ("lc", "held")  # [3] one-hot lane-change action in force (executed last frame; keep at reset)
 LC_MACRO_FRAMES = ("lc", "macro_frames")  # [1] int64, frames a macro-transition of buffer H spans (under "next")
 
 # -------------------------------------------------------------------------- learner outputs (objectives/)
-LC_ACTION_VALUE = ("lc", "action_value")          # [3] Q(s, ·) of D3QN, Eq. 3
-LC_CHOSEN_VALUE = ("lc", "chosen_action_value")   # [1] Q(s, a) of the taken action
+LC_ACTION_VALUE = ("lc", "action_value")  # [3] Q(s, ·) of D3QN, Eq. 3
+LC_CHOSEN_VALUE = ("lc", "chosen_action_value")  # [1] Q(s, a) of the taken action
 CF_STATE_ACTION_VALUE = ("cf", "state_action_value")  # [1] TD3 / DDPG critic value Q_k(s, a), Eq. 7
-JOINT_ACTION_VALUE = ("joint", "action_value")          # [3 x levels] Q(s, ·) of d3qn_unified
-JOINT_CHOSEN_VALUE = ("joint", "chosen_action_value")   # [1] Q(s, a) of the taken joint action
-PASAC_LOGITS = ("pasac", "logits")      # [3] lane-choice logits of the PASAC policy (invalid commands masked)
-PASAC_LOC = ("pasac", "loc")            # [3, 1] mean of the pre-tanh Gaussian of the PASAC acceleration, per lane command
-PASAC_SCALE = ("pasac", "scale")        # [3, 1] its standard deviation
+JOINT_ACTION_VALUE = ("joint", "action_value")  # [3 x levels] Q(s, ·) of d3qn_unified
+JOINT_CHOSEN_VALUE = ("joint", "chosen_action_value")  # [1] Q(s, a) of the taken joint action
+PASAC_LOGITS = ("pasac", "logits")  # [3] lane-choice logits of the PASAC policy (invalid commands masked)
+PASAC_LOC = ("pasac", "loc")  # [3, 1] mean of the pre-tanh Gaussian of the PASAC acceleration, per lane command
+PASAC_SCALE = ("pasac", "scale")  # [3, 1] its standard deviation
 PASAC_STATE_ACTION_VALUE = ("pasac", "state_action_value")  # [1] soft Q(s, lane, accel)
-PRIORITY = "priority"                    # [B] |TD error| of each sampled transition, written by a learner's update
-                                         # into the sample: a prioritized buffer's new priorities (train.prioritized;
-                                         # not TorchRL losses' own "td_error", which they write in their own shapes)
-PRIORITY_WEIGHT = "priority_weight"      # [B] importance-sampling weight of a prioritized sample (TorchRL's
-                                         # PrioritizedSampler writes it; TorchRL losses weight their mean by it)
+PRIORITY = "priority"  # [B] |TD error| of each sampled transition, written by a learner's update
+# into the sample: a prioritized buffer's new priorities (train.prioritized;
+# not TorchRL losses' own "td_error", which they write in their own shapes)
+PRIORITY_WEIGHT = "priority_weight"  # [B] importance-sampling weight of a prioritized sample (TorchRL's
+# PrioritizedSampler writes it; TorchRL losses weight their mean by it)
 STEPS_TO_NEXT_OBS = "steps_to_next_obs"  # [1] int64, frames a buffer-L transition spans (train.n_steps; TorchRL's
-                                         # TD(0) estimator discounts its bootstrap by gamma ** this)
+# TD(0) estimator discounts its bootstrap by gamma ** this)

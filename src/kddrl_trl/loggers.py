@@ -1,5 +1,6 @@
 """Several TorchRL loggers as one (built by :func:`kddrl_trl.factories.make_logger`), and the trimming of a
 resumed run's logs."""
+
 from __future__ import annotations
 
 from pathlib import Path

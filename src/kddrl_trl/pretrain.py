@@ -9,6 +9,7 @@ Wires parts together: the naturalistic dataset (built first if missing), the mod
 validation each epoch, early stopping, atomic checkpoints, resume) and the report. Runs on a GPU when
 one is present (``device=auto``), else on the CPU.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -37,30 +38,57 @@ def main(cfg: DictConfig) -> dict:
         torch.set_num_threads(int(cfg.threads))
     device = make_device(cfg.device)
     data_dir = Path(cfg.data_dir)
-    splits, dataset_hash = make_gan_data(kind, data_dir, OmegaConf.to_object(cfg.env).highway(),
-                                         Path(cfg.recordings_dir), int(cfg.seed), device, progress=bool(cfg.progress))
+    splits, dataset_hash = make_gan_data(
+        kind,
+        data_dir,
+        OmegaConf.to_object(cfg.env).highway(),
+        Path(cfg.recordings_dir),
+        int(cfg.seed),
+        device,
+        progress=bool(cfg.progress),
+    )
     task = TASKS[kind](OmegaConf.to_container(cfg.gan.model, resolve=True), splits["train"], device=device)
     command = " ".join(["python -m kddrl_trl.pretrain", *HydraConfig.get().overrides.task])
-    dataset = {"data_dir": str(data_dir), "recordings_dir": str(cfg.recordings_dir), "seed": int(cfg.seed),
-               **dataset_description(data_dir)}
+    dataset = {
+        "data_dir": str(data_dir),
+        "recordings_dir": str(cfg.recordings_dir),
+        "seed": int(cfg.seed),
+        **dataset_description(data_dir),
+    }
     if cfg.evaluate:
         metrics = evaluate_checkpoint(task, cfg.evaluate, splits["test"], run_dir, dataset_hash)
         print(format_metrics(kind, metrics))
-        print(f"metrics of {cfg.evaluate} written to {write_shipped_metrics(cfg.evaluate, metrics, command, dataset, trained=False)}")
+        print(
+            f"metrics of {cfg.evaluate} written to {write_shipped_metrics(cfg.evaluate, metrics, command, dataset, trained=False)}"
+        )
         return metrics
-    train = PretrainConfig(**OmegaConf.to_container(cfg.gan.train, resolve=True), seed=int(cfg.seed),
-                           resume=bool(cfg.resume))
-    metrics = run_pretraining(task, splits["train"], splits["val"], splits["test"], train, run_dir, dataset_hash,
-                              config=OmegaConf.to_container(cfg, resolve=True), progress=bool(cfg.progress),
-                              logger=make_logger(cfg.logger, run_dir))
-    print(f"\n{kind} on {data_dir} ({device}), best epoch {metrics['best_epoch']} of {metrics['epochs_run']}, "
-          f"{metrics['train_seconds']:.0f} s training")
+    train = PretrainConfig(
+        **OmegaConf.to_container(cfg.gan.train, resolve=True), seed=int(cfg.seed), resume=bool(cfg.resume)
+    )
+    metrics = run_pretraining(
+        task,
+        splits["train"],
+        splits["val"],
+        splits["test"],
+        train,
+        run_dir,
+        dataset_hash,
+        config=OmegaConf.to_container(cfg, resolve=True),
+        progress=bool(cfg.progress),
+        logger=make_logger(cfg.logger, run_dir),
+    )
+    print(
+        f"\n{kind} on {data_dir} ({device}), best epoch {metrics['best_epoch']} of {metrics['epochs_run']}, "
+        f"{metrics['train_seconds']:.0f} s training"
+    )
     print(format_metrics(kind, metrics))
     if cfg.export:
         Path(cfg.export).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(run_dir / "best.pt", cfg.export)
-        print(f"exported best weights to {cfg.export} and their test metrics to "
-              f"{write_shipped_metrics(cfg.export, metrics, command, dataset)}")
+        print(
+            f"exported best weights to {cfg.export} and their test metrics to "
+            f"{write_shipped_metrics(cfg.export, metrics, command, dataset)}"
+        )
     print(f"results in {run_dir}")
     return metrics
 

@@ -4,6 +4,7 @@ Every run's ``summary.json`` records :func:`provenance` (``report`` in :mod:`kdd
 reproduction report's footer lists what its runs recorded beside what made the report, so a table built up over
 several sessions (or machines) says which code and machine each of its runs came from.
 """
+
 from __future__ import annotations
 
 import os
@@ -31,14 +32,20 @@ def commit(where: str | Path | None = None) -> str:
     """The git commit of the checkout holding ``where`` (default: the working directory, then this package's
     folder), ``+dirty`` when tracked files differ from it; ``"unknown"`` outside a checkout (an installed
     wheel run from elsewhere)."""
-    for folder in ([Path(where)] if where else [Path.cwd(), Path(__file__).parent]):
+    for folder in [Path(where)] if where else [Path.cwd(), Path(__file__).parent]:
         try:
-            head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                  timeout=10, cwd=folder)
+            head = subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10, cwd=folder
+            )
             if head.returncode or not head.stdout.strip():
                 continue
-            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", "src"],
-                                   capture_output=True, text=True, timeout=10, cwd=folder)
+            dirty = subprocess.run(
+                ["git", "status", "--porcelain", "--untracked-files=no", "--", "src"],
+                capture_output=True,
+                text=True,
+                timeout=10,
+                cwd=folder,
+            )
             return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
         except (OSError, subprocess.SubprocessError):
             continue

@@ -6,6 +6,7 @@ Tables II-V with across-seed 95 % CIs beside the paper's values, each algo again
 breakdown, Figs. 8-17 and a footer of what produced them. Folders given without ``key=`` are passed as
 ``runs=[...]`` to Hydra.
 """
+
 from __future__ import annotations
 
 import json
@@ -55,7 +56,9 @@ def main(cfg: DictConfig) -> dict:
     if job.verdict:
         command += " verdict=true"
     result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan, verdict=job.verdict)
-    print(f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures")
+    print(
+        f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures"
+    )
     return result
 
 

@@ -6,6 +6,7 @@ previous one when the newest does not load). The output folder of an
 entry point is chosen once, while Hydra composes the config (:mod:`kddrl_trl.conf.resolvers`); the entry point
 reads it from ``HydraConfig`` and learns that it resumes from the checkpoint the folder holds.
 """
+
 from __future__ import annotations
 
 import logging
@@ -53,8 +54,10 @@ def find_resume_dir(resume, runs_root: str | Path, prefix: str) -> Path | None:
     if resume is True or str(resume).lower() == "true":
         candidates = [d for d in Path(runs_root).glob(f"{prefix}*") if latest_checkpoint(d) is not None]
         if not candidates:
-            raise FileNotFoundError(f"resume=true: no run directory {Path(runs_root) / (prefix + '*')} holds a "
-                                    "checkpoint (pass resume=<run dir> to pick one)")
+            raise FileNotFoundError(
+                f"resume=true: no run directory {Path(runs_root) / (prefix + '*')} holds a "
+                "checkpoint (pass resume=<run dir> to pick one)"
+            )
         return max(candidates, key=lambda d: latest_checkpoint(d).stat().st_mtime)
     path = Path(str(resume))
     if latest_checkpoint(path) is None:
@@ -104,8 +107,9 @@ def trained_run(run) -> Path:
 def _hydra_only(folder: Path) -> bool:
     """Whether ``folder`` holds nothing but what Hydra writes before an entry point runs (``.hydra/``, ``*.log``,
     a sweep's ``multirun.yaml``)."""
-    return folder.is_dir() and all(p.name in (".hydra", "multirun.yaml") or p.suffix == ".log"
-                                   for p in folder.iterdir())
+    return folder.is_dir() and all(
+        p.name in (".hydra", "multirun.yaml") or p.suffix == ".log" for p in folder.iterdir()
+    )
 
 
 def remove_refused_run_dir(run_dir: str | Path, sweep_dir: str | Path | None = None) -> bool:
@@ -140,6 +144,7 @@ def no_folder_if_refused():
 
         if HydraConfig.initialized():
             hydra_cfg = HydraConfig.get()
-            remove_refused_run_dir(hydra_cfg.runtime.output_dir,
-                                   hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None)
+            remove_refused_run_dir(
+                hydra_cfg.runtime.output_dir, hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None
+            )
         raise

@@ -16,6 +16,7 @@ The evaluation traffic never repeats training traffic (:mod:`kddrl_trl.eval.prot
 evaluation runs once per listed scenario, each into ``<run>/final__<scenario>/`` (``summary.json`` with ``trained_on``,
 ``eval_episodes.csv``, logs); the run folder's ``summary.json`` then holds the training summary and names them.
 """
+
 from __future__ import annotations
 
 import json
@@ -59,23 +60,44 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     returns it and the summary of its training."""
     learner = make_learner(job.algo, compile=job.compile, device=job.torch_device, cudagraphs=job.cudagraphs)
     buffers = make_buffers(job.train, job.seed, learner.device)
-    trainer = Trainer(learner, buffers, job.train, run_dir, logger, episodes=job.episodes, progress=job.progress,
-                      evaluator=make_evaluator(job))
+    trainer = Trainer(
+        learner,
+        buffers,
+        job.train,
+        run_dir,
+        logger,
+        episodes=job.episodes,
+        progress=job.progress,
+        evaluator=make_evaluator(job),
+    )
     done = trainer.load(run_dir) if resuming else 0
     if done:
         log.info("resuming %s", run_dir)
         trim_logs(run_dir, last_step=done - 1)
     # a resumed run meets new traffic: the envs (one per collection worker) start from seed + episodes already done
     envs = make_env_factories(job, seed=job.seed + done)
-    history = trainer.run(make_collector(envs, learner, buffers, job.train, job.algo.lc_reward, job.env.highway(),
-                                         collector=job.collector, rows=job.env.num_roads))
+    history = trainer.run(
+        make_collector(
+            envs,
+            learner,
+            buffers,
+            job.train,
+            job.algo.lc_reward,
+            job.env.highway(),
+            collector=job.collector,
+            rows=job.env.num_roads,
+        )
+    )
     write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))
     if trainer.validations:
         write_text_atomic(run_dir / "validation.csv", pd.DataFrame(trainer.validations).to_csv(index=False))
-    plot_training_curves(history, run_dir / "training_curves.png",
-                         title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}")
+    plot_training_curves(
+        history, run_dir / "training_curves.png", title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}"
+    )
     tail = history[-100:]
-    last100 = {k: float(np.mean([h[k] for h in tail])) for k in ("return_lc", "return_cf", "mean_speed_kmh", "collision")}
+    last100 = {
+        k: float(np.mean([h[k] for h in tail])) for k in ("return_lc", "return_cf", "mean_speed_kmh", "collision")
+    }
     return learner, {**trainer.counters, "episodes": len(history), "last100": last100}
 
 
@@ -85,11 +107,14 @@ def main(cfg: DictConfig) -> dict:
     job: TrainJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
     run_dir, resuming = make_run_dir(job.resume)
     if (run_dir / "config.yaml").is_file():  # a resumed run or sweep job: the same config, or refuse
-        different = config_differences(OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml")),
-                                       OmegaConf.to_container(cfg, resolve=True))
+        different = config_differences(
+            OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml")), OmegaConf.to_container(cfg, resolve=True)
+        )
         if different:
-            raise SystemExit(f"{run_dir} holds a run of another config ({'; '.join(different[:5])}): in a sweep over "
-                             "these keys, add them to hydra.sweep.subdir")
+            raise SystemExit(
+                f"{run_dir} holds a run of another config ({'; '.join(different[:5])}): in a sweep over "
+                "these keys, add them to hydra.sweep.subdir"
+            )
     if (run_dir / "summary.json").is_file():  # written last: a finished run (a job of a resumed sweep)
         log.info("%s is finished (summary.json): skipped", run_dir)
         return json.loads((run_dir / "summary.json").read_text())
@@ -104,17 +129,41 @@ def main(cfg: DictConfig) -> dict:
         learner, extra["training"] = train(job, run_dir, logger, resuming)
     seeds = protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes, job.collector.workers)
     if not job.eval_scenarios:  # the final evaluation on the training traffic, into the run folder
-        return final_evaluation(job, learner, logger, run_dir, seed=job.seed, protocol=seeds, run_dir=str(run_dir),
-                                wall_s=time.perf_counter() - started, **extra)
+        return final_evaluation(
+            job,
+            learner,
+            logger,
+            run_dir,
+            seed=job.seed,
+            protocol=seeds,
+            run_dir=str(run_dir),
+            wall_s=time.perf_counter() - started,
+            **extra,
+        )
     # one final evaluation per scenario (a run trained on +scenario=mixed, evaluated on baseline and on braking)
     finals = [f"final__{s}" for s in job.eval_scenarios]
     for scenario, folder in zip(job.eval_scenarios, finals):
-        final_evaluation(replace(job, env=job.env.with_scenario(scenario)), learner,
-                         make_logger(job.logger, run_dir / folder), run_dir / folder, seed=job.seed, protocol=seeds,
-                         trained_on=job.env.scenario, final=True)
-    summary = {"scenario": job.env.scenario, "algo": job.algo.name, "seed": job.seed, "final_evaluations": finals,
-               "protocol": seeds, "run_dir": str(run_dir), "wall_s": time.perf_counter() - started, **extra,
-               **provenance()}
+        final_evaluation(
+            replace(job, env=job.env.with_scenario(scenario)),
+            learner,
+            make_logger(job.logger, run_dir / folder),
+            run_dir / folder,
+            seed=job.seed,
+            protocol=seeds,
+            trained_on=job.env.scenario,
+            final=True,
+        )
+    summary = {
+        "scenario": job.env.scenario,
+        "algo": job.algo.name,
+        "seed": job.seed,
+        "final_evaluations": finals,
+        "protocol": seeds,
+        "run_dir": str(run_dir),
+        "wall_s": time.perf_counter() - started,
+        **extra,
+        **provenance(),
+    }
     write_json_atomic(run_dir / "summary.json", summary)  # written last: marks the run finished
     return summary
 
@@ -123,10 +172,17 @@ def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, **fields) ->
     """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, written to ``out_dir``."""
     trained_on = fields.get("trained_on", job.env.scenario)
     title = job.algo.name + ("" if trained_on == job.env.scenario else f" trained on {trained_on}")
-    return evaluate_and_report(job, job.algo, job.env, learner, logger, out_dir,
-                               title=f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",
-                               reference=paper_reference(job.env.scenario, job.algo.name)
-                               if trained_on == job.env.scenario else None, **fields)
+    return evaluate_and_report(
+        job,
+        job.algo,
+        job.env,
+        learner,
+        logger,
+        out_dir,
+        title=f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",
+        reference=paper_reference(job.env.scenario, job.algo.name) if trained_on == job.env.scenario else None,
+        **fields,
+    )
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
 """The Hydra :class:`~hydra.plugins.launcher.Launcher` of ``hydra/launcher=ray`` (the work is in :mod:`._core`)."""
+
 from __future__ import annotations
 
 from typing import Optional, Sequence
@@ -13,8 +14,9 @@ class RayLauncher(Launcher):
     """Launches each job of a sweep as one Ray task (``num_cpus`` / ``num_gpus`` per run) on a local Ray or the
     cluster at ``address``; ``init`` holds further ``ray.init`` keyword arguments."""
 
-    def __init__(self, address: Optional[str] = None, num_cpus: float = 1, num_gpus: float = 0,
-                 init: Optional[dict] = None) -> None:
+    def __init__(
+        self, address: Optional[str] = None, num_cpus: float = 1, num_gpus: float = 0, init: Optional[dict] = None
+    ) -> None:
         self.address, self.num_cpus, self.num_gpus = address, num_cpus, num_gpus
         self.init = dict(init or {})
         self.config: Optional[DictConfig] = None

@@ -1,4 +1,5 @@
 """Rule-based and random ego policies, and builders for the comparison systems."""
+
 from .idm_mobil import IDMMobilPolicy
 from .random_policy import RandomDrivingPolicy
 

@@ -1,4 +1,5 @@
 """Rule-based IDM + MOBIL ego policy (the paper's "IDM+MOBIL" baseline, Tables IV-V)."""
+
 from __future__ import annotations
 
 import torch
@@ -37,8 +38,13 @@ class IDMMobilPolicy(TensorDictModuleBase):
     in_keys = [EGO_STATE, EGO_LANE, NEIGHBORS_KIN, NEIGHBORS_MASK, NEIGHBORS_REL, LC_ACTION_MASK]
     out_keys = [LC_ACTION, CF_ACTION]
 
-    def __init__(self, idm: IDMParams = IDMParams(), mobil: MOBILParams = MOBILParams(), num_lanes: int = 3,
-                 lane_width: float = 3.2):
+    def __init__(
+        self,
+        idm: IDMParams = IDMParams(),
+        mobil: MOBILParams = MOBILParams(),
+        num_lanes: int = 3,
+        lane_width: float = 3.2,
+    ):
         super().__init__()
         self.idm, self.mobil, self.num_lanes, self.lane_width = idm, mobil, num_lanes, lane_width
 

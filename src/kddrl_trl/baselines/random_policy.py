@@ -1,4 +1,5 @@
 """Uniformly random driving commands, as a cheap TensorDict module (no spec sampling on the hot path)."""
+
 from __future__ import annotations
 
 import torch

@@ -1,6 +1,7 @@
 """Multi-timescale collection (docs/design.md, "Clocks"; paper Algorithm 1): a decision clock transform, a policy
 acting on two clocks, and the writer of the lane-change agent's macro-transitions. None of it is specific to
 SUMO: any TorchRL env batch and any pair of TensorDict policies."""
+
 from .clock import DecisionClock
 from .collector import MultiTimescaleCollector
 from .macro import MacroTransitionWriter
@@ -8,5 +9,11 @@ from .overlap import OverlappedCollector
 from .policy import MultiRatePolicy
 from .snapshot import PolicySnapshot
 
-__all__ = ["DecisionClock", "MacroTransitionWriter", "MultiRatePolicy", "MultiTimescaleCollector",
-           "OverlappedCollector", "PolicySnapshot"]
+__all__ = [
+    "DecisionClock",
+    "MacroTransitionWriter",
+    "MultiRatePolicy",
+    "MultiTimescaleCollector",
+    "OverlappedCollector",
+    "PolicySnapshot",
+]

@@ -3,6 +3,7 @@
 A TorchRL transform, so that any collector (``Collector``, ``MultiSyncCollector`` workers, a plain
 ``env.rollout``) sees the clock in the observation and no learning code has to count frames.
 """
+
 from __future__ import annotations
 
 import torch
@@ -31,18 +32,27 @@ class DecisionClock(Transform):
         default (int): action held before the first decision. Defaults to ``keys.KEEP``.
     """
 
-    def __init__(self, lc_period: int, *, action_key: NestedKey = K.LC_ACTION, decide_key: NestedKey = K.LC_DECIDE,
-                 held_key: NestedKey = K.LC_HELD, num_actions: int = 3, default: int = K.KEEP):
+    def __init__(
+        self,
+        lc_period: int,
+        *,
+        action_key: NestedKey = K.LC_ACTION,
+        decide_key: NestedKey = K.LC_DECIDE,
+        held_key: NestedKey = K.LC_HELD,
+        num_actions: int = 3,
+        default: int = K.KEEP,
+    ):
         if isinstance(lc_period, bool) or int(lc_period) != lc_period or int(lc_period) < 1:
-            raise ValueError(f"lc_period must be an integer >= 1 (frames between lane-change decisions), got "
-                             f"{lc_period!r}")
+            raise ValueError(
+                f"lc_period must be an integer >= 1 (frames between lane-change decisions), got {lc_period!r}"
+            )
         if not 0 <= int(default) < int(num_actions):
             raise ValueError(f"default action {default!r} is not in [0, {num_actions})")
         super().__init__(in_keys=[], out_keys=[decide_key, held_key])
         self.lc_period, self.num_actions, self.default = int(lc_period), int(num_actions), int(default)
         self.action_key, self.decide_key, self.held_key = action_key, decide_key, held_key
-        self._count: torch.Tensor | None = None   # [*B] frames since each episode started
-        self._held: torch.Tensor | None = None    # [*B, num_actions]
+        self._count: torch.Tensor | None = None  # [*B] frames since each episode started
+        self._held: torch.Tensor | None = None  # [*B, num_actions]
 
     # ------------------------------------------------------------------------------------ state
     def _ensure(self, batch: torch.Size, device) -> None:
@@ -88,8 +98,9 @@ class DecisionClock(Transform):
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         b, dev = observation_spec.shape, observation_spec.device
         observation_spec[self.decide_key] = Categorical(2, shape=(*b, 1), dtype=torch.bool, device=dev)
-        observation_spec[self.held_key] = OneHot(self.num_actions, shape=(*b, self.num_actions),
-                                                 dtype=torch.float32, device=dev)
+        observation_spec[self.held_key] = OneHot(
+            self.num_actions, shape=(*b, self.num_actions), dtype=torch.float32, device=dev
+        )
         return observation_spec
 
     def __repr__(self) -> str:

@@ -1,5 +1,6 @@
 """``MultiTimescaleCollector``: a TorchRL collector feeding two replay buffers on two clocks (docs/design.md
 "Clocks"; paper Algorithm 1 lines 8-9, 25, 37), from one env in this process or from N worker processes."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -25,8 +26,10 @@ def check_backend(backend: str) -> None:
     if backend not in BACKENDS:
         raise ValueError(f"collector.backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if backend == "ray" and importlib.util.find_spec("ray") is None:
-        raise ValueError("collector.backend=ray needs Ray, which is not installed: pip install '.[ray]' (the optional "
-                         "extra), or use collector.backend=process")
+        raise ValueError(
+            "collector.backend=ray needs Ray, which is not installed: pip install '.[ray]' (the optional "
+            "extra), or use collector.backend=process"
+        )
 
 
 #: ``total_frames`` of an endless Ray collection (TorchRL 0.14.1's ``RayCollector`` iterates while its collected
@@ -35,8 +38,8 @@ ENDLESS_RAY_FRAMES = 2**62
 
 
 class MultiTimescaleBatch(NamedTuple):
-    frames: TensorDictBase           # [B, T] every frame (buffer L)
-    macros: TensorDictBase | None    # [N] macro-transitions closed in this batch (buffer H), None if none
+    frames: TensorDictBase  # [B, T] every frame (buffer L)
+    macros: TensorDictBase | None  # [N] macro-transitions closed in this batch (buffer H), None if none
 
 
 class MultiTimescaleCollector:
@@ -55,11 +58,20 @@ class MultiTimescaleCollector:
     learner's current weights and exploration state to the acting policies.
     """
 
-    def __init__(self, collector, *, frame_buffer: ReplayBuffer | None = None,
-                 macro_buffer: ReplayBuffer | None = None, writer: MacroTransitionWriter | None = None,
-                 frame_keys: Sequence[NestedKey] | None = None, macro_keys: Sequence[NestedKey] | None = None,
-                 owns_envs: bool = False, local_env: EnvBase | None = None,
-                 frame_transform: Callable[[TensorDictBase], TensorDictBase] | None = None, policy=None):
+    def __init__(
+        self,
+        collector,
+        *,
+        frame_buffer: ReplayBuffer | None = None,
+        macro_buffer: ReplayBuffer | None = None,
+        writer: MacroTransitionWriter | None = None,
+        frame_keys: Sequence[NestedKey] | None = None,
+        macro_keys: Sequence[NestedKey] | None = None,
+        owns_envs: bool = False,
+        local_env: EnvBase | None = None,
+        frame_transform: Callable[[TensorDictBase], TensorDictBase] | None = None,
+        policy=None,
+    ):
         self.collector = collector
         self.frame_buffer, self.macro_buffer = frame_buffer, macro_buffer
         self.writer = writer if writer is not None else MacroTransitionWriter()
@@ -77,9 +89,17 @@ class MultiTimescaleCollector:
         self.policy = policy
 
     @classmethod
-    def from_env(cls, env: EnvBase | Sequence[Callable[[], EnvBase]], policy: Callable, *, frames_per_env: int,
-                 rows: int | None = None, backend: str = "process", sync: bool = True,
-                 **kwargs) -> MultiTimescaleCollector:
+    def from_env(
+        cls,
+        env: EnvBase | Sequence[Callable[[], EnvBase]],
+        policy: Callable,
+        *,
+        frames_per_env: int,
+        rows: int | None = None,
+        backend: str = "process",
+        sync: bool = True,
+        **kwargs,
+    ) -> MultiTimescaleCollector:
         """A TorchRL ``Collector`` collecting ``frames_per_env`` consecutive frames per env row per iteration
         (``[B, frames_per_env]``), endlessly, with ``policy`` (exploration on: TorchRL's default ``RANDOM``).
 
@@ -111,12 +131,20 @@ class MultiTimescaleCollector:
         inner = {"auto_register_policy_transforms": False}  # the policy is ours: no transform registration
         if not sync:  # (the factory count: OverlappedCollector checks it)
             if backend != "process" or not owns:
-                raise ValueError("collector.sync=false runs its env factory in a worker process (collector."
-                                 f"backend=process), got backend={backend!r} and "
-                                 f"{'an env built by the caller' if not owns else 'env factories'}")
+                raise ValueError(
+                    "collector.sync=false runs its env factory in a worker process (collector."
+                    f"backend=process), got backend={backend!r} and "
+                    f"{'an env built by the caller' if not owns else 'env factories'}"
+                )
             snapshot = policy if isinstance(policy, PolicySnapshot) else PolicySnapshot(policy)
-            collector = OverlappedCollector(factories, snapshot, frames_per_batch=int(frames_per_env) * int(rows),
-                                            total_frames=-1, trust_policy=True, **inner)
+            collector = OverlappedCollector(
+                factories,
+                snapshot,
+                frames_per_batch=int(frames_per_env) * int(rows),
+                total_frames=-1,
+                trust_policy=True,
+                **inner,
+            )
             return cls(collector, owns_envs=True, policy=snapshot, **kwargs)
         if n == 1 and backend == "process":
             options = inner
@@ -129,9 +157,14 @@ class MultiTimescaleCollector:
         local = None
         if len(options) == 1 and owns:  # one factory, in this process: built here, closed by shutdown()
             local = factories[0] = factories[0]()
-        collector = Collector(factories if len(options) > 1 else factories[0], policy,
-                              frames_per_batch=int(frames_per_env) * int(rows) * n, total_frames=endless,
-                              trust_policy=True, **options)
+        collector = Collector(
+            factories if len(options) > 1 else factories[0],
+            policy,
+            frames_per_batch=int(frames_per_env) * int(rows) * n,
+            total_frames=endless,
+            trust_policy=True,
+            **options,
+        )
         return cls(collector, owns_envs=owns, local_env=local, policy=policy, **kwargs)
 
     def __iter__(self) -> Iterator[MultiTimescaleBatch]:

@@ -1,5 +1,6 @@
 """``MacroTransitionWriter``: frame trajectories -> macro-transitions of buffer H (docs/design.md, "Clocks";
 paper Algorithm 1 lines 25-26, 35)."""
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -48,27 +49,35 @@ class MacroTransitionWriter:
             None: the sum.
     """
 
-    def __init__(self, *, decide_key: NestedKey = K.LC_DECIDE, reward_key: NestedKey = K.LC_REWARD,
-                 done_key: NestedKey = "done", frames_key: NestedKey = K.LC_MACRO_FRAMES,
-                 exclude: tuple[NestedKey, ...] = DROP_KEYS,
-                 efficiency: Callable[[TensorDictBase], torch.Tensor] | None = None):
+    def __init__(
+        self,
+        *,
+        decide_key: NestedKey = K.LC_DECIDE,
+        reward_key: NestedKey = K.LC_REWARD,
+        done_key: NestedKey = "done",
+        frames_key: NestedKey = K.LC_MACRO_FRAMES,
+        exclude: tuple[NestedKey, ...] = DROP_KEYS,
+        efficiency: Callable[[TensorDictBase], torch.Tensor] | None = None,
+    ):
         self.decide_key, self.reward_key, self.done_key, self.frames_key = decide_key, reward_key, done_key, frames_key
         self.exclude = tuple(exclude)
         self.efficiency = efficiency
         self.reset()
 
     def reset(self) -> None:
-        self._start: TensorDictBase | None = None   # [B] root of each row's open decision frame
-        self._reward: torch.Tensor | None = None    # [B, C] reward (C = 1; 2 with efficiency: r - e, e) so far
-        self._frames: torch.Tensor | None = None    # [B] frames so far in the open interval
-        self._open: torch.Tensor | None = None      # [B] bool, an interval is open
+        self._start: TensorDictBase | None = None  # [B] root of each row's open decision frame
+        self._reward: torch.Tensor | None = None  # [B, C] reward (C = 1; 2 with efficiency: r - e, e) so far
+        self._frames: torch.Tensor | None = None  # [B] frames so far in the open interval
+        self._open: torch.Tensor | None = None  # [B] bool, an interval is open
         self.dropped_frames = 0
 
     def _flag(self, td: TensorDictBase, key, name: str) -> torch.Tensor:
         value = td.get(key, None)
         if value is None:
-            raise KeyError(f"MacroTransitionWriter: the batch has no {name} key {key!r} (is the DecisionClock "
-                           "transform on the env?)")
+            raise KeyError(
+                f"MacroTransitionWriter: the batch has no {name} key {key!r} (is the DecisionClock "
+                "transform on the env?)"
+            )
         return value.reshape(*td.batch_size, -1).any(-1)
 
     def __call__(self, frames: TensorDictBase) -> TensorDictBase | None:
@@ -79,13 +88,14 @@ class MacroTransitionWriter:
         b, t = frames.batch_size
         decide = self._flag(frames, self.decide_key, "decision")
         end = self._flag(frames, ("next", self.decide_key), "next-decision") | self._flag(
-            frames, ("next", self.done_key), "done")
+            frames, ("next", self.done_key), "done"
+        )
         reward = frames.get(("next", self.reward_key)).reshape(b, t, -1).sum(-1).to(torch.float32)
         if self.efficiency is None:
-            reward = reward.unsqueeze(-1)                                           # [B, T, 1]
+            reward = reward.unsqueeze(-1)  # [B, T, 1]
         else:
             eff = self.efficiency(frames.get("next")).reshape(b, t).to(torch.float32)
-            reward = torch.stack([reward - eff, eff], -1)                           # [B, T, 2]
+            reward = torch.stack([reward - eff, eff], -1)  # [B, T, 2]
         if self._open is None or self._open.shape[0] != b:
             if self._open is not None:
                 raise ValueError(f"the batch has {b} rows, earlier batches had {self._open.shape[0]}")
@@ -97,8 +107,9 @@ class MacroTransitionWriter:
         last_decision = torch.where(decide, time, torch.full_like(time, -1)).cummax(dim=1).values  # [B, T]
         csum = reward.cumsum(1)  # reward of frames 0..t of the batch
         index = (last_decision - 1).clamp(min=0).unsqueeze(-1).expand_as(csum)
-        before = torch.where((last_decision > 0).unsqueeze(-1), csum.gather(1, index),
-                             torch.zeros_like(csum))  # reward of the frames before the interval's decision
+        before = torch.where(
+            (last_decision > 0).unsqueeze(-1), csum.gather(1, index), torch.zeros_like(csum)
+        )  # reward of the frames before the interval's decision
         in_batch = last_decision >= 0
         carried = ~in_batch & self._open.unsqueeze(1)
         seg_reward = torch.where(in_batch.unsqueeze(-1), csum - before, self._reward.unsqueeze(1) + csum)
@@ -106,7 +117,7 @@ class MacroTransitionWriter:
         valid = in_batch | carried
         self.dropped_frames += int((~valid).sum())
 
-        closes = end & valid                                                      # [B, T]
+        closes = end & valid  # [B, T]
         out = None
         rows, cols = closes.nonzero(as_tuple=True)
         if rows.numel():

@@ -17,6 +17,7 @@ moves the next observation to t + k - 1, so a window that reaches a collision bo
 (checked by hand: the frame two steps before a terminal one gets ``terminated=False`` and the terminal state as
 its next observation), and with two reward keys it renames both to the same ``original_reward``.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -35,8 +36,13 @@ class NStepReturns:
     the discounted sums of the window (module docstring), and ``keys.STEPS_TO_NEXT_OBS`` holds k. The
     input is not modified. ``n_steps = 1`` returns the frames as they are."""
 
-    def __init__(self, n_steps: int, gamma: float, reward_keys: Sequence[NestedKey] = (K.LC_REWARD, K.CF_REWARD),
-                 done_key: NestedKey = "done"):
+    def __init__(
+        self,
+        n_steps: int,
+        gamma: float,
+        reward_keys: Sequence[NestedKey] = (K.LC_REWARD, K.CF_REWARD),
+        done_key: NestedKey = "done",
+    ):
         if int(n_steps) < 1:
             raise ValueError(f"n_steps must be >= 1, got {n_steps!r}")
         if not 0.0 < float(gamma) <= 1.0:
@@ -61,7 +67,7 @@ class NStepReturns:
             grows[:, : steps - i] = reaches[:, : steps - i]  # the window of t takes in frame t + i
             for key, r in raw.items():
                 shape = (rows, steps - i) + (1,) * (r.dim() - 2)
-                summed[key][:, : steps - i] += self.gamma ** i * r[:, i:] * grows[:, : steps - i].reshape(shape)
+                summed[key][:, : steps - i] += self.gamma**i * r[:, i:] * grows[:, : steps - i].reshape(shape)
             k += grows
             reaches = torch.zeros_like(reaches)
             reaches[:, : steps - i] = grows[:, : steps - i] & ~ended[:, i:]

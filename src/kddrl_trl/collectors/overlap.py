@@ -4,6 +4,7 @@ With TorchRL's synchronous collectors the learner's updates and the collection t
 their sum. Here the env runs in one worker process that collects the next batch while the learner updates on the
 last one, so on a machine with a core free beside the learner a run takes about the larger of the two.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -33,8 +34,10 @@ class OverlappedCollector(MultiAsyncCollector):
 
     def __init__(self, create_env_fn: Sequence[Callable[[], EnvBase]], snapshot: PolicySnapshot, **kwargs):
         if len(create_env_fn) != 1:
-            raise ValueError(f"OverlappedCollector runs one worker process (collector.sync=false needs "
-                             f"collector.workers=1), got {len(create_env_fn)} env factories")
+            raise ValueError(
+                f"OverlappedCollector runs one worker process (collector.sync=false needs "
+                f"collector.workers=1), got {len(create_env_fn)} env factories"
+            )
         if not isinstance(snapshot, PolicySnapshot):
             raise TypeError(f"OverlappedCollector acts with a PolicySnapshot, got {type(snapshot).__name__}")
         self.snapshot = snapshot

@@ -1,4 +1,5 @@
 """``MultiRatePolicy``: two policies on two clocks as one TorchRL policy (paper Algorithm 1 lines 22-33)."""
+
 from __future__ import annotations
 
 import torch
@@ -39,10 +40,18 @@ class MultiRatePolicy(TensorDictModuleBase):
         extra_out_keys: further keys of the policies to write back (e.g. Q values for logging).
     """
 
-    def __init__(self, lc_policy: TensorDictModuleBase, cf_policy: TensorDictModuleBase,
-                 shared: TensorDictModuleBase | None = None, *, decide_key: NestedKey = K.LC_DECIDE,
-                 held_key: NestedKey = K.LC_HELD, lc_action_key: NestedKey = K.LC_ACTION,
-                 cf_action_key: NestedKey = K.CF_ACTION, extra_out_keys: tuple = ()):
+    def __init__(
+        self,
+        lc_policy: TensorDictModuleBase,
+        cf_policy: TensorDictModuleBase,
+        shared: TensorDictModuleBase | None = None,
+        *,
+        decide_key: NestedKey = K.LC_DECIDE,
+        held_key: NestedKey = K.LC_HELD,
+        lc_action_key: NestedKey = K.LC_ACTION,
+        cf_action_key: NestedKey = K.CF_ACTION,
+        extra_out_keys: tuple = (),
+    ):
         super().__init__()
         self.lc_policy, self.cf_policy, self.shared = lc_policy, cf_policy, shared
         self.decide_key, self.held_key = decide_key, held_key

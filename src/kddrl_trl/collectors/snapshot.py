@@ -9,6 +9,7 @@ Two uses, one class:
   the worker acts with the snapshot while the learner updates its own weights, and the snapshot is refreshed only
   while the worker waits between two batches.
 """
+
 from __future__ import annotations
 
 import copy

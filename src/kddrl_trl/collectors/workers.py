@@ -8,6 +8,7 @@ policy's draws: ε-greedy coins, Gaussian acting noise) and builds the env with 
 (:func:`kddrl_trl.eval.protocol.worker_seed`). Nothing here is specific to SUMO: ``make`` is any env factory
 taking ``seed=``.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable

@@ -10,6 +10,7 @@ Importing this module registers in Hydra's ConfigStore:
   ``+scenario=<name>``;
 * the resolvers of :mod:`kddrl_trl.conf.resolvers` (run folders chosen before Hydra creates them).
 """
+
 from hydra.core.config_store import ConfigStore
 
 from ..envs.config import SCENARIOS

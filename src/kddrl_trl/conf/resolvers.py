@@ -11,6 +11,7 @@ folder behind. These resolvers decide while the config is composed, once (:mod:`
 * ``${kddrl_trained_run:${run}}``: ``run`` itself, after checking that it is a training run folder
   (holds ``config.yaml``); a clear error naming the folder otherwise.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -28,7 +29,10 @@ def train_dir(resume, runs_root: str, prefix: str, stamp: str) -> str:
 
 def register() -> None:
     """Register the resolvers (idempotent; cached so a config resolves them once)."""
-    for name, fn in (("kddrl_train_dir", train_dir), ("kddrl_trained_run", lambda run: str(trained_run(run))),
-                     ("kddrl_sweep_dir", lambda resume, prefix, stamp: str(find_sweep_dir(resume, prefix, stamp)))):
+    for name, fn in (
+        ("kddrl_train_dir", train_dir),
+        ("kddrl_trained_run", lambda run: str(trained_run(run))),
+        ("kddrl_sweep_dir", lambda resume, prefix, stamp: str(find_sweep_dir(resume, prefix, stamp))),
+    ):
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, fn, use_cache=True)

@@ -23,6 +23,7 @@ Each option of the ``algo`` group names its schema first in its defaults list (`
 ``joint_d3qn_schema``, ``pasac_schema`` or ``rule_schema``), so one group types every kind of algo; the algo's
 ``kind`` says which it is, also in a run's saved ``config.yaml`` (:func:`algo_from_node`).
 """
+
 from __future__ import annotations
 
 import re
@@ -75,8 +76,9 @@ class EnvNode(HighwayConfig):
         (:func:`~kddrl_trl.envs.config.switch_scenario`: the current preset's keys reset, ``scenario`` 's applied)."""
         from ..envs.config import switch_scenario
 
-        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(EnvNode),
-                                                   switch_scenario(OmegaConf.structured(self), scenario)))
+        return OmegaConf.to_object(
+            OmegaConf.merge(OmegaConf.structured(EnvNode), switch_scenario(OmegaConf.structured(self), scenario))
+        )
 
 
 def _node(name: str, doc: str, check=None, optional: dict | None = None, **types: type) -> type:
@@ -85,13 +87,24 @@ def _node(name: str, doc: str, check=None, optional: dict | None = None, **types
     checks) runs when the composed config becomes objects."""
     namespace = {"__doc__": doc} if check is None else {"__doc__": doc, "__post_init__": check}
     optional = [(key, kind, field(default=default)) for key, (kind, default) in (optional or {}).items()]
-    return make_dataclass(name, [(key, kind, field(default=MISSING)) for key, kind in types.items()] + optional,
-                          namespace=namespace)
+    return make_dataclass(
+        name, [(key, kind, field(default=MISSING)) for key, kind in types.items()] + optional, namespace=namespace
+    )
 
 
 def _check_train(train) -> None:
-    _at_least("train.", train, 1, "frames_per_env", "batch_size_cf", "batch_size_lc", "buffer_cf", "buffer_lc",
-              "checkpoint_every", "n_steps")
+    _at_least(
+        "train.",
+        train,
+        1,
+        "frames_per_env",
+        "batch_size_cf",
+        "batch_size_lc",
+        "buffer_cf",
+        "buffer_lc",
+        "checkpoint_every",
+        "n_steps",
+    )
     _at_least("train.", train, 0, "warmup_frames", "updates_per_frame", "updates_per_decision", "eval_every")
     _at_least("train.", train, 1, "eval_episodes")
     from ..eval.periodic import BEST_METRICS
@@ -104,29 +117,86 @@ def _check_train(train) -> None:
         raise ValueError(f"train.best_metric={train.best_metric!r}: known metrics are {', '.join(BEST_METRICS)}")
 
 
-LoggerConfig = _node("LoggerConfig", "``logger``: CSV and TensorBoard (true | false | auto: when installed).",
-                     csv=bool, tensorboard=Any)
-TrainConfig = _node("TrainConfig", "The ``train`` node (``conf/config.yaml``): collection, replay buffers, update "
-                    "ratios, checkpoints.", _check_train, frames_per_env=int, warmup_frames=int, batch_size_cf=int,
-                    batch_size_lc=int, buffer_cf=int, buffer_lc=int, updates_per_frame=int, updates_per_decision=int,
-                    checkpoint_every=int, keep_buffers=bool, eval_every=int, eval_episodes=int, best_metric=str,
-                    optional={"n_steps": (int, 1), "prioritized": (bool, False), "priority_alpha": (float, 0.6),
-                              "priority_beta": (float, 0.4)})
-TransformsConfig = _node("TransformsConfig", "``algo.transforms``: options of "
-                         ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
-                         "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.).",
-                         optional={"mobil_criteria": (bool, False)}, enabled=bool, trajgan=bool, priors=bool,
-                         num_samples=int, reduce=str, trajgan_checkpoint=Optional[str], lcgan_checkpoint=Optional[str])
-D3QNConfig = _node("D3QNConfig", "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the "
-                   "learning rate.", optional={"semi_mdp": (bool, False)}, hidden=list[int], dueling=bool,
-                   double=bool, gamma=float, tau=float, lr=float, eps_init=float, eps_end=float, eps_decisions=int)
-TD3Config = _node("TD3Config", "``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the "
-                  "learning rates.", optional={"exploration_clip": (Optional[float], None)}, hidden=list[int],
-                  gamma=float, tau=float, actor_lr=float, critic_lr=float, policy_noise=float, noise_clip=float,
-                  policy_delay=int, exploration_sigma=float)
-DDPGConfig = _node("DDPGConfig", "``algo.learner.ddpg``: :func:`~kddrl_trl.objectives.make_ddpg` options and the "
-                   "learning rates.", optional={"exploration_clip": (Optional[float], None)}, hidden=list[int],
-                   gamma=float, tau=float, actor_lr=float, critic_lr=float, exploration_sigma=float)
+LoggerConfig = _node(
+    "LoggerConfig", "``logger``: CSV and TensorBoard (true | false | auto: when installed).", csv=bool, tensorboard=Any
+)
+TrainConfig = _node(
+    "TrainConfig",
+    "The ``train`` node (``conf/config.yaml``): collection, replay buffers, update ratios, checkpoints.",
+    _check_train,
+    frames_per_env=int,
+    warmup_frames=int,
+    batch_size_cf=int,
+    batch_size_lc=int,
+    buffer_cf=int,
+    buffer_lc=int,
+    updates_per_frame=int,
+    updates_per_decision=int,
+    checkpoint_every=int,
+    keep_buffers=bool,
+    eval_every=int,
+    eval_episodes=int,
+    best_metric=str,
+    optional={
+        "n_steps": (int, 1),
+        "prioritized": (bool, False),
+        "priority_alpha": (float, 0.6),
+        "priority_beta": (float, 0.4),
+    },
+)
+TransformsConfig = _node(
+    "TransformsConfig",
+    "``algo.transforms``: options of "
+    ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
+    "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.).",
+    optional={"mobil_criteria": (bool, False)},
+    enabled=bool,
+    trajgan=bool,
+    priors=bool,
+    num_samples=int,
+    reduce=str,
+    trajgan_checkpoint=Optional[str],
+    lcgan_checkpoint=Optional[str],
+)
+D3QNConfig = _node(
+    "D3QNConfig",
+    "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the learning rate.",
+    optional={"semi_mdp": (bool, False)},
+    hidden=list[int],
+    dueling=bool,
+    double=bool,
+    gamma=float,
+    tau=float,
+    lr=float,
+    eps_init=float,
+    eps_end=float,
+    eps_decisions=int,
+)
+TD3Config = _node(
+    "TD3Config",
+    "``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the learning rates.",
+    optional={"exploration_clip": (Optional[float], None)},
+    hidden=list[int],
+    gamma=float,
+    tau=float,
+    actor_lr=float,
+    critic_lr=float,
+    policy_noise=float,
+    noise_clip=float,
+    policy_delay=int,
+    exploration_sigma=float,
+)
+DDPGConfig = _node(
+    "DDPGConfig",
+    "``algo.learner.ddpg``: :func:`~kddrl_trl.objectives.make_ddpg` options and the learning rates.",
+    optional={"exploration_clip": (Optional[float], None)},
+    hidden=list[int],
+    gamma=float,
+    tau=float,
+    actor_lr=float,
+    critic_lr=float,
+    exploration_sigma=float,
+)
 
 
 def _check_learner(learner) -> None:
@@ -135,15 +205,28 @@ def _check_learner(learner) -> None:
     if learner.cf_agent not in CF_AGENTS:
         raise ValueError(f"algo.learner.cf_agent={learner.cf_agent!r}: known agents are {', '.join(CF_AGENTS)}")
     if getattr(learner, learner.cf_agent) is None:
-        raise ValueError(f"algo.learner.cf_agent={learner.cf_agent}: the algo.learner.{learner.cf_agent} node is "
-                         "missing")
+        raise ValueError(
+            f"algo.learner.cf_agent={learner.cf_agent}: the algo.learner.{learner.cf_agent} node is missing"
+        )
 
 
-LearnerConfig = _node("LearnerConfig", "``algo.learner``: keyword arguments of "
-                      ":class:`~kddrl_trl.training.HierarchicalLearner`.", _check_learner,
-                      optional={"td3": (Optional[TD3Config], None), "cf_agent": (str, "td3"),
-                                "ddpg": (Optional[DDPGConfig], None), "mobil_criteria": (bool, False)},
-                      priors=bool, key_gaps=bool, embed_dim=int, embed_hidden=int, embed_lr=float, d3qn=D3QNConfig)
+LearnerConfig = _node(
+    "LearnerConfig",
+    "``algo.learner``: keyword arguments of :class:`~kddrl_trl.training.HierarchicalLearner`.",
+    _check_learner,
+    optional={
+        "td3": (Optional[TD3Config], None),
+        "cf_agent": (str, "td3"),
+        "ddpg": (Optional[DDPGConfig], None),
+        "mobil_criteria": (bool, False),
+    },
+    priors=bool,
+    key_gaps=bool,
+    embed_dim=int,
+    embed_hidden=int,
+    embed_lr=float,
+    d3qn=D3QNConfig,
+)
 
 
 def _check_levels(learner) -> None:
@@ -152,15 +235,37 @@ def _check_levels(learner) -> None:
         raise ValueError(f"algo.learner: low < high needed, got [{learner.low}, {learner.high}]")
 
 
-JointD3QNLearnerConfig = _node("JointD3QNLearnerConfig", "``algo.learner`` of ``d3qn_unified``: keyword arguments of "
-                               ":class:`~kddrl_trl.training.JointD3QNLearner`.", _check_levels, num_levels=int,
-                               low=float, high=float, d3qn=D3QNConfig)
-PASACConfig = _node("PASACConfig", "``algo.learner.pasac``: :func:`~kddrl_trl.objectives.make_pasac` options and the "
-                    "learning rates.", hidden=list[int], gamma=float, tau=float, actor_lr=float, critic_lr=float,
-                    alpha_lr=float, alpha_init=float, alpha_min=float, alpha_max=float, target_entropy_lane=float, target_entropy_param=float,
-                    low=float, high=float)
-PASACLearnerConfig = _node("PASACLearnerConfig", "``algo.learner`` of ``pasac_unified``: keyword arguments of "
-                           ":class:`~kddrl_trl.training.PASACLearner`.", pasac=PASACConfig)
+JointD3QNLearnerConfig = _node(
+    "JointD3QNLearnerConfig",
+    "``algo.learner`` of ``d3qn_unified``: keyword arguments of :class:`~kddrl_trl.training.JointD3QNLearner`.",
+    _check_levels,
+    num_levels=int,
+    low=float,
+    high=float,
+    d3qn=D3QNConfig,
+)
+PASACConfig = _node(
+    "PASACConfig",
+    "``algo.learner.pasac``: :func:`~kddrl_trl.objectives.make_pasac` options and the learning rates.",
+    hidden=list[int],
+    gamma=float,
+    tau=float,
+    actor_lr=float,
+    critic_lr=float,
+    alpha_lr=float,
+    alpha_init=float,
+    alpha_min=float,
+    alpha_max=float,
+    target_entropy_lane=float,
+    target_entropy_param=float,
+    low=float,
+    high=float,
+)
+PASACLearnerConfig = _node(
+    "PASACLearnerConfig",
+    "``algo.learner`` of ``pasac_unified``: keyword arguments of :class:`~kddrl_trl.training.PASACLearner`.",
+    pasac=PASACConfig,
+)
 
 
 #: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound
@@ -176,8 +281,8 @@ class SafetyOptions:
     """Options every algo has, learning or rule-based. Schema defaults = how runs saved before these keys
     existed behaved; the algo YAMLs set the project's defaults (README, "Safety and learning-signal options")."""
 
-    shield: str = "none"       # car-following shield: none | idm | ttc (a_exec = min(a_agent, a_safe))
-    shield_ttc: float = 3.0    # s, time-to-collision below which the ttc shield bounds the acceleration
+    shield: str = "none"  # car-following shield: none | idm | ttc (a_exec = min(a_agent, a_safe))
+    shield_ttc: float = 3.0  # s, time-to-collision below which the ttc shield bounds the acceleration
 
     def _check_safety(self) -> None:
         if self.shield not in SHIELDS:
@@ -195,7 +300,7 @@ class LearningAlgo(SafetyOptions):
     kind: str = MISSING
     lc_period: int = MISSING
     mobil_safety_mask: bool = False  # AND MOBIL's safety check (Eq. 20-21) into ("lc","action_mask") (§III.C.2)
-    lc_reward: str = "frames"        # D3QN macro reward: frames (Algorithm 1 line 35) | decision (§III.G)
+    lc_reward: str = "frames"  # D3QN macro reward: frames (Algorithm 1 line 35) | decision (§III.G)
     # features appended to every agent's state (not in the paper): thw (time headway), ttc (time to collision)
     state_extras: list[str] = field(default_factory=list)
     transforms: TransformsConfig = MISSING
@@ -212,13 +317,21 @@ class LearningAlgo(SafetyOptions):
 
 def _learning_algo(name: str, doc: str, parent: type, kind: str, learner: type) -> type:
     """A learning algo schema: ``parent`` 's fields, its ``kind`` and its ``learner`` node."""
-    return make_dataclass(name, [("kind", str, field(default=kind)), ("learner", learner, field(default=MISSING))],
-                          bases=(parent,), namespace={"__doc__": doc})
+    return make_dataclass(
+        name,
+        [("kind", str, field(default=kind)), ("learner", learner, field(default=MISSING))],
+        bases=(parent,),
+        namespace={"__doc__": doc},
+    )
 
 
-HierarchicalAlgo = _learning_algo("HierarchicalAlgo", "A hierarchical learning algo: KDDRL and its configuration-only "
-                                  "comparison systems (ni, peng, ablations).", LearningAlgo, "hierarchical",
-                                  LearnerConfig)
+HierarchicalAlgo = _learning_algo(
+    "HierarchicalAlgo",
+    "A hierarchical learning algo: KDDRL and its configuration-only comparison systems (ni, peng, ablations).",
+    LearningAlgo,
+    "hierarchical",
+    LearnerConfig,
+)
 
 
 @dataclass
@@ -230,14 +343,22 @@ class UnifiedAlgo(LearningAlgo):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.lc_period != 1:
-            raise ValueError(f"algo.lc_period must be 1 for algo={self.name} (one agent deciding both actions every "
-                             f"frame), got {self.lc_period!r}")
+            raise ValueError(
+                f"algo.lc_period must be 1 for algo={self.name} (one agent deciding both actions every "
+                f"frame), got {self.lc_period!r}"
+            )
 
 
-JointD3QNAlgo = _learning_algo("JointD3QNAlgo", "``algo=d3qn_unified``: one D3QN over (lane command x acceleration "
-                               "level).", UnifiedAlgo, "joint_d3qn", JointD3QNLearnerConfig)
-PASACAlgo = _learning_algo("PASACAlgo", "``algo=pasac_unified``: one parameterised-action SAC agent.", UnifiedAlgo,
-                           "pasac", PASACLearnerConfig)
+JointD3QNAlgo = _learning_algo(
+    "JointD3QNAlgo",
+    "``algo=d3qn_unified``: one D3QN over (lane command x acceleration level).",
+    UnifiedAlgo,
+    "joint_d3qn",
+    JointD3QNLearnerConfig,
+)
+PASACAlgo = _learning_algo(
+    "PASACAlgo", "``algo=pasac_unified``: one parameterised-action SAC agent.", UnifiedAlgo, "pasac", PASACLearnerConfig
+)
 
 
 #: ``algo.idm`` / ``algo.mobil``: the fields of the physics parameters, as floats (defaults: paper Table A.1)
@@ -294,13 +415,13 @@ class Job:
     seed: int = MISSING
     eval_episodes: int = MISSING
     eval_seed: Optional[int] = None  # env seed of the evaluation; null: seed + eval.protocol.TEST_OFFSET
-    video: bool = False     # record evaluation episodes: traces/*.json (Fig. 14) and videos/*.mp4
+    video: bool = False  # record evaluation episodes: traces/*.json (Fig. 14) and videos/*.mp4
     video_episodes: int = 3
     progress: bool = MISSING
     compile: Any = MISSING  # true | false | auto: torch.compile the fused transform stack and the learner update
     env: EnvNode = MISSING
     logger: LoggerConfig = MISSING
-    device: str = "auto"     # auto | cpu | cuda (cuda:N): the learner's networks, sampled batches and updates
+    device: str = "auto"  # auto | cpu | cuda (cuda:N): the learner's networks, sampled batches and updates
     cudagraphs: Any = "auto"  # true | false | auto (on with a CUDA learner): CudaGraphModule around the updates
 
     def __post_init__(self) -> None:
@@ -334,12 +455,16 @@ class CollectorConfig:
 
         _at_least("collector.", self, 1, "workers")
         if self.workers > MAX_WORKERS:
-            raise ValueError(f"collector.workers must be <= {MAX_WORKERS} (each worker's env seeds stay below the "
-                             f"validation seed, kddrl_trl/eval/protocol.py), got {self.workers}")
+            raise ValueError(
+                f"collector.workers must be <= {MAX_WORKERS} (each worker's env seeds stay below the "
+                f"validation seed, kddrl_trl/eval/protocol.py), got {self.workers}"
+            )
         check_backend(self.backend)
         if not self.sync and (self.workers != 1 or self.backend != "process"):
-            raise ValueError("collector.sync=false runs one worker process: it needs collector.workers=1 and "
-                             f"collector.backend=process, got workers={self.workers}, backend={self.backend}")
+            raise ValueError(
+                "collector.sync=false runs one worker process: it needs collector.workers=1 and "
+                f"collector.backend=process, got workers={self.workers}, backend={self.backend}"
+            )
 
 
 @dataclass
@@ -349,7 +474,7 @@ class TrainJob(Job):
     episodes: int = MISSING
     resume: Any = MISSING  # false | true | a run folder
     train: TrainConfig = MISSING
-    algo: Any = MISSING    # a LearningAlgo or RuleAlgo, typed by the option's own schema
+    algo: Any = MISSING  # a LearningAlgo or RuleAlgo, typed by the option's own schema
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     # scenarios of the final evaluation ([]: the training scenario); each is written to <run>/final__<scenario>/
     eval_scenarios: list[str] = field(default_factory=list)
@@ -361,12 +486,15 @@ class TrainJob(Job):
 
         unknown = [s for s in self.eval_scenarios if s not in SCENARIOS]
         if unknown or len(set(self.eval_scenarios)) != len(self.eval_scenarios):
-            raise ValueError(f"eval_scenarios={list(self.eval_scenarios)}: each must be one of "
-                             f"{', '.join(sorted(SCENARIOS))}, at most once")
+            raise ValueError(
+                f"eval_scenarios={list(self.eval_scenarios)}: each must be one of "
+                f"{', '.join(sorted(SCENARIOS))}, at most once"
+            )
         from ..eval.protocol import check_disjoint, test_seed
 
-        check_disjoint("eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes,
-                       self.collector.workers)
+        check_disjoint(
+            "eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes, self.collector.workers
+        )
 
 
 @dataclass

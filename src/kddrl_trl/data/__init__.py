@@ -1,4 +1,5 @@
 """Data layer of kddrl_trl: recorded trajectories in the HighD file format (:mod:`kddrl_trl.data.highd`)."""
+
 from kddrl_trl.data.highd import (
     OPTIONAL_META_COLUMNS,
     RECORDING_META_COLUMNS,

@@ -13,6 +13,7 @@ front-bumper ``y`` growing in the direction of travel, ``lane`` 0 = rightmost, n
 * :func:`calibrate` runs everything; :func:`write_calibration` writes a YAML file whose ``env:`` block is a
   valid :func:`kddrl_trl.envs.make_config` override (``drivers:``) plus ``idm:`` and ``mobil:`` blocks.
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -36,7 +37,11 @@ from kddrl_trl.physics.mobil import MOBILParams, mobil_utilities
 IDM_FIELDS = ("v0", "T", "s0", "a", "b")
 #: default box constraints of the fit (SI units): v0 m/s, T s, s0 m, a and b m/s²
 DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {
-    "v0": (15.0, 60.0), "T": (0.3, 4.0), "s0": (0.5, 15.0), "a": (0.3, 10.0), "b": (0.5, 10.0),
+    "v0": (15.0, 60.0),
+    "T": (0.3, 4.0),
+    "s0": (0.5, 15.0),
+    "a": (0.3, 10.0),
+    "b": (0.5, 10.0),
 }
 #: MOBIL grid searched by default: politeness (-), threshold (m/s²), b_safe (m/s²)
 DEFAULT_MOBIL_GRID: dict[str, Sequence[float]] = {
@@ -44,8 +49,14 @@ DEFAULT_MOBIL_GRID: dict[str, Sequence[float]] = {
     "threshold": tuple(np.round(np.linspace(0.0, 1.0, 11), 3)),
     "b_safe": (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0),
 }
-_NEIGHBOR_COLUMNS = ("left_preceding_id", "preceding_id", "right_preceding_id",
-                     "left_following_id", "following_id", "right_following_id")  # slots a..f
+_NEIGHBOR_COLUMNS = (
+    "left_preceding_id",
+    "preceding_id",
+    "right_preceding_id",
+    "left_following_id",
+    "following_id",
+    "right_following_id",
+)  # slots a..f
 _DTYPE = torch.float64
 
 
@@ -78,7 +89,8 @@ def car_following_segments(
     df = tracks[cols]
     df = df[df["preceding_id"].to_numpy() != 0]
     lead = tracks[["recording_id", "vehicle_id", "frame", "y", "v", "length"]].rename(
-        columns={"vehicle_id": "preceding_id", "y": "leader_y", "v": "leader_v", "length": "leader_length"})
+        columns={"vehicle_id": "preceding_id", "y": "leader_y", "v": "leader_v", "length": "leader_length"}
+    )
     m = df.merge(lead, on=["recording_id", "preceding_id", "frame"], how="inner")
     m = m.sort_values(["recording_id", "vehicle_id", "frame"], kind="stable").reset_index(drop=True)
     type_names = tuple(sorted(set(str(t) for t in tracks["driver_type"].unique())))
@@ -87,8 +99,13 @@ def car_following_segments(
         rec, vid, frame = (m[c].to_numpy() for c in ("recording_id", "vehicle_id", "frame"))
         pid, lane = m["preceding_id"].to_numpy(), m["lane"].to_numpy()
         brk = np.ones(n_rows, dtype=bool)
-        brk[1:] = ((rec[1:] != rec[:-1]) | (vid[1:] != vid[:-1]) | (frame[1:] != frame[:-1] + 1)
-                   | (pid[1:] != pid[:-1]) | (lane[1:] != lane[:-1]))
+        brk[1:] = (
+            (rec[1:] != rec[:-1])
+            | (vid[1:] != vid[:-1])
+            | (frame[1:] != frame[:-1] + 1)
+            | (pid[1:] != pid[:-1])
+            | (lane[1:] != lane[:-1])
+        )
         run = np.cumsum(brk) - 1
         pos = np.arange(n_rows) - np.flatnonzero(brk)[run]  # index inside the run
         if cut is not None:  # split long runs into pieces of at most `cut` frames
@@ -135,14 +152,20 @@ def car_following_segments(
     codes = [type_names.index(str(t)) for t in meta["driver_type"]] if n else []
     td = TensorDict(
         {
-            "y": torch.as_tensor(y, dtype=_DTYPE), "v": torch.as_tensor(v, dtype=_DTYPE),
-            "leader_y": torch.as_tensor(ly, dtype=_DTYPE), "leader_v": torch.as_tensor(lv, dtype=_DTYPE),
-            "leader_length": torch.tensor(meta["leader_length"].to_numpy(dtype=float) if n else np.zeros(0),
-                                          dtype=_DTYPE),
+            "y": torch.as_tensor(y, dtype=_DTYPE),
+            "v": torch.as_tensor(v, dtype=_DTYPE),
+            "leader_y": torch.as_tensor(ly, dtype=_DTYPE),
+            "leader_v": torch.as_tensor(lv, dtype=_DTYPE),
+            "leader_length": torch.tensor(
+                meta["leader_length"].to_numpy(dtype=float) if n else np.zeros(0), dtype=_DTYPE
+            ),
             "valid": torch.as_tensor(valid),
             "num_frames": torch.as_tensor(sizes.astype(np.int64)),
-            "recording_id": ints("recording_id"), "vehicle_id": ints("vehicle_id"),
-            "leader_id": ints("preceding_id"), "lane": ints("lane"), "frame0": ints("frame"),
+            "recording_id": ints("recording_id"),
+            "vehicle_id": ints("vehicle_id"),
+            "leader_id": ints("preceding_id"),
+            "lane": ints("lane"),
+            "frame0": ints("frame"),
             "driver_class": torch.as_tensor(codes, dtype=torch.long),
         },
         batch_size=[n],
@@ -208,8 +231,7 @@ def _idm_partials(v: Tensor, v_lead: Tensor, gap: Tensor, theta: Tensor, delta: 
     return a.detach(), grads[0], grads[1], torch.stack(grads[2:], dim=-1)
 
 
-def _simulate_sensitivities(segments: TensorDict, theta: Tensor, dlog: Tensor, delta: float
-                            ) -> tuple[Tensor, Tensor]:
+def _simulate_sensitivities(segments: TensorDict, theta: Tensor, dlog: Tensor, delta: float) -> tuple[Tensor, Tensor]:
     """:func:`simulate_following` plus forward sensitivities of the simulated gaps to the fit variables.
 
     ``theta`` ``[R, N, 5]`` per-segment parameters; ``dlog`` ``[5]`` = d(log theta)/d(fit variable). The
@@ -285,15 +307,15 @@ def fit_idm(
     labels = _group_labels(segments, groups)
     codes, uniques = pd.factorize(pd.Series(labels, dtype=object), sort=False)
     n_groups, n_seg = len(uniques), len(labels)
-    columns = ["group", "driver_type", *IDM_FIELDS, "delta", "rmse", "rmse_init", "n_segments", "seconds",
-               "restart"]
+    columns = ["group", "driver_type", *IDM_FIELDS, "delta", "rmse", "rmse_init", "n_segments", "seconds", "restart"]
     if n_seg == 0:
         return pd.DataFrame(columns=columns)
     bnd = {**DEFAULT_BOUNDS, **(bounds or {})}
     lo = torch.tensor([math.log(bnd[k][0]) for k in IDM_FIELDS], dtype=_DTYPE)
     hi = torch.tensor([math.log(bnd[k][1]) for k in IDM_FIELDS], dtype=_DTYPE)
-    start = torch.tensor([float(init.v0), float(init.T), float(init.s0), float(init.a_max), float(init.b)],
-                         dtype=_DTYPE)
+    start = torch.tensor(
+        [float(init.v0), float(init.T), float(init.s0), float(init.a_max), float(init.b)], dtype=_DTYPE
+    )
     u_init = ((start.log() - lo) / (hi - lo)).clamp(0.0, 1.0)
     gen = torch.Generator().manual_seed(seed)
     u = u_init.expand(restarts, n_groups, 5).clone()
@@ -317,14 +339,15 @@ def fit_idm(
         res = torch.nan_to_num(res, nan=1e6, posinf=1e6, neginf=-1e6)
         jac = torch.nan_to_num(jac, nan=0.0, posinf=0.0, neginf=0.0) * valid[..., None]
         r_ = uu.shape[0]
-        sse = torch.zeros(r_, n_groups, dtype=_DTYPE).index_add_(1, gidx, (res ** 2).sum(-1))
+        sse = torch.zeros(r_, n_groups, dtype=_DTYPE).index_add_(1, gidx, (res**2).sum(-1))
         jtr = torch.zeros(r_, n_groups, 5, dtype=_DTYPE).index_add_(1, gidx, torch.einsum("rnfi,rnf->rni", jac, res))
         jtj = torch.zeros(r_, n_groups, 5, 5, dtype=_DTYPE).index_add_(
-            1, gidx, torch.einsum("rnfi,rnfj->rnij", jac, jac))
+            1, gidx, torch.einsum("rnfi,rnfj->rnij", jac, jac)
+        )
         nbad = torch.zeros(r_, n_groups, dtype=_DTYPE).index_add_(1, gidx, bad.to(_DTYPE))
         mse = sse / cnt
         du = uu - u_init
-        cost = 0.5 * mse + 0.5 * prior_weight * (du ** 2).sum(-1)
+        cost = 0.5 * mse + 0.5 * prior_weight * (du**2).sum(-1)
         cost = torch.where(nbad > 0, torch.full_like(cost, float("inf")), cost)
         grad = jtr / cnt[:, None] + prior_weight * du
         hess = jtj / cnt[:, None, None] + prior_weight * eye
@@ -366,15 +389,19 @@ def fit_idm(
     hz = segments.get_non_tensor("hz")
     frames = segments["num_frames"].to(_DTYPE)
     seconds = torch.zeros(n_groups, dtype=_DTYPE).index_add_(0, gidx, (frames - 1) / hz)
-    out = pd.DataFrame({
-        "group": list(uniques),
-        "driver_type": mode_type.reindex(range(n_groups)).to_numpy(),
-        **{k: theta[:, i].numpy() for i, k in enumerate(IDM_FIELDS)},
-        "delta": delta,
-        "rmse": rmse.numpy(), "rmse_init": rmse_init.numpy(),
-        "n_segments": np.bincount(codes, minlength=n_groups),
-        "seconds": seconds.numpy(), "restart": winner.numpy(),
-    })
+    out = pd.DataFrame(
+        {
+            "group": list(uniques),
+            "driver_type": mode_type.reindex(range(n_groups)).to_numpy(),
+            **{k: theta[:, i].numpy() for i, k in enumerate(IDM_FIELDS)},
+            "delta": delta,
+            "rmse": rmse.numpy(),
+            "rmse_init": rmse_init.numpy(),
+            "n_segments": np.bincount(codes, minlength=n_groups),
+            "seconds": seconds.numpy(),
+            "restart": winner.numpy(),
+        }
+    )
     out.attrs["fit_seconds"] = time.perf_counter() - t_start
     out.attrs["segments_per_second"] = n_seg / max(out.attrs["fit_seconds"], 1e-9)
     out.attrs["iterations"] = iterations
@@ -431,8 +458,12 @@ def decision_points(
     j = np.searchsorted(chg_pos, idx, side="right")
     has_next = j < len(chg_pos)
     nxt = np.where(has_next, chg_pos[np.minimum(j, max(len(chg_pos) - 1, 0))] if len(chg_pos) else 0, -1)
-    in_h = has_next & (rec[np.maximum(nxt, 0)] == rec) & (vid[np.maximum(nxt, 0)] == vid) \
+    in_h = (
+        has_next
+        & (rec[np.maximum(nxt, 0)] == rec)
+        & (vid[np.maximum(nxt, 0)] == vid)
         & (frame[np.maximum(nxt, 0)] - frame <= h)
+    )
     label = np.full(n, K.KEEP, dtype=np.int64)
     label[in_h & (step[np.maximum(nxt, 0)] > 0)] = K.LEFT
     label[in_h & (step[np.maximum(nxt, 0)] < 0)] = K.RIGHT
@@ -443,8 +474,11 @@ def decision_points(
     jp = np.searchsorted(chg_pos, idx, side="right") - 1
     has_prev = jp >= 0
     prv = chg_pos[np.maximum(jp, 0)] if len(chg_pos) else np.zeros(n, dtype=np.int64)
-    recent = has_prev & (rec[prv] == rec) & (vid[prv] == vid) & (frame - frame[prv] < cool) if len(chg_pos) \
+    recent = (
+        has_prev & (rec[prv] == rec) & (vid[prv] == vid) & (frame - frame[prv] < cool)
+        if len(chg_pos)
         else np.zeros(n, dtype=bool)
+    )
     keep = (in_h | observed) & ~recent
 
     # neighbour lookup by a packed (recording, vehicle, frame) key
@@ -595,11 +629,20 @@ def fit_mobil(
         ba, rec = evaluate(*chosen)
         ba_t, rec_t = evaluate(float(table.politeness), float(table.threshold), float(table.b_safe))
     return {
-        "politeness": chosen[0], "threshold": chosen[1], "b_safe": chosen[2],
-        "balanced_accuracy": ba, "recall": rec, "n_ties": int(len(tied)),
+        "politeness": chosen[0],
+        "threshold": chosen[1],
+        "b_safe": chosen[2],
+        "balanced_accuracy": ba,
+        "recall": rec,
+        "n_ties": int(len(tied)),
         "n_decisions": {name: int((decisions["label"] == c).sum()) for name, c in zip(K.LC_ACTIONS, range(3))},
-        "table_a1": {"politeness": float(table.politeness), "threshold": float(table.threshold),
-                     "b_safe": float(table.b_safe), "balanced_accuracy": ba_t, "recall": rec_t},
+        "table_a1": {
+            "politeness": float(table.politeness),
+            "threshold": float(table.threshold),
+            "b_safe": float(table.b_safe),
+            "balanced_accuracy": ba_t,
+            "recall": rec_t,
+        },
     }
 
 
@@ -617,11 +660,20 @@ def class_parameters(vehicle_fits: pd.DataFrame, by: str = "driver_type") -> pd.
     for name, g in vehicle_fits.groupby(by, sort=False):
         med = g[list(IDM_FIELDS)].median()
         mad = (g[list(IDM_FIELDS)] - med).abs().median() * 1.4826 / med
-        rows.append({"group": name, "driver_type": name, **med.to_dict(),
-                     "delta": float(g["delta"].iloc[0]), "rmse": float(g["rmse"].median()),
-                     "rmse_init": float(g["rmse_init"].median()), "n_segments": int(g["n_segments"].sum()),
-                     "seconds": float(g["seconds"].sum()), "n_vehicles": len(g),
-                     "spread": float(np.clip(mad.median(), 0.0, 0.45)) if len(g) >= 5 else float("nan")})
+        rows.append(
+            {
+                "group": name,
+                "driver_type": name,
+                **med.to_dict(),
+                "delta": float(g["delta"].iloc[0]),
+                "rmse": float(g["rmse"].median()),
+                "rmse_init": float(g["rmse_init"].median()),
+                "n_segments": int(g["n_segments"].sum()),
+                "seconds": float(g["seconds"].sum()),
+                "n_vehicles": len(g),
+                "spread": float(np.clip(mad.median(), 0.0, 0.45)) if len(g) >= 5 else float("nan"),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -663,9 +715,11 @@ def calibrate(
     t0 = time.perf_counter()
     seg = car_following_segments(tracks, min_duration_s=min_duration_s)
     if seg.batch_size[0] == 0:
-        raise CalibrationImpossible("calibrate: no car-following segment of at least "
-                                    f"{min_duration_s} s in the tracks (too short a recording, or too few "
-                                    "vehicles following one another)")
+        raise CalibrationImpossible(
+            "calibrate: no car-following segment of at least "
+            f"{min_duration_s} s in the tracks (too short a recording, or too few "
+            "vehicles following one another)"
+        )
     kw = dict(steps=steps, progress=progress)
     population = fit_idm(seg, groups="all", **kw)
     vehicles = fit_idm(seg, groups=None, **kw) if per_vehicle else None
@@ -684,17 +738,25 @@ def calibrate(
         classes = fit_idm(seg, groups=["normal"] * seg.batch_size[0], **kw)
         counts = pd.Series({"normal": len(vtypes)})
     counts = counts.reindex(classes["group"]).fillna(0.0)
-    shares = (counts / counts.sum()).to_dict() if counts.sum() > 0 else {g: 1.0 / len(classes)
-                                                                          for g in classes["group"]}
+    shares = (
+        (counts / counts.sum()).to_dict() if counts.sum() > 0 else {g: 1.0 / len(classes) for g in classes["group"]}
+    )
     pop = population.iloc[0]
-    idm = IDMParams(v0=float(pop["v0"]), T=float(pop["T"]), s0=float(pop["s0"]), a_max=float(pop["a"]),
-                    b=float(pop["b"]))
+    idm = IDMParams(
+        v0=float(pop["v0"]), T=float(pop["T"]), s0=float(pop["s0"]), a_max=float(pop["a"]), b=float(pop["b"])
+    )
     decisions = decision_points(tracks)
     mobil = fit_mobil(decisions, grid=mobil_grid, idm=idm)
     return {
-        "classes": classes, "population": population, "vehicles": vehicles, "shares": shares,
-        "mobil": mobil, "source": source or "tracks10 table", "created": _dt.date.today().isoformat(),
-        "n_segments": int(seg.batch_size[0]), "seconds": time.perf_counter() - t0,
+        "classes": classes,
+        "population": population,
+        "vehicles": vehicles,
+        "shares": shares,
+        "mobil": mobil,
+        "source": source or "tracks10 table",
+        "created": _dt.date.today().isoformat(),
+        "n_segments": int(seg.batch_size[0]),
+        "seconds": time.perf_counter() - t0,
     }
 
 
@@ -719,24 +781,37 @@ def write_calibration(result: Mapping[str, Any], path: str | os.PathLike) -> Non
     for _, row in classes.iterrows():
         name = str(row["group"]) or "normal"
         base = defaults.get(name, DriverClass(name=name))
-        drivers.append({
-            "name": name, "share": _r(result["shares"].get(row["group"], 0.0), 6),
-            **{k: _r(row[k]) for k in IDM_FIELDS},
-            "lc_speed_gain": float(base.lc_speed_gain), "lc_keep_right": float(base.lc_keep_right),
-            "spread": _r(row["spread"]) if "spread" in row and np.isfinite(row["spread"]) else float(base.spread),
-        })
+        drivers.append(
+            {
+                "name": name,
+                "share": _r(result["shares"].get(row["group"], 0.0), 6),
+                **{k: _r(row[k]) for k in IDM_FIELDS},
+                "lc_speed_gain": float(base.lc_speed_gain),
+                "lc_keep_right": float(base.lc_keep_right),
+                "spread": _r(row["spread"]) if "spread" in row and np.isfinite(row["spread"]) else float(base.spread),
+            }
+        )
     drivers = [d for d in drivers if d["share"] > 0] or drivers
     if any(d["share"] <= 0 for d in drivers):
         for d in drivers:
             d["share"] = _r(1.0 / len(drivers))
     doc = {
         "env": {"drivers": drivers},
-        "idm": {**{k: _r(pop[k]) for k in IDM_FIELDS}, "delta": _r(pop["delta"]), "rmse_m": _r(pop["rmse"]),
-                "rmse_table_a1_m": _r(pop["rmse_init"]), "segments": int(pop["n_segments"]),
-                "seconds": _r(pop["seconds"], 1)},
-        "mobil": {"politeness": _r(mobil["politeness"]), "threshold": _r(mobil["threshold"]),
-                  "b_safe": _r(mobil["b_safe"]), "balanced_accuracy": _r(mobil["balanced_accuracy"]),
-                  "balanced_accuracy_table_a1": _r(mobil["table_a1"]["balanced_accuracy"])},
+        "idm": {
+            **{k: _r(pop[k]) for k in IDM_FIELDS},
+            "delta": _r(pop["delta"]),
+            "rmse_m": _r(pop["rmse"]),
+            "rmse_table_a1_m": _r(pop["rmse_init"]),
+            "segments": int(pop["n_segments"]),
+            "seconds": _r(pop["seconds"], 1),
+        },
+        "mobil": {
+            "politeness": _r(mobil["politeness"]),
+            "threshold": _r(mobil["threshold"]),
+            "b_safe": _r(mobil["b_safe"]),
+            "balanced_accuracy": _r(mobil["balanced_accuracy"]),
+            "balanced_accuracy_table_a1": _r(mobil["table_a1"]["balanced_accuracy"]),
+        },
     }
     veh = result.get("vehicles")
     lines = [
@@ -747,20 +822,36 @@ def write_calibration(result: Mapping[str, Any], path: str | os.PathLike) -> Non
         f"population gap RMSE {pop['rmse']:.3f} m (Table A.1: {pop['rmse_init']:.3f} m)",
     ]
     for _, row in classes.iterrows():
-        lines.append(f"#   class {row['group']}: gap RMSE {row['rmse']:.3f} m (Table A.1 {row['rmse_init']:.3f} m), "
-                     f"{int(row['n_segments'])} segments, {row['seconds']:.0f} s")
+        lines.append(
+            f"#   class {row['group']}: gap RMSE {row['rmse']:.3f} m (Table A.1 {row['rmse_init']:.3f} m), "
+            f"{int(row['n_segments'])} segments, {row['seconds']:.0f} s"
+        )
     if veh is not None and len(veh):
-        lines.append(f"# per-vehicle fits: {len(veh)} vehicles, median gap RMSE {veh['rmse'].median():.3f} m "
-                     f"(Table A.1 {veh['rmse_init'].median():.3f} m)")
-    lines.append(f"# MOBIL balanced accuracy {mobil['balanced_accuracy']:.3f} "
-                 f"(Table A.1: {mobil['table_a1']['balanced_accuracy']:.3f}); decisions {mobil['n_decisions']}")
+        lines.append(
+            f"# per-vehicle fits: {len(veh)} vehicles, median gap RMSE {veh['rmse'].median():.3f} m "
+            f"(Table A.1 {veh['rmse_init'].median():.3f} m)"
+        )
+    lines.append(
+        f"# MOBIL balanced accuracy {mobil['balanced_accuracy']:.3f} "
+        f"(Table A.1: {mobil['table_a1']['balanced_accuracy']:.3f}); decisions {mobil['n_decisions']}"
+    )
     lines.append("# load: kddrl_trl.envs.make_config('baseline', OmegaConf.load(path)['env'])")
     text = "\n".join(lines) + "\n" + yaml.safe_dump(doc, sort_keys=False, default_flow_style=False)
     write_text_atomic(path, text)
 
 
 __all__ = [
-    "DEFAULT_BOUNDS", "DEFAULT_MOBIL_GRID", "IDM_FIELDS", "balanced_accuracy", "calibrate", "class_parameters",
-    "car_following_segments", "decision_points", "fit_idm", "fit_mobil", "mobil_decision",
-    "simulate_following", "write_calibration",
+    "DEFAULT_BOUNDS",
+    "DEFAULT_MOBIL_GRID",
+    "IDM_FIELDS",
+    "balanced_accuracy",
+    "calibrate",
+    "class_parameters",
+    "car_following_segments",
+    "decision_points",
+    "fit_idm",
+    "fit_mobil",
+    "mobil_decision",
+    "simulate_following",
+    "write_calibration",
 ]

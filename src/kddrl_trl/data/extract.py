@@ -81,6 +81,7 @@ of the input recordings. Splits are by vehicle: lane-change samples by the ego `
 vehicle_id)``, leader samples by the *leader* ``(recording_id, leader_id)`` (the vehicle whose trajectory
 is the data), using one vehicle -> split assignment for both kinds.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -180,8 +181,10 @@ class _Index:
         bad = ~new & (np.r_[1, np.diff(frame)] != 1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"tracks: frames of vehicle {vid[i]} (recording {rec[i]}) are not consecutive "
-                             f"(frame {frame[i - 1]} then {frame[i]})")
+            raise ValueError(
+                f"tracks: frames of vehicle {vid[i]} (recording {rec[i]}) are not consecutive "
+                f"(frame {frame[i - 1]} then {frame[i]})"
+            )
         self.starts = np.flatnonzero(new)
         self.lens = np.diff(np.r_[self.starts, len(rec)])
         self.first = frame[self.starts]
@@ -194,8 +197,10 @@ class _Index:
             bad = ~np.isfinite(values)
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
-                raise ValueError(f"tracks: column {c!r} of vehicle {vid[i]} (recording {rec[i]}) is not finite "
-                                 f"({values[i]}) at frame {frame[i]}")
+                raise ValueError(
+                    f"tracks: column {c!r} of vehicle {vid[i]} (recording {rec[i]}) is not finite "
+                    f"({values[i]}) at frame {frame[i]}"
+                )
             self.cols[c] = values
         for c in ("lane", *_LEADER_COLS, *_FOLLOWER_COLS, "left_alongside_id", "right_alongside_id"):
             self.cols[c] = tracks[c].to_numpy(dtype=np.int64)
@@ -257,8 +262,11 @@ def _prior(y0, v0, ahead, ahead_length, horizon, dt, idm: IDMParams) -> torch.Te
     for s in range(0, max(len(y0), 1), _IDM_CHUNK):
         sl = slice(s, s + _IDM_CHUNK)
         params = dataclasses.replace(idm, length=ahead_length[sl])
-        out.append(idm_rollout(y0[sl], v0[sl], ahead[sl, 0], ahead[sl, 1], ahead[sl, 2] > 0, steps=horizon,
-                               dt=dt, params=params))
+        out.append(
+            idm_rollout(
+                y0[sl], v0[sl], ahead[sl, 0], ahead[sl, 1], ahead[sl, 2] > 0, steps=horizon, dt=dt, params=params
+            )
+        )
     return torch.cat(out).reshape(len(y0), horizon)
 
 
@@ -307,8 +315,9 @@ def leader_samples(
     has = ar >= 0
     has &= np.abs(c["y"][np.maximum(ar, 0)] - c["y"][lead]) <= sensing_range
     a_safe = np.maximum(ar, 0)
-    ahead = np.stack([np.where(has, c["y"][a_safe], 0.0), np.where(has, c["v"][a_safe], 0.0),
-                      has.astype(np.float64)], -1).reshape(n, 3)
+    ahead = np.stack(
+        [np.where(has, c["y"][a_safe], 0.0), np.where(has, c["v"][a_safe], 0.0), has.astype(np.float64)], -1
+    ).reshape(n, 3)
     ahead_length = np.where(has, c["length"][a_safe], float(idm.length))
 
     hist_t, ahead_t, alen_t = _f32(hist), _f32(ahead), _f32(ahead_length)
@@ -359,7 +368,7 @@ def _num_lanes_per_row(ix: _Index, tracks: pd.DataFrame, rows: np.ndarray, num_l
 #: the lcGAN window labels (``label=``), as stated in the metrics shipped with the weights
 LABELS = {
     "within": "direction of the first lane change (lane-index switch) in the window of `window` frames after t; "
-              "keep if none",
+    "keep if none",
     "end": "sign of lane(t + window) - lane(t) (the net change over the window)",
 }
 
@@ -415,16 +424,30 @@ def lane_change_samples(
         rows = ix.side_neighbor(egos, s % 3, leader=s < 3)
         r = np.maximum(rows, 0)
         mask[:, s] = (rows >= 0) & (np.abs(c["y"][r] - ey) <= sensing_range)
-        rel[:, s] = np.stack([c["x_lat"][r] - c["x_lat"][egos], c["y"][r] - ey,
-                              c["vx_lat"][r] - c["vx_lat"][egos], c["v"][r] - c["v"][egos]], -1).reshape(n, 4)
+        rel[:, s] = np.stack(
+            [
+                c["x_lat"][r] - c["x_lat"][egos],
+                c["y"][r] - ey,
+                c["vx_lat"][r] - c["vx_lat"][egos],
+                c["v"][r] - c["v"][egos],
+            ],
+            -1,
+        ).reshape(n, 4)
         nb_offset[:, s] = c["lane_offset"][r]
         if s < 3:
             reach = ix.covers(rows, 0, max(KEY_STEPS))
             for j, step in enumerate(KEY_STEPS):
                 key_gaps[reach, s, j] = c["y"][r[reach] + step] - ey[reach]
-    condition = lane_change_condition(_f32(c["v"][egos]), _f32(c["vx_lat"][egos]), _i64(c["lane"][egos]),
-                                      _f32(c["lane_offset"][egos]), _f32(rel), torch.as_tensor(mask),
-                                      _f32(nb_offset), _f32(key_gaps))
+    condition = lane_change_condition(
+        _f32(c["v"][egos]),
+        _f32(c["vx_lat"][egos]),
+        _i64(c["lane"][egos]),
+        _f32(c["lane_offset"][egos]),
+        _f32(rel),
+        torch.as_tensor(mask),
+        _f32(nb_offset),
+        _f32(key_gaps),
+    )
     return TensorDict(
         {
             "label": _i64(labels),
@@ -557,16 +580,27 @@ def extract_dataset(
     stride = _positive_int("stride", stride)
     _positive_float("hz", hz)
     fractions = _check_fractions(fractions)
-    history, horizon, window = (_positive_int(n, v) for n, v in
-                                (("history", history), ("horizon", horizon), ("window", window)))
+    history, horizon, window = (
+        _positive_int(n, v) for n, v in (("history", history), ("horizon", horizon), ("window", window))
+    )
     sensing_range = _positive_float("sensing_range", sensing_range)
     _check_label(label)
     _check_idm(idm)
     out_dir = Path(out_dir)
-    params = _params_json(seed=seed, stride=stride, hz=float(hz), history=history, horizon=horizon,
-                          window=window, label=label, sensing_range=float(sensing_range), idm=idm,
-                          fractions=fractions,
-                          key_steps=KEY_STEPS, schema_version=SCHEMA_VERSION)
+    params = _params_json(
+        seed=seed,
+        stride=stride,
+        hz=float(hz),
+        history=history,
+        horizon=horizon,
+        window=window,
+        label=label,
+        sensing_range=float(sensing_range),
+        idm=idm,
+        fractions=fractions,
+        key_steps=KEY_STEPS,
+        schema_version=SCHEMA_VERSION,
+    )
     digest = _hash_recordings(recordings)
     meta_path = out_dir / "meta.json"
     if not force and meta_path.is_file():
@@ -574,8 +608,12 @@ def extract_dataset(
             old = json.loads(meta_path.read_text())
         except (OSError, ValueError):
             old = None
-        if (old and old.get("input_hash") == digest and old.get("params") == params
-                and all((out_dir / k / s).is_dir() for k in KINDS for s in SPLITS)):
+        if (
+            old
+            and old.get("input_hash") == digest
+            and old.get("params") == params
+            and all((out_dir / k / s).is_dir() for k in KINDS for s in SPLITS)
+        ):
             return {**old, "cached": True}
 
     leaders, changes, vehicles, changers = [], [], [], []
@@ -583,10 +621,16 @@ def extract_dataset(
         tracks = longitudinal_tracks(rec, hz=hz)
         lanes = vehicle_num_lanes(rec)
         lanes.index = pd.MultiIndex.from_arrays([np.full(len(lanes), int(rec.recording_id)), lanes.index])
-        leaders.append(leader_samples(tracks, history=history, horizon=horizon, stride=stride, idm=idm,
-                                      sensing_range=sensing_range))
-        changes.append(lane_change_samples(tracks, window=window, stride=stride, sensing_range=sensing_range,
-                                           num_lanes=lanes, label=label))
+        leaders.append(
+            leader_samples(
+                tracks, history=history, horizon=horizon, stride=stride, idm=idm, sensing_range=sensing_range
+            )
+        )
+        changes.append(
+            lane_change_samples(
+                tracks, window=window, stride=stride, sensing_range=sensing_range, num_lanes=lanes, label=label
+            )
+        )
         vehicles.append(np.unique(_vehicle_keys(tracks["recording_id"], tracks["vehicle_id"])))
         changers.append(int((tracks.groupby("vehicle_id")["lane"].nunique() > 1).sum()))
     data = {"leaders": torch.cat(leaders), "lane_changes": torch.cat(changes)}
@@ -605,9 +649,10 @@ def extract_dataset(
         counts[kind] = {}
         for name, part in splits.items():
             part.memmap(prefix=str(kind_dir / name))
-            entry = {"samples": int(part.batch_size[0]),
-                     "vehicles": int(len(np.unique(_vehicle_keys(part["recording_id"].numpy(),
-                                                                 part[key].numpy()))))}
+            entry = {
+                "samples": int(part.batch_size[0]),
+                "vehicles": int(len(np.unique(_vehicle_keys(part["recording_id"].numpy(), part[key].numpy())))),
+            }
             if kind == "lane_changes":
                 per = torch.bincount(part["label"], minlength=3).tolist()
                 entry["per_class"] = dict(zip(K.LC_ACTIONS, (int(x) for x in per)))

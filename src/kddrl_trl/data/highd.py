@@ -19,6 +19,7 @@ Our own recordings add one optional tracksMeta column, ``driverType`` (e.g. ``"t
 Helpers :func:`lane_index_in_direction`, :func:`longitudinal_position` and :func:`longitudinal_speed` map
 both directions to a common frame in which vehicles travel toward +, lanes are counted from the right.
 """
+
 from __future__ import annotations
 
 import os
@@ -56,19 +57,65 @@ __all__ = [
 
 # --------------------------------------------------------------------------------------------- schema
 TRACKS_COLUMNS = (
-    "frame", "id", "x", "y", "width", "height", "xVelocity", "yVelocity", "xAcceleration", "yAcceleration",
-    "frontSightDistance", "backSightDistance", "dhw", "thw", "ttc", "precedingXVelocity", "precedingId",
-    "followingId", "leftPrecedingId", "leftAlongsideId", "leftFollowingId", "rightPrecedingId",
-    "rightAlongsideId", "rightFollowingId", "laneId",
+    "frame",
+    "id",
+    "x",
+    "y",
+    "width",
+    "height",
+    "xVelocity",
+    "yVelocity",
+    "xAcceleration",
+    "yAcceleration",
+    "frontSightDistance",
+    "backSightDistance",
+    "dhw",
+    "thw",
+    "ttc",
+    "precedingXVelocity",
+    "precedingId",
+    "followingId",
+    "leftPrecedingId",
+    "leftAlongsideId",
+    "leftFollowingId",
+    "rightPrecedingId",
+    "rightAlongsideId",
+    "rightFollowingId",
+    "laneId",
 )
 TRACKS_META_COLUMNS = (
-    "id", "width", "height", "initialFrame", "finalFrame", "numFrames", "class", "drivingDirection",
-    "traveledDistance", "minXVelocity", "maxXVelocity", "meanXVelocity", "minDHW", "minTHW", "minTTC",
+    "id",
+    "width",
+    "height",
+    "initialFrame",
+    "finalFrame",
+    "numFrames",
+    "class",
+    "drivingDirection",
+    "traveledDistance",
+    "minXVelocity",
+    "maxXVelocity",
+    "meanXVelocity",
+    "minDHW",
+    "minTHW",
+    "minTTC",
     "numLaneChanges",
 )
 RECORDING_META_COLUMNS = (
-    "id", "frameRate", "locationId", "speedLimit", "month", "weekDay", "startTime", "duration",
-    "totalDrivenDistance", "totalDrivenTime", "numVehicles", "numCars", "numTrucks", "upperLaneMarkings",
+    "id",
+    "frameRate",
+    "locationId",
+    "speedLimit",
+    "month",
+    "weekDay",
+    "startTime",
+    "duration",
+    "totalDrivenDistance",
+    "totalDrivenTime",
+    "numVehicles",
+    "numCars",
+    "numTrucks",
+    "upperLaneMarkings",
     "lowerLaneMarkings",
 )
 #: optional trailing tracksMeta columns (ours, not in the published dataset)
@@ -78,14 +125,23 @@ _INT = "int64"
 _FLOAT = "float64"
 _STR = str  # pandas' default string dtype ("str" in pandas >= 3)
 
-_TRACKS_INT = {"frame", "id", "precedingId", "followingId", "leftPrecedingId", "leftAlongsideId",
-               "leftFollowingId", "rightPrecedingId", "rightAlongsideId", "rightFollowingId", "laneId"}
+_TRACKS_INT = {
+    "frame",
+    "id",
+    "precedingId",
+    "followingId",
+    "leftPrecedingId",
+    "leftAlongsideId",
+    "leftFollowingId",
+    "rightPrecedingId",
+    "rightAlongsideId",
+    "rightFollowingId",
+    "laneId",
+}
 TRACKS_DTYPES = {c: (_INT if c in _TRACKS_INT else _FLOAT) for c in TRACKS_COLUMNS}
 
 _META_INT = {"id", "initialFrame", "finalFrame", "numFrames", "drivingDirection", "numLaneChanges"}
-TRACKS_META_DTYPES = {
-    c: (_STR if c == "class" else _INT if c in _META_INT else _FLOAT) for c in TRACKS_META_COLUMNS
-}
+TRACKS_META_DTYPES = {c: (_STR if c == "class" else _INT if c in _META_INT else _FLOAT) for c in TRACKS_META_COLUMNS}
 TRACKS_META_DTYPES["driverType"] = _STR
 
 _REC_INT = {"id", "frameRate", "locationId", "numVehicles", "numCars", "numTrucks"}
@@ -198,8 +254,11 @@ def _check_columns(file, present, kind: str) -> None:
             problems.append(f"unexpected column(s) {unexpected}")
         if duplicated:
             problems.append(f"duplicated column(s) {duplicated}")
-        raise HighDFormatError(f"{_where(file)}: {'; '.join(problems)} (expected {list(required)}"
-                               + (f", optionally {list(optional)}" if optional else "") + ")")
+        raise HighDFormatError(
+            f"{_where(file)}: {'; '.join(problems)} (expected {list(required)}"
+            + (f", optionally {list(optional)}" if optional else "")
+            + ")"
+        )
 
 
 def _diagnose_numeric(path: Path, dtypes: dict, error: Exception) -> HighDFormatError:
@@ -218,11 +277,19 @@ def _diagnose_numeric(path: Path, dtypes: dict, error: Exception) -> HighDFormat
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
             cell, value = raw[column].iloc[row], values[row]
-            what = ("non-integer value" if np.isfinite(value) else "infinite value" if np.isinf(value)
-                    else "NaN/missing value" if cell.strip().lower() in {"", "nan", "na", "n/a", "null", "none"}
-                    else "non-numeric value")
-            return HighDFormatError(f"{_where(path, column, row)}: {what} {cell!r} in a "
-                                    f"{'integer' if dtypes[column] == _INT else 'numeric'} column")
+            what = (
+                "non-integer value"
+                if np.isfinite(value)
+                else "infinite value"
+                if np.isinf(value)
+                else "NaN/missing value"
+                if cell.strip().lower() in {"", "nan", "na", "n/a", "null", "none"}
+                else "non-numeric value"
+            )
+            return HighDFormatError(
+                f"{_where(path, column, row)}: {what} {cell!r} in a "
+                f"{'integer' if dtypes[column] == _INT else 'numeric'} column"
+            )
     return HighDFormatError(f"{_where(path)}: could not be parsed: {error}")
 
 
@@ -268,8 +335,10 @@ def read_recording(directory: str | os.PathLike, recording_id: int) -> HighDReco
     if len(recording_meta) != 1:
         raise HighDFormatError(f"{_where(rec_path)}: expected exactly 1 data row, found {len(recording_meta)}")
     if int(recording_meta["id"].iloc[0]) != int(recording_id):
-        raise HighDFormatError(f"{_where(rec_path, 'id', 0)}: id {recording_meta['id'].iloc[0]} does not match "
-                               f"the file name's recording id {int(recording_id)}")
+        raise HighDFormatError(
+            f"{_where(rec_path, 'id', 0)}: id {recording_meta['id'].iloc[0]} does not match "
+            f"the file name's recording id {int(recording_id)}"
+        )
     for column in ("upperLaneMarkings", "lowerLaneMarkings"):
         try:
             parse_markings(recording_meta[column].iloc[0])
@@ -284,13 +353,16 @@ def read_recording(directory: str | os.PathLike, recording_id: int) -> HighDReco
     bad_dir = ~tracks_meta["drivingDirection"].isin([1, 2]).to_numpy()
     if bad_dir.any():
         row = int(np.flatnonzero(bad_dir)[0])
-        raise HighDFormatError(f"{_where(meta_path, 'drivingDirection', row)}: drivingDirection must be 1 or 2, "
-                               f"got {tracks_meta['drivingDirection'].iloc[row]}")
+        raise HighDFormatError(
+            f"{_where(meta_path, 'drivingDirection', row)}: drivingDirection must be 1 or 2, "
+            f"got {tracks_meta['drivingDirection'].iloc[row]}"
+        )
     unknown = np.setdiff1d(tracks["id"].unique(), tracks_meta["id"].to_numpy())
     if len(unknown):
         shown = ", ".join(str(i) for i in unknown[:10]) + (", ..." if len(unknown) > 10 else "")
-        raise HighDFormatError(f"{_where(paths['tracks'], 'id')}: {len(unknown)} vehicle id(s) not in "
-                               f"{meta_path.name}: {shown}")
+        raise HighDFormatError(
+            f"{_where(paths['tracks'], 'id')}: {len(unknown)} vehicle id(s) not in {meta_path.name}: {shown}"
+        )
     return HighDRecording(int(recording_id), tracks, tracks_meta, recording_meta)
 
 
@@ -392,12 +464,12 @@ def longitudinal_position(recording: HighDRecording) -> pd.Series:
 def longitudinal_speed(recording: HighDRecording) -> pd.Series:
     """Speed along the direction of travel: ``xVelocity`` (direction 2) or ``-xVelocity`` (direction 1)."""
     tracks = recording.tracks
-    return pd.Series(_sign(recording) * tracks["xVelocity"].to_numpy(), index=tracks.index,
-                     name="longitudinalSpeed")
+    return pd.Series(_sign(recording) * tracks["xVelocity"].to_numpy(), index=tracks.index, name="longitudinalSpeed")
 
 
 def longitudinal_acceleration(recording: HighDRecording) -> pd.Series:
     """Acceleration along the direction of travel: ``xAcceleration`` signed like :func:`longitudinal_speed`."""
     tracks = recording.tracks
-    return pd.Series(_sign(recording) * tracks["xAcceleration"].to_numpy(), index=tracks.index,
-                     name="longitudinalAcceleration")
+    return pd.Series(
+        _sign(recording) * tracks["xAcceleration"].to_numpy(), index=tracks.index, name="longitudinalAcceleration"
+    )

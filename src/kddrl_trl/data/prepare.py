@@ -15,6 +15,7 @@ car-following segment long enough, :class:`~kddrl_trl.data.calibrate.Calibration
 finishes with the datasets and a warning saying why and what they are still good for. ``strict``: that case is
 an error. ``false``: no calibration.
 """
+
 from __future__ import annotations
 
 import logging
@@ -53,12 +54,19 @@ def recordings_directory(cfg: DictConfig) -> Path:
     """Where the recordings of ``cfg.source`` are; records them first for ``source=synthetic`` if needed."""
     if cfg.source == "highd":
         return Path(cfg.path)
-    return ensure_recordings(OmegaConf.to_object(cfg.env).highway(), cfg.recordings_dir, int(cfg.seed), float(cfg.record.duration_s),
-                             int(cfg.record.num_roads), bool(cfg.progress))
+    return ensure_recordings(
+        OmegaConf.to_object(cfg.env).highway(),
+        cfg.recordings_dir,
+        int(cfg.seed),
+        float(cfg.record.duration_s),
+        int(cfg.record.num_roads),
+        bool(cfg.progress),
+    )
 
 
-def ensure_recordings(hw: HighwayConfig, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int,
-                      progress: bool = True) -> Path:
+def ensure_recordings(
+    hw: HighwayConfig, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int, progress: bool = True
+) -> Path:
     """``recordings_dir``, after recording ``num_roads`` x ``duration_s`` of ``hw`` traffic into it if it holds
     none."""
     rec_dir = Path(recordings_dir)
@@ -68,8 +76,16 @@ def ensure_recordings(hw: HighwayConfig, recordings_dir: str | Path, seed: int, 
     return rec_dir
 
 
-def synthetic_dataset(hw: HighwayConfig, out_dir: str | Path, recordings_dir: str | Path, seed: int = 0,
-                      duration_s: float = 900.0, num_roads: int = 4, stride: int = 1, progress: bool = True) -> dict:
+def synthetic_dataset(
+    hw: HighwayConfig,
+    out_dir: str | Path,
+    recordings_dir: str | Path,
+    seed: int = 0,
+    duration_s: float = 900.0,
+    num_roads: int = 4,
+    stride: int = 1,
+    progress: bool = True,
+) -> dict:
     """The default naturalistic dataset from our own recordings of ``hw`` traffic: record into
     ``recordings_dir`` if it holds none, then extract (a cache hit when ``out_dir`` already holds this dataset).
     Returns its meta."""
@@ -80,10 +96,14 @@ def synthetic_dataset(hw: HighwayConfig, out_dir: str | Path, recordings_dir: st
 
 def print_dataset(meta: dict, hours: float) -> None:
     c = meta["counts"]
-    lc = {name: sum(c["lane_changes"][s]["per_class"][name] for s in meta["splits"]) for name in ("left", "keep", "right")}
+    lc = {
+        name: sum(c["lane_changes"][s]["per_class"][name] for s in meta["splits"]) for name in ("left", "keep", "right")
+    }
     windows = sum(lc.values())
-    print(f"\ndataset ({'cached' if meta.get('cached') else 'extracted'}): {meta['recording_ids']} recordings, "
-          f"{hours:.2f} h")
+    print(
+        f"\ndataset ({'cached' if meta.get('cached') else 'extracted'}): {meta['recording_ids']} recordings, "
+        f"{hours:.2f} h"
+    )
     print(f"  {'':34s} {'ours':>12s} {'paper':>12s}")
     print(f"  {'vehicles':34s} {c['vehicles']:>12,d} {PAPER_VEHICLES_PER_HOUR:>12,d}")
     share = c["lane_changers"] / max(c["vehicles"], 1)
@@ -115,8 +135,10 @@ def print_calibration(result: dict, truth: pd.DataFrame | None) -> None:
             err = {p: 100 * (fit[p] - truth.loc[name, p]) / truth.loc[name, p] for p in TABLE_A1}
             print(f"  {'':12s} {'error %':9s}" + "".join(f"{err[p]:9.1f}" for p in TABLE_A1))
     m = result["mobil"]
-    print(f"  MOBIL: politeness {m['politeness']:.2f}, threshold {m['threshold']:.2f}, b_safe {m['b_safe']:.2f} "
-          f"(balanced accuracy {m['balanced_accuracy']:.3f}; Table A.1's values {m['table_a1']['balanced_accuracy']:.3f})")
+    print(
+        f"  MOBIL: politeness {m['politeness']:.2f}, threshold {m['threshold']:.2f}, b_safe {m['b_safe']:.2f} "
+        f"(balanced accuracy {m['balanced_accuracy']:.3f}; Table A.1's values {m['table_a1']['balanced_accuracy']:.3f})"
+    )
 
 
 def true_class_parameters(rec_dir: Path, ids: list[int]) -> pd.DataFrame | None:
@@ -132,8 +154,9 @@ def recording_ids(rec_dir: Path) -> list[int]:
     """The recording ids of ``rec_dir``; a clear error when it holds none."""
     ids = list_recordings(rec_dir) if rec_dir.is_dir() else []
     if not ids:
-        raise SystemExit(f"no HighD-format recording (XX_tracks.csv, XX_tracksMeta.csv, XX_recordingMeta.csv) "
-                         f"in {rec_dir}")
+        raise SystemExit(
+            f"no HighD-format recording (XX_tracks.csv, XX_tracksMeta.csv, XX_recordingMeta.csv) in {rec_dir}"
+        )
     return ids
 
 
@@ -143,8 +166,10 @@ def check_options(cfg: DictConfig) -> str | bool:
     if cfg.source not in ("synthetic", "highd"):
         raise SystemExit(f"source must be 'synthetic' or 'highd', got {cfg.source!r}")
     if cfg.source == "highd" and not cfg.path:
-        raise SystemExit("source=highd needs path=DIR, the folder holding HighD's XX_tracks.csv, "
-                         "XX_tracksMeta.csv and XX_recordingMeta.csv")
+        raise SystemExit(
+            "source=highd needs path=DIR, the folder holding HighD's XX_tracks.csv, "
+            "XX_tracksMeta.csv and XX_recordingMeta.csv"
+        )
     if isinstance(cfg.calibrate, bool):
         return cfg.calibrate
     if str(cfg.calibrate).lower() == "strict":
@@ -157,10 +182,15 @@ def skip_calibration(err: CalibrationImpossible, out_dir: Path) -> str:
     a calibration left there by an earlier run (it would not describe these data). Returns the reason."""
     for stale in ("calibration.yaml", "calibration.json"):
         (out_dir / stale).unlink(missing_ok=True)
-    log.warning("%s: no calibration written. The datasets in %s are complete and still good for pretraining "
-                "trajGAN and lcGAN (python -m kddrl_trl.pretrain gan=trajgan|lcgan data_dir=%s); the env keeps its "
-                "default drivers (envs/config.py). Calibrating needs longer recordings (record.duration_s, or more "
-                "HighD files); calibrate=strict makes this an error.", err, out_dir, out_dir)
+    log.warning(
+        "%s: no calibration written. The datasets in %s are complete and still good for pretraining "
+        "trajGAN and lcGAN (python -m kddrl_trl.pretrain gan=trajgan|lcgan data_dir=%s); the env keeps its "
+        "default drivers (envs/config.py). Calibrating needs longer recordings (record.duration_s, or more "
+        "HighD files); calibrate=strict makes this an error.",
+        err,
+        out_dir,
+        out_dir,
+    )
     return str(err)
 
 
@@ -174,16 +204,26 @@ def main(cfg: DictConfig) -> dict:
     ids = recording_ids(rec_dir)
     recordings = [read_recording(rec_dir, i) for i in tqdm(ids, desc="read", unit="rec", disable=not cfg.progress)]
     out_dir = Path(cfg.out_dir)
-    meta = extract_dataset(recordings, out_dir, seed=int(cfg.seed), stride=int(cfg.stride), label=str(cfg.label),
-                           progress=bool(cfg.progress), force=bool(cfg.force))
+    meta = extract_dataset(
+        recordings,
+        out_dir,
+        seed=int(cfg.seed),
+        stride=int(cfg.stride),
+        label=str(cfg.label),
+        progress=bool(cfg.progress),
+        force=bool(cfg.force),
+    )
     hours = sum(float(r.meta["duration"]) for r in recordings) / 3600.0
     print_dataset(meta, hours)
     summary = {"source": cfg.source, "recordings_dir": str(rec_dir), "out_dir": str(out_dir), "dataset": meta}
     if mode:
         cal_json = out_dir / "calibration.json"
         try:
-            result = calibrate(pd.concat([longitudinal_tracks(r) for r in recordings], ignore_index=True),
-                               progress=bool(cfg.progress), source=f"{cfg.source}: {rec_dir}")
+            result = calibrate(
+                pd.concat([longitudinal_tracks(r) for r in recordings], ignore_index=True),
+                progress=bool(cfg.progress),
+                source=f"{cfg.source}: {rec_dir}",
+            )
         except CalibrationImpossible as err:
             if mode == "strict":
                 raise
@@ -193,12 +233,17 @@ def main(cfg: DictConfig) -> dict:
         write_calibration(result, out_dir / "calibration.yaml")
         truth = true_class_parameters(rec_dir, ids) if cfg.source == "synthetic" else None
         print_calibration(result, truth)
-        record = {"input_hash": meta["input_hash"], "classes": result["classes"].to_dict(orient="records"),
-                  "population": result["population"].to_dict(orient="records"), "shares": result["shares"],
-                  "mobil": {k: v for k, v in result["mobil"].items() if k != "table_a1"},
-                  "mobil_table_a1": result["mobil"].get("table_a1"), "seconds": result["seconds"],
-                  "truth": None if truth is None else truth.reset_index().to_dict(orient="records"),
-                  "default_drivers": [d.__dict__ for d in default_drivers()]}
+        record = {
+            "input_hash": meta["input_hash"],
+            "classes": result["classes"].to_dict(orient="records"),
+            "population": result["population"].to_dict(orient="records"),
+            "shares": result["shares"],
+            "mobil": {k: v for k, v in result["mobil"].items() if k != "table_a1"},
+            "mobil_table_a1": result["mobil"].get("table_a1"),
+            "seconds": result["seconds"],
+            "truth": None if truth is None else truth.reset_index().to_dict(orient="records"),
+            "default_drivers": [d.__dict__ for d in default_drivers()],
+        }
         write_json_atomic(cal_json, record)
         summary["calibration"] = str(out_dir / "calibration.yaml")
     print(f"\ndatasets in {out_dir}")

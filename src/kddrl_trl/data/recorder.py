@@ -51,6 +51,7 @@ vehicle in view, v = 0, or not closing in). ``precedingXVelocity`` is 0 without 
 
 Vehicle ids are 1..N per recording in order of first appearance (then front-most first).
 """
+
 from __future__ import annotations
 
 import logging
@@ -87,15 +88,23 @@ __all__ = [
     "write_driver_params",
 ]
 
-FRAME_RATE = 25              # Hz, HighD
-VEHICLE_HEIGHT = 1.8         # m, box extent across the road (HighD "height")
+FRAME_RATE = 25  # Hz, HighD
+VEHICLE_HEIGHT = 1.8  # m, box extent across the road (HighD "height")
 DRIVER_PARAMS_COLUMNS = ("id", "driverType", "v0", "T", "s0", "a", "b")
-_UPPER_Y0 = 8.0              # y of the top marking of the (empty) upper carriageway
-_MEDIAN = 3.4                # m between the two carriageways
-_TIE = 1e-6                  # m: a box centre this close to a marking is moved into SUMO's lane
+_UPPER_Y0 = 8.0  # y of the top marking of the (empty) upper carriageway
+_MEDIAN = 3.4  # m between the two carriageways
+_TIE = 1e-6  # m: a box centre this close to a marking is moved into SUMO's lane
 # neighbour columns, in the order of the arrays computed by _neighbours
-_NEIGHBOUR_COLUMNS = ("precedingId", "followingId", "leftPrecedingId", "leftAlongsideId", "leftFollowingId",
-                      "rightPrecedingId", "rightAlongsideId", "rightFollowingId")
+_NEIGHBOUR_COLUMNS = (
+    "precedingId",
+    "followingId",
+    "leftPrecedingId",
+    "leftAlongsideId",
+    "leftFollowingId",
+    "rightPrecedingId",
+    "rightAlongsideId",
+    "rightFollowingId",
+)
 
 
 @dataclass
@@ -170,8 +179,9 @@ def _geometric_lane(y: np.ndarray, marks: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------ neighbours
-def _neighbours(k: np.ndarray, lane: np.ndarray, front: np.ndarray, length: np.ndarray, num_lanes: int,
-                span: float) -> np.ndarray:
+def _neighbours(
+    k: np.ndarray, lane: np.ndarray, front: np.ndarray, length: np.ndarray, num_lanes: int, span: float
+) -> np.ndarray:
     """Neighbour row indices (-1 = none) of every sample row, shape [n, 8] in ``_NEIGHBOUR_COLUMNS`` order.
 
     Rows are (sample index ``k``, lane, front bumper ``front``, ``length``) of all vehicles of one road; a
@@ -230,8 +240,9 @@ def _neighbours(k: np.ndarray, lane: np.ndarray, front: np.ndarray, length: np.n
 
 
 # -------------------------------------------------------------------------------------------- recorder
-def record_traffic(cfg: HighwayConfig, duration_s: float, num_roads: int = 4, seed: int = 0,
-                   progress: bool = True) -> list[RecordedTraffic]:
+def record_traffic(
+    cfg: HighwayConfig, duration_s: float, num_roads: int = 4, seed: int = 0, progress: bool = True
+) -> list[RecordedTraffic]:
     """Record ``duration_s`` simulated seconds of background traffic on ``num_roads`` roads.
 
     Runs ``HighwaySim(cfg, num_roads, seed)`` (its warm-up included, no ego) and returns one
@@ -262,12 +273,12 @@ def record_traffic(cfg: HighwayConfig, duration_s: float, num_roads: int = 4, se
     try:
         x_off = cfg.entry_length
         y_off = cfg.num_lanes * cfg.lane_width
-        vid_index: dict[str, int] = {}     # SUMO id -> global vehicle index g
+        vid_index: dict[str, int] = {}  # SUMO id -> global vehicle index g
         vid_road: list[int] = []
         vid_names: list[str] = []
-        chunks: list[np.ndarray] = []      # per sample: [g, k, front, x_lat, v, v_lat, a, lane]
-        params: dict[str, dict] = {}       # drawn driver parameters of every recorded vehicle (the simulation
-                                           # forgets those of vehicles that left)
+        chunks: list[np.ndarray] = []  # per sample: [g, k, front, x_lat, v, v_lat, a, lane]
+        params: dict[str, dict] = {}  # drawn driver parameters of every recorded vehicle (the simulation
+        # forgets those of vehicles that left)
 
         def subscribe(ids) -> None:
             for vid in ids:
@@ -284,15 +295,21 @@ def record_traffic(cfg: HighwayConfig, duration_s: float, num_roads: int = 4, se
             res = ls.vehicle.getAllSubscriptionResults()
             if not res:
                 return
-            rows = [(vid_index[v], k, d[pos_][0], d[pos_][1], d[speed_], d[lat_], d[acc_], d[lane_])
-                    for v, d in res.items()]
+            rows = [
+                (vid_index[v], k, d[pos_][0], d[pos_][1], d[speed_], d[lat_], d[acc_], d[lane_]) for v, d in res.items()
+            ]
             chunks.append(np.array(rows, np.float64))
 
         subscribe(ls.vehicle.getIDList())
         sample(0)
         keep, no_accel = np.full(sim.num_roads, 1), np.zeros(sim.num_roads)
-        with tqdm(total=round(num_steps * dt, 6), unit="s", desc="recording", disable=not progress,
-                  bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} simulated s [{elapsed}<{remaining}]") as bar:
+        with tqdm(
+            total=round(num_steps * dt, 6),
+            unit="s",
+            desc="recording",
+            disable=not progress,
+            bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} simulated s [{elapsed}<{remaining}]",
+        ) as bar:
             for k in range(1, num_steps + 1):
                 sim.step(keep, no_accel)
                 subscribe(ls.simulation.getDepartedIDList())
@@ -303,18 +320,30 @@ def record_traffic(cfg: HighwayConfig, duration_s: float, num_roads: int = 4, se
         sim.close()
 
     data = np.concatenate(chunks) if chunks else np.zeros((0, 8))
-    data[:, 2] -= x_off                 # front bumper from the start of the study section
+    data[:, 2] -= x_off  # front bumper from the start of the study section
     road_of = np.asarray(vid_road, np.int64)
     out = []
     for r in range(int(num_roads)):
         rows = data[road_of[data[:, 0].astype(np.int64)] == r] if len(data) else data
-        out.append(_build_recording(cfg, r, rows, vid_names, params, duration_s, num_frames, seed,
-                                    y_lat_offset=y_off - (-r * ROAD_SPACING)))
+        out.append(
+            _build_recording(
+                cfg, r, rows, vid_names, params, duration_s, num_frames, seed, y_lat_offset=y_off - (-r * ROAD_SPACING)
+            )
+        )
     return out
 
 
-def _build_recording(cfg: HighwayConfig, road: int, rows: np.ndarray, vid_names: list[str], params: dict,
-                     duration_s: float, num_frames: int, seed: int, y_lat_offset: float) -> RecordedTraffic:
+def _build_recording(
+    cfg: HighwayConfig,
+    road: int,
+    rows: np.ndarray,
+    vid_names: list[str],
+    params: dict,
+    duration_s: float,
+    num_frames: int,
+    seed: int,
+    y_lat_offset: float,
+) -> RecordedTraffic:
     """Turn the 0.1 s samples of one road into one HighD recording (see the module docstring)."""
     dt, L, n_lanes = cfg.step_length, cfg.section_length, cfg.num_lanes
     length_m = float(cfg.vehicle_length)
@@ -326,7 +355,7 @@ def _build_recording(cfg: HighwayConfig, road: int, rows: np.ndarray, vid_names:
     rows = rows[order]
     g = rows[:, 0].astype(np.int64)
     k = rows[:, 1].astype(np.int64)
-    front, lat_pos = rows[:, 2], rows[:, 3] + y_lat_offset   # x_lat from the right edge of the road
+    front, lat_pos = rows[:, 2], rows[:, 3] + y_lat_offset  # x_lat from the right edge of the road
     v, v_lat, acc = rows[:, 4], rows[:, 5], rows[:, 6]
     lane = rows[:, 7].astype(np.int64)
     vehicles, start, count = np.unique(g, return_index=True, return_counts=True)
@@ -343,7 +372,7 @@ def _build_recording(cfg: HighwayConfig, road: int, rows: np.ndarray, vid_names:
     neighbours = _neighbours(k, lane, front, length, n_lanes, cfg.road_length)
 
     # ---- 25 Hz frames of every vehicle inside its own sampled time span
-    per_frame = 1.0 / (FRAME_RATE * dt)             # steps per 25 Hz frame
+    per_frame = 1.0 / (FRAME_RATE * dt)  # steps per 25 Hz frame
     f_lo = np.ceil(k_first / per_frame - 1e-9).astype(np.int64)
     f_hi = np.minimum(np.floor(k_last / per_frame + 1e-9).astype(np.int64), num_frames - 1)
     n_f = np.maximum(f_hi - f_lo + 1, 0)
@@ -422,7 +451,7 @@ def _build_recording(cfg: HighwayConfig, road: int, rows: np.ndarray, vid_names:
     y = centre - VEHICLE_HEIGHT / 2.0
     bad = _geometric_lane(y, lower) != sim_lane
     if bad.any():
-        lo_c = lower[n_lanes - 1 - sim_lane[bad]] + _TIE   # centre range of SUMO's lane
+        lo_c = lower[n_lanes - 1 - sim_lane[bad]] + _TIE  # centre range of SUMO's lane
         hi_c = lower[n_lanes - sim_lane[bad]] - _TIE
         near = np.min(np.abs(centre[bad, None] - lower[None, :]), axis=1) <= _TIE
         fixed = np.clip(centre[bad], lo_c, hi_c)
@@ -432,18 +461,37 @@ def _build_recording(cfg: HighwayConfig, road: int, rows: np.ndarray, vid_names:
         if left.any():
             log.warning(
                 "road %d: %d of %d rows have their box centre outside SUMO's lane by more than %g m",
-                road, int(left.sum()), len(sel), _TIE)
+                road,
+                int(left.sum()),
+                len(sel),
+                _TIE,
+            )
     lane_id = 2 * n_lanes + 2 - sim_lane
 
     ids = rec_id[sv]
-    tracks = pd.DataFrame({
-        "frame": sf, "id": ids, "x": x_front - length_m, "y": y, "width": length_m, "height": VEHICLE_HEIGHT,
-        "xVelocity": speed, "yVelocity": 0.0 - fr_vlat[sel], "xAcceleration": fr_a[sel],
-        "yAcceleration": 0.0 - fr_alat[sel], "frontSightDistance": L - x_front, "backSightDistance": x_front - length_m,
-        "dhw": dhw, "thw": thw, "ttc": ttc, "precedingXVelocity": prec_v,
-        **{col: nb_ids[:, j] for j, col in enumerate(_NEIGHBOUR_COLUMNS)},
-        "laneId": lane_id,
-    }, columns=list(TRACKS_COLUMNS))
+    tracks = pd.DataFrame(
+        {
+            "frame": sf,
+            "id": ids,
+            "x": x_front - length_m,
+            "y": y,
+            "width": length_m,
+            "height": VEHICLE_HEIGHT,
+            "xVelocity": speed,
+            "yVelocity": 0.0 - fr_vlat[sel],
+            "xAcceleration": fr_a[sel],
+            "yAcceleration": 0.0 - fr_alat[sel],
+            "frontSightDistance": L - x_front,
+            "backSightDistance": x_front - length_m,
+            "dhw": dhw,
+            "thw": thw,
+            "ttc": ttc,
+            "precedingXVelocity": prec_v,
+            **{col: nb_ids[:, j] for j, col in enumerate(_NEIGHBOUR_COLUMNS)},
+            "laneId": lane_id,
+        },
+        columns=list(TRACKS_COLUMNS),
+    )
 
     # ---- tracksMeta (rows of one id are contiguous)
     n_rec = len(ranked)
@@ -464,42 +512,72 @@ def _build_recording(cfg: HighwayConfig, road: int, rows: np.ndarray, vid_names:
     veh_sorted = sv[starts] if len(sel) else np.zeros(0, np.int64)
     names = [vid_names[vehicles[i]] for i in veh_sorted]
     driver = [params.get(nm, {}).get("driver", "inserted") for nm in names]
-    meta = pd.DataFrame({
-        "id": ids[starts] if len(sel) else np.zeros(0, np.int64),
-        "width": length_m, "height": VEHICLE_HEIGHT,
-        "initialFrame": sf[starts] if len(sel) else np.zeros(0, np.int64),
-        "finalFrame": sf[ends] if len(sel) else np.zeros(0, np.int64),
-        "numFrames": frames_n, "class": "Car", "drivingDirection": 2,
-        "traveledDistance": x_front[ends] - x_front[starts] if len(sel) else np.zeros(0),
-        "minXVelocity": np.minimum.reduceat(speed, starts) if len(sel) else np.zeros(0),
-        "maxXVelocity": np.maximum.reduceat(speed, starts) if len(sel) else np.zeros(0),
-        "meanXVelocity": np.add.reduceat(speed, starts) / frames_n if len(sel) else np.zeros(0),
-        "minDHW": seg_min_defined(dhw, dhw >= 0), "minTHW": seg_min_defined(thw, thw >= 0),
-        "minTTC": seg_min_defined(ttc, ttc >= 0),
-        "numLaneChanges": np.add.reduceat(lane_change.astype(np.int64), starts) if len(sel) else np.zeros(0, np.int64),
-        "driverType": driver,
-    }, columns=[*TRACKS_META_COLUMNS, "driverType"])
+    meta = pd.DataFrame(
+        {
+            "id": ids[starts] if len(sel) else np.zeros(0, np.int64),
+            "width": length_m,
+            "height": VEHICLE_HEIGHT,
+            "initialFrame": sf[starts] if len(sel) else np.zeros(0, np.int64),
+            "finalFrame": sf[ends] if len(sel) else np.zeros(0, np.int64),
+            "numFrames": frames_n,
+            "class": "Car",
+            "drivingDirection": 2,
+            "traveledDistance": x_front[ends] - x_front[starts] if len(sel) else np.zeros(0),
+            "minXVelocity": np.minimum.reduceat(speed, starts) if len(sel) else np.zeros(0),
+            "maxXVelocity": np.maximum.reduceat(speed, starts) if len(sel) else np.zeros(0),
+            "meanXVelocity": np.add.reduceat(speed, starts) / frames_n if len(sel) else np.zeros(0),
+            "minDHW": seg_min_defined(dhw, dhw >= 0),
+            "minTHW": seg_min_defined(thw, thw >= 0),
+            "minTTC": seg_min_defined(ttc, ttc >= 0),
+            "numLaneChanges": np.add.reduceat(lane_change.astype(np.int64), starts)
+            if len(sel)
+            else np.zeros(0, np.int64),
+            "driverType": driver,
+        },
+        columns=[*TRACKS_META_COLUMNS, "driverType"],
+    )
     assert len(meta) == n_rec
 
-    driver_params = pd.DataFrame({
-        "id": meta["id"].to_numpy(), "driverType": driver,
-        **{p: [float(params.get(nm, {}).get(p, np.nan)) for nm in names] for p in ("v0", "T", "s0", "a", "b")},
-    }, columns=list(DRIVER_PARAMS_COLUMNS))
+    driver_params = pd.DataFrame(
+        {
+            "id": meta["id"].to_numpy(),
+            "driverType": driver,
+            **{p: [float(params.get(nm, {}).get(p, np.nan)) for nm in names] for p in ("v0", "T", "s0", "a", "b")},
+        },
+        columns=list(DRIVER_PARAMS_COLUMNS),
+    )
 
     hh, mm = divmod(8 * 60 + round(road * duration_s / 60.0), 60)
-    recording_meta = pd.DataFrame([{
-        "id": recording_id, "frameRate": FRAME_RATE, "locationId": 0, "speedLimit": float(cfg.v_max),
-        "month": "06.2024", "weekDay": "Tue", "startTime": f"{hh % 24:02d}:{mm:02d}",
-        "duration": float(num_frames / FRAME_RATE),
-        "totalDrivenDistance": float(meta["traveledDistance"].sum()),
-        "totalDrivenTime": float(frames_n.sum() / FRAME_RATE),
-        "numVehicles": n_rec, "numCars": n_rec, "numTrucks": 0,
-        "upperLaneMarkings": format_markings(upper), "lowerLaneMarkings": format_markings(lower),
-    }])
+    recording_meta = pd.DataFrame(
+        [
+            {
+                "id": recording_id,
+                "frameRate": FRAME_RATE,
+                "locationId": 0,
+                "speedLimit": float(cfg.v_max),
+                "month": "06.2024",
+                "weekDay": "Tue",
+                "startTime": f"{hh % 24:02d}:{mm:02d}",
+                "duration": float(num_frames / FRAME_RATE),
+                "totalDrivenDistance": float(meta["traveledDistance"].sum()),
+                "totalDrivenTime": float(frames_n.sum() / FRAME_RATE),
+                "numVehicles": n_rec,
+                "numCars": n_rec,
+                "numTrucks": 0,
+                "upperLaneMarkings": format_markings(upper),
+                "lowerLaneMarkings": format_markings(lower),
+            }
+        ]
+    )
     recording = HighDRecording(recording_id, tracks, meta, recording_meta)
     sumo_ids = {int(i): nm for i, nm in zip(meta["id"], names)}
-    return RecordedTraffic(recording=recording, driver_params=driver_params, sumo_ids=sumo_ids,
-                           sim_lane=sim_lane.astype(np.int64), road=road)
+    return RecordedTraffic(
+        recording=recording,
+        driver_params=driver_params,
+        sumo_ids=sumo_ids,
+        sim_lane=sim_lane.astype(np.int64),
+        road=road,
+    )
 
 
 # ------------------------------------------------------------------------------------------ to disk
@@ -523,8 +601,9 @@ def summarize_recorded(recorded: list[RecordedTraffic]) -> dict:
     }
 
 
-def record_to_directory(cfg: HighwayConfig, out_dir: str | Path, duration_s: float, num_roads: int = 4,
-                        seed: int = 0, progress: bool = True) -> dict:
+def record_to_directory(
+    cfg: HighwayConfig, out_dir: str | Path, duration_s: float, num_roads: int = 4, seed: int = 0, progress: bool = True
+) -> dict:
     """:func:`record_traffic`, then write every non-empty recording into ``out_dir``; returns
     :func:`summarize_recorded` plus ``wall_s``, ``wall_record_s``, ``out_dir`` and ``skipped`` (ids of roads
     where no vehicle entered the view, which HighD's format cannot hold)."""

@@ -6,6 +6,7 @@ and lanes / left / right are counted in the direction of travel. The column cont
 ``TRACKS10.md`` in this folder. Everything is vectorised over all rows of the recording at once (numpy
 index arithmetic and a single ``searchsorted``); there is no Python loop over vehicles or rows.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,8 +21,14 @@ from kddrl_trl.data.highd import (
     longitudinal_speed,
 )
 
-__all__ = ["TRACKS10_COLUMNS", "TRACKS10_DTYPES", "NEIGHBOR_ID_COLUMNS", "longitudinal_tracks",
-           "vehicle_num_lanes", "tracks_hz"]
+__all__ = [
+    "TRACKS10_COLUMNS",
+    "TRACKS10_DTYPES",
+    "NEIGHBOR_ID_COLUMNS",
+    "longitudinal_tracks",
+    "vehicle_num_lanes",
+    "tracks_hz",
+]
 
 #: tracks10 neighbour-id column -> HighD tracks column (HighD's left/right are already in the direction
 #: of travel)
@@ -37,9 +44,20 @@ NEIGHBOR_ID_COLUMNS = {
 }
 
 TRACKS10_DTYPES = {
-    "recording_id": "int64", "vehicle_id": "int64", "frame": "int64", "t": "float64", "y": "float64",
-    "v": "float64", "a": "float64", "x_lat": "float64", "vx_lat": "float64", "lane": "int64",
-    "lane_offset": "float64", "length": "float64", "driver_type": "str", **{c: "int64" for c in NEIGHBOR_ID_COLUMNS},
+    "recording_id": "int64",
+    "vehicle_id": "int64",
+    "frame": "int64",
+    "t": "float64",
+    "y": "float64",
+    "v": "float64",
+    "a": "float64",
+    "x_lat": "float64",
+    "vx_lat": "float64",
+    "lane": "int64",
+    "lane_offset": "float64",
+    "length": "float64",
+    "driver_type": "str",
+    **{c: "int64" for c in NEIGHBOR_ID_COLUMNS},
 }
 TRACKS10_COLUMNS = tuple(TRACKS10_DTYPES)
 
@@ -203,6 +221,8 @@ def _check_finite(values: np.ndarray, column: str, rid: int, vehicle: np.ndarray
     bad = ~np.isfinite(values)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"recording {rid}: column {column!r} of vehicle {int(vehicle[i])} is not finite "
-                         f"({values[i]}) at 10 Hz frame ~{float(frame[i]):.0f} ({int(bad.sum())} bad value(s) "
-                         f"in this column)")
+        raise ValueError(
+            f"recording {rid}: column {column!r} of vehicle {int(vehicle[i])} is not finite "
+            f"({values[i]}) at 10 Hz frame ~{float(frame[i]):.0f} ({int(bad.sum())} bad value(s) "
+            f"in this column)"
+        )

@@ -1,6 +1,15 @@
 """Environments: the batched SUMO highway (TorchRL and Gymnasium) and a SUMO-free fake with the same specs."""
+
 from .config import BrakingEvent, DriverClass, HighwayConfig, make_config, scenario_names
 from .fake import FakeHighwayEnv
 from .highway import SumoHighwayEnv
 
-__all__ = ["BrakingEvent", "DriverClass", "FakeHighwayEnv", "HighwayConfig", "SumoHighwayEnv", "make_config", "scenario_names"]
+__all__ = [
+    "BrakingEvent",
+    "DriverClass",
+    "FakeHighwayEnv",
+    "HighwayConfig",
+    "SumoHighwayEnv",
+    "make_config",
+    "scenario_names",
+]

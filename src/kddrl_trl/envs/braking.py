@@ -7,6 +7,7 @@ phase (``keys.BRAKING_PHASE``, codes of ``keys.BRAKING_PHASES``) and the gap at 
 (``keys.BRAKING_DISTANCE``) into the simulator's observation arrays, from which the episode metrics
 (``braking_distance``, ``braking_start_frame`` ...) are read.
 """
+
 from __future__ import annotations
 
 import math
@@ -46,8 +47,9 @@ class BrakingEvents:
         if self.cfg.probability < 1.0 and not self.sim.rngs[r].random() < self.cfg.probability:
             self.sim.stats["braking_skipped"] += 1
             return
-        self.state[r].update(active=True,
-                             target=float(self.sim.rngs[r].uniform(self.cfg.min_distance, self.cfg.max_distance)))
+        self.state[r].update(
+            active=True, target=float(self.sim.rngs[r].uniform(self.cfg.min_distance, self.cfg.max_distance))
+        )
 
     def update(self, r: int) -> None:
         """One frame of road ``r``'s running episode (called after the simulation step)."""

@@ -10,6 +10,7 @@ Scenarios (``baseline``, ``congested``, ``congested_text``, ``braking``, ``mixed
 registers each as the Hydra option ``+scenario=<name>`` (an ``env:`` block in the global package), which
 Hydra applies while composing; a config built from the composed ``env`` node is not given its preset again.
 """
+
 from __future__ import annotations
 
 import math
@@ -35,14 +36,14 @@ class DriverClass:
 
     name: str = "normal"
     share: float = 1.0
-    v0: float = 130 * KMH     # desired speed (m/s)
-    T: float = 1.5            # desired time headway (s)
-    s0: float = 5.0           # minimum gap (m)
-    a: float = 5.0            # maximum acceleration (m/s²)
-    b: float = 4.0            # comfortable deceleration (m/s²)
+    v0: float = 130 * KMH  # desired speed (m/s)
+    T: float = 1.5  # desired time headway (s)
+    s0: float = 5.0  # minimum gap (m)
+    a: float = 5.0  # maximum acceleration (m/s²)
+    b: float = 4.0  # comfortable deceleration (m/s²)
     lc_speed_gain: float = 1.0  # SUMO lcSpeedGain: eagerness for lane changes that gain speed
     lc_keep_right: float = 1.0  # SUMO lcKeepRight: eagerness to return to the right lane
-    spread: float = 0.05      # relative sd of the per-vehicle draw around the class values
+    spread: float = 0.05  # relative sd of the per-vehicle draw around the class values
 
 
 def default_drivers() -> list[DriverClass]:
@@ -53,12 +54,11 @@ def default_drivers() -> list[DriverClass]:
     defaults (1, 1) only ~4 % of our drivers changed lane. This is a calibration target, not a result.
     """
     return [
-        DriverClass("timid", 0.25, v0=115 * KMH, T=2.0, s0=6.0, a=3.5, b=3.0, lc_speed_gain=3.0,
-                    lc_keep_right=3.0),
-        DriverClass("normal", 0.50, v0=130 * KMH, T=1.5, s0=5.0, a=5.0, b=4.0, lc_speed_gain=8.0,
-                    lc_keep_right=2.0),
-        DriverClass("aggressive", 0.25, v0=145 * KMH, T=1.0, s0=4.0, a=6.5, b=5.0, lc_speed_gain=15.0,
-                    lc_keep_right=1.5),
+        DriverClass("timid", 0.25, v0=115 * KMH, T=2.0, s0=6.0, a=3.5, b=3.0, lc_speed_gain=3.0, lc_keep_right=3.0),
+        DriverClass("normal", 0.50, v0=130 * KMH, T=1.5, s0=5.0, a=5.0, b=4.0, lc_speed_gain=8.0, lc_keep_right=2.0),
+        DriverClass(
+            "aggressive", 0.25, v0=145 * KMH, T=1.0, s0=4.0, a=6.5, b=5.0, lc_speed_gain=15.0, lc_keep_right=1.5
+        ),
     ]
 
 
@@ -73,12 +73,12 @@ class BrakingEvent:
     """
 
     enabled: bool = False
-    probability: float = 1.0     # share of episodes with the event when enabled (scenario mixed: 0.5)
+    probability: float = 1.0  # share of episodes with the event when enabled (scenario mixed: 0.5)
     min_distance: float = 100.0  # m ahead of the ego (front bumper to front bumper)
     max_distance: float = 300.0  # m
-    decel: float = 8.0           # m/s², hard braking
-    stand_time: float = 3.0      # s standing still
-    trigger_frames: int = 50     # frames after the episode start within which the event must begin
+    decel: float = 8.0  # m/s², hard braking
+    stand_time: float = 3.0  # s standing still
+    trigger_frames: int = 50  # frames after the episode start within which the event must begin
 
 
 @dataclass
@@ -89,34 +89,34 @@ class HighwayConfig:
     # --- road (Table A.1)
     num_lanes: int = 3
     section_length: float = 420.0  # m, the study section; the ego's episode ends when it leaves it
-    entry_length: float = 300.0    # m of road before the section, where traffic settles and the ego is picked
-    exit_length: float = 150.0     # m after the section
-    lane_width: float = 3.2        # m
-    v_min: float = 72 * KMH        # m/s, lower speed limit (reward Eq. 27)
-    v_max: float = 180 * KMH       # m/s, upper speed limit = SUMO lane speed (reward Eq. 27)
-    step_length: float = 0.1       # s per frame
-    lc_duration: float = 2.0       # s per lane-change manoeuvre (ego and background)
-    vehicle_length: float = 5.0    # m, every vehicle
+    entry_length: float = 300.0  # m of road before the section, where traffic settles and the ego is picked
+    exit_length: float = 150.0  # m after the section
+    lane_width: float = 3.2  # m
+    v_min: float = 72 * KMH  # m/s, lower speed limit (reward Eq. 27)
+    v_max: float = 180 * KMH  # m/s, upper speed limit = SUMO lane speed (reward Eq. 27)
+    step_length: float = 0.1  # s per frame
+    lc_duration: float = 2.0  # s per lane-change manoeuvre (ego and background)
+    vehicle_length: float = 5.0  # m, every vehicle
     # --- traffic
-    flow_vph: float = 2325.0       # veh/h entering each road over all lanes (Table A.1; 3 x 886 = 2658 also valid)
-    flow_scale: float = 1.0        # multiplier on flow_vph (congested = 1.5)
+    flow_vph: float = 2325.0  # veh/h entering each road over all lanes (Table A.1; 3 x 886 = 2658 also valid)
+    flow_scale: float = 1.0  # multiplier on flow_vph (congested = 1.5)
     drivers: list[DriverClass] = field(default_factory=default_drivers)
-    warmup_s: float = 40.0         # s of simulated traffic before the first episode
+    warmup_s: float = 40.0  # s of simulated traffic before the first episode
     # --- ego
-    sensing_range: float = 200.0   # m, neighbours further away are absent (mask False)
-    history_len: int = 10          # frames of leader history
-    max_steps: int = 1000          # frames before truncation
-    accel_low: float = -5.0        # m/s² (Eq. 31)
-    accel_high: float = 5.0        # m/s²
-    pick_window: float = 150.0     # m before the section in which the ego is designated
-    ego_start: str = "entry"       # entry: the vehicle nearest the section entry in the pick window (the next to
+    sensing_range: float = 200.0  # m, neighbours further away are absent (mask False)
+    history_len: int = 10  # frames of leader history
+    max_steps: int = 1000  # frames before truncation
+    accel_low: float = -5.0  # m/s² (Eq. 31)
+    accel_high: float = 5.0  # m/s²
+    pick_window: float = 150.0  # m before the section in which the ego is designated
+    ego_start: str = "entry"  # entry: the vehicle nearest the section entry in the pick window (the next to
     #                                enter the study area, paper §IV.B) | window: any vehicle in it
-    ego_lane: int | None = None    # start lane of the ego (None = any)
+    ego_lane: int | None = None  # start lane of the ego (None = any)
     # --- rewards (Eq. 26-29, 32-33)
     collision_penalty: float = -100.0
     lane_change_penalty: float = -1.0
-    accel_comfort: float = 4.0     # m/s², |a| above it is penalised quadratically
-    reward: str = "paper"          # paper: Eq. 26-29, 32-33 as written | safe: no -1 below v_min (envs/rewards.py)
+    accel_comfort: float = 4.0  # m/s², |a| above it is penalised quadratically
+    reward: str = "paper"  # paper: Eq. 26-29, 32-33 as written | safe: no -1 below v_min (envs/rewards.py)
     # --- scenario events
     braking: BrakingEvent = field(default_factory=BrakingEvent)
 
@@ -131,8 +131,19 @@ class HighwayConfig:
 
     def validate(self) -> "HighwayConfig":
         """Range checks; raise ``ValueError`` naming the offending key."""
-        positive = ("section_length", "entry_length", "exit_length", "lane_width", "v_max", "step_length",
-                    "lc_duration", "vehicle_length", "flow_scale", "sensing_range", "pick_window")
+        positive = (
+            "section_length",
+            "entry_length",
+            "exit_length",
+            "lane_width",
+            "v_max",
+            "step_length",
+            "lc_duration",
+            "vehicle_length",
+            "flow_scale",
+            "sensing_range",
+            "pick_window",
+        )
         for key in positive:
             _check(key, getattr(self, key), getattr(self, key) > 0, "must be > 0")
         _check("flow_vph", self.flow_vph, self.flow_vph >= 0, "must be >= 0 (vehicles per hour)")
@@ -148,11 +159,19 @@ class HighwayConfig:
 
         _check("reward", self.reward, self.reward in REWARDS, f"must be one of {', '.join(REWARDS)}")
         if self.ego_lane is not None:
-            _check("ego_lane", self.ego_lane, 0 <= self.ego_lane < self.num_lanes,
-                   f"must be in [0, {self.num_lanes - 1}] (num_lanes={self.num_lanes})")
+            _check(
+                "ego_lane",
+                self.ego_lane,
+                0 <= self.ego_lane < self.num_lanes,
+                f"must be in [0, {self.num_lanes - 1}] (num_lanes={self.num_lanes})",
+            )
         lc_frames = self.lc_duration / self.step_length
-        _check("lc_duration", self.lc_duration, abs(lc_frames - round(lc_frames)) < 1e-6,
-               f"must be a whole number of steps of {self.step_length} s")
+        _check(
+            "lc_duration",
+            self.lc_duration,
+            abs(lc_frames - round(lc_frames)) < 1e-6,
+            f"must be a whole number of steps of {self.step_length} s",
+        )
         if not self.drivers:
             raise ValueError("drivers: at least one driver class is required")
         names = [d.name for d in self.drivers]
@@ -164,13 +183,21 @@ class HighwayConfig:
                 _check(f"drivers[{i}].{key}", value, value > 0 and math.isfinite(value), "must be finite and > 0")
             _check(f"drivers[{i}].spread", d.spread, 0 <= d.spread < 0.5, "must be in [0, 0.5)")
         br = self.braking
-        _check("braking.min_distance", br.min_distance, 0 < br.min_distance <= br.max_distance,
-               "need 0 < min_distance <= max_distance")
+        _check(
+            "braking.min_distance",
+            br.min_distance,
+            0 < br.min_distance <= br.max_distance,
+            "need 0 < min_distance <= max_distance",
+        )
         _check("braking.decel", br.decel, br.decel > 0, "must be > 0")
         _check("braking.stand_time", br.stand_time, br.stand_time >= 0, "must be >= 0")
         _check("braking.trigger_frames", br.trigger_frames, br.trigger_frames >= 1, "must be >= 1")
-        _check("braking.probability", br.probability, 0 < br.probability <= 1,
-               "must be in (0, 1] (the share of episodes with the event; braking.enabled=false for none)")
+        _check(
+            "braking.probability",
+            br.probability,
+            0 < br.probability <= 1,
+            "must be in (0, 1] (the share of episodes with the event; braking.enabled=false for none)",
+        )
         return self
 
 
@@ -192,8 +219,15 @@ SCENARIOS: dict[str, dict[str, Any]] = {
     "braking": {"braking": {"enabled": True, "min_distance": 100.0, "max_distance": 300.0, "stand_time": 3.0}},
     # training curriculum (not in the paper): half of the episodes are scenario 2's, half the baseline's
     # (drawn per episode and road from the seeded stream); evaluate on each with eval_scenarios=[baseline,braking]
-    "mixed": {"braking": {"enabled": True, "min_distance": 100.0, "max_distance": 300.0, "stand_time": 3.0,
-                          "probability": 0.5}},
+    "mixed": {
+        "braking": {
+            "enabled": True,
+            "min_distance": 100.0,
+            "max_distance": 300.0,
+            "stand_time": 3.0,
+            "probability": 0.5,
+        }
+    },
 }
 
 
@@ -202,7 +236,9 @@ def scenario_names() -> list[str]:
     return sorted(SCENARIOS)
 
 
-def make_config(scenario: str | HighwayConfig = "baseline", overrides: Mapping[str, Any] | None = None) -> HighwayConfig:
+def make_config(
+    scenario: str | HighwayConfig = "baseline", overrides: Mapping[str, Any] | None = None
+) -> HighwayConfig:
     """Build a validated :class:`HighwayConfig`: a scenario's preset (or a ready config) plus keyword overrides.
 
     ``scenario`` is a name of :data:`SCENARIOS` (its preset applies under the overrides), or a

@@ -8,6 +8,7 @@ the lane). It writes the same episode events (``keys.OUTCOME``, ``COLLISION_KIND
 braking phase stays ``none``), so evaluation and the episode metrics run on it unchanged. It is *not* a
 traffic simulator: use it for plumbing, never for results.
 """
+
 from __future__ import annotations
 
 import torch
@@ -44,7 +45,9 @@ class FakeHighwayEnv(HighwayEnvBase):
         spacing = 3600.0 * 36.0 / max(cfg.flow / cfg.num_lanes, 1.0)  # m between vehicles of one lane
         for r in rows.tolist():
             g = torch.Generator().manual_seed(self._seed * 100_003 + r * 1_009 + int(self.episode_count[r]))
-            self.ego_lane[r] = cfg.ego_lane if cfg.ego_lane is not None else int(torch.randint(cfg.num_lanes, (1,), generator=g))
+            self.ego_lane[r] = (
+                cfg.ego_lane if cfg.ego_lane is not None else int(torch.randint(cfg.num_lanes, (1,), generator=g))
+            )
             start = float(torch.rand(1, generator=g))  # drawn in both modes: the other draws stay the same
             self.ego_y[r] = 0.0 if cfg.ego_start == "entry" else -cfg.pick_window * start
             self.ego_v[r] = 25.0 + 10.0 * float(torch.rand(1, generator=g))
@@ -102,28 +105,44 @@ class FakeHighwayEnv(HighwayEnvBase):
         hist_y = ly[..., None] - nv[:, :3, None] * back
         history = torch.stack([hist_y, nv[:, :3, None].expand(b, 3, h)], -1) * pm[:, :3, None]
         done = 1.0 - self.lc_left.float() / self.lc_frames  # share of the manoeuvre done; lane switched at 0.5
-        offset = torch.where(active, self.lc_dir.float() * cfg.lane_width * (done - (done >= 0.5).float()),
-                             torch.zeros(b))
+        offset = torch.where(
+            active, self.lc_dir.float() * cfg.lane_width * (done - (done >= 0.5).float()), torch.zeros(b)
+        )
         return {
-            K.EGO_STATE: torch.stack([self.ego_y, self.ego_v, vx], -1), K.EGO_LANE: self.ego_lane[:, None].clone(),
-            K.EGO_LANE_OFFSET: offset[:, None], K.NEIGHBORS_LANE_OFFSET: zeros.clone(),  # background: centred
+            K.EGO_STATE: torch.stack([self.ego_y, self.ego_v, vx], -1),
+            K.EGO_LANE: self.ego_lane[:, None].clone(),
+            K.EGO_LANE_OFFSET: offset[:, None],
+            K.NEIGHBORS_LANE_OFFSET: zeros.clone(),  # background: centred
             K.EGO_ACCEL: self.accel[:, None].clone(),
-            K.NEIGHBORS_REL: rel * pm, K.NEIGHBORS_MASK: present, K.NEIGHBORS_KIN: kin * pm,
-            K.LEADERS_AHEAD: ahead, K.LEADERS_HISTORY: history,
-            K.LC_ACTION_MASK: self._action_mask(active), K.LC_ACTIVE: active[:, None],
+            K.NEIGHBORS_REL: rel * pm,
+            K.NEIGHBORS_MASK: present,
+            K.NEIGHBORS_KIN: kin * pm,
+            K.LEADERS_AHEAD: ahead,
+            K.LEADERS_HISTORY: history,
+            K.LC_ACTION_MASK: self._action_mask(active),
+            K.LC_ACTIVE: active[:, None],
             K.LC_STARTED: self._started[:, None].clone(),
         }
 
-    def _output(self, obs: dict, collision: torch.Tensor, outcome: torch.Tensor, kind: torch.Tensor,
-                slot: torch.Tensor) -> TensorDictBase:
+    def _output(
+        self, obs: dict, collision: torch.Tensor, outcome: torch.Tensor, kind: torch.Tensor, slot: torch.Tensor
+    ) -> TensorDictBase:
         """Observation, episode events ([B] each; no braking event in the fake) and done flags as a TensorDict."""
         col = lambda x: x[:, None]  # noqa: E731
         terminated = (outcome == K.COLLIDED) | (outcome == K.LEFT_SECTION)
         truncated = outcome == K.MAX_STEPS
         zero = torch.zeros(self.num_roads, 1)
-        events = {K.COLLISION: col(collision), K.OUTCOME: col(outcome), K.COLLISION_KIND: col(kind),
-                  K.COLLISION_SLOT: col(slot), K.BRAKING_PHASE: zero.long(), K.BRAKING_DISTANCE: zero,
-                  "terminated": col(terminated), "truncated": col(truncated), "done": col(terminated | truncated)}
+        events = {
+            K.COLLISION: col(collision),
+            K.OUTCOME: col(outcome),
+            K.COLLISION_KIND: col(kind),
+            K.COLLISION_SLOT: col(slot),
+            K.BRAKING_PHASE: zero.long(),
+            K.BRAKING_DISTANCE: zero,
+            "terminated": col(terminated),
+            "truncated": col(truncated),
+            "done": col(terminated | truncated),
+        }
         return TensorDict({**obs, **events}, batch_size=self.batch_size, device=self.device)
 
     # ------------------------------------------------------------------------------------ TorchRL
@@ -175,9 +194,15 @@ class FakeHighwayEnv(HighwayEnvBase):
         self.ego_lane = torch.where(switch, self.ego_lane + self.lc_dir, self.ego_lane)
         self.frame += 1
         collision, kind, slot = self._contact(changing, seen)
-        outcome = torch.where(collision, K.COLLIDED, torch.where(
-            self.ego_y > cfg.section_length, K.LEFT_SECTION, torch.where(self.frame >= cfg.max_steps, K.MAX_STEPS,
-                                                                          K.RUNNING)))
+        outcome = torch.where(
+            collision,
+            K.COLLIDED,
+            torch.where(
+                self.ego_y > cfg.section_length,
+                K.LEFT_SECTION,
+                torch.where(self.frame >= cfg.max_steps, K.MAX_STEPS, K.RUNNING),
+            ),
+        )
         out = self._output(self._observe(), collision, outcome, kind, slot)
         col = collision.float()
         out.set(K.LC_REWARD, lane_change_reward(self.ego_v, want.float(), col, cfg)[:, None].float())

@@ -13,6 +13,7 @@ is ``{"lc": 0|1|2 (left, keep, right), "cf": [acceleration m/s²]}``. Gymnasium 
 ``info["reward_lc"]`` and ``info["reward_cf"]``. When an episode ends, ``info["episode"]`` holds its metrics
 (:class:`~kddrl_trl.eval.EpisodeTracker`, as in training and evaluation).
 """
+
 from __future__ import annotations
 
 import gymnasium as gym
@@ -60,8 +61,14 @@ class SumoHighwayGymEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, scenario: str = "baseline", seed: int = 0, reward: str = "sum", render_mode: str | None = None,
-                 **overrides):
+    def __init__(
+        self,
+        scenario: str = "baseline",
+        seed: int = 0,
+        reward: str = "sum",
+        render_mode: str | None = None,
+        **overrides,
+    ):
         if reward not in ("sum", "lc", "cf"):
             raise ValueError(f"reward must be 'sum', 'lc' or 'cf', got {reward!r}")
         if render_mode not in (None, "rgb_array"):
@@ -74,10 +81,12 @@ class SumoHighwayGymEnv(gym.Env):
         self.sim: HighwaySim | None = None
         self.tracker = EpisodeTracker()
         self.observation_space = _space(observation_spec(self.config, ()))
-        self.action_space = spaces.Dict({
-            "lc": spaces.Discrete(3),
-            "cf": spaces.Box(self.config.accel_low, self.config.accel_high, (1,), np.float32),
-        })
+        self.action_space = spaces.Dict(
+            {
+                "lc": spaces.Discrete(3),
+                "cf": spaces.Box(self.config.accel_low, self.config.accel_high, (1,), np.float32),
+            }
+        )
 
     def _obs(self) -> dict:
         flat = {}
@@ -106,9 +115,15 @@ class SumoHighwayGymEnv(gym.Env):
 
         if first:
             c = self.config
-            self._recorder = TraceRecorder(1, scenario=c.scenario, algo="gym", num_lanes=c.num_lanes,
-                                           lane_width=c.lane_width, section_length=c.section_length,
-                                           step_length=c.step_length)
+            self._recorder = TraceRecorder(
+                1,
+                scenario=c.scenario,
+                algo="gym",
+                num_lanes=c.num_lanes,
+                lane_width=c.lane_width,
+                section_length=c.section_length,
+                step_length=c.step_length,
+            )
         frame = TensorDict({key: torch.from_numpy(arr) for key, arr in self.sim.outputs(False).items()}, batch_size=[1])
         self._frame = self._recorder.frame(frame, 0, 0 if first else self._frame["t"] + 1, first)
 

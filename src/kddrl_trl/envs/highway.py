@@ -17,6 +17,7 @@ Example:
     'left_section'
     >>> env.close()
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -101,8 +102,9 @@ class SumoHighwayEnv(HighwayEnvBase):
 
     def _check_open(self) -> None:
         if self.sim.closed:
-            raise RuntimeError("this SumoHighwayEnv is closed (close() was called, e.g. by a collector's "
-                               "shutdown): create a new one")
+            raise RuntimeError(
+                "this SumoHighwayEnv is closed (close() was called, e.g. by a collector's shutdown): create a new one"
+            )
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         self._check_open()

@@ -67,6 +67,7 @@ Example:
     >>> env.rollout(5)["next", "pred", "key_gaps"].shape
     torch.Size([2, 5, 3, 2])
 """
+
 from __future__ import annotations
 
 import functools
@@ -94,17 +95,18 @@ _FEATURES = ["presence", "x", "y", "vx", "vy"]
 class HighwayEnvOptions:
     """What only HighwayEnv has (the ``env.highwayenv`` node of ``conf/env/highwayenv.yaml``)."""
 
-    vehicles_count: int = 30        # background vehicles per episode (highway-v0: 50), all placed ahead of the ego
+    vehicles_count: int = 30  # background vehicles per episode (highway-v0: 50), all placed ahead of the ego
     #                                 about 23 m apart: the 30th starts ~700 m ahead, beyond what a 420 m episode
     #                                 brings within the 200 m sensing range; HighwayEnv's cost grows as n²
-    vehicles_density: float = 1.0   # highway-v0's spacing factor (x env.flow_scale)
-    observed_vehicles: int = 15     # rows of the Kinematics observation, the ego included
+    vehicles_density: float = 1.0  # highway-v0's spacing factor (x env.flow_scale)
+    observed_vehicles: int = 15  # rows of the Kinematics observation, the ego included
     simulation_frequency: int = 10  # Hz; a multiple of the policy frequency 1/step_length (10 Hz)
-    lc_done_offset: float = 0.2     # m from the target lane's centre line at which a lane change is over
+    lc_done_offset: float = 0.2  # m from the target lane's centre line at which a lane change is over
 
     def validate(self, cfg: HighwayConfig) -> "HighwayEnvOptions":
         """Range checks, and the :class:`HighwayConfig` values HighwayEnv cannot honour; ``ValueError`` naming the
         key."""
+
         def need(key: str, ok: bool, why: str) -> None:
             if not ok:
                 raise ValueError(f"highwayenv config: '{key}' {why}")
@@ -114,15 +116,27 @@ class HighwayEnvOptions:
         need("highwayenv.observed_vehicles", self.observed_vehicles >= 2, f"= {self.observed_vehicles!r} must be >= 2")
         need("highwayenv.lc_done_offset", self.lc_done_offset > 0, f"= {self.lc_done_offset!r} must be > 0 (m)")
         hz = 1.0 / cfg.step_length
-        need("step_length", abs(hz - round(hz)) < 1e-6, f"= {cfg.step_length!r} s must give a whole policy "
-             "frequency in Hz (HighwayEnv's policy_frequency is an int)")
-        need("highwayenv.simulation_frequency", self.simulation_frequency >= 1
-             and self.simulation_frequency % round(hz) == 0,
-             f"= {self.simulation_frequency!r} must be a multiple of the policy frequency {round(hz)} Hz")
-        need("lane_width", cfg.lane_width == HW_LANE_WIDTH, f"= {cfg.lane_width!r}: HighwayEnv's lanes are "
-             f"{HW_LANE_WIDTH} m wide (set env.lane_width={HW_LANE_WIDTH})")
-        need("sensing_range", cfg.sensing_range <= HW_PERCEPTION, f"= {cfg.sensing_range!r} m is beyond HighwayEnv's "
-             f"perception distance ({HW_PERCEPTION} m)")
+        need(
+            "step_length",
+            abs(hz - round(hz)) < 1e-6,
+            f"= {cfg.step_length!r} s must give a whole policy "
+            "frequency in Hz (HighwayEnv's policy_frequency is an int)",
+        )
+        need(
+            "highwayenv.simulation_frequency",
+            self.simulation_frequency >= 1 and self.simulation_frequency % round(hz) == 0,
+            f"= {self.simulation_frequency!r} must be a multiple of the policy frequency {round(hz)} Hz",
+        )
+        need(
+            "lane_width",
+            cfg.lane_width == HW_LANE_WIDTH,
+            f"= {cfg.lane_width!r}: HighwayEnv's lanes are {HW_LANE_WIDTH} m wide (set env.lane_width={HW_LANE_WIDTH})",
+        )
+        need(
+            "sensing_range",
+            cfg.sensing_range <= HW_PERCEPTION,
+            f"= {cfg.sensing_range!r} m is beyond HighwayEnv's perception distance ({HW_PERCEPTION} m)",
+        )
         need("braking.enabled", not cfg.braking.enabled, "= True: HighwayEnv has no braking event (scenario braking)")
         return self
 
@@ -144,8 +158,9 @@ def _highway_classes():
         from highway_env.vehicle.controller import ControlledVehicle
         from highway_env.vehicle.kinematics import Vehicle
     except ImportError as err:
-        raise ImportError("env.simulator=highwayenv needs the highway-env package: pip install 'kddrl_trl[highway]'"
-                          ) from err
+        raise ImportError(
+            "env.simulator=highwayenv needs the highway-env package: pip install 'kddrl_trl[highway]'"
+        ) from err
     from gymnasium import spaces
 
     class CommandedVehicle(ControlledVehicle):
@@ -163,8 +178,11 @@ def _highway_classes():
                     self.target_lane_index = (_from, _to, _id - 1 if action["lane"] == K.LEFT else _id + 1)
                 self.command = float(action["acceleration"])
             low, high = -self.speed / self.dt, (self.MAX_SPEED - self.speed) / self.dt  # speed stays in [0, v_max]
-            steering = float(np.clip(self.steering_control(self.target_lane_index), -self.MAX_STEERING_ANGLE,
-                                     self.MAX_STEERING_ANGLE))
+            steering = float(
+                np.clip(
+                    self.steering_control(self.target_lane_index), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE
+                )
+            )
             Vehicle.act(self, {"steering": steering, "acceleration": min(max(self.command, low), high)})
 
     class LaneAccelAction(ActionType):
@@ -225,8 +243,15 @@ class HighwayEnvAdapter(HighwayEnvBase):
         **overrides: fields of :class:`HighwayConfig`.
     """
 
-    def __init__(self, scenario: str | HighwayConfig = "baseline", num_roads: int = 1, seed: int = 0, device=None,
-                 options: HighwayEnvOptions | dict | None = None, **overrides):
+    def __init__(
+        self,
+        scenario: str | HighwayConfig = "baseline",
+        num_roads: int = 1,
+        seed: int = 0,
+        device=None,
+        options: HighwayEnvOptions | dict | None = None,
+        **overrides,
+    ):
         if not isinstance(scenario, HighwayConfig):
             overrides = {**PRESET, **overrides}
         super().__init__(scenario, num_roads, seed, device, **overrides)
@@ -235,26 +260,35 @@ class HighwayEnvAdapter(HighwayEnvBase):
         del self.observation_spec[K.LEADERS_HISTORY]  # kept by the stack's LeaderHistory
         hz, o = round(1.0 / cfg.step_length), self.options
         self._hw_config = {
-            "observation": {"type": "Kinematics", "features": _FEATURES, "vehicles_count": o.observed_vehicles,
-                            "absolute": True, "normalize": False, "clip": False, "see_behind": True,
-                            "order": "sorted", "include_obstacles": False},
-            "lanes_count": cfg.num_lanes, "vehicles_count": o.vehicles_count,
+            "observation": {
+                "type": "Kinematics",
+                "features": _FEATURES,
+                "vehicles_count": o.observed_vehicles,
+                "absolute": True,
+                "normalize": False,
+                "clip": False,
+                "see_behind": True,
+                "order": "sorted",
+                "include_obstacles": False,
+            },
+            "lanes_count": cfg.num_lanes,
+            "vehicles_count": o.vehicles_count,
             "vehicles_density": o.vehicles_density * cfg.flow_scale,
             "initial_lane_id": None if cfg.ego_lane is None else cfg.num_lanes - 1 - cfg.ego_lane,
-            "policy_frequency": hz, "simulation_frequency": o.simulation_frequency,
+            "policy_frequency": hz,
+            "simulation_frequency": o.simulation_frequency,
             "duration": 10.0 * cfg.max_steps * cfg.step_length,  # never reached: max_steps truncates first
         }
-        action = {"dt": 1.0 / o.simulation_frequency, "v_max": cfg.v_max, "low": cfg.accel_low,
-                  "high": cfg.accel_high}
+        action = {"dt": 1.0 / o.simulation_frequency, "v_max": cfg.v_max, "low": cfg.accel_low, "high": cfg.accel_high}
         env_class = _highway_classes()
         self.roads = [env_class(self._hw_config, action) for _ in range(num_roads)]
         b, n = num_roads, o.observed_vehicles
         self._obs = np.zeros((b, n, len(_FEATURES)))
         self._acc = np.zeros((b, n))
-        self._vehicles: list[list] = [[] for _ in range(b)]   # observed vehicle objects, rows 1.. of _obs
-        self._slots = np.full((b, 6), -1)                     # row of each slot a..f in the last observation
-        self._x0 = np.zeros(b)                                # HighwayEnv x of the ego at the episode's start
-        self._mask = np.ones((b, 3), dtype=bool)              # lc.action_mask of the last observation
+        self._vehicles: list[list] = [[] for _ in range(b)]  # observed vehicle objects, rows 1.. of _obs
+        self._slots = np.full((b, 6), -1)  # row of each slot a..f in the last observation
+        self._x0 = np.zeros(b)  # HighwayEnv x of the ego at the episode's start
+        self._mask = np.ones((b, 3), dtype=bool)  # lc.action_mask of the last observation
         self._active = np.zeros(b, dtype=bool)
         self.frame = np.zeros(b, dtype=np.int64)
         self.episode_count = np.zeros(b, dtype=np.int64)
@@ -266,8 +300,14 @@ class HighwayEnvAdapter(HighwayEnvBase):
         """Row ``r`` 's Kinematics observation ``obs`` and the accelerations of the vehicles in it."""
         env = self.roads[r]
         ego = env.vehicle
-        self._vehicles[r] = env.road.close_objects_to(ego, env.PERCEPTION_DISTANCE, count=self.options.observed_vehicles
-                                                      - 1, see_behind=True, sort=True, vehicles_only=True)
+        self._vehicles[r] = env.road.close_objects_to(
+            ego,
+            env.PERCEPTION_DISTANCE,
+            count=self.options.observed_vehicles - 1,
+            see_behind=True,
+            sort=True,
+            vehicles_only=True,
+        )
         self._acc[r] = 0.0
         for i, v in enumerate(self._vehicles[r]):  # the rows of the observation, in its order
             self._acc[r, i + 1] = float(v.action["acceleration"])
@@ -281,31 +321,36 @@ class HighwayEnvAdapter(HighwayEnvBase):
         w, lanes = cfg.lane_width, cfg.num_lanes
         obs = self._obs
         present = obs[..., 0] > 0.5
-        y = obs[..., 1] - self._x0[:, None]                      # longitudinal, from the ego's start
-        lat = (lanes - 0.5) * w - obs[..., 2]                    # from the right edge, growing to the left
+        y = obs[..., 1] - self._x0[:, None]  # longitudinal, from the ego's start
+        lat = (lanes - 0.5) * w - obs[..., 2]  # from the right edge, growing to the left
         v, vlat = obs[..., 3], -obs[..., 4]
-        lane, offset = lane_and_offset(lat, w, lanes)            # offset from the lane's centre, + = left
+        lane, offset = lane_and_offset(lat, w, lanes)  # offset from the lane's centre, + = left
         ego_lane = lane[:, 0]
         dy = y - y[:, :1]
         others = present.copy()
         others[:, 0] = False
         slots, has = np.zeros((b, 6), dtype=np.int64), np.zeros((b, 6), dtype=bool)
         for s, (ahead, off) in enumerate((a, o) for a in (True, False) for o in (1, 0, -1)):
-            ok = others & (lane == (ego_lane + off)[:, None]) & ((dy > 0) if ahead else (dy <= 0)) \
+            ok = (
+                others
+                & (lane == (ego_lane + off)[:, None])
+                & ((dy > 0) if ahead else (dy <= 0))
                 & (np.abs(dy) <= cfg.sensing_range)
+            )
             score = np.where(ok, np.abs(dy), np.inf)
             slots[:, s] = score.argmin(-1)
             has[:, s] = ok[np.arange(b), slots[:, s]]
         self._slots = np.where(has, slots, -1)
         take = lambda a: np.take_along_axis(a, slots, 1) * has  # noqa: E731
         ny, nv, nlat, nvlat, nacc = take(y), take(v), take(lat), take(vlat), take(self._acc)
-        rel = np.stack([nlat - lat[:, :1] * has, ny - y[:, :1] * has, nvlat - vlat[:, :1] * has,
-                        nv - v[:, :1] * has], -1)
+        rel = np.stack(
+            [nlat - lat[:, :1] * has, ny - y[:, :1] * has, nvlat - vlat[:, :1] * has, nv - v[:, :1] * has], -1
+        )
         kin = np.stack([ny, nv, nacc], -1)
         ahead = np.zeros((b, 3, 3))
         for i in range(3):  # the vehicle ahead of leader a, b, c
-            gap = y - ny[:, i:i + 1]
-            ok = others & (lane == np.take_along_axis(lane, slots[:, i:i + 1], 1)) & (gap > 0) & has[:, i:i + 1]
+            gap = y - ny[:, i : i + 1]
+            ok = others & (lane == np.take_along_axis(lane, slots[:, i : i + 1], 1)) & (gap > 0) & has[:, i : i + 1]
             best = np.where(ok, gap, np.inf).argmin(-1)
             found = ok[np.arange(b), best]
             ahead[:, i] = np.stack([y[np.arange(b), best], v[np.arange(b), best], np.ones(b)], -1) * found[:, None]
@@ -317,9 +362,13 @@ class HighwayEnvAdapter(HighwayEnvBase):
         return {
             K.EGO_STATE: f32(np.stack([y[:, 0], v[:, 0], vlat[:, 0]], -1)),
             K.EGO_LANE: torch.as_tensor(ego_lane[:, None]),
-            K.EGO_LANE_OFFSET: f32(offset[:, :1]), K.NEIGHBORS_LANE_OFFSET: f32(take(offset)),
-            K.NEIGHBORS_REL: f32(rel), K.NEIGHBORS_MASK: torch.as_tensor(has), K.NEIGHBORS_KIN: f32(kin),
-            K.LEADERS_AHEAD: f32(ahead), K.LC_ACTION_MASK: torch.as_tensor(mask),
+            K.EGO_LANE_OFFSET: f32(offset[:, :1]),
+            K.NEIGHBORS_LANE_OFFSET: f32(take(offset)),
+            K.NEIGHBORS_REL: f32(rel),
+            K.NEIGHBORS_MASK: torch.as_tensor(has),
+            K.NEIGHBORS_KIN: f32(kin),
+            K.LEADERS_AHEAD: f32(ahead),
+            K.LC_ACTION_MASK: torch.as_tensor(mask),
             K.LC_ACTIVE: torch.as_tensor(self._active[:, None].copy()),
         }
 
@@ -329,12 +378,20 @@ class HighwayEnvAdapter(HighwayEnvBase):
         terminated = (outcome == K.COLLIDED) | (outcome == K.LEFT_SECTION)
         truncated = outcome == K.MAX_STEPS
         zero = np.zeros(self.num_roads)
-        out = {**obs, K.EGO_ACCEL: col(accel, torch.float32), K.LC_STARTED: col(started, torch.bool),
-               K.COLLISION: col(collision, torch.bool), K.OUTCOME: col(outcome, torch.int64),
-               K.COLLISION_KIND: col(kind, torch.int64), K.COLLISION_SLOT: col(slot, torch.int64),
-               K.BRAKING_PHASE: col(zero, torch.int64), K.BRAKING_DISTANCE: col(zero, torch.float32),
-               "terminated": col(terminated, torch.bool), "truncated": col(truncated, torch.bool),
-               "done": col(terminated | truncated, torch.bool)}
+        out = {
+            **obs,
+            K.EGO_ACCEL: col(accel, torch.float32),
+            K.LC_STARTED: col(started, torch.bool),
+            K.COLLISION: col(collision, torch.bool),
+            K.OUTCOME: col(outcome, torch.int64),
+            K.COLLISION_KIND: col(kind, torch.int64),
+            K.COLLISION_SLOT: col(slot, torch.int64),
+            K.BRAKING_PHASE: col(zero, torch.int64),
+            K.BRAKING_DISTANCE: col(zero, torch.float32),
+            "terminated": col(terminated, torch.bool),
+            "truncated": col(truncated, torch.bool),
+            "done": col(terminated | truncated, torch.bool),
+        }
         return TensorDict(out, batch_size=self.batch_size, device=self.device)
 
     # ------------------------------------------------------------------------------------ TorchRL
@@ -376,8 +433,13 @@ class HighwayEnvAdapter(HighwayEnvBase):
         self.frame += 1
         out_obs = self._observe()
         y = out_obs[K.EGO_STATE][:, 0].numpy()
-        outcome = np.where(collision, K.COLLIDED, np.where(y > cfg.section_length, K.LEFT_SECTION, np.where(
-            self.frame >= cfg.max_steps, K.MAX_STEPS, K.RUNNING)))
+        outcome = np.where(
+            collision,
+            K.COLLIDED,
+            np.where(
+                y > cfg.section_length, K.LEFT_SECTION, np.where(self.frame >= cfg.max_steps, K.MAX_STEPS, K.RUNNING)
+            ),
+        )
         done = outcome != K.RUNNING
         self.stats["episodes"] += int(done.sum())
         self.stats["collisions"] += int(collision.sum())
@@ -386,10 +448,18 @@ class HighwayEnvAdapter(HighwayEnvBase):
         out = self._output(out_obs, accel, started, collision, outcome, kind, slot)
         speed = out_obs[K.EGO_STATE][:, 1]
         col = torch.as_tensor(collision, dtype=torch.float32)
-        out.set(K.LC_REWARD, lane_change_reward(speed, torch.as_tensor(started, dtype=torch.float32), col,
-                                                cfg)[:, None].float().to(out.device))
-        out.set(K.CF_REWARD, car_following_reward(speed, torch.as_tensor(accel, dtype=torch.float32), col,
-                                                  cfg)[:, None].float().to(out.device))
+        out.set(
+            K.LC_REWARD,
+            lane_change_reward(speed, torch.as_tensor(started, dtype=torch.float32), col, cfg)[:, None]
+            .float()
+            .to(out.device),
+        )
+        out.set(
+            K.CF_REWARD,
+            car_following_reward(speed, torch.as_tensor(accel, dtype=torch.float32), col, cfg)[:, None]
+            .float()
+            .to(out.device),
+        )
         return out
 
     @staticmethod
@@ -400,8 +470,9 @@ class HighwayEnvAdapter(HighwayEnvBase):
         if not crashed:
             return (K.SIDE_CONTACT if changing else K.REAR_END), -1
         other = min(crashed, key=lambda v: float(np.linalg.norm(v.position - ego.position)))
-        kind = K.SIDE_CONTACT if changing else (K.REAR_END if other.position[0] > ego.position[0] else
-                                                K.HIT_FROM_BEHIND)
+        kind = (
+            K.SIDE_CONTACT if changing else (K.REAR_END if other.position[0] > ego.position[0] else K.HIT_FROM_BEHIND)
+        )
         rows = [i for i, v in enumerate(vehicles) if v is other]  # row i + 1 of the observation
         match = np.nonzero(slots == rows[0] + 1)[0] if rows else []
         return kind, int(match[0]) if len(match) else -1

@@ -8,6 +8,7 @@ K roads in one simulation are K independent environments (libsumo allows one sim
 Files are cached under ``$KDDRL_TRL_CACHE`` (default ``~/.cache/kddrl_trl``) by a hash of what shapes
 them, and written atomically, so parallel workers can share the cache.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -52,8 +53,11 @@ def road_y(road: int) -> float:
 
 def _nodes_xml(cfg: HighwayConfig, num_roads: int) -> str:
     xs = (0.0, cfg.entry_length, cfg.entry_length + cfg.section_length, cfg.road_length)
-    rows = [f'  <node id="r{r}_n{i}" x="{x:.2f}" y="{road_y(r):.2f}" type="priority"/>'
-            for r in range(num_roads) for i, x in enumerate(xs)]
+    rows = [
+        f'  <node id="r{r}_n{i}" x="{x:.2f}" y="{road_y(r):.2f}" type="priority"/>'
+        for r in range(num_roads)
+        for i, x in enumerate(xs)
+    ]
     return "<nodes>\n" + "\n".join(rows) + "\n</nodes>\n"
 
 
@@ -61,8 +65,10 @@ def _edges_xml(cfg: HighwayConfig, num_roads: int) -> str:
     rows = []
     for r in range(num_roads):
         for i, eid in enumerate(edge_ids(r)):
-            rows.append(f'  <edge id="{eid}" from="r{r}_n{i}" to="r{r}_n{i + 1}" numLanes="{cfg.num_lanes}" '
-                        f'speed="{cfg.v_max:.4f}" width="{cfg.lane_width:.2f}" spreadType="right"/>')
+            rows.append(
+                f'  <edge id="{eid}" from="r{r}_n{i}" to="r{r}_n{i + 1}" numLanes="{cfg.num_lanes}" '
+                f'speed="{cfg.v_max:.4f}" width="{cfg.lane_width:.2f}" spreadType="right"/>'
+            )
     return "<edges>\n" + "\n".join(rows) + "\n</edges>\n"
 
 
@@ -75,7 +81,8 @@ def _routes_xml(cfg: HighwayConfig, num_roads: int) -> str:
             f'  <vType id="{d.name}" carFollowModel="IDM" laneChangeModel="LC2013" length="{cfg.vehicle_length}" '
             f'accel="{d.a}" decel="{d.b}" emergencyDecel="9.0" tau="{d.T}" minGap="{d.s0}" delta="4" '
             f'maxSpeed="{d.v0:.4f}" speedFactor="1" speedDev="0" sigma="0" '
-            f'lcSpeedGain="{d.lc_speed_gain}" lcKeepRight="{d.lc_keep_right}" lcStrategic="1" lcCooperative="1"/>')
+            f'lcSpeedGain="{d.lc_speed_gain}" lcKeepRight="{d.lc_keep_right}" lcStrategic="1" lcCooperative="1"/>'
+        )
     rows = ["<routes>", *types]
     for r in range(num_roads):
         e_in, e_main, e_out = edge_ids(r)
@@ -97,10 +104,23 @@ def build_road_files(cfg: HighwayConfig, num_roads: int) -> RoadFiles:
         write_text_atomic(folder / "highway.nod.xml", nodes)
         write_text_atomic(folder / "highway.edg.xml", edges)
         tmp_net = folder / f"highway.{os.getpid()}.net.xml"
-        cmd = [sumo_binary("netconvert"), "--node-files", str(folder / "highway.nod.xml"),
-               "--edge-files", str(folder / "highway.edg.xml"), "--output-file", str(tmp_net),
-               "--no-internal-links", "true", "--no-turnarounds", "true", "--offset.disable-normalization", "true",
-               "--no-warnings", "true"]
+        cmd = [
+            sumo_binary("netconvert"),
+            "--node-files",
+            str(folder / "highway.nod.xml"),
+            "--edge-files",
+            str(folder / "highway.edg.xml"),
+            "--output-file",
+            str(tmp_net),
+            "--no-internal-links",
+            "true",
+            "--no-turnarounds",
+            "true",
+            "--offset.disable-normalization",
+            "true",
+            "--no-warnings",
+            "true",
+        ]
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode != 0:
             raise RuntimeError(f"netconvert failed ({' '.join(cmd)}):\n{done.stderr}")
@@ -113,10 +133,35 @@ def build_road_files(cfg: HighwayConfig, num_roads: int) -> RoadFiles:
 def sumo_args(cfg: HighwayConfig, files: RoadFiles, seed: int) -> list[str]:
     """Command line of the simulation (libsumo takes the same arguments as the ``sumo`` binary)."""
     return [
-        sumo_binary("sumo"), "--net-file", str(files.net), "--route-files", str(files.routes),
-        "--step-length", f"{cfg.step_length}", "--lanechange.duration", f"{cfg.lc_duration}",
-        "--seed", str(int(seed)), "--collision.action", "remove", "--collision.mingap-factor", "0",
-        "--collision.check-junctions", "false", "--time-to-teleport", "-1", "--max-depart-delay", "10",
-        "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
-        "--default.speeddev", "0", "--xml-validation", "never",
+        sumo_binary("sumo"),
+        "--net-file",
+        str(files.net),
+        "--route-files",
+        str(files.routes),
+        "--step-length",
+        f"{cfg.step_length}",
+        "--lanechange.duration",
+        f"{cfg.lc_duration}",
+        "--seed",
+        str(int(seed)),
+        "--collision.action",
+        "remove",
+        "--collision.mingap-factor",
+        "0",
+        "--collision.check-junctions",
+        "false",
+        "--time-to-teleport",
+        "-1",
+        "--max-depart-delay",
+        "10",
+        "--no-step-log",
+        "true",
+        "--no-warnings",
+        "true",
+        "--duration-log.disable",
+        "true",
+        "--default.speeddev",
+        "0",
+        "--xml-validation",
+        "never",
     ]

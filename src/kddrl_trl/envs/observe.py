@@ -8,6 +8,7 @@ a-c, the vehicle ahead of each and their last ``history_len`` positions and spee
 lane-change action mask (a command is executed only between manoeuvres and toward an existing lane); the
 lateral offsets of the ego and the neighbours from their lanes' centres (lcGAN's condition C, Eq. 16).
 """
+
 from __future__ import annotations
 
 import math
@@ -73,7 +74,8 @@ class FiniteCheck:
                 roads = np.flatnonzero(bad).tolist()
                 raise NonFiniteObservation(
                     f"non-finite value in env output {key} on road(s) {roads}: {arr[roads].tolist()} (SUMO returned "
-                    "a NaN / inf; the frame is refused before it reaches a transform or a network)")
+                    "a NaN / inf; the frame is refused before it reaches a transform or a network)"
+                )
 
 
 class Observer:
@@ -110,8 +112,12 @@ class Observer:
         ls = _libsumo()
         vmod = ls.vehicle  # looked up per call: the fault-injection tests patch its functions
         position, speed, lat_speed, accel = vmod.getPosition, vmod.getSpeed, vmod.getLateralSpeed, vmod.getAcceleration
-        lane_index, leader, follower, neighbors = (vmod.getLaneIndex, vmod.getLeader, vmod.getFollower,
-                                                   vmod.getNeighbors)
+        lane_index, leader, follower, neighbors = (
+            vmod.getLaneIndex,
+            vmod.getLeader,
+            vmod.getFollower,
+            vmod.getNeighbors,
+        )
         error = ls.TraCIException
         cfg = self.cfg
         rng_, entry, h = cfg.sensing_range, cfg.entry_length, cfg.history_len
@@ -119,10 +125,10 @@ class Observer:
         side = [(K.SLOT[name], mode) for name, mode in (("a", 2), ("c", 3), ("d", 0), ("f", 1))]
         # getNeighbors mode: bit 0 set = right side, bit 1 set = leaders (checked in tests/test_env_sumo.py)
         failed: dict[int, str] = {}
-        rows, ego_rows, lanes, active = [], [], [], []       # per observed road
-        nb_at, nb_rows = [], []                              # (row, slot), (ny, nlat, nv, nvx, na)
-        ahead_at, ahead_rows = [], []                        # (row, slot), (y, v)
-        hist_at, hist_rows = [], []                          # (row, slot), [h, 2]
+        rows, ego_rows, lanes, active = [], [], [], []  # per observed road
+        nb_at, nb_rows = [], []  # (row, slot), (ny, nlat, nv, nvx, na)
+        ahead_at, ahead_rows = [], []  # (row, slot), (y, v)
+        hist_at, hist_rows = [], []  # (row, slot), [h, 2]
         for r, ego, lc_on in zip(roads, egos, lc_active):
             try:
                 px, py = position(ego)
@@ -180,8 +186,18 @@ class Observer:
                 hist_at.append((i, slot))
                 hist_rows.append(self._history(hist[nid], t, h))
         if rows:
-            self._write(np.asarray(rows), np.asarray(ego_rows), np.asarray(lanes), np.asarray(active),
-                        nb_at, nb_rows, ahead_at, ahead_rows, hist_at, hist_rows)
+            self._write(
+                np.asarray(rows),
+                np.asarray(ego_rows),
+                np.asarray(lanes),
+                np.asarray(active),
+                nb_at,
+                nb_rows,
+                ahead_at,
+                ahead_rows,
+                hist_at,
+                hist_rows,
+            )
         return failed
 
     def _write(self, rows, ego, lanes, active, nb_at, nb_rows, ahead_at, ahead_rows, hist_at, hist_rows) -> None:

@@ -13,6 +13,7 @@ torch tensors.
   above any crash of that family under ``safe``. A slow ego is already punished by earning nothing; the -1 made
   stopping for safety the worst thing it could do.
 """
+
 from __future__ import annotations
 
 from .config import HighwayConfig
@@ -59,7 +60,7 @@ def collision_reward(collision, cfg: HighwayConfig):
 def comfort_reward(accel, cfg: HighwayConfig):
     """r_acc, Eq. 33: -(|a| - 4)² above ``accel_comfort`` = 4 m/s², 0 otherwise."""
     excess = abs(accel) - cfg.accel_comfort
-    return -(excess * ((excess > 0) * 1.0)) ** 2
+    return -((excess * ((excess > 0) * 1.0)) ** 2)
 
 
 def lane_change_reward(v, started, collision, cfg: HighwayConfig):

@@ -28,6 +28,7 @@ Ego control (paper §III.G, Eq. 25 and 31):
   vehicle's neighbour slot are in ``keys.COLLISION_KIND`` / ``COLLISION_SLOT``. A finished ego drives on
   as an ordinary human driver.
 """
+
 from __future__ import annotations
 
 import logging
@@ -67,9 +68,17 @@ class HighwaySim:
         self.dt = cfg.step_length
         self.lc_frames = int(round(cfg.lc_duration / cfg.step_length))
         self.files = build_road_files(cfg, self.num_roads)
-        self.stats = {"episodes": 0, "collisions": 0, "sumo_errors": 0, "insert_steps": 0,
-                      "braking_events": 0, "braking_missed": 0, "braking_inserted": 0, "braking_skipped": 0,
-                      "designation_fallbacks": 0}
+        self.stats = {
+            "episodes": 0,
+            "collisions": 0,
+            "sumo_errors": 0,
+            "insert_steps": 0,
+            "braking_events": 0,
+            "braking_missed": 0,
+            "braking_inserted": 0,
+            "braking_skipped": 0,
+            "designation_fallbacks": 0,
+        }
         self.vehicle_params: dict[str, dict] = {}  # per background vehicle: driver class and IDM draw
         self._started = False
         self.seed = int(seed)
@@ -86,7 +95,7 @@ class HighwaySim:
         self.ego: list[str | None] = [None] * k
         self.speed = np.zeros(k)
         self.frame = np.zeros(k, np.int64)
-        self.lc_left = np.zeros(k, np.int64)   # frames left in the ego's manoeuvre
+        self.lc_left = np.zeros(k, np.int64)  # frames left in the ego's manoeuvre
         self.observer = Observer(self.cfg, self.obs, k)
         self.braking = BrakingEvents(self)
 
@@ -94,9 +103,11 @@ class HighwaySim:
         global _ACTIVE
         ls = _libsumo()
         if _ACTIVE is not None and _ACTIVE is not self:
-            raise RuntimeError("libsumo runs one simulation per process and another HighwaySim/SumoHighwayEnv "
-                               "is open: close() it first, or run several envs in separate processes "
-                               "(torchrl ParallelEnv) or as roads of one env (num_roads=K)")
+            raise RuntimeError(
+                "libsumo runs one simulation per process and another HighwaySim/SumoHighwayEnv "
+                "is open: close() it first, or run several envs in separate processes "
+                "(torchrl ParallelEnv) or as roads of one env (num_roads=K)"
+            )
         args = sumo_args(self.cfg, self.files, seed)
         if self._started:
             ls.load(args[1:])
@@ -177,8 +188,9 @@ class HighwaySim:
         """Poisson arrivals: exponential gaps with mean 3600 / flow seconds (inf when the flow is 0)."""
         return float(self.rngs[r].exponential(1.0 / self.rate)) if self.rate > 0 else np.inf
 
-    def add_human(self, r: int, lane: int | None = None, route: str | None = None, pos: float | None = None,
-                  prefix: str = "h") -> str:
+    def add_human(
+        self, r: int, lane: int | None = None, route: str | None = None, pos: float | None = None, prefix: str = "h"
+    ) -> str:
         """Insert one human driver on road r (by default at the start of the road, in a uniformly random
         lane): driver class with probability ``share``, then each IDM parameter from a normal around the
         class value (sd = ``spread`` x value, truncated at ±2 sd); SUMO inserts it at the highest safe
@@ -187,20 +199,36 @@ class HighwaySim:
         shares = np.array([d.share for d in cfg.drivers])
         cls = cfg.drivers[int(rng.choice(len(shares), p=shares / shares.sum()))]
         z = np.clip(rng.standard_normal(5), -2.0, 2.0)
-        v0, T, s0, a, b = (float(base * (1.0 + cls.spread * zi))
-                           for base, zi in zip((cls.v0, cls.T, cls.s0, cls.a, cls.b), z))
+        v0, T, s0, a, b = (
+            float(base * (1.0 + cls.spread * zi)) for base, zi in zip((cls.v0, cls.T, cls.s0, cls.a, cls.b), z)
+        )
         lane = int(rng.integers(cfg.num_lanes)) if lane is None else lane
         vid = f"{prefix}{r}.{self.arrivals[r]}"
         self.arrivals[r] += 1
-        ls.vehicle.add(vid, route or f"route_r{r}", typeID=cls.name, departLane=str(lane), departSpeed="max",
-                       departPos="base" if pos is None else f"{pos:.2f}")
+        ls.vehicle.add(
+            vid,
+            route or f"route_r{r}",
+            typeID=cls.name,
+            departLane=str(lane),
+            departSpeed="max",
+            departPos="base" if pos is None else f"{pos:.2f}",
+        )
         ls.vehicle.setMaxSpeed(vid, v0)
         ls.vehicle.setTau(vid, T)
         ls.vehicle.setMinGap(vid, s0)
         ls.vehicle.setAccel(vid, a)
         ls.vehicle.setDecel(vid, b)
-        self.vehicle_params[vid] = {"driver": cls.name, "v0": v0, "T": T, "s0": s0, "a": a, "b": b, "road": r,
-                                    "lane": lane, "time": self.t * self.dt}
+        self.vehicle_params[vid] = {
+            "driver": cls.name,
+            "v0": v0,
+            "T": T,
+            "s0": s0,
+            "a": a,
+            "b": b,
+            "road": r,
+            "lane": lane,
+            "time": self.t * self.dt,
+        }
         return vid
 
     def road_vehicles(self, road: int) -> list[str]:
@@ -228,8 +256,9 @@ class HighwaySim:
                 raise RuntimeError(f"could not place an ego on roads {pending} after {tries} steps")
             if tries % 50 == 0:
                 for r in pending:
-                    self.add_human(r, lane=self.cfg.ego_lane, pos=self.cfg.entry_length - self.cfg.pick_window,
-                                   prefix="x")
+                    self.add_human(
+                        r, lane=self.cfg.ego_lane, pos=self.cfg.entry_length - self.cfg.pick_window, prefix="x"
+                    )
             self._clear_frame(self.ego_present)  # no command in an extra step
             contacts = self._sim_step()
             self.stats["insert_steps"] += 1
@@ -319,7 +348,9 @@ class HighwaySim:
         """
         ls = _libsumo()
         cfg = self.cfg
-        accel = np.clip(np.nan_to_num(np.asarray(accel, np.float64).reshape(-1), nan=0.0), cfg.accel_low, cfg.accel_high)
+        accel = np.clip(
+            np.nan_to_num(np.asarray(accel, np.float64).reshape(-1), nan=0.0), cfg.accel_low, cfg.accel_high
+        )
         lc_cmd = np.asarray(lc_cmd).reshape(-1)
         # roads without an ego keep the outputs of the frame that ended their episode (done stays set
         # until they are reset, as TorchRL expects); every other road gets this frame's

@@ -1,5 +1,6 @@
 """TorchRL specs of the raw highway keys (docs/design.md, "Key contract") and the base class shared by the SUMO
 and the fake env (constructor, config validation, specs)."""
+
 from __future__ import annotations
 
 import torch
@@ -16,36 +17,42 @@ def observation_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
     f32 = torch.float32
     return Composite(
         ego=Composite(
-            state=Unbounded(shape=(*b, 3), dtype=f32),        # y (m), v_y (m/s), v_x (m/s)
+            state=Unbounded(shape=(*b, 3), dtype=f32),  # y (m), v_y (m/s), v_x (m/s)
             lane=Bounded(0, cfg.num_lanes - 1, shape=(*b, 1), dtype=torch.int64),
             accel=Bounded(cfg.accel_low, cfg.accel_high, shape=(*b, 1), dtype=f32),  # m/s²
             lane_offset=Unbounded(shape=(*b, 1), dtype=f32),  # m from the lane's centre, + = left
-            shape=b),
+            shape=b,
+        ),
         neighbors=Composite(
-            rel=Unbounded(shape=(*b, 6, 4), dtype=f32),       # dx, dy (m), dvx, dvy (m/s)
+            rel=Unbounded(shape=(*b, 6, 4), dtype=f32),  # dx, dy (m), dvx, dvy (m/s)
             mask=Categorical(2, shape=(*b, 6), dtype=torch.bool),
-            kin=Unbounded(shape=(*b, 6, 3), dtype=f32),       # y (m), v (m/s), a (m/s²)
+            kin=Unbounded(shape=(*b, 6, 3), dtype=f32),  # y (m), v (m/s), a (m/s²)
             lane_offset=Unbounded(shape=(*b, 6), dtype=f32),  # m from each one's lane centre, + = left; 0 absent
-            shape=b),
+            shape=b,
+        ),
         leaders=Composite(
-            ahead=Unbounded(shape=(*b, 3, 3), dtype=f32),     # y (m), v (m/s), present (0/1)
+            ahead=Unbounded(shape=(*b, 3, 3), dtype=f32),  # y (m), v (m/s), present (0/1)
             history=Unbounded(shape=(*b, 3, cfg.history_len, 2), dtype=f32),  # y (m), v (m/s)
-            shape=b),
+            shape=b,
+        ),
         lc=Composite(
             action_mask=Categorical(2, shape=(*b, 3), dtype=torch.bool),
             active=Categorical(2, shape=(*b, 1), dtype=torch.bool),
             started=Categorical(2, shape=(*b, 1), dtype=torch.bool),
-            shape=b),
+            shape=b,
+        ),
         collision=Categorical(2, shape=(*b, 1), dtype=torch.bool),
-        episode=Composite(                                    # codes of keys.OUTCOMES, COLLISION_KINDS, SLOT
+        episode=Composite(  # codes of keys.OUTCOMES, COLLISION_KINDS, SLOT
             outcome=Bounded(0, len(K.OUTCOMES) - 1, shape=(*b, 1), dtype=torch.int64),
             collision_kind=Bounded(0, len(K.COLLISION_KINDS) - 1, shape=(*b, 1), dtype=torch.int64),
             collision_slot=Bounded(-1, len(K.NEIGHBOR_SLOTS) - 1, shape=(*b, 1), dtype=torch.int64),
-            shape=b),
+            shape=b,
+        ),
         braking=Composite(
             phase=Bounded(0, len(K.BRAKING_PHASES) - 1, shape=(*b, 1), dtype=torch.int64),  # keys.BRAKING_PHASES
-            distance=Unbounded(shape=(*b, 1), dtype=f32),     # m
-            shape=b),
+            distance=Unbounded(shape=(*b, 1), dtype=f32),  # m
+            shape=b,
+        ),
         shape=b,
     )
 

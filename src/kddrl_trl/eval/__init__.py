@@ -1,5 +1,6 @@
 """Evaluation: per-episode metrics from collected frames, running a policy for a number of episodes, and the
 driving metrics of paper Tables II-V."""
+
 from .metrics import summarize
 from .rollout import evaluate_policy, unwrap_env
 from .tracker import EpisodeTracker

@@ -7,6 +7,7 @@ option variants are dashed, in colours of their own), an axes draws at most :dat
 split into panels, :func:`series_panels`, each with the system's plain run as the reference), bands of the spread
 over seeds only where an axes has few series, and legends sit outside the data, right of the axes.
 """
+
 from __future__ import annotations
 
 import re
@@ -16,8 +17,17 @@ from pathlib import Path
 import numpy as np
 
 #: the systems in the paper's order; each has its colour (matplotlib's tab10) in every figure
-SYSTEMS = ("kddrl", "ni", "peng", "d3qn_unified", "pasac_unified", "d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock",
-           "idm_mobil")
+SYSTEMS = (
+    "kddrl",
+    "ni",
+    "peng",
+    "d3qn_unified",
+    "pasac_unified",
+    "d3qn_td3",
+    "d3qn_td3_lg",
+    "kddrl_same_clock",
+    "idm_mobil",
+)
 #: the most series one axes draws
 MAX_SERIES = 8
 #: at most this many series in an axes get the band of their spread over seeds
@@ -68,7 +78,7 @@ def series_panels(labels, limit: int = MAX_SERIES) -> list[list[str]]:
         variants = [lab for lab in group if lab != system]
         head = [system] if system in group else []
         size = limit - len(head)
-        panels += [head + variants[i:i + size] for i in range(0, len(variants), size)]
+        panels += [head + variants[i : i + size] for i in range(0, len(variants), size)]
     for lab in plain:
         room = next((p for p in panels if len(p) < limit), None)
         if room is None:
@@ -112,8 +122,11 @@ def _agent_grid(scenarios: list[str]):
     plt = _plt()
     fig, axes = plt.subplots(len(scenarios), 2, figsize=(14, 3.4 * len(scenarios)), squeeze=False)
     agents = (("return_lc", "lane-change return"), ("return_cf", "car-following return"))
-    return plt, fig, [(scenario, [(ax, *agent) for ax, agent in zip(row, agents)])
-                      for scenario, row in zip(scenarios, axes)]
+    return (
+        plt,
+        fig,
+        [(scenario, [(ax, *agent) for ax, agent in zip(row, agents)]) for scenario, row in zip(scenarios, axes)],
+    )
 
 
 def training_curves(runs, path: Path, window: int = 50) -> Path | None:
@@ -123,8 +136,11 @@ def training_curves(runs, path: Path, window: int = 50) -> Path | None:
     if not learning:
         return None
     labels = sorted({r.algo for r in learning})
-    rows = [(scenario, panel) for scenario in sorted({r.scenario for r in learning})
-            for panel in series_panels({r.algo for r in learning if r.scenario == scenario})]
+    rows = [
+        (scenario, panel)
+        for scenario in sorted({r.scenario for r in learning})
+        for panel in series_panels({r.algo for r in learning if r.scenario == scenario})
+    ]
     plt, fig, grid = _agent_grid([scenario for scenario, _ in rows])
     for (scenario, panel), (_, axes) in zip(rows, grid):
         for ax, key, title in axes:
@@ -186,8 +202,9 @@ def distributions(runs, scenario: str, path: Path) -> Path | None:
     fig, grid = plt.subplots(len(panels), 2, figsize=(14, 3.6 * len(panels)), squeeze=False)
     groups = _by(runs, "algo")
     for panel, axes in zip(panels, grid):
-        for ax, key, label in zip(axes, ("mean_speed_kmh", "mean_accel"),
-                                  ("mean speed (km/h)", "mean acceleration (m/s²)")):
+        for ax, key, label in zip(
+            axes, ("mean_speed_kmh", "mean_accel"), ("mean speed (km/h)", "mean acceleration (m/s²)")
+        ):
             values = np.concatenate([r.episodes[key].to_numpy() for r in runs])
             bins = np.linspace(values.min(), values.max() + 1e-9, 31)
             centres = 0.5 * (bins[1:] + bins[:-1])
@@ -217,8 +234,9 @@ def space_time(runs, out_dir: Path, prefer: str = "kddrl") -> dict:
 
     out = {}
     for scenario in sorted({r.scenario for r in runs}):
-        holders = sorted([r for r in runs if r.scenario == scenario and r.traces],
-                         key=lambda r: (r.algo != prefer, r.algo, r.seed))
+        holders = sorted(
+            [r for r in runs if r.scenario == scenario and r.traces], key=lambda r: (r.algo != prefer, r.algo, r.seed)
+        )
         title = f"Fig. 14: {scenario}, space-time diagrams"
         if not holders:
             out[title] = None
@@ -240,5 +258,7 @@ def lcgan(metrics: dict | None, out_dir: Path) -> dict:
 
     plot_shares(metrics, out_dir / "fig16_lcgan_shares.png")
     plot_confusion(metrics, out_dir / "fig17_lcgan_confusion.png")
-    return {"Fig. 16: lcGAN class shares": out_dir / "fig16_lcgan_shares.png",
-            "Fig. 17: lcGAN confusion": out_dir / "fig17_lcgan_confusion.png"}
+    return {
+        "Fig. 16: lcGAN class shares": out_dir / "fig16_lcgan_shares.png",
+        "Fig. 17: lcGAN confusion": out_dir / "fig17_lcgan_confusion.png",
+    }

@@ -1,4 +1,5 @@
 """Driving metrics of the paper's Tables II-V from per-episode records (:class:`~kddrl_trl.eval.EpisodeTracker`)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -38,8 +39,10 @@ def summarize(episodes: list[dict]) -> dict:
         out[f"{key}_sd"] = float(values.std())
     # frame-level spread (pooled over every frame of every episode), as in the paper's distributions
     frames = col("frames")
-    for key, mean_key, sq_key, scale in (("speed_kmh", "mean_speed", "mean_sq_speed", 3.6),
-                                         ("accel", "mean_accel", "mean_sq_accel", 1.0)):
+    for key, mean_key, sq_key, scale in (
+        ("speed_kmh", "mean_speed", "mean_sq_speed", 3.6),
+        ("accel", "mean_accel", "mean_sq_accel", 1.0),
+    ):
         if sq_key in episodes[0]:
             mean = np.average(col(mean_key), weights=frames)
             second = np.average(col(sq_key), weights=frames)
@@ -75,8 +78,11 @@ def format_summary(summary: dict, reference: dict | None = None) -> str:
         ("mean |acceleration| (m/s²)", pm("mean_abs_accel"), ""),
         ("lane changes per episode", pm("lane_changes"), ""),
         ("lane changes, total", f"{summary['lane_changes_total']}", ""),
-        ("collision rate", f"{100 * summary['collision_rate']:.2f} %",
-         f"{100 * ref['collision_rate']:.2f} %" if "collision_rate" in ref else ""),
+        (
+            "collision rate",
+            f"{100 * summary['collision_rate']:.2f} %",
+            f"{100 * ref['collision_rate']:.2f} %" if "collision_rate" in ref else "",
+        ),
     ]
     width = max(len(r[0]) for r in rows)
     head = f"{'metric':<{width}}  {'measured':>18}  {'paper':>16}"

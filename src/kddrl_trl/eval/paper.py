@@ -6,23 +6,38 @@ paper gives none); the paper does not say whether its ``±`` is a spread over ep
 episodes" (§IV.D, Scenario 2), i.e. the ego's lane changes summed over the 1000 test episodes. Collision rate is
 the fraction of test episodes that ended in a collision.
 """
+
 from __future__ import annotations
 
 #: which table gives each scenario's comparison
-TABLES = {"baseline": "Table II (and Table V, ablations)", "congested": "Table III", "braking": "Table IV",
-          "congested_text": "Table III (the text's flow, 3 x 1329 veh/h)"}
+TABLES = {
+    "baseline": "Table II (and Table V, ablations)",
+    "congested": "Table III",
+    "braking": "Table IV",
+    "congested_text": "Table III (the text's flow, 3 x 1329 veh/h)",
+}
 
 #: the paper's name of each of our algos (docs/design.md, "Comparison systems")
 PAPER_NAMES = {
-    "kddrl": "D3QN+TD3 (KDDRL)", "ni": "DDQN+TD3 (Ni)", "peng": "D3QN+DDPG (Peng)", "d3qn_unified": "D3QN (Unit)",
-    "pasac_unified": "PASAC (Unit)", "idm_mobil": "IDM+MOBIL", "d3qn_td3": "D3QN+TD3", "d3qn_td3_lg": "D3QN+TD3+LG",
+    "kddrl": "D3QN+TD3 (KDDRL)",
+    "ni": "DDQN+TD3 (Ni)",
+    "peng": "D3QN+DDPG (Peng)",
+    "d3qn_unified": "D3QN (Unit)",
+    "pasac_unified": "PASAC (Unit)",
+    "idm_mobil": "IDM+MOBIL",
+    "d3qn_td3": "D3QN+TD3",
+    "d3qn_td3_lg": "D3QN+TD3+LG",
     "kddrl_same_clock": "KDDRL with same control frequency",
 }
 
 
 def _row(speed, accel, lane_changes, collision_pct):
-    return {"mean_speed_kmh": speed, "mean_accel": accel, "lane_changes_per_1000_episodes": lane_changes,
-            "collision_rate": (collision_pct / 100.0, None)}
+    return {
+        "mean_speed_kmh": speed,
+        "mean_accel": accel,
+        "lane_changes_per_1000_episodes": lane_changes,
+        "collision_rate": (collision_pct / 100.0, None),
+    }
 
 
 #: scenario -> algo -> metric -> (mean, sd); lane changes per 1000 episodes; collision rate as a fraction

@@ -7,6 +7,7 @@ so the evaluator is built before the training env starts (:func:`kddrl_trl.facto
 reseeds the env with the same seed (:func:`kddrl_trl.eval.protocol.validation_seed`), so successive
 evaluations meet the same traffic and compare.
 """
+
 from __future__ import annotations
 
 from typing import Callable
@@ -49,8 +50,9 @@ class PeriodicEvaluator:
         # worker starts on use; ``num_threads``: this process keeps its torch threads. Left to TorchRL, starting the
         # worker sets them to (threads - 1) here, mid-run: the learner would lose a thread at the first validation,
         # and every compiled loss would be traced again (TorchDynamo guards the thread count)
-        self.env: ParallelEnv | None = ParallelEnv(1, make_env, mp_start_method="spawn",
-                                                   num_threads=torch.get_num_threads())
+        self.env: ParallelEnv | None = ParallelEnv(
+            1, make_env, mp_start_method="spawn", num_threads=torch.get_num_threads()
+        )
 
     def __call__(self, policy) -> tuple[list[dict], dict]:
         if self.env is None:

@@ -23,6 +23,7 @@ before it is reported (docs/paper/README.md).
 Both seeds are recorded in every ``summary.json``; :func:`check_disjoint` refuses a seed that would replay
 training traffic.
 """
+
 from __future__ import annotations
 
 VALIDATION_OFFSET = 500_000
@@ -65,9 +66,11 @@ def check_disjoint(name: str, value: int, seed: int, episodes: int, workers: int
         if value not in train:
             continue
         who = f" (collection worker {worker})" if worker else ""
-        raise ValueError(f"{name}={value} lies in the training seeds [{train.start}, {train.stop}) of seed={seed}{who} "
-                         f"with episodes={episodes}: evaluation would replay training traffic (leave {name} unset "
-                         f"for seed + {TEST_OFFSET})")
+        raise ValueError(
+            f"{name}={value} lies in the training seeds [{train.start}, {train.stop}) of seed={seed}{who} "
+            f"with episodes={episodes}: evaluation would replay training traffic (leave {name} unset "
+            f"for seed + {TEST_OFFSET})"
+        )
 
 
 def protocol(seed: int, episodes: int, eval_seed: int | None, eval_episodes: int, workers: int = 1) -> dict:
@@ -76,8 +79,12 @@ def protocol(seed: int, episodes: int, eval_seed: int | None, eval_episodes: int
     test = test_seed(seed, eval_seed)
     check_disjoint("eval_seed", test, seed, episodes, workers)
     train = training_seeds(seed, episodes)
-    out = {"train_seeds": [train.start, train.stop - 1], "validation_seed": validation_seed(seed),
-           "eval_seed": test, "eval_episodes": int(eval_episodes)}
+    out = {
+        "train_seeds": [train.start, train.stop - 1],
+        "validation_seed": validation_seed(seed),
+        "eval_seed": test,
+        "eval_episodes": int(eval_episodes),
+    }
     if workers > 1:
         out["worker_seeds"] = [worker_seed(seed, i) for i in range(int(workers))]
     return out

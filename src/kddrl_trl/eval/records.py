@@ -11,6 +11,7 @@ place. A policy evaluated on another scenario than it was trained on (``trained_
 the algo name ``"<algo> (trained on <scenario>)"``, never with the runs trained on the scenario it was evaluated on.
 Bad or missing files raise, naming the file and column.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,8 +23,19 @@ import pandas as pd
 from .metrics import summarize
 
 #: columns every ``eval_episodes.csv`` must hold (EpisodeTracker records)
-EPISODE_COLUMNS = ("mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes", "frames", "return_lc",
-                   "return_cf", "collision", "outcome", "collision_kind", "collision_with")
+EPISODE_COLUMNS = (
+    "mean_speed_kmh",
+    "mean_accel",
+    "mean_abs_accel",
+    "lane_changes",
+    "frames",
+    "return_lc",
+    "return_cf",
+    "collision",
+    "outcome",
+    "collision_kind",
+    "collision_with",
+)
 
 
 @dataclass
@@ -31,8 +43,8 @@ class RunRecord:
     """One run: where it is, what it ran, its evaluation episodes and (learning algos) its training history."""
 
     path: Path
-    algo: str        # the algo's name, "<name> (trained on <scenario>)" when trained on another scenario
-    scenario: str    # the scenario evaluated
+    algo: str  # the algo's name, "<name> (trained on <scenario>)" when trained on another scenario
+    scenario: str  # the scenario evaluated
     seed: int
     summary: dict
     episodes: pd.DataFrame
@@ -93,28 +105,48 @@ def load_run(path: str | Path) -> RunRecord:
             raise ValueError(f"{summary_path}: no {key!r} key")
     episodes_path = record_file(path, "eval_episodes.csv")
     episodes = _csv(episodes_path, EPISODE_COLUMNS)
-    episodes["collision"] = episodes["collision"].astype(str).str.lower().map({"true": True, "false": False, "1": True,
-                                                                               "0": False})
+    episodes["collision"] = (
+        episodes["collision"].astype(str).str.lower().map({"true": True, "false": False, "1": True, "0": False})
+    )
     if episodes["collision"].isna().any():
         raise ValueError(f"{episodes_path}: column collision holds values other than True / False")
     numeric = [c for c in EPISODE_COLUMNS if c not in ("collision", "outcome", "collision_kind", "collision_with")]
     bad = [c for c in numeric if not pd.api.types.is_numeric_dtype(episodes[c]) or episodes[c].isna().any()]
     if bad:
         raise ValueError(f"{episodes_path}: non-numeric or empty values in column(s) {', '.join(bad)}")
-    episodes["collision_with"] = episodes["collision_with"].astype(object).where(episodes["collision_with"].notna(),
-                                                                                 "").astype(str)
+    episodes["collision_with"] = (
+        episodes["collision_with"].astype(object).where(episodes["collision_with"].notna(), "").astype(str)
+    )
     trained = path.parent if summary.get("final") else path  # a final__<scenario> folder: its run's training
     training_path, validation_path = record_file(trained, "train_episodes.csv"), record_file(trained, "validation.csv")
     training = _csv(training_path, ("return_lc", "return_cf")) if training_path.is_file() else None
     validation = _csv(validation_path) if validation_path.is_file() else None
     # traces of its final evaluation, and of later evaluations of it on its own scenario (evaluate video=true)
-    traces = sorted((path / "traces").glob("*.json")) + sorted(path.glob(f"eval__{summary['scenario']}__*/traces/*.json"))
+    traces = sorted((path / "traces").glob("*.json")) + sorted(
+        path.glob(f"eval__{summary['scenario']}__*/traces/*.json")
+    )
     # the options it ran with: its training run's config (an evaluation folder of kddrl_trl.evaluate: its run's)
     config = _config((path.parent if path.name.startswith("eval__") else trained) / "config.yaml")
-    trained_summary = summary if trained == path else \
-        _read_summary(trained / "summary.json") if (trained / "summary.json").is_file() else {}
-    return RunRecord(path, algo_label(summary, config), str(summary["scenario"]), int(summary["seed"]), summary,
-                     episodes, training, validation, traces, trained, trained_summary)
+    trained_summary = (
+        summary
+        if trained == path
+        else _read_summary(trained / "summary.json")
+        if (trained / "summary.json").is_file()
+        else {}
+    )
+    return RunRecord(
+        path,
+        algo_label(summary, config),
+        str(summary["scenario"]),
+        int(summary["seed"]),
+        summary,
+        episodes,
+        training,
+        validation,
+        traces,
+        trained,
+        trained_summary,
+    )
 
 
 def _read_summary(summary_path: Path) -> dict:
@@ -140,10 +172,24 @@ def _config(path: Path) -> dict | None:
 #: the options that make a run a row of its own in the report when they differ from its algo's defaults
 #: (not ``episodes``: short smoke and test sweeps would all be rows of their own); ``collector.sync``: the overlapped
 #: collection acts one batch behind, so what a run learns may differ
-OPTION_KEYS = ("env.reward", "env.ego_start", "algo.mobil_safety_mask", "algo.lc_reward", "algo.shield",
-               "algo.shield_ttc", "algo.state_extras", "algo.learner.d3qn.semi_mdp", "algo.learner.d3qn.eps_decisions",
-               "algo.learner.td3.exploration_clip", "train.n_steps", "train.updates_per_decision", "train.prioritized",
-               "train.priority_alpha", "train.priority_beta", "collector.sync")
+OPTION_KEYS = (
+    "env.reward",
+    "env.ego_start",
+    "algo.mobil_safety_mask",
+    "algo.lc_reward",
+    "algo.shield",
+    "algo.shield_ttc",
+    "algo.state_extras",
+    "algo.learner.d3qn.semi_mdp",
+    "algo.learner.d3qn.eps_decisions",
+    "algo.learner.td3.exploration_clip",
+    "train.n_steps",
+    "train.updates_per_decision",
+    "train.prioritized",
+    "train.priority_alpha",
+    "train.priority_beta",
+    "collector.sync",
+)
 
 
 def _dotted(cfg: dict, key: str):
@@ -221,8 +267,11 @@ def find_runs(paths) -> list[RunRecord]:
     for p in map(Path, paths):
         if not p.exists():
             raise FileNotFoundError(f"{p}: no such run or sweep folder")
-        summaries = [p / "summary.json"] if (p / "summary.json").is_file() else \
-            [s for s in sorted(p.rglob("summary.json")) if not s.parent.name.startswith("eval__")]
+        summaries = (
+            [p / "summary.json"]
+            if (p / "summary.json").is_file()
+            else [s for s in sorted(p.rglob("summary.json")) if not s.parent.name.startswith("eval__")]
+        )
         if not summaries:
             raise FileNotFoundError(f"{p}: holds no run (no summary.json at or under it)")
         for s in summaries:
@@ -234,7 +283,9 @@ def find_runs(paths) -> list[RunRecord]:
     for r in runs:
         key = (r.scenario, r.algo, r.seed)
         if key in seen:
-            raise ValueError(f"two runs of {r.algo} on {r.scenario} with seed {r.seed}: {seen[key]} and {r.path}; "
-                             "pass only one of them")
+            raise ValueError(
+                f"two runs of {r.algo} on {r.scenario} with seed {r.seed}: {seen[key]} and {r.path}; "
+                "pass only one of them"
+            )
         seen[key] = r.path
     return runs

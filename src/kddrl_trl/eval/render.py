@@ -3,6 +3,7 @@ one frame (:func:`draw_frame`, also the Gymnasium env's ``rgb_array``), an mp4 o
 (:func:`write_video`, ffmpeg from the ``imageio-ffmpeg`` wheel) and the space-time diagram of paper Fig. 14
 (:func:`plot_space_time`).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -44,21 +45,27 @@ def draw_frame(ax, frame: dict, trace: dict) -> None:
         if y0 <= edge <= y0 + BEHIND + AHEAD:
             ax.axvline(edge, color="k", lw=0.8, zorder=1)
     cars = [(frame["y"], frame["x"], EGO_COLOR, "ego")]
-    cars += [(y, x, LEADER_COLOR if slot in K.LEADER_SLOTS else NEIGHBOUR_COLOR, slot)
-             for slot, (y, x) in frame["neighbours"].items()]
+    cars += [
+        (y, x, LEADER_COLOR if slot in K.LEADER_SLOTS else NEIGHBOUR_COLOR, slot)
+        for slot, (y, x) in frame["neighbours"].items()
+    ]
     for y, x, color, label in cars:
-        ax.add_patch(Rectangle((y - VEHICLE_LENGTH, x - VEHICLE_WIDTH / 2), VEHICLE_LENGTH, VEHICLE_WIDTH,
-                               color=color, zorder=3))
+        ax.add_patch(
+            Rectangle((y - VEHICLE_LENGTH, x - VEHICLE_WIDTH / 2), VEHICLE_LENGTH, VEHICLE_WIDTH, color=color, zorder=3)
+        )
         ax.text(y - VEHICLE_LENGTH / 2, x, label, ha="center", va="center", fontsize=6, color="white", zorder=4)
     ax.set_xlim(y0, y0 + BEHIND + AHEAD)
     ax.set_ylim(-0.5, lanes * width + 0.5)
     ax.set_yticks([])  # lateral scale stretched (about 2.5x) so that three lanes stay readable
     ax.set_xlabel("longitudinal position y (m from the study section's start)")
     phase = frame.get("braking_phase", "none")
-    ax.set_title(f"{trace.get('algo', '')} on {trace.get('scenario', '')}  t = {frame['t'] * trace.get('step_length', 0.1):.1f} s"
-                 f"  v = {3.6 * frame['v']:.0f} km/h  a = {frame['accel']:+.1f} m/s²"
-                 + ("  lane change" if frame.get("lc_active") else "")
-                 + ("" if phase == "none" else f"  braking event: {phase}"), fontsize=8)
+    ax.set_title(
+        f"{trace.get('algo', '')} on {trace.get('scenario', '')}  t = {frame['t'] * trace.get('step_length', 0.1):.1f} s"
+        f"  v = {3.6 * frame['v']:.0f} km/h  a = {frame['accel']:+.1f} m/s²"
+        + ("  lane change" if frame.get("lc_active") else "")
+        + ("" if phase == "none" else f"  braking event: {phase}"),
+        fontsize=8,
+    )
 
 
 def frame_rgb(frame: dict, trace: dict, fig=None) -> np.ndarray:
@@ -88,8 +95,9 @@ def write_video(trace: dict, path: str | Path, fps: int = 10) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp.mp4")  # complete before it takes the final name
     try:
-        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=5, macro_block_size=8,
-                                ffmpeg_log_level="error") as writer:
+        with imageio.get_writer(
+            tmp, fps=fps, codec="libx264", quality=5, macro_block_size=8, ffmpeg_log_level="error"
+        ) as writer:
             for frame in trace["frames"]:
                 writer.append_data(frame_rgb(frame, trace, fig))
         os.replace(tmp, path)
@@ -111,14 +119,29 @@ def plot_space_time(traces: list[tuple[str, dict]], path: str | Path) -> Path:
         ax.plot([f["x"] for f in frames], [f["y"] for f in frames], t, color=EGO_COLOR, lw=2, label="ego")
         starts = [f for f in frames if f["lc_started"]]
         if starts:
-            ax.scatter([f["x"] for f in starts], [f["y"] for f in starts], [f["t"] for f in starts], color="k",
-                       marker="^", s=30, label="lane change starts")
+            ax.scatter(
+                [f["x"] for f in starts],
+                [f["y"] for f in starts],
+                [f["t"] for f in starts],
+                color="k",
+                marker="^",
+                s=30,
+                label="lane change starts",
+            )
         braking = [f for f in frames if f.get("braking_phase") in ("braking", "standing")]
         if braking:
-            ax.scatter([f["x"] for f in braking], [f["y"] for f in braking], [f["t"] for f in braking],
-                       color="gold", s=4, label="braking event under way")
+            ax.scatter(
+                [f["x"] for f in braking],
+                [f["y"] for f in braking],
+                [f["t"] for f in braking],
+                color="gold",
+                s=4,
+                label="braking event under way",
+            )
         for slot in K.NEIGHBOR_SLOTS:
-            pts = [(f["neighbours"][slot][1], f["neighbours"][slot][0], f["t"]) for f in frames if slot in f["neighbours"]]
+            pts = [
+                (f["neighbours"][slot][1], f["neighbours"][slot][0], f["t"]) for f in frames if slot in f["neighbours"]
+            ]
             if pts:
                 x, y, tt = zip(*pts)
                 ax.scatter(x, y, tt, s=1, color=LEADER_COLOR if slot in K.LEADER_SLOTS else NEIGHBOUR_COLOR)

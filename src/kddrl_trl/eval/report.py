@@ -9,6 +9,7 @@ evaluated on another scenario than it was trained on (``+scenario=mixed`` with `
 ``kddrl_trl.evaluate``) is its own row, ``"<algo> (trained on <scenario>)"`` (:func:`~kddrl_trl.eval.records.algo_label`),
 compared with the reference trained on the scenario evaluated.
 """
+
 from __future__ import annotations
 
 from collections import Counter
@@ -39,8 +40,13 @@ METRICS = {
     "return_cf": ("car-following return", "", "{:.1f}"),
     "shield_rate": ("shield interventions (fraction of frames)", "", "{:.2%}"),  # algo.shield; 0 without one
 }
-TABLE_METRICS = ("mean_speed_kmh", "mean_accel", "lane_changes_per_episode", "lane_changes_per_1000_episodes",
-                 "collision_rate")
+TABLE_METRICS = (
+    "mean_speed_kmh",
+    "mean_accel",
+    "lane_changes_per_episode",
+    "lane_changes_per_1000_episodes",
+    "collision_rate",
+)
 REFERENCE = "kddrl"
 #: the rule-based reference of the safety comparison (the safety goals are read against it)
 RULE_REFERENCE = "idm_mobil"
@@ -77,8 +83,9 @@ def _groups(runs: list[RunRecord]) -> dict[tuple[str, str], list[RunRecord]]:
     for r in runs:
         out.setdefault((r.scenario, r.algo), []).append(r)
     order = {s: i for i, s in enumerate(SCENARIO_ORDER)}
-    return dict(sorted(out.items(), key=lambda kv: (order.get(kv[0][0], 99), kv[0][0], kv[0][1] != REFERENCE,
-                                                    kv[0][1])))
+    return dict(
+        sorted(out.items(), key=lambda kv: (order.get(kv[0][0], 99), kv[0][0], kv[0][1] != REFERENCE, kv[0][1]))
+    )
 
 
 def rows(runs: list[RunRecord]) -> list[dict]:
@@ -86,20 +93,30 @@ def rows(runs: list[RunRecord]) -> list[dict]:
     out = []
     for (scenario, algo), group in _groups(runs).items():
         per_seed = [r.metrics() for r in group]
-        out.append({
-            "algo": algo, "scenario": scenario,
-            "commits": sorted({str(r.summary.get("commit", "not recorded")) for r in group}),
-            "trained_on": str(group[0].summary.get("trained_on", scenario)),  # algo: "<name> (trained on ...)" if not
-            "seeds": sorted(r.seed for r in group),
-            "episodes": int(sum(m["episodes"] for m in per_seed)),
-            "episodes_per_seed": sorted({int(m["episodes"]) for m in per_seed}),
-            "metrics": {name: {k: v for k, v in mean_ci([m[name] for m in per_seed]).items() if k != "n"}
-                        for name in METRICS},
-            "per_seed": {name: [m[name] for m in per_seed] for name in METRICS},
-            "paper": {name: paper_value(scenario, algo, name) for name in METRICS
-                      if paper_value(scenario, algo, name) is not None},
-            "runs": [str(r.path) for r in group],
-        })
+        out.append(
+            {
+                "algo": algo,
+                "scenario": scenario,
+                "commits": sorted({str(r.summary.get("commit", "not recorded")) for r in group}),
+                "trained_on": str(
+                    group[0].summary.get("trained_on", scenario)
+                ),  # algo: "<name> (trained on ...)" if not
+                "seeds": sorted(r.seed for r in group),
+                "episodes": int(sum(m["episodes"] for m in per_seed)),
+                "episodes_per_seed": sorted({int(m["episodes"]) for m in per_seed}),
+                "metrics": {
+                    name: {k: v for k, v in mean_ci([m[name] for m in per_seed]).items() if k != "n"}
+                    for name in METRICS
+                },
+                "per_seed": {name: [m[name] for m in per_seed] for name in METRICS},
+                "paper": {
+                    name: paper_value(scenario, algo, name)
+                    for name in METRICS
+                    if paper_value(scenario, algo, name) is not None
+                },
+                "runs": [str(r.path) for r in group],
+            }
+        )
     return out
 
 
@@ -109,18 +126,26 @@ def _shielded(table_rows: list[dict]) -> bool:
 
 def _table(scenario: str, table_rows: list[dict]) -> list[str]:
     shown = TABLE_METRICS + (("shield_rate",) if _shielded(table_rows) else ())  # a column once a row has a shield
-    head = ["algo (paper's name)", "seeds × episodes"] + [METRICS[m][0] + (f" ({METRICS[m][1]})" if METRICS[m][1] else "")
-                                                          for m in shown]
-    lines = [f"### {scenario} (paper {TABLES.get(scenario, 'no table')})", "",
-             "Each cell: the mean over seeds [95 % bootstrap CI over seeds]; below it, the paper's value (mean ± its "
-             "unexplained ±) where it published one. A row of 2 seeds has no real interval: its bracket is the range of "
-             "the two seeds' values (the percentile bootstrap cannot reach beyond them); intervals mean something "
-             f"from {MIN_SEEDS_FOR_VERDICT} seeds on, and are still narrow at 3-5.", "",
-             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    head = ["algo (paper's name)", "seeds × episodes"] + [
+        METRICS[m][0] + (f" ({METRICS[m][1]})" if METRICS[m][1] else "") for m in shown
+    ]
+    lines = [
+        f"### {scenario} (paper {TABLES.get(scenario, 'no table')})",
+        "",
+        "Each cell: the mean over seeds [95 % bootstrap CI over seeds]; below it, the paper's value (mean ± its "
+        "unexplained ±) where it published one. A row of 2 seeds has no real interval: its bracket is the range of "
+        "the two seeds' values (the percentile bootstrap cannot reach beyond them); intervals mean something "
+        f"from {MIN_SEEDS_FOR_VERDICT} seeds on, and are still narrow at 3-5.",
+        "",
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+    ]
     for row in table_rows:
         n = row["episodes_per_seed"]
-        cells = [f"**{row['algo']}** ({PAPER_NAMES.get(row['algo'], 'not in the paper')})",
-                 f"{len(row['seeds'])} × {n[0] if len(n) == 1 else n}"]
+        cells = [
+            f"**{row['algo']}** ({PAPER_NAMES.get(row['algo'], 'not in the paper')})",
+            f"{len(row['seeds'])} × {n[0] if len(n) == 1 else n}",
+        ]
         for m in shown:
             paper = _paper_cell(scenario, row["algo"], m)
             cells.append(_cell(m, row["metrics"][m]) + (f"<br>paper: {paper}" if paper else ""))
@@ -132,8 +157,10 @@ def _verdict(diff: dict, metric: str, algo: str, n: tuple[int, int]) -> str:
     if diff["ci_low"] is None:
         return "one seed on a side: no interval"
     if min(n) < MIN_SEEDS_FOR_VERDICT:
-        return (f"too few seeds for a verdict ({n[0]} vs {n[1]}; with 2 seeds the bootstrap interval is only the "
-                "range of the two values seen)")
+        return (
+            f"too few seeds for a verdict ({n[0]} vs {n[1]}; with 2 seeds the bootstrap interval is only the "
+            "range of the two values seen)"
+        )
     if diff["ci_low"] > 0:
         return f"{algo} is higher"
     if diff["ci_high"] < 0:
@@ -146,16 +173,23 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
     others = [r for r in table_rows if r["algo"] != REFERENCE]
     if ref is None or not others:
         return []
-    lines = [f"### {scenario}: each algo minus {REFERENCE}", "",
-             "Difference of the across-seed means, 95 % bootstrap CI (seeds resampled within each system), and the "
-             f"probability of improvement P(algo > {REFERENCE}) over all pairs of seeds.", "",
-             "| algo | metric | difference | 95 % CI | P(algo > kddrl) | reading |", "|---|---|---|---|---|---|"]
+    lines = [
+        f"### {scenario}: each algo minus {REFERENCE}",
+        "",
+        "Difference of the across-seed means, 95 % bootstrap CI (seeds resampled within each system), and the "
+        f"probability of improvement P(algo > {REFERENCE}) over all pairs of seeds.",
+        "",
+        "| algo | metric | difference | 95 % CI | P(algo > kddrl) | reading |",
+        "|---|---|---|---|---|---|",
+    ]
     for row in others:
         for m in TABLE_METRICS:
             d = difference_ci(row["per_seed"][m], ref["per_seed"][m])
             ci = "n/a" if d["ci_low"] is None else f"[{_fmt(m, d['ci_low'])}, {_fmt(m, d['ci_high'])}]"
-            lines.append(f"| {row['algo']} | {METRICS[m][0]} | {'+' if d['mean'] > 0 else ''}{_fmt(m, d['mean'])} | {ci} | {d['p_greater']:.2f} | "
-                         f"{_verdict(d, m, row['algo'], (len(row['seeds']), len(ref['seeds'])))} |")
+            lines.append(
+                f"| {row['algo']} | {METRICS[m][0]} | {'+' if d['mean'] > 0 else ''}{_fmt(m, d['mean'])} | {ci} | {d['p_greater']:.2f} | "
+                f"{_verdict(d, m, row['algo'], (len(row['seeds']), len(ref['seeds'])))} |"
+            )
     return lines
 
 
@@ -168,19 +202,34 @@ def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
     if ref is None or not others:
         return []
     shield = _shielded(table_rows)
-    lines = [f"### {scenario}: each algo against {RULE_REFERENCE} ({len(ref['seeds'])} seeds)", "",
-             f"Mean speed ÷ {RULE_REFERENCE}'s and collision rate − {RULE_REFERENCE}'s (percentage points), "
-             "95 % bootstrap CI (seeds resampled within each system).", "",
-             "| algo | seeds | speed ratio | 95 % CI | collision rate | collisions − rules | 95 % CI |"
-             + (" shield interventions |" if shield else ""), "|---|---|---|---|---|---|---|" + ("---|" if shield else "")]
+    lines = [
+        f"### {scenario}: each algo against {RULE_REFERENCE} ({len(ref['seeds'])} seeds)",
+        "",
+        f"Mean speed ÷ {RULE_REFERENCE}'s and collision rate − {RULE_REFERENCE}'s (percentage points), "
+        "95 % bootstrap CI (seeds resampled within each system).",
+        "",
+        "| algo | seeds | speed ratio | 95 % CI | collision rate | collisions − rules | 95 % CI |"
+        + (" shield interventions |" if shield else ""),
+        "|---|---|---|---|---|---|---|" + ("---|" if shield else ""),
+    ]
     for row in others:
         speed = ratio_ci(row["per_seed"]["mean_speed_kmh"], ref["per_seed"]["mean_speed_kmh"])
-        hits = difference_ci(100.0 * np.asarray(row["per_seed"]["collision_rate"]),
-                             100.0 * np.asarray(ref["per_seed"]["collision_rate"]))
-        ci = ["n/a" if d["ci_low"] is None else f"[{d['ci_low']:{f}}, {d['ci_high']:{f}}]"
-              for d, f in ((speed, ".3f"), (hits, "+.1f"))]
-        cells = [row["algo"], str(len(row["seeds"])), f"{speed['mean']:.3f}", ci[0],
-                 _fmt("collision_rate", row["metrics"]["collision_rate"]["mean"]), f"{hits['mean']:+.1f}", ci[1]]
+        hits = difference_ci(
+            100.0 * np.asarray(row["per_seed"]["collision_rate"]), 100.0 * np.asarray(ref["per_seed"]["collision_rate"])
+        )
+        ci = [
+            "n/a" if d["ci_low"] is None else f"[{d['ci_low']:{f}}, {d['ci_high']:{f}}]"
+            for d, f in ((speed, ".3f"), (hits, "+.1f"))
+        ]
+        cells = [
+            row["algo"],
+            str(len(row["seeds"])),
+            f"{speed['mean']:.3f}",
+            ci[0],
+            _fmt("collision_rate", row["metrics"]["collision_rate"]["mean"]),
+            f"{hits['mean']:+.1f}",
+            ci[1],
+        ]
         if shield:
             cells.append(_fmt("shield_rate", row["metrics"]["shield_rate"]["mean"]))
         lines.append("| " + " | ".join(cells) + " |")
@@ -190,22 +239,34 @@ def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
 def collision_breakdown(runs: list[RunRecord]) -> list[str]:
     """Per (scenario, algo): collisions by kind, by the other vehicle's role, during the ego's lane change, and
     how the other episodes ended."""
-    lines = ["| scenario | algo | episodes | collisions | " + " | ".join(K.COLLISION_KINDS[1:])
-             + " | with a leader (a/b/c) | with a follower (d/e/f) | other vehicle unknown | ego changing lane | "
-             "other endings |", "|" + "---|" * (9 + len(K.COLLISION_KINDS) - 1)]
+    lines = [
+        "| scenario | algo | episodes | collisions | "
+        + " | ".join(K.COLLISION_KINDS[1:])
+        + " | with a leader (a/b/c) | with a follower (d/e/f) | other vehicle unknown | ego changing lane | "
+        "other endings |",
+        "|" + "---|" * (9 + len(K.COLLISION_KINDS) - 1),
+    ]
     for (scenario, algo), group in _groups(runs).items():
         eps = [e for r in group for e in r.episodes.to_dict("records")]
         hits = [e for e in eps if e["collision"]]
         kinds = Counter(e["collision_kind"] for e in hits)
-        roles = Counter("leader" if e["collision_with"] in K.LEADER_SLOTS else
-                        "follower" if e["collision_with"] else "unknown" for e in hits)
-        changing = sum(bool(e.get("ended_changing_lane", False)) for e in hits) if "ended_changing_lane" in \
-            group[0].episodes.columns else "n/a"
+        roles = Counter(
+            "leader" if e["collision_with"] in K.LEADER_SLOTS else "follower" if e["collision_with"] else "unknown"
+            for e in hits
+        )
+        changing = (
+            sum(bool(e.get("ended_changing_lane", False)) for e in hits)
+            if "ended_changing_lane" in group[0].episodes.columns
+            else "n/a"
+        )
         endings = Counter(e["outcome"] for e in eps if not e["collision"])
-        lines.append(f"| {scenario} | {algo} | {len(eps)} | {len(hits)} | "
-                     + " | ".join(str(kinds.get(k, 0)) for k in K.COLLISION_KINDS[1:])
-                     + f" | {roles['leader']} | {roles['follower']} | {roles['unknown']} | {changing} | "
-                     + ", ".join(f"{k} {v}" for k, v in sorted(endings.items())) + " |")
+        lines.append(
+            f"| {scenario} | {algo} | {len(eps)} | {len(hits)} | "
+            + " | ".join(str(kinds.get(k, 0)) for k in K.COLLISION_KINDS[1:])
+            + f" | {roles['leader']} | {roles['follower']} | {roles['unknown']} | {changing} | "
+            + ", ".join(f"{k} {v}" for k, v in sorted(endings.items()))
+            + " |"
+        )
     return lines
 
 
@@ -213,21 +274,34 @@ def footer(runs: list[RunRecord], command: str) -> list[str]:
     protocols = Counter()
     for r in runs:
         p = r.summary.get("protocol")
-        protocols[("seed + 1,000,000" if p and p["eval_seed"] == r.seed + 1_000_000 else
-                   f"eval seed {p['eval_seed']}" if p else "not recorded (run made before the protocol)")] += 1
+        protocols[
+            (
+                "seed + 1,000,000"
+                if p and p["eval_seed"] == r.seed + 1_000_000
+                else f"eval seed {p['eval_seed']}"
+                if p
+                else "not recorded (run made before the protocol)"
+            )
+        ] += 1
     training, wall = zip(*_run_times(runs)) if runs else ((), ())
     machines = Counter(r.summary.get("machine", "not recorded") for r in runs)
     commits = Counter(r.summary.get("commit", "not recorded") for r in runs)
-    packages = Counter(", ".join(f"{k} {v}" for k, v in r.summary["packages"].items()) if "packages" in r.summary
-                       else "not recorded" for r in runs)
+    packages = Counter(
+        ", ".join(f"{k} {v}" for k, v in r.summary["packages"].items()) if "packages" in r.summary else "not recorded"
+        for r in runs
+    )
     return [
-        "---", "",
+        "---",
+        "",
         f"* **Command:** `{command}`",
         f"* **Report made at commit** {commit()} on {machine()}; **packages:** "
         + ", ".join(f"{k} {v}" for k, v in versions().items()),
-        "* **Runs made at commits:** " + "; ".join(f"{c} ({n} runs)" for c, n in commits.items())
-        + ". **On machines:** " + "; ".join(f"{m} ({n} runs)" for m, n in machines.items())
-        + ". **With packages:** " + "; ".join(f"{p} ({n} runs)" for p, n in packages.items()),
+        "* **Runs made at commits:** "
+        + "; ".join(f"{c} ({n} runs)" for c, n in commits.items())
+        + ". **On machines:** "
+        + "; ".join(f"{m} ({n} runs)" for m, n in machines.items())
+        + ". **With packages:** "
+        + "; ".join(f"{p} ({n} runs)" for p, n in packages.items()),
         f"* **Runs:** {len(runs)}; seeds per (algo, scenario) in the tables. **Evaluation protocol:** greedy policy "
         "(exploration off), the first N episodes to *start* (unbiased by episode length), env seed "
         + "; ".join(f"{k} ({n} runs)" for k, n in protocols.items())
@@ -235,15 +309,18 @@ def footer(runs: list[RunRecord], command: str) -> list[str]:
         f"* **Wall time:** training {sum(t for t in training if t) / 3600:.2f} h over all runs (`training.elapsed_s` "
         f"of each `summary.json`, every session of a resumed run counted); the last session of each run, training "
         f"included, {sum(w for w in wall if w) / 3600:.2f} h (`wall_s`)"
-        + ("" if all(wall) else f"; {sum(1 for w in wall if not w)} runs did not record it") + ".",
+        + ("" if all(wall) else f"; {sum(1 for w in wall if not w)} runs did not record it")
+        + ".",
     ]
 
 
 def _run_times(runs: list[RunRecord]) -> list[tuple[float | None, float | None]]:
     """``(training.elapsed_s, wall_s)`` of each training run behind ``runs``, once per run (a run's final
     evaluations, ``eval_scenarios=``, share their run's times: :attr:`RunRecord.trained_summary`)."""
-    times = {r.trained: ((r.trained_summary.get("training") or {}).get("elapsed_s"), r.trained_summary.get("wall_s"))
-             for r in runs}
+    times = {
+        r.trained: ((r.trained_summary.get("training") or {}).get("elapsed_s"), r.trained_summary.get("wall_s"))
+        for r in runs
+    }
     return list(times.values())
 
 
@@ -252,50 +329,78 @@ def split_commits(runs: list[RunRecord]) -> list[RunRecord]:
     their own, never pooled with the study's runs."""
     commits = Counter(str(r.summary.get("commit", "not recorded")) for r in runs)
     main = commits.most_common(1)[0][0]
-    return [r if str(r.summary.get("commit", "not recorded")) == main else
-            replace(r, algo=f"{r.algo} @{r.summary.get('commit', 'not recorded')}") for r in runs]
+    return [
+        r
+        if str(r.summary.get("commit", "not recorded")) == main
+        else replace(r, algo=f"{r.algo} @{r.summary.get('commit', 'not recorded')}")
+        for r in runs
+    ]
 
 
 def _claims_section(claims: list[dict], table_rows: list[dict], exact: dict, ratios: dict) -> list[str]:
     """The verdict table (every claim, its paired difference over seeds, CI, Holm-adjusted p and verdict) and, per
     row, the exact collision interval and the speed ratio to IDM+MOBIL."""
+
     def num(metric, v):
         return "—" if v is None else (f"{100 * v:+.2f} pts" if metric == "collision_rate" else f"{v:+.2f}")
 
     counts = Counter(c["verdict"] for c in claims)
-    md = ["## The paper's claims", "",
-          "Each claim is one paired comparison: the difference a − b of the per-seed values over the seeds both "
-          "systems ran (the same seed is the same evaluation traffic), its 95 % Student-t CI over seeds, and the "
-          "two-sided paired t-test's p-value adjusted by Holm-Bonferroni over all the claims tested. *holds*: adjusted "
-          "p < 0.05 in the claimed direction; *contradicted*: adjusted p < 0.05 against it; *inconclusive*: neither, "
-          "or fewer than 3 paired seeds. Collision differences are in percentage points; speeds in km/h; lane "
-          "changes per episode. `paper`: the same difference in the paper's tables.", "",
-          f"**{counts.get('holds', 0)} hold, {counts.get('contradicted', 0)} contradicted, "
-          f"{counts.get('inconclusive', 0)} inconclusive** of {len(claims)} claims.", "",
-          "| claim | seeds | difference a − b | 95 % CI | p (Holm) | verdict | paper |", "|---|---|---|---|---|---|---|"]
+    md = [
+        "## The paper's claims",
+        "",
+        "Each claim is one paired comparison: the difference a − b of the per-seed values over the seeds both "
+        "systems ran (the same seed is the same evaluation traffic), its 95 % Student-t CI over seeds, and the "
+        "two-sided paired t-test's p-value adjusted by Holm-Bonferroni over all the claims tested. *holds*: adjusted "
+        "p < 0.05 in the claimed direction; *contradicted*: adjusted p < 0.05 against it; *inconclusive*: neither, "
+        "or fewer than 3 paired seeds. Collision differences are in percentage points; speeds in km/h; lane "
+        "changes per episode. `paper`: the same difference in the paper's tables.",
+        "",
+        f"**{counts.get('holds', 0)} hold, {counts.get('contradicted', 0)} contradicted, "
+        f"{counts.get('inconclusive', 0)} inconclusive** of {len(claims)} claims.",
+        "",
+        "| claim | seeds | difference a − b | 95 % CI | p (Holm) | verdict | paper |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for c in claims:
         ci = "—" if c["ci"] is None else f"[{num(c['metric'], c['ci'][0])}, {num(c['metric'], c['ci'][1])}]"
         p = "—" if c["p_holm"] is None else f"{c['p_holm']:.3g}"
-        md.append(f"| {c['claim']} | {len(c['seeds'])} | {num(c['metric'], c['difference'])} | {ci} | {p} | "
-                  f"**{c['verdict']}** | {num(c['metric'], c['paper'])} |")
-    md += ["", "### Collision rates (exact) and speed against IDM+MOBIL", "",
-           "Collisions pooled over a row's episodes with a Clopper-Pearson 95 % interval; speed as the mean of the "
-           "per-seed ratios to IDM+MOBIL's speed on the same seeds (t interval), beside the paper's ratio.", "",
-           "| scenario | algo | collisions / episodes | rate [exact 95 % CI] | speed ÷ IDM+MOBIL | paper |",
-           "|---|---|---|---|---|---|"]
+        md.append(
+            f"| {c['claim']} | {len(c['seeds'])} | {num(c['metric'], c['difference'])} | {ci} | {p} | "
+            f"**{c['verdict']}** | {num(c['metric'], c['paper'])} |"
+        )
+    md += [
+        "",
+        "### Collision rates (exact) and speed against IDM+MOBIL",
+        "",
+        "Collisions pooled over a row's episodes with a Clopper-Pearson 95 % interval; speed as the mean of the "
+        "per-seed ratios to IDM+MOBIL's speed on the same seeds (t interval), beside the paper's ratio.",
+        "",
+        "| scenario | algo | collisions / episodes | rate [exact 95 % CI] | speed ÷ IDM+MOBIL | paper |",
+        "|---|---|---|---|---|---|",
+    ]
     for row in table_rows:
         key = (row["scenario"], row["algo"])
         e, r = exact[key], ratios.get(key)
-        ratio = "—" if r is None else (f"{r['ratio']:.3f}" + ("" if r["ci"] is None else
-                                                              f" [{r['ci'][0]:.3f}, {r['ci'][1]:.3f}]"))
+        ratio = (
+            "—"
+            if r is None
+            else (f"{r['ratio']:.3f}" + ("" if r["ci"] is None else f" [{r['ci'][0]:.3f}, {r['ci'][1]:.3f}]"))
+        )
         paper = "—" if r is None or r["paper"] is None else f"{r['paper']:.3f}"
-        md.append(f"| {row['scenario']} | {row['algo']} | {e['collisions']} / {e['episodes']} | {e['rate']:.2%} "
-                  f"[{e['ci'][0]:.3%}, {e['ci'][1]:.3%}] | {ratio} | {paper} |")
+        md.append(
+            f"| {row['scenario']} | {row['algo']} | {e['collisions']} / {e['episodes']} | {e['rate']:.2%} "
+            f"[{e['ci'][0]:.3%}, {e['ci'][1]:.3%}] | {ratio} | {paper} |"
+        )
     return md + [""]
 
 
-def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "python -m kddrl_trl.report",
-                 lcgan_metrics: dict | None = None, verdict: bool = False) -> dict:
+def build_report(
+    runs: list[RunRecord],
+    out_dir: str | Path,
+    command: str = "python -m kddrl_trl.report",
+    lcgan_metrics: dict | None = None,
+    verdict: bool = False,
+) -> dict:
     """Write ``report.md``, ``report.json`` and the figures into ``out_dir``; return the JSON content. ``verdict``:
     runs of other commits as rows of their own (:func:`split_commits`), the paper's claims tested
     (:mod:`~kddrl_trl.eval.verdict`), and ``report.json`` an object ``{"rows", "claims", "commits"}``."""
@@ -309,10 +414,16 @@ def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "pyt
     out_dir.mkdir(parents=True, exist_ok=True)
     table_rows = rows(runs)
     scenarios = list(dict.fromkeys(r["scenario"] for r in table_rows))
-    md = ["# kddrl_trl reproduction report", "",
-          f"{len(runs)} runs: " + ", ".join(f"{r['algo']} on {r['scenario']} ({len(r['seeds'])} seeds)"
-                                            for r in table_rows) + ".", "",
-          "## Tables II-V: driving metrics in evaluation", ""]
+    md = [
+        "# kddrl_trl reproduction report",
+        "",
+        f"{len(runs)} runs: "
+        + ", ".join(f"{r['algo']} on {r['scenario']} ({len(r['seeds'])} seeds)" for r in table_rows)
+        + ".",
+        "",
+        "## Tables II-V: driving metrics in evaluation",
+        "",
+    ]
     for s in scenarios:
         md += _table(s, [r for r in table_rows if r["scenario"] == s]) + [""]
     if verdict:
@@ -324,48 +435,82 @@ def build_report(runs: list[RunRecord], out_dir: str | Path, command: str = "pyt
     md += ["## Comparison with KDDRL", ""]
     for s in scenarios:
         md += _comparisons(s, [r for r in table_rows if r["scenario"] == s]) + [""]
-    against = [line for s in scenarios for line in
-               _against_rules(s, [r for r in table_rows if r["scenario"] == s]) + [""]]
+    against = [
+        line for s in scenarios for line in _against_rules(s, [r for r in table_rows if r["scenario"] == s]) + [""]
+    ]
     if any(against):
         md += [f"## Against the rule baseline ({RULE_REFERENCE})", ""] + against
-    md += ["## Collisions by kind", "",
-           "Kinds (`kddrl_trl/keys.py`): `rear_end`, the ego ran into a vehicle ahead; `hit_from_behind`, a vehicle "
-           "behind ran into the ego; `side`, any contact while the ego's lane change was under way. The other "
-           "vehicle's role is its neighbour slot in the last observation before the contact. Episodes pooled over "
-           "seeds.", ""] + collision_breakdown(runs) + [""]
-    figs = {"Fig. 8: training curves": figures.training_curves(runs, out_dir / "fig08_training_curves.png"),
-            "Figs. 9 / 15: evaluation returns": figures.return_boxes(runs, out_dir / "fig09_returns.png")}
+    md += (
+        [
+            "## Collisions by kind",
+            "",
+            "Kinds (`kddrl_trl/keys.py`): `rear_end`, the ego ran into a vehicle ahead; `hit_from_behind`, a vehicle "
+            "behind ran into the ego; `side`, any contact while the ego's lane change was under way. The other "
+            "vehicle's role is its neighbour slot in the last observation before the contact. Episodes pooled over "
+            "seeds.",
+            "",
+        ]
+        + collision_breakdown(runs)
+        + [""]
+    )
+    figs = {
+        "Fig. 8: training curves": figures.training_curves(runs, out_dir / "fig08_training_curves.png"),
+        "Figs. 9 / 15: evaluation returns": figures.return_boxes(runs, out_dir / "fig09_returns.png"),
+    }
     for s, fig_no in zip(scenarios, ("10", "12", "13")):
         number = {"baseline": "10", "congested": "12", "congested_text": "12", "braking": "13"}.get(s, fig_no)
         figs[f"Fig. {number}: {s}, speed and acceleration"] = figures.distributions(
-            runs, s, out_dir / f"fig{number}_distributions_{s}.png")
+            runs, s, out_dir / f"fig{number}_distributions_{s}.png"
+        )
     figs.update(figures.space_time(runs, out_dir))
     figs.update(figures.lcgan(lcgan_metrics, out_dir))
     md += ["## Figures", ""]
     for title, path in figs.items():
-        md += [f"### {title}", "", f"![{title}]({Path(path).name})" if path else
-               "Not drawn: " + ("no space-time traces in these runs (record them with `python -m kddrl_trl.evaluate "
-                                "run=<dir> video=true`)" if "14" in title else
-                                "the shipped lcGAN weights carry no test metrics" if "16" in title else
-                                "nothing to draw"), ""]
-    md += ["## Runs", "", "| scenario | algo | seed | episodes | mean speed (km/h) | collision rate | wall time (s) | folder |",
-           "|---|---|---|---|---|---|---|---|"]
+        md += [
+            f"### {title}",
+            "",
+            f"![{title}]({Path(path).name})"
+            if path
+            else "Not drawn: "
+            + (
+                "no space-time traces in these runs (record them with `python -m kddrl_trl.evaluate "
+                "run=<dir> video=true`)"
+                if "14" in title
+                else "the shipped lcGAN weights carry no test metrics"
+                if "16" in title
+                else "nothing to draw"
+            ),
+            "",
+        ]
+    md += [
+        "## Runs",
+        "",
+        "| scenario | algo | seed | episodes | mean speed (km/h) | collision rate | wall time (s) | folder |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in runs:
         m = r.metrics()
         wall = r.summary.get("wall_s")
         # one of a run's final evaluations (kddrl_trl.train eval_scenarios=...) is named with its run's folder; its
         # summary has no wall time of its own (the run's summary.json has the run's)
         folder = r.path.name if r.trained == r.path else f"{r.trained.name}/{r.path.name}"
-        md.append(f"| {r.scenario} | {r.algo} | {r.seed} | {m['episodes']} | {m['mean_speed_kmh']:.1f} | "
-                  f"{m['collision_rate']:.1%} | {'—' if wall is None else f'{wall:.0f}'} | `{folder}` |")
+        md.append(
+            f"| {r.scenario} | {r.algo} | {r.seed} | {m['episodes']} | {m['mean_speed_kmh']:.1f} | "
+            f"{m['collision_rate']:.1%} | {'—' if wall is None else f'{wall:.0f}'} | `{folder}` |"
+        )
     md += [""] + footer(runs, command)
-    report = [{k: v for k, v in row.items() if k not in ("runs", "per_seed")} | {"per_seed": row["per_seed"]}
-              for row in table_rows]
+    report = [
+        {k: v for k, v in row.items() if k not in ("runs", "per_seed")} | {"per_seed": row["per_seed"]}
+        for row in table_rows
+    ]
     if verdict:
         commits = Counter(str(r.summary.get("commit", "not recorded")) for r in runs)
         write_json_atomic(out_dir / "report.json", {"rows": report, "claims": claims, "commits": dict(commits)})
     else:
         write_json_atomic(out_dir / "report.json", report)
     write_text_atomic(out_dir / "report.md", "\n".join(md) + "\n")
-    return {"rows": report, "figures": {k: str(v) if v else None for k, v in figs.items()},
-            **({"claims": claims} if verdict else {})}
+    return {
+        "rows": report,
+        "figures": {k: str(v) if v else None for k, v in figs.items()},
+        **({"claims": claims} if verdict else {}),
+    }

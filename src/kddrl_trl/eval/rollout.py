@@ -1,4 +1,5 @@
 """``evaluate_policy``: run a policy on a batched highway env until a number of whole episodes have finished."""
+
 from __future__ import annotations
 
 from typing import Callable
@@ -17,8 +18,15 @@ def unwrap_env(env):
 
 
 @torch.no_grad()
-def evaluate_policy(env, policy: Callable, episodes: int, seed: int, progress: bool = True,
-                    on_episode: Callable[[dict], None] | None = None, trace: Callable | None = None) -> list[dict]:
+def evaluate_policy(
+    env,
+    policy: Callable,
+    episodes: int,
+    seed: int,
+    progress: bool = True,
+    on_episode: Callable[[dict], None] | None = None,
+    trace: Callable | None = None,
+) -> list[dict]:
     """Seed ``env`` with ``seed``, reset it and step it with ``policy`` until the first ``episodes`` episodes *to
     start* have all finished; return their :class:`~kddrl_trl.eval.EpisodeTracker` metrics in start order
     (``ep["start"]`` = 0, 1, ...). ``on_episode`` is called with each of them as it finishes.
@@ -52,7 +60,9 @@ def evaluate_policy(env, policy: Callable, episodes: int, seed: int, progress: b
             bar.update(1)
             if on_episode is not None:
                 on_episode(ep)
-            bar.set_postfix(speed_kmh=f"{sum(e['mean_speed_kmh'] for e in wanted.values()) / len(wanted):.1f}",
-                            collisions=sum(e["collision"] for e in wanted.values()))
+            bar.set_postfix(
+                speed_kmh=f"{sum(e['mean_speed_kmh'] for e in wanted.values()) / len(wanted):.1f}",
+                collisions=sum(e["collision"] for e in wanted.values()),
+            )
     bar.close()
     return [wanted[i] for i in range(episodes)]

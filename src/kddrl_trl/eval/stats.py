@@ -4,6 +4,7 @@ Percentile bootstrap (``scipy.stats.bootstrap``) of the across-seed mean, and of
 two systems' means (independent seeds, each resampled on its own). Fixed ``random_state``: the same records give the same
 report. With one seed there is no interval (None); with identical values the interval is that value.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,8 +16,16 @@ RESAMPLES = 10_000
 def _bootstrap(samples: tuple, statistic, confidence: float, resamples: int) -> tuple[float, float]:
     from scipy.stats import bootstrap
 
-    res = bootstrap(samples, statistic, confidence_level=confidence, n_resamples=resamples, method="percentile",
-                    vectorized=True, random_state=np.random.default_rng(0), axis=-1)
+    res = bootstrap(
+        samples,
+        statistic,
+        confidence_level=confidence,
+        n_resamples=resamples,
+        method="percentile",
+        vectorized=True,
+        random_state=np.random.default_rng(0),
+        axis=-1,
+    )
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
@@ -53,8 +62,9 @@ def _two_systems(values, reference, statistic, confidence: float, resamples: int
 def difference_ci(values, reference, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
     """Mean of ``values`` minus mean of ``reference`` (independent seeds) with its bootstrap interval, and the
     probability of improvement ``P(X > Y)`` over all pairs of seeds (ties count one half)."""
-    return _two_systems(values, reference, lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), confidence,
-                        resamples)
+    return _two_systems(
+        values, reference, lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), confidence, resamples
+    )
 
 
 def ratio_ci(values, reference, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
@@ -63,5 +73,4 @@ def ratio_ci(values, reference, confidence: float = CONFIDENCE, resamples: int =
     y = np.asarray(reference, dtype=float)
     if y.size == 0 or not (np.isfinite(y).all() and (y > 0).all()):
         raise ValueError(f"ratio_ci: the reference values must be finite and > 0, got {y.tolist()}")
-    return _two_systems(values, y, lambda a, b, axis=-1: a.mean(axis=axis) / b.mean(axis=axis), confidence,
-                        resamples)
+    return _two_systems(values, y, lambda a, b, axis=-1: a.mean(axis=axis) / b.mean(axis=axis), confidence, resamples)

@@ -6,6 +6,7 @@ acceleration, the six neighbours' relative positions (slots a-f, where present),
 the braking phase. The ego's lateral position is its lane centre, moved by its lateral speed while a lane change
 is under way (``EGO_STATE``'s ``vx``). A trace is a JSON-able dict; traces are small (a few kB per episode).
 """
+
 from __future__ import annotations
 
 import torch
@@ -14,8 +15,18 @@ from tensordict import TensorDictBase
 from .. import keys as K
 
 #: per-frame keys a trace reads (root for an episode's first frame, ``"next"`` for every step)
-TRACE_KEYS = (K.EGO_STATE, K.EGO_LANE, K.EGO_ACCEL, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.LC_STARTED, K.LC_ACTIVE,
-              K.BRAKING_PHASE, K.OUTCOME, K.COLLISION_KIND)
+TRACE_KEYS = (
+    K.EGO_STATE,
+    K.EGO_LANE,
+    K.EGO_ACCEL,
+    K.NEIGHBORS_REL,
+    K.NEIGHBORS_MASK,
+    K.LC_STARTED,
+    K.LC_ACTIVE,
+    K.BRAKING_PHASE,
+    K.OUTCOME,
+    K.COLLISION_KIND,
+)
 
 
 class TraceRecorder:
@@ -54,13 +65,23 @@ class TraceRecorder:
             self._x[r] += state[2] * self.dt
         x, y = self._x[r], state[0]
         rel, mask = td.get(K.NEIGHBORS_REL)[r], td.get(K.NEIGHBORS_MASK)[r].reshape(-1)
-        neighbours = {slot: [round(y + float(rel[i, 1]), 2), round(x + float(rel[i, 0]), 2)]
-                      for i, slot in enumerate(K.NEIGHBOR_SLOTS) if bool(mask[i])}
-        return {"t": t, "y": round(y, 2), "x": round(x, 2), "v": round(state[1], 3), "lane": lane,
-                "accel": round(float(td.get(K.EGO_ACCEL)[r].reshape(-1)[0]), 3),
-                "lc_started": bool(td.get(K.LC_STARTED)[r].reshape(-1)[0]), "lc_active": active,
-                "braking_phase": K.BRAKING_PHASES[int(td.get(K.BRAKING_PHASE)[r].reshape(-1)[0])],
-                "neighbours": neighbours}
+        neighbours = {
+            slot: [round(y + float(rel[i, 1]), 2), round(x + float(rel[i, 0]), 2)]
+            for i, slot in enumerate(K.NEIGHBOR_SLOTS)
+            if bool(mask[i])
+        }
+        return {
+            "t": t,
+            "y": round(y, 2),
+            "x": round(x, 2),
+            "v": round(state[1], 3),
+            "lane": lane,
+            "accel": round(float(td.get(K.EGO_ACCEL)[r].reshape(-1)[0]), 3),
+            "lc_started": bool(td.get(K.LC_STARTED)[r].reshape(-1)[0]),
+            "lc_active": active,
+            "braking_phase": K.BRAKING_PHASES[int(td.get(K.BRAKING_PHASE)[r].reshape(-1)[0])],
+            "neighbours": neighbours,
+        }
 
     @torch.no_grad()
     def __call__(self, step: TensorDictBase) -> None:

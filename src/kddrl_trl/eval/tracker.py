@@ -5,6 +5,7 @@ The one episode-metrics path: training (:class:`~kddrl_trl.training.Trainer`), e
 env writing the raw keys and episode events of ``kddrl_trl.keys`` (``SumoHighwayEnv``, ``FakeHighwayEnv``) gets
 the same metrics.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,17 +16,44 @@ from tensordict import TensorDictBase
 from .. import keys as K
 
 #: running sums per row, in column order
-SUMS = ("frames", "speed", "speed_sq", "accel", "accel_sq", "abs_accel", "lane_changes", "return_lc", "return_cf",
-        "shield")
+SUMS = (
+    "frames",
+    "speed",
+    "speed_sq",
+    "accel",
+    "accel_sq",
+    "abs_accel",
+    "lane_changes",
+    "return_lc",
+    "return_cf",
+    "shield",
+)
 #: episode field written at the first frame of each braking phase (the braking distance with the first one)
-PHASE_FIELDS = {K.BRAKE_BRAKING: "braking_start_frame", K.BRAKE_STANDING: "braking_stop_frame",
-                K.BRAKE_RESUMED: "braking_resume_frame"}
+PHASE_FIELDS = {
+    K.BRAKE_BRAKING: "braking_start_frame",
+    K.BRAKE_STANDING: "braking_stop_frame",
+    K.BRAKE_RESUMED: "braking_resume_frame",
+}
 #: label of an episode whose done flag the env did not set (a transform or a collector truncated it)
 TRUNCATED_OUTSIDE = "truncated"
 #: the entries of a frame the tracker reads, all under "next"
-IN_KEYS = tuple(("next", *(key if isinstance(key, tuple) else (key,))) for key in (
-    K.EGO_STATE, K.EGO_ACCEL, K.LC_STARTED, K.LC_ACTIVE, K.LC_REWARD, K.CF_REWARD, "done", K.OUTCOME,
-    K.COLLISION_KIND, K.COLLISION_SLOT, K.BRAKING_PHASE, K.BRAKING_DISTANCE))
+IN_KEYS = tuple(
+    ("next", *(key if isinstance(key, tuple) else (key,)))
+    for key in (
+        K.EGO_STATE,
+        K.EGO_ACCEL,
+        K.LC_STARTED,
+        K.LC_ACTIVE,
+        K.LC_REWARD,
+        K.CF_REWARD,
+        "done",
+        K.OUTCOME,
+        K.COLLISION_KIND,
+        K.COLLISION_SLOT,
+        K.BRAKING_PHASE,
+        K.BRAKING_DISTANCE,
+    )
+)
 #: entries read when present (0 where absent): the car-following shield's interventions (``keys.CF_SHIELD``)
 OPTIONAL_KEYS = (("next", *K.CF_SHIELD),)
 
@@ -66,7 +94,7 @@ class EpisodeTracker:
         self._carry: torch.Tensor | None = None  # [B, len(SUMS)] sums of the open episodes before this batch
         self._start: torch.Tensor | None = None  # [B] start number of each row's open episode
         self._phase: torch.Tensor | None = None  # [B] braking phase of each row's last frame
-        self._events: list[dict] = []            # per row: braking fields of the open episode
+        self._events: list[dict] = []  # per row: braking fields of the open episode
 
     @staticmethod
     def _column(nxt: TensorDictBase, key, index: int = 0, optional: bool = False) -> torch.Tensor:
@@ -74,8 +102,10 @@ class EpisodeTracker:
         if value is None and optional:
             return torch.zeros(nxt.batch_size)
         if value is None:
-            raise KeyError(f"EpisodeTracker: the frames have no ('next', {key!r}) entry; the env must write the raw "
-                           "keys and episode events of kddrl_trl/keys.py (SumoHighwayEnv, FakeHighwayEnv)")
+            raise KeyError(
+                f"EpisodeTracker: the frames have no ('next', {key!r}) entry; the env must write the raw "
+                "keys and episode events of kddrl_trl/keys.py (SumoHighwayEnv, FakeHighwayEnv)"
+            )
         return value.reshape(*nxt.batch_size, -1)[..., index].cpu()
 
     def __call__(self, frames: TensorDictBase) -> list[dict]:
@@ -85,12 +115,26 @@ class EpisodeTracker:
         nxt = frames.get("next")
         col = self._column
         speed, accel = col(nxt, K.EGO_STATE, 1).double(), col(nxt, K.EGO_ACCEL).double()
-        values = torch.stack([torch.ones(b, t, dtype=torch.float64), speed, speed * speed, accel, accel * accel,
-                              accel.abs(), col(nxt, K.LC_STARTED).double(), col(nxt, K.LC_REWARD).double(),
-                              col(nxt, K.CF_REWARD).double(), col(nxt, K.CF_SHIELD, optional=True).double()], -1)
+        values = torch.stack(
+            [
+                torch.ones(b, t, dtype=torch.float64),
+                speed,
+                speed * speed,
+                accel,
+                accel * accel,
+                accel.abs(),
+                col(nxt, K.LC_STARTED).double(),
+                col(nxt, K.LC_REWARD).double(),
+                col(nxt, K.CF_REWARD).double(),
+                col(nxt, K.CF_SHIELD, optional=True).double(),
+            ],
+            -1,
+        )
         done, phase = col(nxt, "done").bool(), col(nxt, K.BRAKING_PHASE).long()
-        codes = torch.stack([col(nxt, K.OUTCOME), col(nxt, K.COLLISION_KIND), col(nxt, K.COLLISION_SLOT),
-                             col(nxt, K.LC_ACTIVE).long()], -1).long()
+        codes = torch.stack(
+            [col(nxt, K.OUTCOME), col(nxt, K.COLLISION_KIND), col(nxt, K.COLLISION_SLOT), col(nxt, K.LC_ACTIVE).long()],
+            -1,
+        ).long()
         distance = col(nxt, K.BRAKING_DISTANCE).double()
         if self._carry is None:
             self._carry = torch.zeros(b, len(SUMS), dtype=torch.float64)
@@ -134,16 +178,28 @@ class EpisodeTracker:
         label = K.OUTCOMES[outcome] if outcome != K.RUNNING else TRUNCATED_OUTSIDE
         events = self._events[r]
         ep = {
-            "index": self.finished, "start": int(self._start[r]), "road": r, "frames": int(total["frames"]),
-            "mean_speed": total["speed"] / n, "mean_speed_kmh": 3.6 * total["speed"] / n,
-            "mean_accel": total["accel"] / n, "mean_abs_accel": total["abs_accel"] / n,
-            "mean_sq_speed": total["speed_sq"] / n, "mean_sq_accel": total["accel_sq"] / n,
-            "lane_changes": int(total["lane_changes"]), "collision": outcome == K.COLLIDED, "outcome": label,
-            "collision_kind": K.COLLISION_KINDS[kind], "collision_with": K.NEIGHBOR_SLOTS[slot] if slot >= 0 else "",
+            "index": self.finished,
+            "start": int(self._start[r]),
+            "road": r,
+            "frames": int(total["frames"]),
+            "mean_speed": total["speed"] / n,
+            "mean_speed_kmh": 3.6 * total["speed"] / n,
+            "mean_accel": total["accel"] / n,
+            "mean_abs_accel": total["abs_accel"] / n,
+            "mean_sq_speed": total["speed_sq"] / n,
+            "mean_sq_accel": total["accel_sq"] / n,
+            "lane_changes": int(total["lane_changes"]),
+            "collision": outcome == K.COLLIDED,
+            "outcome": label,
+            "collision_kind": K.COLLISION_KINDS[kind],
+            "collision_with": K.NEIGHBOR_SLOTS[slot] if slot >= 0 else "",
             "ended_changing_lane": bool(changing),
-            "return_lc": total["return_lc"], "return_cf": total["return_cf"],
-            "shield_interventions": int(total["shield"]), "shield_rate": total["shield"] / n,
-            "braking_distance": events.pop("braking_distance", math.nan), **events,
+            "return_lc": total["return_lc"],
+            "return_cf": total["return_cf"],
+            "shield_interventions": int(total["shield"]),
+            "shield_rate": total["shield"] / n,
+            "braking_distance": events.pop("braking_distance", math.nan),
+            **events,
         }
         self.finished += 1
         self._start[r] = self.started

@@ -14,6 +14,7 @@ Collision rates are also given as exact binomial (Clopper-Pearson) intervals ove
 0 collisions in 5000 episodes reads [0, 0.074 %], and mean speeds as ratios to IDM+MOBIL on the same seeds, the
 comparison that transfers from the paper's traffic to ours.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -41,8 +42,9 @@ class Claim:
     direction: str
 
 
-def _pairs(table: str, scenario: str, metric: str, a: str, others: tuple[str, ...], direction: str,
-           text: str) -> list[Claim]:
+def _pairs(
+    table: str, scenario: str, metric: str, a: str, others: tuple[str, ...], direction: str, text: str
+) -> list[Claim]:
     return [Claim(text.format(a=a, b=b), table, scenario, metric, a, b, direction) for b in others]
 
 
@@ -59,14 +61,29 @@ CLAIMS: tuple[Claim, ...] = tuple(
     + _pairs("II", "baseline", LC, "peng", ("ni",), "greater", "Table II: {a} changes lanes more often than {b}")
     + _pairs("II", "baseline", COLL, "peng", ("ni",), "greater", "Table II: {a} collides more than {b}")
     # "the unified framework ... yield a much lower average speed while inducing excessive lane changes"
-    + [c for u in ("d3qn_unified", "pasac_unified") for c in
-       _pairs("II", "baseline", SPEED, u, ("kddrl",), "less", "Table II (unified slower): {a} drives slower than {b}")
-       + _pairs("II", "baseline", LC, u, ("kddrl",), "greater",
-                "Table II (unified changes lanes more): {a} changes lanes more often than {b}")]
+    + [
+        c
+        for u in ("d3qn_unified", "pasac_unified")
+        for c in _pairs(
+            "II", "baseline", SPEED, u, ("kddrl",), "less", "Table II (unified slower): {a} drives slower than {b}"
+        )
+        + _pairs(
+            "II",
+            "baseline",
+            LC,
+            u,
+            ("kddrl",),
+            "greater",
+            "Table II (unified changes lanes more): {a} changes lanes more often than {b}",
+        )
+    ]
     # Tables III and IV: KDDRL fastest and safest
-    + [c for s, t in (("congested", "III"), ("braking", "IV")) for c in
-       _pairs(t, s, SPEED, "kddrl", ("ni", "peng"), "greater", f"Table {t}: {{a}} drives faster than {{b}}")
-       + _pairs(t, s, COLL, "kddrl", ("ni", "peng"), "less", f"Table {t}: {{a}} collides less than {{b}}")]
+    + [
+        c
+        for s, t in (("congested", "III"), ("braking", "IV"))
+        for c in _pairs(t, s, SPEED, "kddrl", ("ni", "peng"), "greater", f"Table {t}: {{a}} drives faster than {{b}}")
+        + _pairs(t, s, COLL, "kddrl", ("ni", "peng"), "less", f"Table {t}: {{a}} collides less than {{b}}")
+    ]
     # Table III: "Ni et al. executes the lowest number of lane changes"
     + _pairs("III", "congested", LC, "ni", ("peng", "kddrl"), "less", "Table III: {a} changes lanes less than {b}")
     # Table IV: "Ni et al. records the lowest average speed"
@@ -74,10 +91,24 @@ CLAIMS: tuple[Claim, ...] = tuple(
     # Table V: "+LG lowers collisions against D3QN+TD3", "+TG lowers them further", "two clocks beat one clock"
     + _pairs("V", "baseline", COLL, "d3qn_td3_lg", ("d3qn_td3",), "less", "Table V (+LG): {a} collides less than {b}")
     + _pairs("V", "baseline", COLL, "kddrl", ("d3qn_td3_lg",), "less", "Table V (+TG): {a} collides less than {b}")
-    + _pairs("V", "baseline", COLL, "kddrl", ("kddrl_same_clock",), "less",
-             "Table V (two clocks): {a} collides less than {b}")
-    + _pairs("V", "baseline", SPEED, "kddrl", ("kddrl_same_clock",), "greater",
-             "Table V (two clocks): {a} drives faster than {b}")
+    + _pairs(
+        "V",
+        "baseline",
+        COLL,
+        "kddrl",
+        ("kddrl_same_clock",),
+        "less",
+        "Table V (two clocks): {a} collides less than {b}",
+    )
+    + _pairs(
+        "V",
+        "baseline",
+        SPEED,
+        "kddrl",
+        ("kddrl_same_clock",),
+        "greater",
+        "Table V (two clocks): {a} drives faster than {b}",
+    )
     # "IDM+MOBIL is the slowest and the safest" (Table V)
     + _pairs("V", "baseline", SPEED, RULES, _V, "less", "Table V (rules slowest): {a} drives slower than {b}")
     + _pairs("V", "baseline", COLL, RULES, _V, "less", "Table V (rules safest): {a} collides less than {b}")
@@ -133,10 +164,22 @@ def judge(claims, rows: list[dict]) -> list[dict]:
     for c in claims:
         a, b = _by_seed(rows, c.scenario, c.a, c.metric), _by_seed(rows, c.scenario, c.b, c.metric)
         seeds = sorted(set(a) & set(b))
-        entry = {"claim": c.claim, "table": c.table, "scenario": c.scenario, "metric": c.metric, "a": c.a, "b": c.b,
-                 "direction": c.direction, "seeds": seeds, "difference": None, "ci": None, "p": None,
-                 "p_holm": None, "verdict": "inconclusive",
-                 "paper": _paper_difference(c)}
+        entry = {
+            "claim": c.claim,
+            "table": c.table,
+            "scenario": c.scenario,
+            "metric": c.metric,
+            "a": c.a,
+            "b": c.b,
+            "direction": c.direction,
+            "seeds": seeds,
+            "difference": None,
+            "ci": None,
+            "p": None,
+            "p_holm": None,
+            "verdict": "inconclusive",
+            "paper": _paper_difference(c),
+        }
         if len(seeds) >= MIN_PAIRS:
             d = [a[s] - b[s] for s in seeds]
             low, high, p = t_interval(d)
@@ -168,8 +211,10 @@ def exact_collisions(runs) -> dict[tuple[str, str], dict]:
         acc = pooled.setdefault((r.scenario, r.algo), [0, 0])
         acc[0] += k
         acc[1] += len(r.episodes)
-    return {key: {"collisions": k, "episodes": n, "rate": k / n, "ci": list(clopper_pearson(k, n))}
-            for key, (k, n) in pooled.items()}
+    return {
+        key: {"collisions": k, "episodes": n, "rate": k / n, "ci": list(clopper_pearson(k, n))}
+        for key, (k, n) in pooled.items()
+    }
 
 
 def speed_vs_rules(rows: list[dict]) -> dict[tuple[str, str], dict]:
@@ -187,7 +232,10 @@ def speed_vs_rules(rows: list[dict]) -> dict[tuple[str, str], dict]:
         ratios = [ours[s] / rules[s] for s in seeds]
         low, high, _ = t_interval(ratios) if len(ratios) >= 2 else (None, None, None)
         a, b = paper_value(row["scenario"], row["algo"], SPEED), paper_value(row["scenario"], RULES, SPEED)
-        out[(row["scenario"], row["algo"])] = {"ratio": float(np.mean(ratios)), "ci": None if low is None else
-                                               [low, high], "seeds": seeds,
-                                               "paper": None if a is None or b is None else a[0] / b[0]}
+        out[(row["scenario"], row["algo"])] = {
+            "ratio": float(np.mean(ratios)),
+            "ci": None if low is None else [low, high],
+            "seeds": seeds,
+            "paper": None if a is None or b is None else a[0] / b[0],
+        }
     return out

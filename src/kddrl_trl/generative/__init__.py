@@ -7,6 +7,7 @@ ship with the package (:func:`default_checkpoint`), made by
 ``python -m kddrl_trl.pretrain gan=<kind> export=src/kddrl_trl/generative/weights/<kind>.pt``, with their test
 metrics beside them (``weights/<kind>.metrics.json``, :mod:`.shipped`).
 """
+
 from __future__ import annotations
 
 from importlib import resources
@@ -34,6 +35,19 @@ def load_predictor(kind: str, path: str | Path | None = None, **kwargs):
     return PREDICTORS[kind].from_checkpoint(path or default_checkpoint(kind), **kwargs)
 
 
-__all__ = ["CheckpointError", "GANPredictor", "LCGANPredictor", "LCGANTask", "PREDICTORS", "TASKS", "TrajGANPredictor",
-           "TrajGANTask", "default_checkpoint", "format_metrics", "load_checkpoint", "load_predictor",
-           "read_checkpoint", "save_checkpoint"]
+__all__ = [
+    "CheckpointError",
+    "GANPredictor",
+    "LCGANPredictor",
+    "LCGANTask",
+    "PREDICTORS",
+    "TASKS",
+    "TrajGANPredictor",
+    "TrajGANTask",
+    "default_checkpoint",
+    "format_metrics",
+    "load_checkpoint",
+    "load_predictor",
+    "read_checkpoint",
+    "save_checkpoint",
+]

@@ -4,6 +4,7 @@ A checkpoint is a plain dict of tensors, numbers and strings, so it loads with
 ``torch.load(weights_only=True)`` (no pickled code runs). Loading checks that the architecture recorded
 in the file equals the one asked for, and (optionally) the dataset hash, and says what differs.
 """
+
 from __future__ import annotations
 
 import os
@@ -22,17 +23,28 @@ class CheckpointError(ValueError):
     """A checkpoint that does not fit: other model, other architecture or other data."""
 
 
-def save_checkpoint(path: str | os.PathLike, *, kind: str, architecture: Mapping[str, Any],
-                    modules: Mapping[str, nn.Module], dataset_hash: str, config: Mapping[str, Any] | None = None,
-                    state: Mapping[str, Any] | None = None) -> Path:
+def save_checkpoint(
+    path: str | os.PathLike,
+    *,
+    kind: str,
+    architecture: Mapping[str, Any],
+    modules: Mapping[str, nn.Module],
+    dataset_hash: str,
+    config: Mapping[str, Any] | None = None,
+    state: Mapping[str, Any] | None = None,
+) -> Path:
     """Write atomically: ``kind`` ("trajgan" / "lcgan"), ``architecture`` (what must match to load),
     the modules' state dicts, the dataset hash, the full config and any extra ``state`` (optimisers,
     counters, normalisation statistics, ... — tensors, numbers, strings, lists and dicts only)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
-        "format": FORMAT, "kind": kind, "architecture": dict(architecture), "dataset_hash": dataset_hash,
-        "config": dict(config or {}), "modules": {name: m.state_dict() for name, m in modules.items()},
+        "format": FORMAT,
+        "kind": kind,
+        "architecture": dict(architecture),
+        "dataset_hash": dataset_hash,
+        "config": dict(config or {}),
+        "modules": {name: m.state_dict() for name, m in modules.items()},
         "state": dict(state or {}),
     }
     return torch_save_atomic(path, payload)
@@ -52,8 +64,14 @@ def read_checkpoint(path: str | os.PathLike) -> dict:
     return payload
 
 
-def load_checkpoint(path: str | os.PathLike, *, kind: str, architecture: Mapping[str, Any],
-                    modules: Mapping[str, nn.Module], dataset_hash: str | None = None) -> dict:
+def load_checkpoint(
+    path: str | os.PathLike,
+    *,
+    kind: str,
+    architecture: Mapping[str, Any],
+    modules: Mapping[str, nn.Module],
+    dataset_hash: str | None = None,
+) -> dict:
     """Load the state dicts into ``modules`` after checking kind, architecture and (if given) dataset hash.
 
     Returns the checkpoint dict (``config``, ``state``, ``dataset_hash``, ...)."""
@@ -67,8 +85,10 @@ def load_checkpoint(path: str | os.PathLike, *, kind: str, architecture: Mapping
         detail = ", ".join(f"{k}: checkpoint {a!r} vs wanted {b!r}" for k, (a, b) in sorted(diff.items()))
         raise CheckpointError(f"{path} was trained with another architecture ({detail})")
     if dataset_hash is not None and payload["dataset_hash"] != dataset_hash:
-        raise CheckpointError(f"{path} was trained on another dataset (hash {payload['dataset_hash'][:12]} vs "
-                              f"{dataset_hash[:12]}); retrain or pass dataset_hash=None to accept it")
+        raise CheckpointError(
+            f"{path} was trained on another dataset (hash {payload['dataset_hash'][:12]} vs "
+            f"{dataset_hash[:12]}); retrain or pass dataset_hash=None to accept it"
+        )
     missing = set(modules) - set(payload["modules"])
     if missing:
         raise CheckpointError(f"{path} lacks the modules {sorted(missing)}")

@@ -1,4 +1,5 @@
 """The multilayer perceptron of the generators and discriminators of trajGAN (Eq. 13-15) and lcGAN (Eq. 16-17)."""
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence

@@ -12,6 +12,7 @@ code against this interface:
   shapes, so the fused transform stack can compile it);
 * ``forward(tensordict)``: ``predict`` on the in-keys with fresh noise, written to the out-key.
 """
+
 from __future__ import annotations
 
 import copy
@@ -85,9 +86,14 @@ class GANPredictor(TensorDictModuleBase):
         return cls.from_net(copy.deepcopy(task.generator), task.architecture(), **kwargs)
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path, dataset_hash: str | None = None,
-                        architecture: Mapping[str, Any] | None = None, device: str | torch.device = "cpu",
-                        **kwargs) -> GANPredictor:
+    def from_checkpoint(
+        cls,
+        path: str | Path,
+        dataset_hash: str | None = None,
+        architecture: Mapping[str, Any] | None = None,
+        device: str | torch.device = "cpu",
+        **kwargs,
+    ) -> GANPredictor:
         """Rebuild the generator from a ``best.pt`` / ``last.pt`` of
         :func:`~kddrl_trl.generative.pretraining.run_pretraining` (or the shipped weights) on ``device``.
         ``architecture`` / ``dataset_hash``, if given, must match the checkpoint (:class:`CheckpointError`

@@ -1,4 +1,5 @@
 """Text tables of the generative models' test metrics, beside the paper's figures (§IV.F)."""
+
 from __future__ import annotations
 
 from kddrl_trl.gan_inputs import KEY_STEPS
@@ -13,18 +14,26 @@ def _trajgan(m: dict) -> str:
     last = KEY_STEPS[-1]
     head = f"{'predictor (m)':22s}" + "".join(f"{c:>12s}" for c in cols)
     rows = [head, "-" * len(head)]
-    for name, src in (("trajGAN", m), ("IDM prior", m.get("idm_prior", {})), ("constant velocity", m.get("const_velocity", {}))):
+    for name, src in (
+        ("trajGAN", m),
+        ("IDM prior", m.get("idm_prior", {})),
+        ("constant velocity", m.get("const_velocity", {})),
+    ):
         rows.append(f"{name:22s}" + "".join(f"{src.get(c, float('nan')):12.2f}" for c in cols))
     rows.append(f"{'paper trajGAN':22s}" + f"{PAPER_TRAJGAN['mae']:12.2f}{PAPER_TRAJGAN['rmse']:12.2f}")
     if "min_of_k" in m:
-        rows.append(f"min over K samples: MAE {m['min_of_k'].get('mae', float('nan')):.2f} m, at step {last} "
-                    f"{m['min_of_k'].get(f'mae_step{last}', float('nan')):.2f} m; spread at step {last} "
-                    f"{m.get(f'spread_step{last}', float('nan')):.2f} m")
+        rows.append(
+            f"min over K samples: MAE {m['min_of_k'].get('mae', float('nan')):.2f} m, at step {last} "
+            f"{m['min_of_k'].get(f'mae_step{last}', float('nan')):.2f} m; spread at step {last} "
+            f"{m.get(f'spread_step{last}', float('nan')):.2f} m"
+        )
     for driver, d in m.get("per_driver", {}).items():
-        rows.append(f"  {driver:12s} n={d.get('n', 0):>7}  MAE@{last} {d.get(f'mae_step{last}', float('nan')):6.2f}  "
-                    f"IDM {d.get(f'idm_prior_mae_step{last}', float('nan')):6.2f}  min-of-K "
-                    f"{d.get(f'min_of_k_mae_step{last}', float('nan')):6.2f}  "
-                    f"spread {d.get(f'spread_step{last}', float('nan')):5.2f}")
+        rows.append(
+            f"  {driver:12s} n={d.get('n', 0):>7}  MAE@{last} {d.get(f'mae_step{last}', float('nan')):6.2f}  "
+            f"IDM {d.get(f'idm_prior_mae_step{last}', float('nan')):6.2f}  min-of-K "
+            f"{d.get(f'min_of_k_mae_step{last}', float('nan')):6.2f}  "
+            f"spread {d.get(f'spread_step{last}', float('nan')):5.2f}"
+        )
     return "\n".join(rows)
 
 

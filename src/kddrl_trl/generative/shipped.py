@@ -6,6 +6,7 @@ test-split metrics of the weights on the dataset they were trained on, that data
 ``dataset_hash`` recorded in the weights; ``tests/test_shipped_metrics.py`` checks it) and the command that made
 the file. The report (Figs. 16-17) reads it with :func:`read_shipped_metrics`.
 """
+
 from __future__ import annotations
 
 import json
@@ -25,16 +26,22 @@ def metrics_path(weights: str | Path) -> Path:
 
 def evaluate_checkpoint(task, checkpoint: str | Path, test, out_dir: str | Path, dataset_hash: str) -> dict:
     """Test metrics of ``checkpoint`` loaded into ``task`` (refused if it was trained on another dataset)."""
-    payload = load_checkpoint(checkpoint, kind=task.kind, architecture=task.architecture(), modules=task.modules(),
-                              dataset_hash=dataset_hash)
+    payload = load_checkpoint(
+        checkpoint, kind=task.kind, architecture=task.architecture(), modules=task.modules(), dataset_hash=dataset_hash
+    )
     task.load_state(payload["state"]["task"])
     metrics = task.evaluate(test, out_dir)
     metrics.update(best_epoch=payload["state"].get("epoch"), best_val_loss=payload["state"].get("val_loss"))
     return metrics
 
 
-def write_shipped_metrics(weights: str | Path, metrics: Mapping[str, Any], command: str,
-                          dataset: Mapping[str, Any] | None = None, trained: bool = True) -> Path:
+def write_shipped_metrics(
+    weights: str | Path,
+    metrics: Mapping[str, Any],
+    command: str,
+    dataset: Mapping[str, Any] | None = None,
+    trained: bool = True,
+) -> Path:
     """Write ``metrics_path(weights)``: ``kind``, ``dataset_hash`` (read from the weights themselves, so the two
     cannot disagree), ``command`` (what measured the metrics), ``weights_command`` (what trained the weights:
     ``command`` itself when ``trained``, else kept from the file being replaced if it describes the same weights),
@@ -46,9 +53,18 @@ def write_shipped_metrics(weights: str | Path, metrics: Mapping[str, Any], comma
         old = json.loads(out.read_text())
         if old.get("dataset_hash") == payload["dataset_hash"]:
             weights_command = old.get("weights_command", old.get("command"))
-    write_json_atomic(out, {"kind": payload["kind"], "dataset_hash": payload["dataset_hash"], "command": command,
-                            "weights_command": weights_command, "dataset": dict(dataset or {}), "split": "test",
-                            "test": dict(metrics)})
+    write_json_atomic(
+        out,
+        {
+            "kind": payload["kind"],
+            "dataset_hash": payload["dataset_hash"],
+            "command": command,
+            "weights_command": weights_command,
+            "dataset": dict(dataset or {}),
+            "split": "test",
+            "test": dict(metrics),
+        },
+    )
     return out
 
 

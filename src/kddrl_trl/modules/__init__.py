@@ -10,6 +10,7 @@
   and the helpers that implement it: :func:`build_agent_states`, :func:`detach_embedding`,
   :func:`embedding_parameters`, :func:`make_target_embedding`, :func:`soft_update_embedding_`.
 """
+
 from .embedding import (
     KEY_GAP_CLIP,
     KEY_GAP_SCALE,

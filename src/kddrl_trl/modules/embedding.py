@@ -3,6 +3,7 @@
 Which losses train it, and how one instance is shared by the two TorchRL losses, is decided in
 :mod:`kddrl_trl.modules.sharing`.
 """
+
 from __future__ import annotations
 
 import torch
@@ -21,20 +22,29 @@ KEY_GAP_CLIP = 5.0
 
 
 class _EmbeddingNet(nn.Module):
-    def __init__(self, prior_dim: int, key_gaps: bool, out_features: int, hidden: int, depth: int,
-                 gap_scale: float, gap_clip: float):
+    def __init__(
+        self,
+        prior_dim: int,
+        key_gaps: bool,
+        out_features: int,
+        hidden: int,
+        depth: int,
+        gap_scale: float,
+        gap_clip: float,
+    ):
         super().__init__()
         self.prior_dim, self.key_gaps = prior_dim, key_gaps
         self.gap_scale, self.gap_clip = float(gap_scale), float(gap_clip)
         in_features = prior_dim + (6 if key_gaps else 0)
-        self.mlp = MLP(in_features=in_features, out_features=out_features, num_cells=[hidden] * depth,
-                       activation_class=nn.ELU)
+        self.mlp = MLP(
+            in_features=in_features, out_features=out_features, num_cells=[hidden] * depth, activation_class=nn.ELU
+        )
         self.out = nn.Tanh()
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         parts = list(inputs)
         if self.key_gaps:
-            gaps = parts[-1].flatten(-2) / self.gap_scale            # [*B, 3, 2] -> [*B, 6], ~unit range
+            gaps = parts[-1].flatten(-2) / self.gap_scale  # [*B, 3, 2] -> [*B, 6], ~unit range
             parts[-1] = gaps.clamp(-self.gap_clip, self.gap_clip)
         return self.out(self.mlp(torch.cat(parts, dim=-1)))
 
@@ -65,10 +75,20 @@ class SharedEmbedding(TensorDictModule):
             ``keys.EMBED_S_E``.
     """
 
-    def __init__(self, out_features: int = 16, hidden: int = 64, *, prior_dim: int | None = 16,
-                 key_gaps: bool = True, depth: int = 1, gap_scale: float = KEY_GAP_SCALE,
-                 gap_clip: float = KEY_GAP_CLIP, prior_key: NestedKey = K.PRIOR_P_LC,
-                 gaps_key: NestedKey = K.PRED_KEY_GAPS, out_key: NestedKey = K.EMBED_S_E):
+    def __init__(
+        self,
+        out_features: int = 16,
+        hidden: int = 64,
+        *,
+        prior_dim: int | None = 16,
+        key_gaps: bool = True,
+        depth: int = 1,
+        gap_scale: float = KEY_GAP_SCALE,
+        gap_clip: float = KEY_GAP_CLIP,
+        prior_key: NestedKey = K.PRIOR_P_LC,
+        gaps_key: NestedKey = K.PRED_KEY_GAPS,
+        out_key: NestedKey = K.EMBED_S_E,
+    ):
         if prior_dim is None and not key_gaps:
             raise ValueError("SharedEmbedding needs P_lc, the key gaps, or both (use no embedding instead)")
         in_keys = ([prior_key] if prior_dim is not None else []) + ([gaps_key] if key_gaps else [])
@@ -77,8 +97,15 @@ class SharedEmbedding(TensorDictModule):
         self.out_features = out_features
 
 
-def make_shared_embedding(d: int = 16, hidden: int = 64, priors: bool = True, key_gaps: bool = True, *,
-                          prior_dim: int | None = None, depth: int = 1) -> TensorDictSequential | None:
+def make_shared_embedding(
+    d: int = 16,
+    hidden: int = 64,
+    priors: bool = True,
+    key_gaps: bool = True,
+    *,
+    prior_dim: int | None = None,
+    depth: int = 1,
+) -> TensorDictSequential | None:
     """Builds the whole embedding path of Fig. 5: Eq. 23 fusion followed by the Eq. 24 shared embedding.
 
     One instance is built per run and shared by both agents (see :mod:`kddrl_trl.modules.sharing`).
@@ -118,6 +145,5 @@ def make_shared_embedding(d: int = 16, hidden: int = 64, priors: bool = True, ke
         return None
     prior_dim = d if prior_dim is None else prior_dim
     modules = [PriorFusion(prior_dim, hidden, depth=depth)] if priors else []
-    modules.append(SharedEmbedding(d, hidden, prior_dim=prior_dim if priors else None, key_gaps=key_gaps,
-                                   depth=depth))
+    modules.append(SharedEmbedding(d, hidden, prior_dim=prior_dim if priors else None, key_gaps=key_gaps, depth=depth))
     return TensorDictSequential(*modules)

@@ -1,4 +1,5 @@
 """Knowledge-data prior fusion P_lc = embedding(P_lcGAN, P_MOBIL) — paper Eq. 23 (§III.C.3, Fig. 4)."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -17,8 +18,9 @@ class _ConcatMLP(nn.Module):
 
     def __init__(self, in_features: int, out_features: int, hidden: int, depth: int = 1):
         super().__init__()
-        self.mlp = MLP(in_features=in_features, out_features=out_features, num_cells=[hidden] * depth,
-                       activation_class=nn.ELU)
+        self.mlp = MLP(
+            in_features=in_features, out_features=out_features, num_cells=[hidden] * depth, activation_class=nn.ELU
+        )
         self.out = nn.Tanh()
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
@@ -56,9 +58,15 @@ class PriorFusion(TensorDictModule):
         torch.Size([4, 8])
     """
 
-    def __init__(self, out_features: int = 16, hidden: int = 64, *, depth: int = 1,
-                 in_keys: Sequence[NestedKey] = (K.PRIOR_P_LCGAN, K.PRIOR_P_MOBIL),
-                 out_key: NestedKey = K.PRIOR_P_LC):
+    def __init__(
+        self,
+        out_features: int = 16,
+        hidden: int = 64,
+        *,
+        depth: int = 1,
+        in_keys: Sequence[NestedKey] = (K.PRIOR_P_LCGAN, K.PRIOR_P_MOBIL),
+        out_key: NestedKey = K.PRIOR_P_LC,
+    ):
         in_keys = list(in_keys)
         if len(in_keys) != 2:
             raise ValueError(f"PriorFusion reads exactly two priors (P_lcGAN, P_MOBIL), got {in_keys}")

@@ -2,6 +2,7 @@
 TD3 actor (Eq. 8, action bounds of Eq. 31) and critic (Eq. 7), and the hybrid actor / critic of the PASAC comparison
 system (discrete lane command + continuous acceleration). Plain ``nn.Module`` s; the TorchRL wrappers
 (``QValueActor``, ``TensorDictModule``) are made in :mod:`kddrl_trl.objectives`."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -24,8 +25,9 @@ class DuelingQNet(nn.Module):
     plain MLP Q network of the same depth (DDQN of Ni et al.).
     """
 
-    def __init__(self, in_features: int, num_actions: int = 3, hidden: Sequence[int] = (256, 256),
-                 dueling: bool = True):
+    def __init__(
+        self, in_features: int, num_actions: int = 3, hidden: Sequence[int] = (256, 256), dueling: bool = True
+    ):
         super().__init__()
         hidden = list(hidden)
         if not hidden:
@@ -51,8 +53,14 @@ class DuelingQNet(nn.Module):
 class BoundedActor(nn.Module):
     """Deterministic policy ``mu(s; φ)`` (Eq. 8) with outputs in ``[low, high]`` (tanh, rescaled; Eq. 31)."""
 
-    def __init__(self, in_features: int, action_dim: int = 1, hidden: Sequence[int] = (256, 256),
-                 low: float = -5.0, high: float = 5.0):
+    def __init__(
+        self,
+        in_features: int,
+        action_dim: int = 1,
+        hidden: Sequence[int] = (256, 256),
+        low: float = -5.0,
+        high: float = 5.0,
+    ):
         super().__init__()
         if not high > low:
             raise ValueError(f"action bounds must satisfy low < high, got [{low}, {high}]")
@@ -67,8 +75,9 @@ class BoundedActor(nn.Module):
 class StateActionCritic(nn.Module):
     """``Q_k(s, a; φ_k)`` (Eq. 7): an MLP on ``[s, a / action_scale]``."""
 
-    def __init__(self, in_features: int, action_dim: int = 1, hidden: Sequence[int] = (256, 256),
-                 action_scale: float = 5.0):
+    def __init__(
+        self, in_features: int, action_dim: int = 1, hidden: Sequence[int] = (256, 256), action_scale: float = 5.0
+    ):
         super().__init__()
         self.net = mlp(in_features + action_dim, 1, hidden)
         self.action_scale = float(action_scale)
@@ -90,8 +99,15 @@ class HybridActor(nn.Module):
     command, as in P-DQN (Xiong et al. 2018) and hybrid SAC (Delalleau et al. 2019). ``log_std`` is clamped to
     [``log_std_min``, ``log_std_max``] (SAC's usual [-5, 2])."""
 
-    def __init__(self, in_features: int, num_choices: int = 3, param_dim: int = 1, hidden: Sequence[int] = (256, 256),
-                 log_std_min: float = -5.0, log_std_max: float = 2.0):
+    def __init__(
+        self,
+        in_features: int,
+        num_choices: int = 3,
+        param_dim: int = 1,
+        hidden: Sequence[int] = (256, 256),
+        log_std_min: float = -5.0,
+        log_std_max: float = 2.0,
+    ):
         super().__init__()
         self.num_choices, self.param_dim = int(num_choices), int(param_dim)
         self.net = mlp(in_features, self.num_choices * (1 + 2 * self.param_dim), hidden)
@@ -108,8 +124,14 @@ class HybridActor(nn.Module):
 class HybridCritic(nn.Module):
     """Soft ``Q(s, k, x)`` of a parameterised action: an MLP on ``[s, one-hot k, x / param_scale]``."""
 
-    def __init__(self, in_features: int, num_choices: int = 3, param_dim: int = 1, hidden: Sequence[int] = (256, 256),
-                 param_scale: float = 5.0):
+    def __init__(
+        self,
+        in_features: int,
+        num_choices: int = 3,
+        param_dim: int = 1,
+        hidden: Sequence[int] = (256, 256),
+        param_scale: float = 5.0,
+    ):
         super().__init__()
         self.net = mlp(in_features + num_choices + param_dim, 1, hidden)
         self.param_scale = float(param_scale)

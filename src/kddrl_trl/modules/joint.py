@@ -10,6 +10,7 @@ unified agents choose both at once and learn from one reward.
   agents' rewards, as one agent that both changes lanes and follows would be rewarded;
 - :func:`accel_levels`: the acceleration levels of the unified D3QN.
 """
+
 from __future__ import annotations
 
 import torch
@@ -56,8 +57,7 @@ class _Split(nn.Module):
 def joint_action_split(levels: torch.Tensor, num_commands: int = 3) -> TensorDictModule:
     """``keys.JOINT_ACTION`` [*B, num_commands x len(levels)] one-hot -> ``keys.LC_ACTION`` [*B, 3] one-hot and
     ``keys.CF_ACTION`` [*B, 1] (the level's acceleration, m/s²)."""
-    return TensorDictModule(_Split(levels, num_commands), in_keys=[K.JOINT_ACTION],
-                            out_keys=[K.LC_ACTION, K.CF_ACTION])
+    return TensorDictModule(_Split(levels, num_commands), in_keys=[K.JOINT_ACTION], out_keys=[K.LC_ACTION, K.CF_ACTION])
 
 
 class _Sum(nn.Module):
@@ -68,5 +68,6 @@ class _Sum(nn.Module):
 def joint_reward() -> TensorDictModule:
     """``("next", keys.JOINT_REWARD)`` = ``("next", keys.LC_REWARD)`` + ``("next", keys.CF_REWARD)`` of a sample:
     the reward of a unified agent, r_D3QN (Eq. 26-29) + r_TD3 (Eq. 32-33) of the same frame."""
-    return TensorDictModule(_Sum(), in_keys=[("next", *K.LC_REWARD), ("next", *K.CF_REWARD)],
-                            out_keys=[("next", *K.JOINT_REWARD)])
+    return TensorDictModule(
+        _Sum(), in_keys=[("next", *K.LC_REWARD), ("next", *K.CF_REWARD)], out_keys=[("next", *K.JOINT_REWARD)]
+    )

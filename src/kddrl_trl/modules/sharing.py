@@ -66,6 +66,7 @@ What the learning loop must do
 - Acting: ``TensorDictSequential(embedding, lc_state(), q_actor)`` and
   ``TensorDictSequential(embedding, cf_state(), actor)`` under ``torch.no_grad()``.
 """
+
 from __future__ import annotations
 
 import copy
@@ -135,10 +136,13 @@ def soft_update_embedding_(target: nn.Module | None, source: nn.Module | None, t
         t.copy_(s)
 
 
-def build_agent_states(td: TensorDictBase, embedding: TensorDictModuleBase | None,
-                       *builders: TensorDictModuleBase,
-                       target_embedding: TensorDictModuleBase | None = None,
-                       next_lc_policy: TensorDictModuleBase | None = None) -> TensorDictBase:
+def build_agent_states(
+    td: TensorDictBase,
+    embedding: TensorDictModuleBase | None,
+    *builders: TensorDictModuleBase,
+    target_embedding: TensorDictModuleBase | None = None,
+    next_lc_policy: TensorDictModuleBase | None = None,
+) -> TensorDictBase:
     """Computes ``s_e`` and the agent states (Eq. 24, Eq. 30) on a sampled batch, root and ``"next"``.
 
     At the root the online ``embedding`` runs with gradients (the value losses train it); under ``"next"``
@@ -176,8 +180,10 @@ def build_agent_states(td: TensorDictBase, embedding: TensorDictModuleBase | Non
             if held is not None and next_lc_policy is not None:
                 decide = nxt.get(K.LC_DECIDE, None)
                 if decide is None:
-                    raise KeyError(f"build_agent_states: the batch has no ('next', {K.LC_DECIDE!r}) (the "
-                               "DecisionClock's flag): the next lane-change action cannot be told from the held one")
+                    raise KeyError(
+                        f"build_agent_states: the batch has no ('next', {K.LC_DECIDE!r}) (the "
+                        "DecisionClock's flag): the next lane-change action cannot be told from the held one"
+                    )
                 chosen = next_lc_policy(nxt.clone(False)).get(K.LC_ACTION).to(held.dtype)
                 nxt.set(K.LC_ACTION, torch.where(decide.reshape(*held.shape[:-1], 1).bool(), chosen, held))
             for b in builders:

@@ -49,6 +49,7 @@ otherwise be indistinguishable from a neighbour level with the ego at the same s
 ``detach_s_e=True`` builds the state from a detached ``s_e`` (no gradient reaches the embedding through it);
 see :mod:`kddrl_trl.modules.sharing` for when that is needed.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -74,14 +75,14 @@ class StateScale:
     5 m/s — instead of being squashed to ~0.03 by the longitudinal ones.
     """
 
-    position: float = 100.0          # m, longitudinal y_AV and Δy
-    speed: float = 50.0              # m/s, longitudinal v_y and Δv_y
-    lateral_position: float = 10.0   # m, Δx
-    lateral_speed: float = 5.0       # m/s, v_x and Δv_x
-    accel: float = 5.0               # m/s², a_TD3^{t-1}
-    time: float = 2.0                # s, the state extras thw / ttc (capped at time x clip = 10 s)
-    vehicle_length: float = 5.0      # m, leader length in the extras' bumper-to-bumper gap (HighwayConfig default)
-    clip: float = 5.0                # every scaled feature is clipped to ±clip
+    position: float = 100.0  # m, longitudinal y_AV and Δy
+    speed: float = 50.0  # m/s, longitudinal v_y and Δv_y
+    lateral_position: float = 10.0  # m, Δx
+    lateral_speed: float = 5.0  # m/s, v_x and Δv_x
+    accel: float = 5.0  # m/s², a_TD3^{t-1}
+    time: float = 2.0  # s, the state extras thw / ttc (capped at time x clip = 10 s)
+    vehicle_length: float = 5.0  # m, leader length in the extras' bumper-to-bumper gap (HighwayConfig default)
+    clip: float = 5.0  # every scaled feature is clipped to ±clip
 
 
 #: the optional state features of ``algo.state_extras`` (not in the paper), in state order
@@ -93,13 +94,15 @@ def check_extras(extras) -> tuple[str, ...]:
     extras = tuple(extras or ())
     bad = [e for e in extras if e not in STATE_EXTRAS]
     if bad or len(set(extras)) != len(extras):
-        raise ValueError(f"algo.state_extras={list(extras)}: each must be one of {', '.join(STATE_EXTRAS)}, at most "
-                         "once")
+        raise ValueError(
+            f"algo.state_extras={list(extras)}: each must be one of {', '.join(STATE_EXTRAS)}, at most once"
+        )
     return tuple(e for e in STATE_EXTRAS if e in extras)
 
 
-def headway_features(ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, extras=STATE_EXTRAS,
-                     scale: StateScale = StateScale()) -> torch.Tensor:
+def headway_features(
+    ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, extras=STATE_EXTRAS, scale: StateScale = StateScale()
+) -> torch.Tensor:
     """The state extras ``[*B, len(extras)]`` (an option, not in the paper; module docstring): the time
     headway ``gap / v`` and the time to collision ``gap / (v - v_lead)`` to the current-lane leader (slot b), each
     capped at ``scale.time * scale.clip`` seconds (the cap when there is no leader, when the ego stands (thw) or is not
@@ -146,16 +149,16 @@ def cf_obs_dim(embed_dim: int = 0, extras=()) -> int:
 class _StateNet(nn.Module):
     """Concatenates the scaled state features; the input order is that of the builder's ``in_keys``."""
 
-    def __init__(self, scale: StateScale, embed: bool, detach_s_e: bool, actions: bool, mobil: bool = False,
-                 extras=()):
+    def __init__(self, scale: StateScale, embed: bool, detach_s_e: bool, actions: bool, mobil: bool = False, extras=()):
         super().__init__()
         self.scale, self.embed, self.detach_s_e, self.actions, self.mobil = scale, embed, detach_s_e, actions, mobil
         self.extras = check_extras(extras)
         s = scale
         self.register_buffer("ego_scale", torch.tensor([s.position, s.speed, s.lateral_speed]), persistent=False)
         # REL_FEATURES order: dx (lateral), dy (longitudinal), dvx (lateral), dvy (longitudinal)
-        self.register_buffer("rel_scale", torch.tensor([s.lateral_position, s.position, s.lateral_speed, s.speed]),
-                             persistent=False)
+        self.register_buffer(
+            "rel_scale", torch.tensor([s.lateral_position, s.position, s.lateral_speed, s.speed]), persistent=False
+        )
 
     def forward(self, ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
         c = self.scale.clip
@@ -179,8 +182,15 @@ class _StateNet(nn.Module):
         return torch.cat(parts, dim=-1)
 
 
-def lc_state(embed: bool = True, *, mobil: bool = False, detach_s_e: bool = False, scale: StateScale = StateScale(),
-             out_key: NestedKey = K.LC_OBS, extras=()) -> TensorDictModule:
+def lc_state(
+    embed: bool = True,
+    *,
+    mobil: bool = False,
+    detach_s_e: bool = False,
+    scale: StateScale = StateScale(),
+    out_key: NestedKey = K.LC_OBS,
+    extras=(),
+) -> TensorDictModule:
     """D3QN state ``s_D3QN = [s_AV, Δs_i, s_e]`` — paper Eq. 24 — as a TensorDict module.
 
     Reads ``keys.EGO_STATE`` ``[*B, 3]``, ``keys.NEIGHBORS_REL`` ``[*B, 6, 4]``, ``keys.NEIGHBORS_MASK``
@@ -211,14 +221,27 @@ def lc_state(embed: bool = True, *, mobil: bool = False, detach_s_e: bool = Fals
         >>> lc_state(embed=False)(td)[K.LC_OBS][:3]
         tensor([2.0000, 0.6000, 0.0000])
     """
-    in_keys = ([K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
-               + ([K.MOBIL_INCENTIVE, K.MOBIL_SAFE] if mobil else []))
-    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=False, mobil=mobil, extras=extras),
-                            in_keys=in_keys, out_keys=[out_key])
+    in_keys = (
+        [K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK]
+        + ([K.EMBED_S_E] if embed else [])
+        + ([K.MOBIL_INCENTIVE, K.MOBIL_SAFE] if mobil else [])
+    )
+    return TensorDictModule(
+        _StateNet(scale, embed, detach_s_e, actions=False, mobil=mobil, extras=extras),
+        in_keys=in_keys,
+        out_keys=[out_key],
+    )
 
 
-def cf_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale = StateScale(),
-             out_key: NestedKey = K.CF_OBS, lc_action_key: NestedKey = K.LC_ACTION, extras=()) -> TensorDictModule:
+def cf_state(
+    embed: bool = True,
+    *,
+    detach_s_e: bool = False,
+    scale: StateScale = StateScale(),
+    out_key: NestedKey = K.CF_OBS,
+    lc_action_key: NestedKey = K.LC_ACTION,
+    extras=(),
+) -> TensorDictModule:
     """TD3 state ``s_TD3 = [s_AV, Δs_i, s_e, a_D3QN^t, a_TD3^{t-1}]`` — paper Eq. 30 — as a TensorDict module.
 
     Reads the inputs of :func:`lc_state` plus ``keys.LC_ACTION`` ``[*B, 3]`` (the held one-hot lane-change
@@ -241,7 +264,11 @@ def cf_state(embed: bool = True, *, detach_s_e: bool = False, scale: StateScale 
         extras (tuple of str): state extras of :data:`STATE_EXTRAS` appended last (``algo.state_extras``,
             not in the paper). Defaults to none.
     """
-    in_keys = ([K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK] + ([K.EMBED_S_E] if embed else [])
-               + [lc_action_key, K.EGO_ACCEL])
-    return TensorDictModule(_StateNet(scale, embed, detach_s_e, actions=True, extras=extras), in_keys=in_keys,
-                            out_keys=[out_key])
+    in_keys = (
+        [K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK]
+        + ([K.EMBED_S_E] if embed else [])
+        + [lc_action_key, K.EGO_ACCEL]
+    )
+    return TensorDictModule(
+        _StateNet(scale, embed, detach_s_e, actions=True, extras=extras), in_keys=in_keys, out_keys=[out_key]
+    )

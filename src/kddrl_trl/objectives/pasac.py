@@ -27,6 +27,7 @@ would have to average them. Each part has its own temperature (α_d, α_c), auto
 ``log π_c`` is the density of the tanh-squashed action in [-1, 1] (before the affine scaling to [low, high]), SAC's
 usual convention, so ``target_entropy_param = -1`` (-dim) is the usual target.
 """
+
 from __future__ import annotations
 
 import math
@@ -130,27 +131,57 @@ class PASACLoss(LossModule):
     default_keys = _AcceptedKeys
     use_prioritized_weights = "auto"  # a sample's priority_weight (prioritized replay) weights the means, as TorchRL's
     default_value_estimator = ValueEstimators.TD0
-    out_keys = ["loss_qvalue", "loss_actor", "loss_alpha_lane", "loss_alpha_param", "alpha_lane", "alpha_param",
-                "entropy_lane", "log_prob_param", "state_action_value", "target_value", "td_error"]
+    out_keys = [
+        "loss_qvalue",
+        "loss_actor",
+        "loss_alpha_lane",
+        "loss_alpha_param",
+        "alpha_lane",
+        "alpha_param",
+        "entropy_lane",
+        "log_prob_param",
+        "state_action_value",
+        "target_value",
+        "td_error",
+    ]
 
-    def __init__(self, actor_network: TensorDictModule, qvalue_network: TensorDictModule, *, num_choices: int = 3,
-                 num_qvalue_nets: int = 2, low: float = -5.0, high: float = 5.0, alpha_init: float = 1.0,
-                 alpha_min: float = 1e-4, alpha_max: float = 1.0, target_entropy_lane: float = 0.33,
-                 target_entropy_param: float = -1.0, loss_function: str = "l2"):
+    def __init__(
+        self,
+        actor_network: TensorDictModule,
+        qvalue_network: TensorDictModule,
+        *,
+        num_choices: int = 3,
+        num_qvalue_nets: int = 2,
+        low: float = -5.0,
+        high: float = 5.0,
+        alpha_init: float = 1.0,
+        alpha_min: float = 1e-4,
+        alpha_max: float = 1.0,
+        target_entropy_lane: float = 0.33,
+        target_entropy_param: float = -1.0,
+        loss_function: str = "l2",
+    ):
         super().__init__()
         self._in_keys = None
         self.num_choices, self.num_qvalue_nets = int(num_choices), int(num_qvalue_nets)
         self.loss_function = loss_function
         self.convert_to_functional(actor_network, "actor_network", create_target_params=False)
-        self.convert_to_functional(qvalue_network, "qvalue_network", expand_dim=self.num_qvalue_nets,
-                                   create_target_params=True, compare_against=list(actor_network.parameters()))
+        self.convert_to_functional(
+            qvalue_network,
+            "qvalue_network",
+            expand_dim=self.num_qvalue_nets,
+            create_target_params=True,
+            compare_against=list(actor_network.parameters()),
+        )
         # every critic on one batch in one call (the critics' parameters stacked along dim 0), as SACLoss does
         self._vmap_q = _vmap_func(self.qvalue_network, (None, 0), randomness="error")
         self.register_buffer("param_loc", torch.tensor((high + low) / 2.0))
         self.register_buffer("param_half", torch.tensor((high - low) / 2.0))
         if not 0.0 < alpha_min <= alpha_init <= alpha_max:
-            raise ValueError(f"PASACLoss: need 0 < alpha_min <= alpha_init <= alpha_max, got alpha_min={alpha_min}, "
-                             f"alpha_init={alpha_init}, alpha_max={alpha_max}")
+            raise ValueError(
+                f"PASACLoss: need 0 < alpha_min <= alpha_init <= alpha_max, got alpha_min={alpha_min}, "
+                f"alpha_init={alpha_init}, alpha_max={alpha_max}"
+            )
         self.log_alpha_min, self.log_alpha_max = math.log(alpha_min), math.log(alpha_max)
         self.log_alpha_lane = torch.nn.Parameter(torch.tensor(math.log(alpha_init)))
         self.log_alpha_param = torch.nn.Parameter(torch.tensor(math.log(alpha_init)))
@@ -160,8 +191,12 @@ class PASACLoss(LossModule):
     # ---------------------------------------------------------------------------------- TorchRL API
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         if self._value_estimator is not None:
-            self._value_estimator.set_keys(value=self.tensor_keys.value, reward=self.tensor_keys.reward,
-                                           done=self.tensor_keys.done, terminated=self.tensor_keys.terminated)
+            self._value_estimator.set_keys(
+                value=self.tensor_keys.value,
+                reward=self.tensor_keys.reward,
+                done=self.tensor_keys.done,
+                terminated=self.tensor_keys.terminated,
+            )
         self._set_in_keys()
 
     def _set_in_keys(self) -> None:
@@ -183,13 +218,20 @@ class PASACLoss(LossModule):
         self.value_type = value_type
         hp = dict(default_value_kwargs(value_type))
         hp.update(hyperparams)
-        estimators = {ValueEstimators.TD0: TD0Estimator, ValueEstimators.TD1: TD1Estimator,
-                      ValueEstimators.TDLambda: TDLambdaEstimator}
+        estimators = {
+            ValueEstimators.TD0: TD0Estimator,
+            ValueEstimators.TD1: TD1Estimator,
+            ValueEstimators.TDLambda: TDLambdaEstimator,
+        }
         if value_type not in estimators:
             raise NotImplementedError(f"PASACLoss: value estimator {value_type} is not supported")
         self._value_estimator = estimators[value_type](value_network=None, **hp)
-        self._value_estimator.set_keys(value=self.tensor_keys.value, reward=self.tensor_keys.reward,
-                                       done=self.tensor_keys.done, terminated=self.tensor_keys.terminated)
+        self._value_estimator.set_keys(
+            value=self.tensor_keys.value,
+            reward=self.tensor_keys.reward,
+            done=self.tensor_keys.done,
+            terminated=self.tensor_keys.terminated,
+        )
         return self
 
     # -------------------------------------------------------------------------------------- pieces
@@ -243,22 +285,32 @@ class PASACLoss(LossModule):
             td = tensordict.clone(False)
             td.set(("next", self.tensor_keys.value), value)
             target = self.value_estimator.value_estimate(td).squeeze(-1)
-        pred = self._q(tensordict, tensordict.get(self.tensor_keys.action), tensordict.get(self.tensor_keys.param),
-                       self.qvalue_network_params)
+        pred = self._q(
+            tensordict,
+            tensordict.get(self.tensor_keys.action),
+            tensordict.get(self.tensor_keys.param),
+            self.qvalue_network_params,
+        )
         loss = distance_loss(pred, target.expand_as(pred), loss_function=self.loss_function).sum(0)
-        return self._weighted_mean(loss, tensordict), {"state_action_value": pred.detach().mean(),
-                                                       "target_value": target.detach().mean(),
-                                                       self.tensor_keys.priority: (pred - target).detach().pow(2)}
+        return self._weighted_mean(loss, tensordict), {
+            "state_action_value": pred.detach().mean(),
+            "target_value": target.detach().mean(),
+            self.tensor_keys.priority: (pred - target).detach().pow(2),
+        }
 
     def actor_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         """Policy loss of both heads (critics detached) and the entropies the temperatures are tuned on."""
         p, log_p, param, log_prob = self._policy(tensordict)
         q = self._q_every_choice(tensordict, param, self.qvalue_network_params.detach())
-        loss = self._weighted_mean((p * (self.alpha_lane * log_p + self.alpha_param * log_prob - q)).sum(-1),
-                                   tensordict)
+        loss = self._weighted_mean(
+            (p * (self.alpha_lane * log_p + self.alpha_param * log_prob - q)).sum(-1), tensordict
+        )
         entropy = -(p * log_p).sum(-1)
-        return loss, {"entropy_lane": entropy.detach(), "log_prob_param": (p * log_prob).sum(-1).detach(),
-                      "choosable": self.choosable(tensordict)}
+        return loss, {
+            "entropy_lane": entropy.detach(),
+            "log_prob_param": (p * log_prob).sum(-1).detach(),
+            "choosable": self.choosable(tensordict),
+        }
 
     def choosable(self, tensordict: TensorDictBase) -> Tensor:
         """``[B]`` float, 1 where the state offers more than one valid lane command (its lane entropy can reach any
@@ -278,8 +330,9 @@ class PASACLoss(LossModule):
         weights = weights.reshape(loss.shape)
         return (loss * weights).sum() / weights.sum()
 
-    def alpha_loss(self, entropy_lane: Tensor, log_prob_param: Tensor,
-                   choosable: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    def alpha_loss(
+        self, entropy_lane: Tensor, log_prob_param: Tensor, choosable: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
         """Temperature losses of the lane choice and the parameter (module docstring). The lane temperature is
         tuned on the ``choosable`` states only (:meth:`choosable`): a state with one valid command has entropy 0
         below any target, and counting it drove α_d up without bound (measured 0.2 to 3e14 over a 1000-episode
@@ -298,10 +351,20 @@ class PASACLoss(LossModule):
         choosable = meta_a["choosable"]
         loss_lane, loss_param = self.alpha_loss(meta_a["entropy_lane"], meta_a["log_prob_param"], choosable)
         entropy_lane = (meta_a["entropy_lane"] * choosable).sum() / choosable.sum().clamp(min=1.0)
-        return TensorDict({"loss_qvalue": loss_q, "loss_actor": loss_actor, "loss_alpha_lane": loss_lane,
-                           "loss_alpha_param": loss_param, "alpha_lane": self.alpha_lane,
-                           "alpha_param": self.alpha_param, "entropy_lane": entropy_lane,
-                           "log_prob_param": meta_a["log_prob_param"].mean(), **meta_q}, batch_size=[])
+        return TensorDict(
+            {
+                "loss_qvalue": loss_q,
+                "loss_actor": loss_actor,
+                "loss_alpha_lane": loss_lane,
+                "loss_alpha_param": loss_param,
+                "alpha_lane": self.alpha_lane,
+                "alpha_param": self.alpha_param,
+                "entropy_lane": entropy_lane,
+                "log_prob_param": meta_a["log_prob_param"].mean(),
+                **meta_q,
+            },
+            batch_size=[],
+        )
 
 
 class HybridActionSampler(TensorDictModuleBase):
@@ -336,23 +399,54 @@ class PASACParts:
     target_updater: SoftUpdate
 
     def sampler(self, explore: bool) -> HybridActionSampler:
-        return HybridActionSampler(float(self.loss.param_loc - self.loss.param_half),
-                                   float(self.loss.param_loc + self.loss.param_half), explore)
+        return HybridActionSampler(
+            float(self.loss.param_loc - self.loss.param_half),
+            float(self.loss.param_loc + self.loss.param_half),
+            explore,
+        )
 
 
-def make_pasac(obs_dim: int, *, num_choices: int = 3, low: float = -5.0, high: float = 5.0,
-               hidden: Sequence[int] = (256, 256), gamma: float = 0.99, tau: float = 0.005, alpha_init: float = 1.0,
-               alpha_min: float = 1e-4, alpha_max: float = 1.0, target_entropy_lane: float = 0.33, target_entropy_param: float = -1.0, loss_function: str = "l2",
-               obs_key=K.JOINT_OBS) -> PASACParts:
+def make_pasac(
+    obs_dim: int,
+    *,
+    num_choices: int = 3,
+    low: float = -5.0,
+    high: float = 5.0,
+    hidden: Sequence[int] = (256, 256),
+    gamma: float = 0.99,
+    tau: float = 0.005,
+    alpha_init: float = 1.0,
+    alpha_min: float = 1e-4,
+    alpha_max: float = 1.0,
+    target_entropy_lane: float = 0.33,
+    target_entropy_param: float = -1.0,
+    loss_function: str = "l2",
+    obs_key=K.JOINT_OBS,
+) -> PASACParts:
     """The PASAC agent on ``obs_key``: lane command (``keys.LC_ACTION``, masked by ``keys.LC_ACTION_MASK``) and
     acceleration (``keys.CF_ACTION`` in [low, high] m/s², Eq. 31), rewarded with ``keys.JOINT_REWARD``."""
-    actor = TensorDictModule(HybridActor(obs_dim, num_choices, 1, hidden), in_keys=[obs_key, K.LC_ACTION_MASK],
-                             out_keys=[K.PASAC_LOGITS, K.PASAC_LOC, K.PASAC_SCALE])
-    critic = TensorDictModule(HybridCritic(obs_dim, num_choices, 1, hidden, param_scale=max(abs(low), abs(high))),
-                              in_keys=[obs_key, K.LC_ACTION, K.CF_ACTION], out_keys=[K.PASAC_STATE_ACTION_VALUE])
-    loss = PASACLoss(actor, critic, num_choices=num_choices, low=low, high=high, alpha_init=alpha_init,
-                     alpha_min=alpha_min, alpha_max=alpha_max,
-                     target_entropy_lane=target_entropy_lane, target_entropy_param=target_entropy_param,
-                     loss_function=loss_function)
+    actor = TensorDictModule(
+        HybridActor(obs_dim, num_choices, 1, hidden),
+        in_keys=[obs_key, K.LC_ACTION_MASK],
+        out_keys=[K.PASAC_LOGITS, K.PASAC_LOC, K.PASAC_SCALE],
+    )
+    critic = TensorDictModule(
+        HybridCritic(obs_dim, num_choices, 1, hidden, param_scale=max(abs(low), abs(high))),
+        in_keys=[obs_key, K.LC_ACTION, K.CF_ACTION],
+        out_keys=[K.PASAC_STATE_ACTION_VALUE],
+    )
+    loss = PASACLoss(
+        actor,
+        critic,
+        num_choices=num_choices,
+        low=low,
+        high=high,
+        alpha_init=alpha_init,
+        alpha_min=alpha_min,
+        alpha_max=alpha_max,
+        target_entropy_lane=target_entropy_lane,
+        target_entropy_param=target_entropy_param,
+        loss_function=loss_function,
+    )
     loss.make_value_estimator(gamma=gamma)
     return PASACParts(actor, critic, loss, SoftUpdate(loss, tau=tau))

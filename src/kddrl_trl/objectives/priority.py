@@ -4,6 +4,7 @@ Every learner's value loss reports, per sampled transition, ``|δ|`` (``keys.PRI
 its Bellman target (Eq. 4 for the D3QN, Eq. 6-7 for TD3, the soft target for PASAC), the largest over twin critics.
 TorchRL's ``PrioritizedSampler`` turns it into ``P(i) ∝ (|δ_i| + ε)^α`` and hands the next sample its
 importance-sampling weights ``keys.PRIORITY_WEIGHT``, by which the TorchRL losses weight their means."""
+
 from __future__ import annotations
 
 import torch

@@ -6,6 +6,7 @@ update function holds it as a handful of kernels.
 The semantics are ``SoftUpdate`` 's: the same tensors (those its ``init_`` kept: targets distinct from their
 sources) and the same weight ``tau = 1 - eps``, ``target <- target + tau (source - target)``.
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterable
@@ -27,8 +28,9 @@ def soft_update_tensors(updater: SoftUpdate) -> tuple[list[torch.Tensor], list[t
     return targets, sources, 1.0 - float(updater.eps)
 
 
-def module_tensors(target: nn.Module | None, source: nn.Module | None, tau: float
-                   ) -> tuple[list[torch.Tensor], list[torch.Tensor], float]:
+def module_tensors(
+    target: nn.Module | None, source: nn.Module | None, tau: float
+) -> tuple[list[torch.Tensor], list[torch.Tensor], float]:
     """(targets, sources, tau) of a target copy of a module (the target embedding); ``([], [], tau)`` for None."""
     if target is None or source is None:
         return [], [], float(tau)
@@ -41,8 +43,11 @@ class PolyakUpdate:
     (:func:`soft_update_tensors`, :func:`module_tensors`), one ``torch._foreach_lerp_`` per group. Call it inside
     the update function (no gradient flows). ``copies``: (targets, sources) copied as they are (buffers)."""
 
-    def __init__(self, *groups: tuple[list[torch.Tensor], list[torch.Tensor], float],
-                 copies: Iterable[tuple[torch.Tensor, torch.Tensor]] = ()):
+    def __init__(
+        self,
+        *groups: tuple[list[torch.Tensor], list[torch.Tensor], float],
+        copies: Iterable[tuple[torch.Tensor, torch.Tensor]] = (),
+    ):
         self.groups = [(list(t), list(s), float(tau)) for t, s, tau in groups if len(t)]
         for targets, sources, _ in self.groups:
             if len(targets) != len(sources):

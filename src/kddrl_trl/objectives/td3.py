@@ -1,5 +1,6 @@
 """TD3 for the car-following agent (paper §II.E.2, Eq. 6-10): TorchRL ``TD3Loss`` + ``SoftUpdate`` +
 ``AdditiveGaussianModule`` exploration, actions bounded to [-5, 5] m/s² (Eq. 31)."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -58,45 +59,82 @@ class CarFollowingLosses:
 
 @dataclass
 class TD3Parts(CarFollowingLosses):
-    actor: TensorDictModule          # mu(s; φ), Eq. 8
+    actor: TensorDictModule  # mu(s; φ), Eq. 8
     explore: AdditiveGaussianModule  # a = mu(s) + clip(N(0, σ), -c, c), then the bounds (Algorithm 1 line 32)
-    critic: TensorDictModule         # Q_k(s, a; φ_k), Eq. 7 (TD3Loss makes the twin copies and targets)
-    loss: TD3Loss                    # Eq. 6-8
-    target_updater: SoftUpdate       # Eq. 9-10
-    policy_delay: int                # actor and targets updated every ``policy_delay`` critic updates
+    critic: TensorDictModule  # Q_k(s, a; φ_k), Eq. 7 (TD3Loss makes the twin copies and targets)
+    loss: TD3Loss  # Eq. 6-8
+    target_updater: SoftUpdate  # Eq. 9-10
+    policy_delay: int  # actor and targets updated every ``policy_delay`` critic updates
 
 
-def car_following_heads(obs_dim: int, low: float, high: float, hidden: Sequence[int], exploration_sigma: float,
-                        obs_key=K.CF_OBS, exploration_clip: float | None = None,
-                        ) -> tuple[TensorDictModule, TensorDictModule, AdditiveGaussianModule]:
+def car_following_heads(
+    obs_dim: int,
+    low: float,
+    high: float,
+    hidden: Sequence[int],
+    exploration_sigma: float,
+    obs_key=K.CF_OBS,
+    exploration_clip: float | None = None,
+) -> tuple[TensorDictModule, TensorDictModule, AdditiveGaussianModule]:
     """Actor ``mu(s)`` -> ``keys.CF_ACTION`` in [low, high], critic ``Q(s, a)`` -> ``keys.CF_STATE_ACTION_VALUE`` and
     Gaussian exploration of σ = ``exploration_sigma`` m/s², its noise clipped to ``±exploration_clip`` when given
     (:class:`ClippedGaussianModule`, Algorithm 1 line 32): the heads TD3 and DDPG (:mod:`.ddpg`) share."""
     spec = Composite(cf=Composite(action=Bounded(low, high, shape=(1,), dtype=torch.float32)))
     actor = TensorDictModule(BoundedActor(obs_dim, 1, hidden, low, high), in_keys=[obs_key], out_keys=[K.CF_ACTION])
-    critic = TensorDictModule(StateActionCritic(obs_dim, 1, hidden, action_scale=max(abs(low), abs(high))),
-                              in_keys=[obs_key, K.CF_ACTION], out_keys=[K.CF_STATE_ACTION_VALUE])
+    critic = TensorDictModule(
+        StateActionCritic(obs_dim, 1, hidden, action_scale=max(abs(low), abs(high))),
+        in_keys=[obs_key, K.CF_ACTION],
+        out_keys=[K.CF_STATE_ACTION_VALUE],
+    )
     noise = dict(sigma_init=exploration_sigma, sigma_end=exploration_sigma, action_key=K.CF_ACTION)
-    explore = (AdditiveGaussianModule(spec, **noise) if exploration_clip is None
-               else ClippedGaussianModule(spec, noise_clip=exploration_clip, **noise))
+    explore = (
+        AdditiveGaussianModule(spec, **noise)
+        if exploration_clip is None
+        else ClippedGaussianModule(spec, noise_clip=exploration_clip, **noise)
+    )
     return actor, critic, explore
 
 
-def make_td3(obs_dim: int, *, low: float = -5.0, high: float = 5.0, hidden: Sequence[int] = (256, 256),
-             gamma: float = 0.99, tau: float = 0.005, policy_noise: float = 1.0, noise_clip: float = 2.5,
-             policy_delay: int = 2, exploration_sigma: float = 0.5, exploration_clip: float | None = 2.5,
-             loss_function: str = "l2", obs_key=K.CF_OBS) -> TD3Parts:
+def make_td3(
+    obs_dim: int,
+    *,
+    low: float = -5.0,
+    high: float = 5.0,
+    hidden: Sequence[int] = (256, 256),
+    gamma: float = 0.99,
+    tau: float = 0.005,
+    policy_noise: float = 1.0,
+    noise_clip: float = 2.5,
+    policy_delay: int = 2,
+    exploration_sigma: float = 0.5,
+    exploration_clip: float | None = 2.5,
+    loss_function: str = "l2",
+    obs_key=K.CF_OBS,
+) -> TD3Parts:
     """The car-following agent on ``obs_key`` (``keys.CF_OBS``, Eq. 30).
 
     Noise scales are in m/s² (Fujimoto et al.'s defaults 0.1 / 0.2 / 0.5 of the action bound 5 m/s²):
     ``exploration_sigma`` for acting, its noise clipped to ``±exploration_clip`` (Algorithm 1 line 32, the c of
     ``clip(ε, -c, c)``; ``None``: unclipped, TorchRL's ``AdditiveGaussianModule``), ``policy_noise`` clipped to ``±noise_clip`` for target smoothing (Eq. 6).
     """
-    actor, critic, explore = car_following_heads(obs_dim, low, high, hidden, exploration_sigma, obs_key,
-                                                 exploration_clip=exploration_clip)
-    loss = TD3Loss(actor, critic, bounds=(low, high), num_qvalue_nets=2,
-                   policy_noise=policy_noise, noise_clip=noise_clip, loss_function=loss_function)
-    loss.set_keys(action=K.CF_ACTION, state_action_value=K.CF_STATE_ACTION_VALUE, reward=K.CF_REWARD,
-                  done="done", terminated="terminated")
+    actor, critic, explore = car_following_heads(
+        obs_dim, low, high, hidden, exploration_sigma, obs_key, exploration_clip=exploration_clip
+    )
+    loss = TD3Loss(
+        actor,
+        critic,
+        bounds=(low, high),
+        num_qvalue_nets=2,
+        policy_noise=policy_noise,
+        noise_clip=noise_clip,
+        loss_function=loss_function,
+    )
+    loss.set_keys(
+        action=K.CF_ACTION,
+        state_action_value=K.CF_STATE_ACTION_VALUE,
+        reward=K.CF_REWARD,
+        done="done",
+        terminated="terminated",
+    )
     loss.make_value_estimator(gamma=gamma)
     return TD3Parts(actor, explore, critic, loss, SoftUpdate(loss, tau=tau), int(policy_delay))

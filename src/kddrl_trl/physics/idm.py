@@ -3,6 +3,7 @@
 Positions are longitudinal FRONT-bumper positions (m), so the bumper-to-bumper gap between a follower and
 its leader is ``y_leader - y_follower - length``. Speeds in m/s, accelerations in m/s², time in s.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -4,6 +4,7 @@ Neighbour slots follow ``kddrl_trl.keys``: a, b, c, d, e, f = left leader, curre
 left follower, current follower, right follower; outputs are ordered (left, keep, right). Lane 0 is the
 rightmost lane, so "left" means ``lane + 1``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -84,15 +85,15 @@ def mobil_utilities(
     ma, mb, mc, md, me, mf = mask.unbind(-1)
     # every IDM evaluation MOBIL needs, in one batched call: (follower y, v; leader y, v; leader present)
     pairs = [
-        (ego_y, ego_v, yb, vb, mb),     # 0 a_AV_old: ego behind b
-        (ye, ve, ego_y, ego_v, true),   # 1 a_CF_old: e behind ego
-        (ye, ve, yb, vb, mb),           # 2 a_CF_new: e behind b
-        (ego_y, ego_v, ya, va, ma),     # 3 left:  a_AV_new, ego behind a
-        (yd, vd, ya, va, ma),           # 4 left:  a_TF_old, d behind a
-        (yd, vd, ego_y, ego_v, true),   # 5 left:  a_TF_new, d behind ego
-        (ego_y, ego_v, yc, vc, mc),     # 6 right: a_AV_new, ego behind c
-        (yf, vf, yc, vc, mc),           # 7 right: a_TF_old, f behind c
-        (yf, vf, ego_y, ego_v, true),   # 8 right: a_TF_new, f behind ego
+        (ego_y, ego_v, yb, vb, mb),  # 0 a_AV_old: ego behind b
+        (ye, ve, ego_y, ego_v, true),  # 1 a_CF_old: e behind ego
+        (ye, ve, yb, vb, mb),  # 2 a_CF_new: e behind b
+        (ego_y, ego_v, ya, va, ma),  # 3 left:  a_AV_new, ego behind a
+        (yd, vd, ya, va, ma),  # 4 left:  a_TF_old, d behind a
+        (yd, vd, ego_y, ego_v, true),  # 5 left:  a_TF_new, d behind ego
+        (ego_y, ego_v, yc, vc, mc),  # 6 right: a_AV_new, ego behind c
+        (yf, vf, yc, vc, mc),  # 7 right: a_TF_old, f behind c
+        (yf, vf, ego_y, ego_v, true),  # 8 right: a_TF_new, f behind ego
     ]
     y_f, v_f, y_l, v_l, m_l = (torch.stack(col, dim=-1) for col in zip(*pairs))
     gap = y_l - y_f - L
@@ -106,11 +107,7 @@ def mobil_utilities(
         gap_l, gap_f = gap[..., i], gap[..., i + 2]
         d_tf = torch.where(mf, a_tf_new - a_tf_old, zero)
         u = (a_av_new - a_av_old) + p * (d_cf + d_tf)
-        safe = (
-            lane_ok
-            & (~ml | (gap_l > mobil.y_safe))
-            & (~mf | ((gap_f > mobil.y_safe) & (a_tf_new > -mobil.b_safe)))
-        )
+        safe = lane_ok & (~ml | (gap_l > mobil.y_safe)) & (~mf | ((gap_f > mobil.y_safe) & (a_tf_new > -mobil.b_safe)))
         return u, safe
 
     u_left, safe_left = direction(3, ma, md, lane < num_lanes - 1)

@@ -2,6 +2,7 @@
 systems, :class:`JointD3QNLearner` and :class:`PASACLearner` of the unified ones), the Algorithm 1 loop
 (:class:`Trainer`), atomic checkpoints with resume, training curves. Built from the config by
 :mod:`kddrl_trl.factories`."""
+
 from .base import Learner
 from .checkpoint import (
     CheckpointError,

@@ -36,6 +36,7 @@ once warm (the CPU); on CUDA with ``cudagraphs``, each update function is ``torc
 update path waits for the GPU: the losses come back as device tensors, read once per collection batch by the
 trainer, and the update counters (the TD3 policy delay reads one every update) stay on the CPU.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -214,6 +215,8 @@ class Learner(nn.Module):
         self.load_state_dict(state["modules"])
         for name, opt in self.optimizers().items():
             saved = state["optimizers"][name]
-            groups = [{**g, "capturable": own["capturable"], "fused": own["fused"]}
-                      for g, own in zip(saved["param_groups"], opt.param_groups)]
+            groups = [
+                {**g, "capturable": own["capturable"], "fused": own["fused"]}
+                for g, own in zip(saved["param_groups"], opt.param_groups)
+            ]
             opt.load_state_dict({**saved, "param_groups": groups})

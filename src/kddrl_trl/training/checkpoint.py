@@ -14,6 +14,7 @@ save.
 ``<run_dir>/checkpoints/best.pt``: the learner with the best validation score so far (periodic evaluation,
 :class:`~kddrl_trl.training.Trainer`) and that evaluation's record.
 """
+
 from __future__ import annotations
 
 import logging
@@ -40,7 +41,7 @@ def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, 
     remove_killed_writes(folder)  # of a checkpoint, `latest` or best.pt: never a checkpoint
     path = torch_save_atomic(folder / f"ep{episodes:06d}.pt", {"format": FORMAT, **payload})
     write_text_atomic(folder / "latest", path.name + "\n")
-    for old in sorted(folder.glob("ep*.pt"))[:-max(int(keep), 1)]:
+    for old in sorted(folder.glob("ep*.pt"))[: -max(int(keep), 1)]:
         old.unlink(missing_ok=True)
     return path
 
@@ -75,8 +76,9 @@ def load_latest_training_checkpoint(run_dir: str | Path) -> tuple[Path, dict]:
             payload = load_training_checkpoint(path)
         except CheckpointError as err:
             errors.append(str(err))
-            log.warning("%s; %s", err, "trying the previous checkpoint" if path != candidates[-1] else
-                        "no older checkpoint")
+            log.warning(
+                "%s; %s", err, "trying the previous checkpoint" if path != candidates[-1] else "no older checkpoint"
+            )
             continue
         if errors:
             log.warning("resuming from %s instead: the %d newer checkpoint(s) did not load", path, len(errors))

@@ -1,5 +1,6 @@
 """Training curves (PNG) from the training-episode history: the paper's Fig. 8 (rewards over episodes) plus
 speed and collision rate."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -21,8 +22,12 @@ def plot_training_curves(history: list[dict], path: str | Path, window: int = 50
     if not history:
         raise ValueError("plot_training_curves: no training episodes to plot")
     ep = np.arange(1, len(history) + 1)
-    panels = [("return_lc", "lane-change return (Eq. 26-29)"), ("return_cf", "car-following return (Eq. 32-33)"),
-              ("mean_speed_kmh", "mean speed (km/h)"), ("collision", "collision rate")]
+    panels = [
+        ("return_lc", "lane-change return (Eq. 26-29)"),
+        ("return_cf", "car-following return (Eq. 32-33)"),
+        ("mean_speed_kmh", "mean speed (km/h)"),
+        ("collision", "collision rate"),
+    ]
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
     for ax, (key, label) in zip(axes.flat, panels):
         y = np.asarray([float(h[key]) for h in history])

@@ -14,6 +14,7 @@ replay buffer, acting and learning every 0.1 s.
   Eq. 3, double-DQN target Eq. 4, soft target update Eq. 5, ε-greedy), on buffer L (every frame), one update per
   collected frame.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -53,9 +54,18 @@ class JointD3QNLearner(Learner):
 
     frame_loss_name = "q_loss"  # the loss of buffer L
 
-    def __init__(self, *, num_levels: int = 7, low: float = -5.0, high: float = 5.0,
-                 d3qn: Mapping[str, Any] | None = None, compile: bool | str = False,
-                 device: torch.device | str | None = None, cudagraphs: bool | str = False, state_extras=()):
+    def __init__(
+        self,
+        *,
+        num_levels: int = 7,
+        low: float = -5.0,
+        high: float = 5.0,
+        d3qn: Mapping[str, Any] | None = None,
+        compile: bool | str = False,
+        device: torch.device | str | None = None,
+        cudagraphs: bool | str = False,
+        state_extras=(),
+    ):
         super().__init__()
         kw = dict(d3qn or {})
         self.lr = float(kw.pop("lr", 1e-4))
@@ -63,10 +73,17 @@ class JointD3QNLearner(Learner):
         self.state = joint_state(tuple(state_extras))
         self.mask = joint_action_mask(len(levels))
         self.reward = joint_reward()
-        self.d3qn = make_d3qn(cf_obs_dim(0, extras=tuple(state_extras)), num_actions=3 * len(levels), obs_key=K.JOINT_OBS,
-                              mask_key=K.JOINT_ACTION_MASK, action_key=K.JOINT_ACTION,
-                              action_value_key=K.JOINT_ACTION_VALUE, chosen_value_key=K.JOINT_CHOSEN_VALUE,
-                              reward_key=K.JOINT_REWARD, **kw)
+        self.d3qn = make_d3qn(
+            cf_obs_dim(0, extras=tuple(state_extras)),
+            num_actions=3 * len(levels),
+            obs_key=K.JOINT_OBS,
+            mask_key=K.JOINT_ACTION_MASK,
+            action_key=K.JOINT_ACTION,
+            action_value_key=K.JOINT_ACTION_VALUE,
+            chosen_value_key=K.JOINT_CHOSEN_VALUE,
+            reward_key=K.JOINT_REWARD,
+            **kw,
+        )
         self.split = joint_action_split(levels)
         # registered so that state_dict() holds the network, its target and the ε schedule
         self.q_loss, self.q_explore, self.q_actor = self.d3qn.loss, self.d3qn.explore, self.d3qn.actor

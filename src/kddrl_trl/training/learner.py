@@ -6,6 +6,7 @@ One class serves KDDRL and the configuration-only comparison systems of docs/des
 car-following agent (TD3, or DDPG for Peng et al.), MOBIL's criteria in the lane-change state (Peng et al.) and the
 decision period are options. Everything that touches a tensor is a TorchRL loss / module or a TensorDict module.
 """
+
 from __future__ import annotations
 
 import logging
@@ -84,11 +85,25 @@ class HierarchicalLearner(Learner):
     learns_from_decisions = True  # buffer H: the D3QN's macro-transitions
     frame_loss_name = "cf_loss"  # buffer L: TD3 (or Peng's DDPG)
 
-    def __init__(self, *, priors: bool = True, key_gaps: bool = True, embed_dim: int = 16, embed_hidden: int = 64,
-                 d3qn: Mapping[str, Any] | None = None, td3: Mapping[str, Any] | None = None,
-                 embed_lr: float = 3e-4, tau: float | None = None, compile: bool | str = False,
-                 cf_agent: str = "td3", ddpg: Mapping[str, Any] | None = None, mobil_criteria: bool = False,
-                 device: torch.device | str | None = None, cudagraphs: bool | str = False, state_extras=()):
+    def __init__(
+        self,
+        *,
+        priors: bool = True,
+        key_gaps: bool = True,
+        embed_dim: int = 16,
+        embed_hidden: int = 64,
+        d3qn: Mapping[str, Any] | None = None,
+        td3: Mapping[str, Any] | None = None,
+        embed_lr: float = 3e-4,
+        tau: float | None = None,
+        compile: bool | str = False,
+        cf_agent: str = "td3",
+        ddpg: Mapping[str, Any] | None = None,
+        mobil_criteria: bool = False,
+        device: torch.device | str | None = None,
+        cudagraphs: bool | str = False,
+        state_extras=(),
+    ):
         super().__init__()
         if cf_agent not in CF_AGENTS:
             raise ValueError(f"cf_agent={cf_agent!r}: known car-following agents are {', '.join(CF_AGENTS)}")
@@ -123,8 +138,11 @@ class HierarchicalLearner(Learner):
         emb = embedding_parameters(self.embedding)
         self.opt_embed = adam(emb, float(embed_lr), dev) if emb else None
         embed_targets = module_tensors(self.target_embedding, self.embedding, self.embed_tau)
-        embed_buffers = ([] if self.embedding is None else
-                         list(zip(self.target_embedding.buffers(), self.embedding.buffers(), strict=True)))
+        embed_buffers = (
+            []
+            if self.embedding is None
+            else list(zip(self.target_embedding.buffers(), self.embedding.buffers(), strict=True))
+        )
         # Eq. 9-10 (+ the target embedding) and Eq. 5 (+ the target embedding), as TorchRL's SoftUpdate computes them
         self._soft_cf = PolyakUpdate(soft_update_tensors(self.td3.target_updater), embed_targets, copies=embed_buffers)
         self._soft_lc = PolyakUpdate(soft_update_tensors(self.d3qn.target_updater), embed_targets, copies=embed_buffers)
@@ -170,8 +188,13 @@ class HierarchicalLearner(Learner):
 
         Tensor maths only (no optimiser step): what ``compile`` hands to ``torch.compile``."""
         if name == "cf_value":
-            states = build_agent_states(batch, self.embedding, self.cf_state, target_embedding=self.target_embedding,
-                                        next_lc_policy=self.next_lc_policy)
+            states = build_agent_states(
+                batch,
+                self.embedding,
+                self.cf_state,
+                target_embedding=self.target_embedding,
+                next_lc_policy=self.next_lc_policy,
+            )
             return self.td3.value_loss(states)
         if name == "cf_actor":
             states = build_agent_states(batch.exclude("next"), self.embedding, self.cf_state)

@@ -5,6 +5,7 @@ every 0.1 s, from one replay buffer, with :class:`~kddrl_trl.objectives.PASACLos
 State ``keys.JOINT_OBS`` and reward ``r_D3QN + r_TD3`` as the unified D3QN (:mod:`.joint_d3qn`); the lane command
 is masked by ``keys.LC_ACTION_MASK`` (probability 0 for a command the env would not execute).
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -22,8 +23,16 @@ from .base import Learner, adam, transition_keys
 from .joint_d3qn import JOINT_STATE_KEYS, joint_state
 
 #: entries of :meth:`PASACLearner.loss` (the first four are the losses, the rest detached diagnostics)
-LOSS_ENTRIES = ("loss_qvalue", "loss_actor", "loss_alpha_lane", "loss_alpha_param", "alpha_lane", "alpha_param",
-                "entropy_lane", "log_prob_param")
+LOSS_ENTRIES = (
+    "loss_qvalue",
+    "loss_actor",
+    "loss_alpha_lane",
+    "loss_alpha_param",
+    "alpha_lane",
+    "alpha_param",
+    "entropy_lane",
+    "log_prob_param",
+)
 
 
 class PASACLearner(Learner):
@@ -38,8 +47,15 @@ class PASACLearner(Learner):
 
     frame_loss_name = "sac_loss"  # the loss of buffer L
 
-    def __init__(self, *, pasac: Mapping[str, Any] | None = None, compile: bool | str = False,
-                 device: torch.device | str | None = None, cudagraphs: bool | str = False, state_extras=()):
+    def __init__(
+        self,
+        *,
+        pasac: Mapping[str, Any] | None = None,
+        compile: bool | str = False,
+        device: torch.device | str | None = None,
+        cudagraphs: bool | str = False,
+        state_extras=(),
+    ):
         super().__init__()
         kw = dict(pasac or {})
         lr_actor, lr_critic, lr_alpha = (float(kw.pop(k, 3e-4)) for k in ("actor_lr", "critic_lr", "alpha_lr"))
@@ -59,8 +75,9 @@ class PASACLearner(Learner):
     def _policy(self, explore: bool = True) -> TensorDictSequential:
         """State -> categorical + tanh-Gaussian heads -> sampled (``explore``) or modal lane command and
         acceleration."""
-        return TensorDictSequential(self.state, self.sac_actor, self.pasac.sampler(explore),
-                                    selected_out_keys=[K.LC_ACTION, K.CF_ACTION])
+        return TensorDictSequential(
+            self.state, self.sac_actor, self.pasac.sampler(explore), selected_out_keys=[K.LC_ACTION, K.CF_ACTION]
+        )
 
     def buffer_keys(self) -> list:
         return transition_keys(JOINT_STATE_KEYS, [K.LC_ACTION, K.CF_ACTION])

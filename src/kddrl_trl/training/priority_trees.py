@@ -9,6 +9,7 @@ does not, :class:`TensorSumTree` / :class:`TensorMinTree`: the same interface on
 reduction, sampling a ``cumsum`` + ``searchsorted``: O(capacity) per call instead of O(log capacity);
 ``benchmarks/replay_sampling.py`` measures what a prioritized minibatch costs against a uniform one).
 """
+
 from __future__ import annotations
 
 import logging
@@ -53,7 +54,7 @@ class _TensorTree:
 
     def query(self, start, end) -> float:
         """The reduction over ``[start, end)``."""
-        return float(self._reduce(self.values[int(start):int(end)]))
+        return float(self._reduce(self.values[int(start) : int(end)]))
 
 
 class TensorSumTree(_TensorTree):
@@ -88,8 +89,10 @@ class PortablePrioritizedSampler(PrioritizedSampler):
             return super()._init()
         global _told
         if not _told:  # TorchRL's import-time warning says prioritized buffers "may not work": they do, on these
-            log.info("prioritized replay on kddrl_trl's tensor segment trees (TorchRL's C++ trees did not load "
-                     "with this torch; kddrl_trl/training/priority_trees.py)")
+            log.info(
+                "prioritized replay on kddrl_trl's tensor segment trees (TorchRL's C++ trees did not load "
+                "with this torch; kddrl_trl/training/priority_trees.py)"
+            )
             _told = True
         self._sum_tree = TensorSumTree(self._max_capacity, self._device)
         self._min_tree = TensorMinTree(self._max_capacity, self._device)

@@ -20,6 +20,7 @@ Per collection batch of ``frames_per_env`` frames from each of the B environment
    (:class:`~kddrl_trl.eval.periodic.PeriodicEvaluator`, fixed seeds disjoint from training), logged under
    ``eval/``; the best score so far is kept as ``checkpoints/best.pt`` beside ``latest``.
 """
+
 from __future__ import annotations
 
 import logging
@@ -47,16 +48,30 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 #: per-episode fields logged under ``train/``
-EPISODE_FIELDS = ("return_lc", "return_cf", "mean_speed_kmh", "mean_accel", "mean_abs_accel", "lane_changes",
-                  "frames", "collision", "shield_rate")
+EPISODE_FIELDS = (
+    "return_lc",
+    "return_cf",
+    "mean_speed_kmh",
+    "mean_accel",
+    "mean_abs_accel",
+    "lane_changes",
+    "frames",
+    "collision",
+    "shield_rate",
+)
 
 
 #: ε of prioritized replay: ``P(i) ∝ (|δ_i| + ε)^α``, no transition's probability is zero
 PRIORITY_EPS = 1e-6
 
 
-def make_buffer(capacity: int, batch_size: int, seed: int, device: torch.device | str | None = None,
-                prioritized: tuple[float, float] | None = None) -> TensorDictReplayBuffer:
+def make_buffer(
+    capacity: int,
+    batch_size: int,
+    seed: int,
+    device: torch.device | str | None = None,
+    prioritized: tuple[float, float] | None = None,
+) -> TensorDictReplayBuffer:
     """A TorchRL replay buffer in memory (``LazyTensorStorage``) on ``device`` (None: the CPU): a CUDA learner's
     buffers live on its GPU, so the collector's frames cross once per batch and the sampled minibatches are already
     where the update runs. Uniform sampling (the paper), or with ``prioritized = (alpha, beta)`` TorchRL's
@@ -71,8 +86,9 @@ def make_buffer(capacity: int, batch_size: int, seed: int, device: torch.device 
         return TensorDictReplayBuffer(storage=storage, batch_size=int(batch_size), generator=gen)
     alpha, beta = prioritized
     sampler = PortablePrioritizedSampler(int(capacity), float(alpha), float(beta), eps=PRIORITY_EPS)
-    return TensorDictReplayBuffer(storage=storage, sampler=sampler, priority_key=K.PRIORITY,
-                                  batch_size=int(batch_size), generator=gen)
+    return TensorDictReplayBuffer(
+        storage=storage, sampler=sampler, priority_key=K.PRIORITY, batch_size=int(batch_size), generator=gen
+    )
 
 
 def is_prioritized(buffer: TensorDictReplayBuffer) -> bool:
@@ -129,9 +145,18 @@ class Trainer:
     come from :mod:`kddrl_trl.factories`.
     """
 
-    def __init__(self, learner: Learner, buffers: tuple[TensorDictReplayBuffer, TensorDictReplayBuffer],
-                 cfg: TrainConfig, run_dir: str | Path, logger, *, episodes: int, progress: bool = True,
-                 evaluator=None):
+    def __init__(
+        self,
+        learner: Learner,
+        buffers: tuple[TensorDictReplayBuffer, TensorDictReplayBuffer],
+        cfg: TrainConfig,
+        run_dir: str | Path,
+        logger,
+        *,
+        episodes: int,
+        progress: bool = True,
+        evaluator=None,
+    ):
         self.learner, self.cfg, self.episodes, self.evaluator = learner, cfg, int(episodes), evaluator
         self.validations: list[dict] = []  # per periodic evaluation: episodes trained, summary
         self.buffer_cf, self.buffer_lc = buffers
@@ -140,15 +165,25 @@ class Trainer:
         self.history: list[dict] = []
         # elapsed_s: training wall time; update_s: its share spent in the learner's updates (losses read included,
         # so a GPU learner's queued work is counted where it is waited for)
-        self.counters = {"frames": 0, "decisions": 0, "cf_updates": 0, "lc_updates": 0, "elapsed_s": 0.0,
-                         "update_s": 0.0}
+        self.counters = {
+            "frames": 0,
+            "decisions": 0,
+            "cf_updates": 0,
+            "lc_updates": 0,
+            "elapsed_s": 0.0,
+            "update_s": 0.0,
+        }
         self.collector: MultiTimescaleCollector | None = None
 
     # ------------------------------------------------------------------------------ checkpoints
     def state(self) -> dict:
         # the environments restart on resume, so unfinished macro-transitions are not kept
-        state = {"learner": self.learner.full_state_dict(), "counters": dict(self.counters),
-                 "history": list(self.history), "validations": list(self.validations)}
+        state = {
+            "learner": self.learner.full_state_dict(),
+            "counters": dict(self.counters),
+            "history": list(self.history),
+            "validations": list(self.validations),
+        }
         if self.cfg.keep_buffers:
             state["buffer_cf"] = self.buffer_cf.state_dict()
             state["buffer_lc"] = self.buffer_lc.state_dict()
@@ -166,8 +201,14 @@ class Trainer:
             load_buffer(self.buffer_cf, payload["buffer_cf"])
             load_buffer(self.buffer_lc, payload["buffer_lc"])
         self.tracker.finished = len(self.history)
-        log.info("resumed %s: %d episodes, %d frames, buffers %d / %d", path, len(self.history),
-                 self.counters["frames"], len(self.buffer_cf), len(self.buffer_lc))
+        log.info(
+            "resumed %s: %d episodes, %d frames, buffers %d / %d",
+            path,
+            len(self.history),
+            self.counters["frames"],
+            len(self.buffer_cf),
+            len(self.buffer_lc),
+        )
         return len(self.history)
 
     def checkpoint(self) -> Path:
@@ -182,8 +223,15 @@ class Trainer:
         trained; a new best score writes ``checkpoints/best.pt``."""
         episodes, summary = self.evaluator(self.learner.policy(explore=False))
         step = len(self.history)
-        for key in ("score", "mean_speed_kmh", "mean_accel", "lane_changes", "return_lc", "return_cf",
-                    "collision_rate"):
+        for key in (
+            "score",
+            "mean_speed_kmh",
+            "mean_accel",
+            "lane_changes",
+            "return_lc",
+            "return_cf",
+            "collision_rate",
+        ):
             self.logger.log_scalar(f"eval/{key}", float(summary[key]), step=step)
         best = max((v["score"] for v in self.validations), default=-math.inf)
         record = {"episodes_trained": step, **{k: v for k, v in summary.items() if not isinstance(v, dict)}}
@@ -207,11 +255,13 @@ class Trainer:
                     f"{k} = {read[bad]} at {counter} update {made[bad][0]} ({self.counters['cf_updates']} buffer-L / "
                     f"{self.counters['lc_updates']} buffer-H updates, {len(self.history)} episodes): training "
                     f"diverged. The last checkpoint in {self.run_dir / 'checkpoints'} is from before; lower the "
-                    "learning rates (algo.learner.*) and resume=true, or start again")
+                    "learning rates (algo.learner.*) and resume=true, or start again"
+                )
             losses.setdefault(k, []).extend(read)
 
-    def _update(self, buffer: TensorDictReplayBuffer, n: int, update, losses: dict[str, list[float]],
-                counter: str) -> None:
+    def _update(
+        self, buffer: TensorDictReplayBuffer, n: int, update, losses: dict[str, list[float]], counter: str
+    ) -> None:
         """``n`` updates (``update``: the learner's ``update_frame`` / ``update_decision``), each on its own minibatch
         of ``buffer`` (:func:`minibatches`); a prioritized buffer takes each minibatch's new ``|δ|`` as its
         priorities before the next is drawn. Their losses are read after the last (:meth:`_record`)."""
@@ -230,8 +280,9 @@ class Trainer:
         if self.counters["frames"] >= c.warmup_frames and len(self.buffer_cf) >= c.batch_size_cf:
             self._update(self.buffer_cf, frames * c.updates_per_frame, learner.update_frame, losses, "cf_updates")
         if learner.learns_from_decisions and len(self.buffer_lc) >= c.batch_size_lc:
-            self._update(self.buffer_lc, decisions * c.updates_per_decision, learner.update_decision, losses,
-                         "lc_updates")
+            self._update(
+                self.buffer_lc, decisions * c.updates_per_decision, learner.update_decision, losses, "lc_updates"
+            )
 
     def _anneal_beta(self) -> None:
         """Prioritized replay's importance-sampling exponent: ``train.priority_beta`` annealed linearly to 1 over
@@ -269,8 +320,9 @@ class Trainer:
         next_eval = self._next_multiple(self.cfg.eval_every if self.evaluator is not None else 0)
         recent: deque = deque(maxlen=50)
         recent.extend(self.history[-50:])
-        bar = tqdm(total=target, initial=min(len(self.history), target), desc="train", unit="ep",
-                   disable=not self.progress)
+        bar = tqdm(
+            total=target, initial=min(len(self.history), target), desc="train", unit="ep", disable=not self.progress
+        )
         started = time.perf_counter()
         losses: dict[str, list[float]] = {"loss_qvalue": [], "loss_actor": [], "loss_lc": []}
         try:
@@ -293,10 +345,12 @@ class Trainer:
                     self._log_episode(ep, losses, started)
                     losses = {k: [] for k in losses}
                     bar.update(1)
-                    bar.set_postfix(R_lc=f"{np.mean([e['return_lc'] for e in recent]):.1f}",
-                                    R_cf=f"{np.mean([e['return_cf'] for e in recent]):.1f}",
-                                    kmh=f"{np.mean([e['mean_speed_kmh'] for e in recent]):.1f}",
-                                    coll=f"{100 * np.mean([e['collision'] for e in recent]):.0f}%")
+                    bar.set_postfix(
+                        R_lc=f"{np.mean([e['return_lc'] for e in recent]):.1f}",
+                        R_cf=f"{np.mean([e['return_cf'] for e in recent]):.1f}",
+                        kmh=f"{np.mean([e['mean_speed_kmh'] for e in recent]):.1f}",
+                        coll=f"{100 * np.mean([e['collision'] for e in recent]):.0f}%",
+                    )
                 if len(self.history) >= next_eval:
                     self.validate()
                     next_eval = self._next_multiple(self.cfg.eval_every)

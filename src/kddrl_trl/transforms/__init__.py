@@ -23,6 +23,7 @@ compile site). All transforms read only raw keys of :mod:`kddrl_trl.keys` and ke
 stateless per frame (except :class:`LeaderHistory`, whose per-row window travels in the tensordicts as TorchRL's
 ``RewardSum`` does), and work on reset, step and replay-buffer samples (``forward``) of any batch shape.
 """
+
 from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
@@ -33,7 +34,18 @@ from .shield import SafetyShield
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
 
-__all__ = ["KEY_STEPS", "IDMPrior", "KeyGapsFromPrior", "LCGANPrior", "LeaderHistory", "MOBILCriteria", "MOBILPrior",
-           "MOBILSafetyMask", "PredictiveStack", "SafetyShield",
-           "TrajGANPrediction",
-           "key_step_gaps", "make_kddrl_transforms"]
+__all__ = [
+    "KEY_STEPS",
+    "IDMPrior",
+    "KeyGapsFromPrior",
+    "LCGANPrior",
+    "LeaderHistory",
+    "MOBILCriteria",
+    "MOBILPrior",
+    "MOBILSafetyMask",
+    "PredictiveStack",
+    "SafetyShield",
+    "TrajGANPrediction",
+    "key_step_gaps",
+    "make_kddrl_transforms",
+]

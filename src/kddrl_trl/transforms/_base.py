@@ -13,6 +13,7 @@ observation. The same ``_call`` serves
 
 All maths runs under ``torch.no_grad()`` (nothing here is trained by the RL losses).
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -86,8 +87,9 @@ class PredictiveTransform(Transform):
         self.pure = bool(pure)
 
     # ----------------------------------------------------------------------------- to implement
-    def frame(self, values: Mapping[NestedKey, Tensor],
-              noise: Tensor | None) -> dict[NestedKey, Tensor]:  # pragma: no cover
+    def frame(
+        self, values: Mapping[NestedKey, Tensor], noise: Tensor | None
+    ) -> dict[NestedKey, Tensor]:  # pragma: no cover
         """The outputs of one frame from ``values`` (holding at least ``in_keys``); no side effects."""
         raise NotImplementedError
 
@@ -108,9 +110,11 @@ class PredictiveTransform(Transform):
         keys = tensordict.keys(include_nested=True)
         missing = [k for k in self.in_keys if k not in keys]
         if missing and not self.missing_tolerance:
-            raise KeyError(f"{type(self).__name__}: keys {missing} not found in the tensordict; they are raw "
-                           "keys of the environment (kddrl_trl.keys) or written by an earlier transform of the "
-                           "stack (see make_kddrl_transforms for the order)")
+            raise KeyError(
+                f"{type(self).__name__}: keys {missing} not found in the tensordict; they are raw "
+                "keys of the environment (kddrl_trl.keys) or written by an earlier transform of the "
+                "stack (see make_kddrl_transforms for the order)"
+            )
         return not missing
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:

@@ -1,5 +1,6 @@
 """A frozen generative predictor (a TensorDict module) inside a transform, without gradients: the one setup of
 :class:`~kddrl_trl.transforms.TrajGANPrediction` and :class:`~kddrl_trl.transforms.LCGANPrior`."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -82,9 +83,17 @@ class FrozenPredictorTransform(PredictiveTransform):
     #: noise rows per environment of one call
     rows_per_env: int = 1
 
-    def __init__(self, predictor: TensorDictModuleBase | None, *, checkpoint: str | Path | None, seed: int,
-                 device: str | torch.device, options: Mapping[str, Any], in_keys: Sequence[NestedKey],
-                 out_keys: Sequence[NestedKey]):
+    def __init__(
+        self,
+        predictor: TensorDictModuleBase | None,
+        *,
+        checkpoint: str | Path | None,
+        seed: int,
+        device: str | torch.device,
+        options: Mapping[str, Any],
+        in_keys: Sequence[NestedKey],
+        out_keys: Sequence[NestedKey],
+    ):
         if predictor is not None and checkpoint is not None:
             raise ValueError(f"{type(self).__name__}: give either a predictor module or a checkpoint path, not both")
         from ..generative import PREDICTORS, load_predictor
@@ -94,8 +103,11 @@ class FrozenPredictorTransform(PredictiveTransform):
         if self.out_key not in [tuple(k) if isinstance(k, (tuple, list)) else k for k in predictor.out_keys]:
             raise ValueError(f"the {self.kind} predictor must write {self.out_key}, it writes {predictor.out_keys}")
         self.seed = int(getattr(predictor, "seed", seed))
-        super().__init__(in_keys=list(dict.fromkeys([*predictor.in_keys, K.EGO_STATE, *in_keys])), out_keys=out_keys,
-                         pure=isinstance(predictor, PREDICTORS[self.kind]))
+        super().__init__(
+            in_keys=list(dict.fromkeys([*predictor.in_keys, K.EGO_STATE, *in_keys])),
+            out_keys=out_keys,
+            pure=isinstance(predictor, PREDICTORS[self.kind]),
+        )
         self.predictor = freeze(predictor)
 
     def reseed(self, seed: int | None = None) -> None:

@@ -1,4 +1,5 @@
 """``make_kddrl_transforms``: the predictive-state stack of KDDRL and its ablations (Algorithm 1 lines 15-20)."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -86,15 +87,19 @@ def make_kddrl_transforms(
     seed, num_lanes = int(seed), int(num_lanes)
     stack = [IDMPrior(idm_p)]
     if trajgan:
-        stack.append(TrajGANPrediction(checkpoint=trajgan_checkpoint, num_samples=int(num_samples), reduce=reduce,
-                                       seed=seed, device=device))
+        stack.append(
+            TrajGANPrediction(
+                checkpoint=trajgan_checkpoint, num_samples=int(num_samples), reduce=reduce, seed=seed, device=device
+            )
+        )
     else:
         stack.append(KeyGapsFromPrior())
     if priors:
         stack.append(MOBILPrior(mobil_p, idm_p, num_lanes=num_lanes))
         draws = int(num_samples) if reduce == "mean" else 1
-        stack.append(LCGANPrior(checkpoint=lcgan_checkpoint, num_lanes=num_lanes, draws=draws, seed=seed,
-                                device=device))
+        stack.append(
+            LCGANPrior(checkpoint=lcgan_checkpoint, num_lanes=num_lanes, draws=draws, seed=seed, device=device)
+        )
     history = None
     if trajgan:  # trajGAN reads ("leaders","history"): built by LeaderHistory where the env does not write it
         history = LeaderHistory(history_len=int(getattr(stack[1].predictor, "history_len", 10)))

@@ -1,4 +1,5 @@
 """``IDMPrior``: the physics prior trajectory TC of leaders a, b, c (paper Eq. 11-12, input of Eq. 13)."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -15,8 +16,9 @@ def as_idm_params(idm: IDMParams | Mapping | None) -> IDMParams:
     return as_params(IDMParams, idm)
 
 
-def prior_trajectory(kin: torch.Tensor, mask: torch.Tensor, ahead: torch.Tensor, steps: int, dt: float,
-                     idm: IDMParams) -> torch.Tensor:
+def prior_trajectory(
+    kin: torch.Tensor, mask: torch.Tensor, ahead: torch.Tensor, steps: int, dt: float, idm: IDMParams
+) -> torch.Tensor:
     """IDM prior positions ``[*B, 3, steps]`` of leaders a, b, c from raw observation tensors (zeros where absent)."""
     kin = kin[..., :3, :2].to(torch.float32)
     ahead = ahead.to(torch.float32)
@@ -62,8 +64,14 @@ class IDMPrior(PredictiveTransform):
         super().__init__(in_keys=[K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LEADERS_AHEAD], out_keys=[K.PRED_PRIOR_TRAJ])
 
     def frame(self, values, noise=None) -> dict:
-        traj = prior_trajectory(values[K.NEIGHBORS_KIN], values[K.NEIGHBORS_MASK], values[K.LEADERS_AHEAD],
-                                steps=self.steps, dt=self.dt, idm=self.idm)
+        traj = prior_trajectory(
+            values[K.NEIGHBORS_KIN],
+            values[K.NEIGHBORS_MASK],
+            values[K.LEADERS_AHEAD],
+            steps=self.steps,
+            dt=self.dt,
+            idm=self.idm,
+        )
         return {K.PRED_PRIOR_TRAJ: traj}
 
     def out_specs(self, batch, device) -> dict:

@@ -1,4 +1,5 @@
 """Key-step gaps ``y_lv^pre`` of the leaders (paper §III.B last paragraph, Eq. 24, Algorithm 1 line 17)."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -46,8 +47,9 @@ class KeyGapsFromPrior(PredictiveTransform):
         self.key_steps = tuple(int(s) for s in key_steps)
 
     def frame(self, values, noise=None) -> dict:
-        gaps = key_step_gaps(values[K.PRED_PRIOR_TRAJ], values[K.EGO_STATE][..., 0], values[K.NEIGHBORS_MASK][..., :3],
-                             self.key_steps)
+        gaps = key_step_gaps(
+            values[K.PRED_PRIOR_TRAJ], values[K.EGO_STATE][..., 0], values[K.NEIGHBORS_MASK][..., :3], self.key_steps
+        )
         return {K.PRED_KEY_GAPS: gaps}
 
     def out_specs(self, batch, device) -> dict:

@@ -1,4 +1,5 @@
 """``LCGANPrior``: the data-driven lane-change prior P_lcGAN (paper Eq. 16, Algorithm 1 line 18)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -36,15 +37,39 @@ class LCGANPrior(FrozenPredictorTransform):
 
     kind, out_key = "lcgan", K.PRIOR_P_LCGAN
 
-    def __init__(self, predictor: TensorDictModuleBase | None = None, *, checkpoint: str | Path | None = None,
-                 num_lanes: int = 3, draws: int = 1, seed: int = 0, device: str | torch.device = "cpu"):
-        super().__init__(predictor, checkpoint=checkpoint, seed=seed, device=device,
-                         options={"num_lanes": int(num_lanes), "draws": int(draws)},
-                         in_keys=[], out_keys=[K.PRIOR_P_LCGAN])
+    def __init__(
+        self,
+        predictor: TensorDictModuleBase | None = None,
+        *,
+        checkpoint: str | Path | None = None,
+        num_lanes: int = 3,
+        draws: int = 1,
+        seed: int = 0,
+        device: str | torch.device = "cpu",
+    ):
+        super().__init__(
+            predictor,
+            checkpoint=checkpoint,
+            seed=seed,
+            device=device,
+            options={"num_lanes": int(num_lanes), "draws": int(draws)},
+            in_keys=[],
+            out_keys=[K.PRIOR_P_LCGAN],
+        )
 
     def predict_inputs(self, values) -> tuple:
-        return tuple(values[k] for k in (K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK,
-                                         K.EGO_LANE_OFFSET, K.NEIGHBORS_LANE_OFFSET, K.PRED_KEY_GAPS))
+        return tuple(
+            values[k]
+            for k in (
+                K.EGO_STATE,
+                K.EGO_LANE,
+                K.NEIGHBORS_REL,
+                K.NEIGHBORS_MASK,
+                K.EGO_LANE_OFFSET,
+                K.NEIGHBORS_LANE_OFFSET,
+                K.PRED_KEY_GAPS,
+            )
+        )
 
     def frame(self, values, noise=None) -> dict:
         return {K.PRIOR_P_LCGAN: finite_or_zero(self.prediction(values, noise).to(torch.float32)).clamp(0.0, 1.0)}

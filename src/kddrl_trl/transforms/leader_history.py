@@ -34,6 +34,7 @@ it is, and the spec is only extended when the parent's spec lacks the key. ``mak
 always carries one in front of trajGAN (:attr:`PredictiveStack.history`): nothing to do on an env that keeps its
 own history, the window built on one that does not.
 """
+
 from __future__ import annotations
 
 import torch
@@ -57,14 +58,17 @@ def restart_window(y: Tensor, v: Tensor, history_len: int, dt: float) -> Tensor:
     return torch.stack([ys, v.unsqueeze(-1).expand_as(ys)], -1)
 
 
-def continuity_error(prev_y: Tensor, prev_v: Tensor, y: Tensor, v: Tensor, dt: float, jump_tolerance: float,
-                     speed_tolerance: float) -> Tensor:
+def continuity_error(
+    prev_y: Tensor, prev_v: Tensor, y: Tensor, v: Tensor, dt: float, jump_tolerance: float, speed_tolerance: float
+) -> Tensor:
     """``[*B, 3 (now), 3 (before)]``: how far the vehicle now in slot i is from continuing the one in slot j a frame
     earlier, in tolerances: max(|y - (y_prev + dt (v_prev + v) / 2)| / jump_tolerance, |v - v_prev| /
     speed_tolerance). At most 1: it may be the same vehicle."""
     expected = prev_y.unsqueeze(-2) + dt * 0.5 * (prev_v.unsqueeze(-2) + v.unsqueeze(-1))
-    return torch.maximum((y.unsqueeze(-1) - expected).abs() / jump_tolerance,
-                         (v.unsqueeze(-1) - prev_v.unsqueeze(-2)).abs() / speed_tolerance)
+    return torch.maximum(
+        (y.unsqueeze(-1) - expected).abs() / jump_tolerance,
+        (v.unsqueeze(-1) - prev_v.unsqueeze(-2)).abs() / speed_tolerance,
+    )
 
 
 class LeaderHistory(Transform):
@@ -88,11 +92,18 @@ class LeaderHistory(Transform):
         torch.Size([2, 3, 3, 10, 2])
     """
 
-    def __init__(self, history_len: int = _DEFAULTS.history_len, dt: float = _DEFAULTS.step_length,
-                 jump_tolerance: float = 1.0, speed_tolerance: float = 1.0):
+    def __init__(
+        self,
+        history_len: int = _DEFAULTS.history_len,
+        dt: float = _DEFAULTS.step_length,
+        jump_tolerance: float = 1.0,
+        speed_tolerance: float = 1.0,
+    ):
         if int(history_len) < 1 or dt <= 0 or jump_tolerance <= 0 or speed_tolerance <= 0:
-            raise ValueError(f"LeaderHistory: history_len >= 1 and positive dt / tolerances, got {history_len=}, "
-                             f"{dt=}, {jump_tolerance=}, {speed_tolerance=}")
+            raise ValueError(
+                f"LeaderHistory: history_len >= 1 and positive dt / tolerances, got {history_len=}, "
+                f"{dt=}, {jump_tolerance=}, {speed_tolerance=}"
+            )
         super().__init__(in_keys=[K.NEIGHBORS_KIN, K.NEIGHBORS_MASK], out_keys=[K.LEADERS_HISTORY])
         self.history_len, self.dt = int(history_len), float(dt)
         self.jump_tolerance, self.speed_tolerance = float(jump_tolerance), float(speed_tolerance)
@@ -193,5 +204,7 @@ class LeaderHistory(Transform):
         return observation_spec
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(history_len={self.history_len}, dt={self.dt}, "
-                f"jump_tolerance={self.jump_tolerance}, speed_tolerance={self.speed_tolerance})")
+        return (
+            f"{type(self).__name__}(history_len={self.history_len}, dt={self.dt}, "
+            f"jump_tolerance={self.jump_tolerance}, speed_tolerance={self.speed_tolerance})"
+        )

@@ -2,6 +2,7 @@
 Algorithm 1 lines 19-20); ``MOBILSafetyMask``, MOBIL's safety check as a hard constraint on the lane-change commands
 (§III.C.2); and ``MOBILCriteria``, MOBIL's safety-efficiency criteria themselves (the utilities and safety flags that
 Peng et al. (2022) give their D3QN lane-change agent, ``algo=peng``)."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -20,8 +21,16 @@ def as_mobil_params(mobil: MOBILParams | Mapping | None) -> MOBILParams:
     return as_params(MOBILParams, mobil)
 
 
-def _mobil_on_obs(fn, ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
-                  idm: IDMParams, mobil: MOBILParams):
+def _mobil_on_obs(
+    fn,
+    ego: torch.Tensor,
+    lane: torch.Tensor,
+    kin: torch.Tensor,
+    mask: torch.Tensor,
+    num_lanes: int,
+    idm: IDMParams,
+    mobil: MOBILParams,
+):
     """``fn`` (:func:`mobil_prior` or :func:`mobil_utilities`) on raw observation tensors: ego y and v from
     ``EGO_STATE``, the lane from ``EGO_LANE``, neighbours with non-finite kinematics treated as absent."""
     ego, kin = ego.to(torch.float32), kin.to(torch.float32)
@@ -29,23 +38,44 @@ def _mobil_on_obs(fn, ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, 
     return fn(ego[..., 0], ego[..., 1], kin, mask, lane[..., 0].long(), num_lanes, idm, mobil)
 
 
-def mobil_prior_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
-                         idm: IDMParams, mobil: MOBILParams) -> torch.Tensor:
+def mobil_prior_from_obs(
+    ego: torch.Tensor,
+    lane: torch.Tensor,
+    kin: torch.Tensor,
+    mask: torch.Tensor,
+    num_lanes: int,
+    idm: IDMParams,
+    mobil: MOBILParams,
+) -> torch.Tensor:
     """``P_MOBIL`` ``[*B, 3]`` from raw observation tensors (a simplex, never NaN)."""
     p = _mobil_on_obs(mobil_prior, ego, lane, kin, mask, num_lanes, idm, mobil)
     return finite_or_zero(p.to(torch.float32)).clamp(0.0, 1.0)
 
 
-def mobil_criteria_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor,
-                            num_lanes: int, idm: IDMParams, mobil: MOBILParams) -> tuple[torch.Tensor, torch.Tensor]:
+def mobil_criteria_from_obs(
+    ego: torch.Tensor,
+    lane: torch.Tensor,
+    kin: torch.Tensor,
+    mask: torch.Tensor,
+    num_lanes: int,
+    idm: IDMParams,
+    mobil: MOBILParams,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """MOBIL's utilities ``U`` ``[*B, 3]`` (m/s², Eq. 21-22, never NaN) and safety flags ``[*B, 3]`` (bool, Eq. 20-21;
     False where the lane does not exist) from raw observation tensors, ordered (left, keep, right)."""
     u, safe = _mobil_on_obs(mobil_utilities, ego, lane, kin, mask, num_lanes, idm, mobil)
     return finite_or_zero(u.to(torch.float32)), safe
 
 
-def mobil_safe_from_obs(ego: torch.Tensor, lane: torch.Tensor, kin: torch.Tensor, mask: torch.Tensor, num_lanes: int,
-                        idm: IDMParams, mobil: MOBILParams) -> torch.Tensor:
+def mobil_safe_from_obs(
+    ego: torch.Tensor,
+    lane: torch.Tensor,
+    kin: torch.Tensor,
+    mask: torch.Tensor,
+    num_lanes: int,
+    idm: IDMParams,
+    mobil: MOBILParams,
+) -> torch.Tensor:
     """MOBIL's safety flags ``[*B, 3]`` (bool, left / keep / right) from raw observation tensors: the target lane
     exists, the gaps to its leader and follower exceed ``y_safe`` (Eq. 20) and the new follower brakes less than
     ``b_safe`` (Eq. 21, ``a_TF_new > -b_safe``); keep is always safe."""
@@ -69,15 +99,24 @@ class MOBILPrior(PredictiveTransform):
         num_lanes: lanes of the road (left exists where lane < num_lanes - 1, right where lane > 0).
     """
 
-    def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
-                 num_lanes: int = 3):
+    def __init__(
+        self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None, num_lanes: int = 3
+    ):
         self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
-        super().__init__(in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK],
-                         out_keys=[K.PRIOR_P_MOBIL])
+        super().__init__(
+            in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK], out_keys=[K.PRIOR_P_MOBIL]
+        )
 
     def frame(self, values, noise=None) -> dict:
-        p = mobil_prior_from_obs(values[K.EGO_STATE], values[K.EGO_LANE], values[K.NEIGHBORS_KIN],
-                                 values[K.NEIGHBORS_MASK], num_lanes=self.num_lanes, idm=self.idm, mobil=self.mobil)
+        p = mobil_prior_from_obs(
+            values[K.EGO_STATE],
+            values[K.EGO_LANE],
+            values[K.NEIGHBORS_KIN],
+            values[K.NEIGHBORS_MASK],
+            num_lanes=self.num_lanes,
+            idm=self.idm,
+            mobil=self.mobil,
+        )
         return {K.PRIOR_P_MOBIL: p}
 
     def out_specs(self, batch, device) -> dict:
@@ -111,15 +150,25 @@ class MOBILSafetyMask(PredictiveTransform):
     Args: as :class:`MOBILPrior`.
     """
 
-    def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
-                 num_lanes: int = 3):
+    def __init__(
+        self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None, num_lanes: int = 3
+    ):
         self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
-        super().__init__(in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LC_ACTION_MASK],
-                         out_keys=[K.LC_ACTION_MASK])
+        super().__init__(
+            in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LC_ACTION_MASK],
+            out_keys=[K.LC_ACTION_MASK],
+        )
 
     def frame(self, values, noise=None) -> dict:
-        safe = mobil_safe_from_obs(values[K.EGO_STATE], values[K.EGO_LANE], values[K.NEIGHBORS_KIN],
-                                   values[K.NEIGHBORS_MASK], num_lanes=self.num_lanes, idm=self.idm, mobil=self.mobil)
+        safe = mobil_safe_from_obs(
+            values[K.EGO_STATE],
+            values[K.EGO_LANE],
+            values[K.NEIGHBORS_KIN],
+            values[K.NEIGHBORS_MASK],
+            num_lanes=self.num_lanes,
+            idm=self.idm,
+            mobil=self.mobil,
+        )
         return {K.LC_ACTION_MASK: values[K.LC_ACTION_MASK].bool() & safe}
 
     def out_specs(self, batch, device) -> dict:
@@ -141,17 +190,26 @@ class MOBILCriteria(MOBILPrior):
     ``keys.LC_ACTION_MASK`` is :class:`MOBILSafetyMask`'s job (``algo.mobil_safety_mask``), not this transform's.
     """
 
-    def __init__(self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None,
-                 num_lanes: int = 3):
+    def __init__(
+        self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None, num_lanes: int = 3
+    ):
         super().__init__(mobil, idm, num_lanes)
         self.out_keys = [K.MOBIL_INCENTIVE, K.MOBIL_SAFE]
 
     def frame(self, values, noise=None) -> dict:
-        u, safe = mobil_criteria_from_obs(values[K.EGO_STATE], values[K.EGO_LANE], values[K.NEIGHBORS_KIN],
-                                          values[K.NEIGHBORS_MASK], num_lanes=self.num_lanes, idm=self.idm,
-                                          mobil=self.mobil)
+        u, safe = mobil_criteria_from_obs(
+            values[K.EGO_STATE],
+            values[K.EGO_LANE],
+            values[K.NEIGHBORS_KIN],
+            values[K.NEIGHBORS_MASK],
+            num_lanes=self.num_lanes,
+            idm=self.idm,
+            mobil=self.mobil,
+        )
         return {K.MOBIL_INCENTIVE: u, K.MOBIL_SAFE: safe}
 
     def out_specs(self, batch, device) -> dict:
-        return {K.MOBIL_INCENTIVE: unbounded_spec(batch, (3,), device),
-                K.MOBIL_SAFE: Categorical(2, shape=(*batch, 3), dtype=torch.bool, device=device)}
+        return {
+            K.MOBIL_INCENTIVE: unbounded_spec(batch, (3,), device),
+            K.MOBIL_SAFE: Categorical(2, shape=(*batch, 3), dtype=torch.bool, device=device),
+        }

@@ -24,6 +24,7 @@ is sure to receive the flag (its frame may keep the agent's command). Each frame
 ``("next", "cf", "shield")`` (``keys.CF_SHIELD``): True when the shield lowered the command, which the episode
 tracker counts (``shield_interventions``, ``shield_rate``).
 """
+
 from __future__ import annotations
 
 import math
@@ -41,30 +42,38 @@ SHIELD_KINDS = ("idm", "ttc")
 _FLAG = "_shield_intervened"  # carries the intervention flag from the inverse path to ``_step``
 
 
-def ttc_bound(v: torch.Tensor, v_lead: torch.Tensor, a_lead: torch.Tensor, gap: torch.Tensor, ttc: float,
-              min_gap: float, no_bound: float) -> torch.Tensor:
+def ttc_bound(
+    v: torch.Tensor,
+    v_lead: torch.Tensor,
+    a_lead: torch.Tensor,
+    gap: torch.Tensor,
+    ttc: float,
+    min_gap: float,
+    no_bound: float,
+) -> torch.Tensor:
     """The ``ttc`` shield's bound (m/s²): while closing in with ``gap / (v - v_lead) < ttc``, the deceleration that
     cancels the closing speed within ``gap - min_gap`` (plus the leader's braking); ``no_bound`` otherwise."""
     closing = (v - v_lead).clamp(min=0.0)
     room = (gap - min_gap).clamp(min=0.1)
-    need = torch.minimum(a_lead, torch.zeros_like(a_lead)) - closing ** 2 / (2.0 * room)
+    need = torch.minimum(a_lead, torch.zeros_like(a_lead)) - closing**2 / (2.0 * room)
     risky = (closing > 0) & (gap < ttc * closing)
     return torch.where(risky, need, torch.full_like(need, no_bound))
 
 
-def safe_acceleration(obs: TensorDictBase, kind: str, *, idm: IDMParams, ttc: float, min_gap: float,
-                      high: float) -> torch.Tensor:
+def safe_acceleration(
+    obs: TensorDictBase, kind: str, *, idm: IDMParams, ttc: float, min_gap: float, high: float
+) -> torch.Tensor:
     """``a_safe`` ``[*B, 1]`` (m/s², at most ``high``) of shield ``kind`` from the raw keys of ``obs``."""
     ego = obs.get(K.EGO_STATE).to(torch.float32)
     kin = obs.get(K.NEIGHBORS_KIN).to(torch.float32)
     mask = obs.get(K.NEIGHBORS_MASK).bool()
     y, v, vx = ego[..., 0:1], ego[..., 1:2], ego[..., 2:3]
-    leaders = kin[..., :3, :]                                              # a, b, c
-    gap = leaders[..., 0] - y - idm.length                                 # [*B, 3] bumper to bumper
+    leaders = kin[..., :3, :]  # a, b, c
+    gap = leaders[..., 0] - y - idm.length  # [*B, 3] bumper to bumper
     present = mask[..., :3].clone()
     active = obs.get(K.LC_ACTIVE, torch.zeros_like(vx, dtype=torch.bool)).bool()
-    present[..., 0:1] &= active & (vx > 0)   # the left leader only while moving left
-    present[..., 2:3] &= active & (vx < 0)   # the right leader only while moving right
+    present[..., 0:1] &= active & (vx > 0)  # the left leader only while moving left
+    present[..., 2:3] &= active & (vx < 0)  # the right leader only while moving right
     if kind == "idm":
         bound = idm_acceleration(v, leaders[..., 1], gap, idm, has_leader=present).clamp(max=high)
     else:
@@ -84,8 +93,16 @@ class SafetyShield(Transform):
         idm: IDM parameters of the ``idm`` shield (default Table A.1; ``v0`` is ignored: always ``inf``).
     """
 
-    def __init__(self, kind: str, *, low: float = -5.0, high: float = 5.0, ttc: float = 3.0, min_gap: float = 2.0,
-                 idm: IDMParams | None = None):
+    def __init__(
+        self,
+        kind: str,
+        *,
+        low: float = -5.0,
+        high: float = 5.0,
+        ttc: float = 3.0,
+        min_gap: float = 2.0,
+        idm: IDMParams | None = None,
+    ):
         if kind not in SHIELD_KINDS:
             raise ValueError(f"SafetyShield: kind must be one of {', '.join(SHIELD_KINDS)}, got {kind!r}")
         super().__init__(in_keys=[], out_keys=[K.CF_SHIELD], in_keys_inv=[K.CF_ACTION], out_keys_inv=[K.CF_ACTION])
@@ -97,8 +114,11 @@ class SafetyShield(Transform):
     def shielded(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """(executed action, intervened) ``[*B, 1]`` for the command and raw keys at the root of ``tensordict``."""
         action = tensordict.get(K.CF_ACTION)
-        bound = safe_acceleration(tensordict, self.kind, idm=self.idm, ttc=self.ttc, min_gap=self.min_gap,
-                                  high=self.high).to(action.dtype).reshape(action.shape)
+        bound = (
+            safe_acceleration(tensordict, self.kind, idm=self.idm, ttc=self.ttc, min_gap=self.min_gap, high=self.high)
+            .to(action.dtype)
+            .reshape(action.shape)
+        )
         executed = torch.minimum(action, bound).clamp(self.low, self.high)
         return executed, executed < action
 
@@ -107,7 +127,7 @@ class SafetyShield(Transform):
         with torch.no_grad():
             executed, flag = self.shielded(tensordict)
         tensordict.set(K.CF_ACTION, executed)  # what the env receives (``inv`` works on a copy of the root)
-        tensordict.set(_FLAG, flag)            # read (and removed) by _step
+        tensordict.set(_FLAG, flag)  # read (and removed) by _step
         return tensordict
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
@@ -128,8 +148,9 @@ class SafetyShield(Transform):
         return tensordict, tensordict_
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        tensordict_reset.set(K.CF_SHIELD, torch.zeros(*tensordict_reset.batch_size, 1, dtype=torch.bool,
-                                                      device=tensordict_reset.device))
+        tensordict_reset.set(
+            K.CF_SHIELD, torch.zeros(*tensordict_reset.batch_size, 1, dtype=torch.bool, device=tensordict_reset.device)
+        )
         return tensordict_reset
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:  # forward(): nothing to add to a sample

@@ -15,6 +15,7 @@ It is still a ``Compose``: indexing, ``reseed`` of a member, the specs and ``Tra
 the members chained; a stack holding any transform that is not a :class:`PredictiveTransform` (e.g. one
 appended by a user) runs them one by one, as ``Compose`` does.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -138,7 +139,8 @@ class PredictiveStack(Compose):
     def transform_output_spec(self, output_spec):
         if self.history is not None:
             output_spec["full_observation_spec"] = self.history.transform_observation_spec(
-                output_spec["full_observation_spec"])
+                output_spec["full_observation_spec"]
+            )
         return super().transform_output_spec(output_spec)
 
     def transform_input_spec(self, input_spec):

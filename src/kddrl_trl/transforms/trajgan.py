@@ -1,4 +1,5 @@
 """``TrajGANPrediction``: trajGAN-refined leader trajectories TG and their key-step gaps (Eq. 13, Eq. 24)."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -42,29 +43,53 @@ class TrajGANPrediction(FrozenPredictorTransform):
 
     kind, out_key, rows_per_env = "trajgan", K.PRED_TRAJ, 3  # one noise row per leader a, b, c
 
-    def __init__(self, predictor: TensorDictModuleBase | None = None, *, checkpoint: str | Path | None = None,
-                 num_samples: int = 1, reduce: str = "sample", seed: int = 0, device: str | torch.device = "cpu",
-                 key_steps: Sequence[int] = KEY_STEPS):
-        super().__init__(predictor, checkpoint=checkpoint, seed=seed, device=device,
-                         options={"num_samples": num_samples, "reduce": reduce},
-                         in_keys=[K.NEIGHBORS_MASK], out_keys=[K.PRED_TRAJ, K.PRED_KEY_GAPS])
+    def __init__(
+        self,
+        predictor: TensorDictModuleBase | None = None,
+        *,
+        checkpoint: str | Path | None = None,
+        num_samples: int = 1,
+        reduce: str = "sample",
+        seed: int = 0,
+        device: str | torch.device = "cpu",
+        key_steps: Sequence[int] = KEY_STEPS,
+    ):
+        super().__init__(
+            predictor,
+            checkpoint=checkpoint,
+            seed=seed,
+            device=device,
+            options={"num_samples": num_samples, "reduce": reduce},
+            in_keys=[K.NEIGHBORS_MASK],
+            out_keys=[K.PRED_TRAJ, K.PRED_KEY_GAPS],
+        )
         self.horizon = int(getattr(self.predictor, "horizon", 20))
         self.key_steps = tuple(int(s) for s in key_steps)
 
     def predict_inputs(self, values) -> tuple:
-        return (values[K.LEADERS_HISTORY], values[K.LEADERS_AHEAD], values[K.NEIGHBORS_MASK][..., :3].bool(),
-                values[K.PRED_PRIOR_TRAJ])
+        return (
+            values[K.LEADERS_HISTORY],
+            values[K.LEADERS_AHEAD],
+            values[K.NEIGHBORS_MASK][..., :3].bool(),
+            values[K.PRED_PRIOR_TRAJ],
+        )
 
     def frame(self, values, noise=None) -> dict:
         traj = finite_or_zero(self.prediction(values, noise).to(torch.float32))
         present = values[K.NEIGHBORS_MASK][..., :3].bool()
-        return {K.PRED_TRAJ: traj,
-                K.PRED_KEY_GAPS: key_step_gaps(traj, values[K.EGO_STATE][..., 0], present, self.key_steps)}
+        return {
+            K.PRED_TRAJ: traj,
+            K.PRED_KEY_GAPS: key_step_gaps(traj, values[K.EGO_STATE][..., 0], present, self.key_steps),
+        }
 
     def out_specs(self, batch, device) -> dict:
-        return {K.PRED_TRAJ: unbounded_spec(batch, (3, self.horizon), device),
-                K.PRED_KEY_GAPS: unbounded_spec(batch, (3, len(self.key_steps)), device)}
+        return {
+            K.PRED_TRAJ: unbounded_spec(batch, (3, self.horizon), device),
+            K.PRED_KEY_GAPS: unbounded_spec(batch, (3, len(self.key_steps)), device),
+        }
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(predictor={type(self.predictor).__name__}, horizon={self.horizon}, "
-                f"key_steps={self.key_steps})")
+        return (
+            f"{type(self).__name__}(predictor={type(self.predictor).__name__}, horizon={self.horizon}, "
+            f"key_steps={self.key_steps})"
+        )

@@ -69,11 +69,24 @@ file               content
 ``predictor.py``   :class:`LCGANPredictor`, the batched, gradient-free inference module of the environment
 =================  ===========================================================================
 """
+
 from .losses import class_weights, focal_loss
 from .metrics import classification_metrics, mobil_probabilities
 from .model import KIND, LCDiscriminator, LCGenerator, condition_size, lane_availability
 from .predictor import LCGANPredictor
 from .task import LCGANConfig, LCGANTask
 
-__all__ = ["KIND", "LCDiscriminator", "LCGANConfig", "LCGANPredictor", "LCGANTask", "LCGenerator", "class_weights",
-           "classification_metrics", "condition_size", "focal_loss", "lane_availability", "mobil_probabilities"]
+__all__ = [
+    "KIND",
+    "LCDiscriminator",
+    "LCGANConfig",
+    "LCGANPredictor",
+    "LCGANTask",
+    "LCGenerator",
+    "class_weights",
+    "classification_metrics",
+    "condition_size",
+    "focal_loss",
+    "lane_availability",
+    "mobil_probabilities",
+]

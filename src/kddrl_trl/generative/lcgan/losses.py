@@ -1,5 +1,6 @@
 """The losses of lcGAN's generator beside the adversarial term (paper Eq. 19): the focal loss and its class
 weights ``α``."""
+
 from __future__ import annotations
 
 from typing import Any

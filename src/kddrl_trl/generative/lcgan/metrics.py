@@ -1,4 +1,5 @@
 """Test metrics of lcGAN (paper §IV.F, Fig. 16-17): classification metrics and the MOBIL baseline ``P_MOBIL``."""
+
 from __future__ import annotations
 
 import torch
@@ -19,8 +20,9 @@ def mobil_probabilities(samples: TensorDict) -> Tensor:
     s_av, rel, mask = samples["s_av"].float(), samples["rel"].float(), samples["mask"].bool()
     v = s_av[:, 0]
     kin = torch.stack([rel[..., 1], v.unsqueeze(-1) + rel[..., 3], torch.zeros_like(rel[..., 1])], dim=-1)
-    return mobil_prior(torch.zeros_like(v), v, kin, mask, s_av[:, 2].round().long(),
-                       num_lanes=samples["num_lanes"].long())
+    return mobil_prior(
+        torch.zeros_like(v), v, kin, mask, s_av[:, 2].round().long(), num_lanes=samples["num_lanes"].long()
+    )
 
 
 def classification_metrics(pred: Tensor, true: Tensor) -> dict:

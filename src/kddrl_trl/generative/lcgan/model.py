@@ -1,5 +1,6 @@
 """lcGAN networks (paper Eq. 16-17): the generator ``G(Z, C)`` with the normalisation of the condition ``C``
 (see the package docstring for its layout) and the discriminator ``D(P, C)``."""
+
 from __future__ import annotations
 
 import torch
@@ -66,15 +67,25 @@ class LCGenerator(nn.Module):
         s_av = samples["s_av"].float()
         self.s_av_mean.copy_(s_av.mean(0))
         self.s_av_std.copy_(s_av.std(0).nan_to_num(1.0).clamp(min=_STD_FLOOR))
-        for name, x, m in (("rel", samples["rel"], samples["mask"]),
-                           ("offset", samples["lane_offset"].unsqueeze(-1), samples["mask"]),
-                           ("gap", samples["key_gaps"], samples["key_gaps_mask"])):
+        for name, x, m in (
+            ("rel", samples["rel"], samples["mask"]),
+            ("offset", samples["lane_offset"].unsqueeze(-1), samples["mask"]),
+            ("gap", samples["key_gaps"], samples["key_gaps_mask"]),
+        ):
             mean, std = _masked_moments(x, m.bool())
             getattr(self, f"{name}_mean").copy_(mean)
             getattr(self, f"{name}_std").copy_(std)
 
-    def condition(self, s_av: Tensor, rel: Tensor, lane_offset: Tensor, mask: Tensor, key_gaps: Tensor,
-                  key_gaps_mask: Tensor, num_lanes: int | Tensor) -> tuple[Tensor, Tensor]:
+    def condition(
+        self,
+        s_av: Tensor,
+        rel: Tensor,
+        lane_offset: Tensor,
+        mask: Tensor,
+        key_gaps: Tensor,
+        key_gaps_mask: Tensor,
+        num_lanes: int | Tensor,
+    ) -> tuple[Tensor, Tensor]:
         """Assemble and normalise C; returns ``(C [..., condition_size()], available [..., 3] bool)``.
 
         Absent slots (mask False) contribute zeros whatever their raw values (even NaN)."""
@@ -82,12 +93,24 @@ class LCGenerator(nn.Module):
         avail = lane_availability(s_av[..., 2].round(), num_lanes)
         z_s = (s_av - self.s_av_mean) / self.s_av_std
         z_rel = torch.where(mask.unsqueeze(-1), (rel - self.rel_mean) / self.rel_std, torch.zeros_like(rel))
-        z_off = torch.where(mask, (lane_offset - self.offset_mean[:, 0]) / self.offset_std[:, 0],
-                            torch.zeros_like(lane_offset))
-        z_gap = torch.where(key_gaps_mask.unsqueeze(-1), (key_gaps - self.gap_mean) / self.gap_std,
-                            torch.zeros_like(key_gaps))
-        c = torch.cat([z_s, avail[..., [0, 2]].to(z_s.dtype), z_rel.flatten(-2), mask.to(z_s.dtype), z_off,
-                       z_gap.flatten(-2), key_gaps_mask.to(z_s.dtype)], dim=-1)
+        z_off = torch.where(
+            mask, (lane_offset - self.offset_mean[:, 0]) / self.offset_std[:, 0], torch.zeros_like(lane_offset)
+        )
+        z_gap = torch.where(
+            key_gaps_mask.unsqueeze(-1), (key_gaps - self.gap_mean) / self.gap_std, torch.zeros_like(key_gaps)
+        )
+        c = torch.cat(
+            [
+                z_s,
+                avail[..., [0, 2]].to(z_s.dtype),
+                z_rel.flatten(-2),
+                mask.to(z_s.dtype),
+                z_off,
+                z_gap.flatten(-2),
+                key_gaps_mask.to(z_s.dtype),
+            ],
+            dim=-1,
+        )
         return c, avail
 
     def logits(self, c: Tensor, z: Tensor, available: Tensor) -> Tensor:

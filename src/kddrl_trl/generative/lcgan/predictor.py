@@ -1,4 +1,5 @@
 """``LCGANPredictor``: the lane-change prior ``P_lcGAN = G(Z, C)`` at RL time (paper Eq. 16)."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -38,8 +39,15 @@ class LCGANPredictor(GANPredictor):
     """
 
     kind = KIND
-    in_keys = [K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_LANE_OFFSET,  # noqa: RUF012
-               K.NEIGHBORS_LANE_OFFSET, K.PRED_KEY_GAPS]
+    in_keys = [
+        K.EGO_STATE,
+        K.EGO_LANE,
+        K.NEIGHBORS_REL,
+        K.NEIGHBORS_MASK,
+        K.EGO_LANE_OFFSET,  # noqa: RUF012
+        K.NEIGHBORS_LANE_OFFSET,
+        K.PRED_KEY_GAPS,
+    ]
     out_keys = [K.PRIOR_P_LCGAN]  # noqa: RUF012
 
     def __init__(self, generator: LCGenerator, num_lanes: int = 3, seed: int = 0, draws: int = 1):
@@ -55,16 +63,32 @@ class LCGANPredictor(GANPredictor):
         if architecture.get("condition_size") != condition_size() or architecture.get("actions") != list(K.LC_ACTIONS):
             raise CheckpointError(f"{path} was trained with another condition layout ({dict(architecture)})")
 
-    def predict(self, state: Tensor, lane: Tensor, rel: Tensor, mask: Tensor, offset: Tensor, nb_offset: Tensor,
-                gaps: Tensor, z: Tensor) -> Tensor:
+    def predict(
+        self,
+        state: Tensor,
+        lane: Tensor,
+        rel: Tensor,
+        mask: Tensor,
+        offset: Tensor,
+        nb_offset: Tensor,
+        gaps: Tensor,
+        z: Tensor,
+    ) -> Tensor:
         """Eq. 16 as a pure tensor function on ``[*B, ...]`` observations (see the class doc for the shapes)
         with ``z`` = :meth:`noise` of ``prod(B)`` rows -> ``P_lcGAN`` ``[*B, 3]`` on the device of ``state``."""
         batch, out_dev = state.shape[:-1], state.device
         n, dev = batch.numel(), self.device()
         state = state.reshape(n, 3).to(dev, torch.float32)
-        fields = lane_change_condition(state[:, 1], state[:, 2], lane.reshape(n).to(dev), offset.reshape(n).to(dev),
-                                       rel.reshape(n, 6, 4).to(dev), mask.reshape(n, 6).to(dev),
-                                       nb_offset.reshape(n, 6).to(dev), gaps.reshape(n, 3, 2).to(dev))
+        fields = lane_change_condition(
+            state[:, 1],
+            state[:, 2],
+            lane.reshape(n).to(dev),
+            offset.reshape(n).to(dev),
+            rel.reshape(n, 6, 4).to(dev),
+            mask.reshape(n, 6).to(dev),
+            nb_offset.reshape(n, 6).to(dev),
+            gaps.reshape(n, 3, 2).to(dev),
+        )
         c, avail = self.net.condition(**fields, num_lanes=self.num_lanes)
         k = z.shape[0]
         p = self.net(c.expand(k, n, c.shape[-1]), z, avail.expand(k, n, NUM_ACTIONS)).mean(0)
@@ -74,8 +98,15 @@ class LCGANPredictor(GANPredictor):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         state = tensordict.get(K.EGO_STATE)
         z = self.noise(state.shape[:-1].numel())
-        p = self.predict(state, tensordict.get(K.EGO_LANE), tensordict.get(K.NEIGHBORS_REL),
-                         tensordict.get(K.NEIGHBORS_MASK), tensordict.get(K.EGO_LANE_OFFSET),
-                         tensordict.get(K.NEIGHBORS_LANE_OFFSET), tensordict.get(K.PRED_KEY_GAPS), z)
+        p = self.predict(
+            state,
+            tensordict.get(K.EGO_LANE),
+            tensordict.get(K.NEIGHBORS_REL),
+            tensordict.get(K.NEIGHBORS_MASK),
+            tensordict.get(K.EGO_LANE_OFFSET),
+            tensordict.get(K.NEIGHBORS_LANE_OFFSET),
+            tensordict.get(K.PRED_KEY_GAPS),
+            z,
+        )
         tensordict.set(K.PRIOR_P_LCGAN, p)
         return tensordict

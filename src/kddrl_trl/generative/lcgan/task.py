@@ -1,6 +1,7 @@
 """lcGAN training (paper Eq. 18-19) as a :class:`~kddrl_trl.generative.pretraining.GANTask`: its config, one
 step of D and G with the class-balanced share, seeded prediction for validation, and the test evaluation
 (see the package docstring for the losses, the class imbalance and the model selection)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -27,19 +28,19 @@ from .model import KIND, NUM_ACTIONS, LCDiscriminator, LCGenerator, condition_si
 class LCGANConfig:
     """Every tunable of lcGAN (Hydra: ``conf/gan/lcgan.yaml``)."""
 
-    seed: int = 0                # seeds the weights (at construction), noise and balanced sampling
-    noise_dim: int = 8           # size of Z ~ N(0, 1) (Eq. 16)
-    hidden: int = 64             # width of the hidden layers of G and D
-    layers: int = 2              # hidden layers of G and D
-    adversarial: bool = True     # False: the same generator trained as a plain focal-loss classifier
-    omega: float = 1.0           # ω, weight of the supervised focal term in L_g (Eq. 19)
-    gamma: float = 2.0           # γ, focal-loss focusing parameter (Eq. 19)
-    alpha: Any = "inv_sqrt"      # α_k: "inv_sqrt" | "inv" | "none" | [left, keep, right]
+    seed: int = 0  # seeds the weights (at construction), noise and balanced sampling
+    noise_dim: int = 8  # size of Z ~ N(0, 1) (Eq. 16)
+    hidden: int = 64  # width of the hidden layers of G and D
+    layers: int = 2  # hidden layers of G and D
+    adversarial: bool = True  # False: the same generator trained as a plain focal-loss classifier
+    omega: float = 1.0  # ω, weight of the supervised focal term in L_g (Eq. 19)
+    gamma: float = 2.0  # γ, focal-loss focusing parameter (Eq. 19)
+    alpha: Any = "inv_sqrt"  # α_k: "inv_sqrt" | "inv" | "none" | [left, keep, right]
     balanced_fraction: float = 0.25  # share of each mini-batch drawn class-balanced from train lane changes
-    lr_g: float = 1e-3           # Adam learning rate of G
-    lr_d: float = 1e-3           # Adam learning rate of D
-    eval_draws: int = 1          # noise draws averaged by validation / evaluation (seeded, deterministic)
-    eval_batch: int = 16384      # samples per forward pass in validation / evaluation
+    lr_g: float = 1e-3  # Adam learning rate of G
+    lr_d: float = 1e-3  # Adam learning rate of D
+    eval_draws: int = 1  # noise draws averaged by validation / evaluation (seeded, deterministic)
+    eval_batch: int = 16384  # samples per forward pass in validation / evaluation
 
     @classmethod
     def from_any(cls, cfg: Any) -> LCGANConfig:
@@ -88,8 +89,11 @@ class LCGANTask:
         self.generator = LCGenerator(c.noise_dim, c.hidden, c.layers).to(self.device)
         self.discriminator = LCDiscriminator(c.hidden, c.layers).to(self.device) if c.adversarial else None
         self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=c.lr_g, betas=(0.5, 0.999))
-        self.opt_d = (torch.optim.Adam(self.discriminator.parameters(), lr=c.lr_d, betas=(0.5, 0.999))
-                      if self.discriminator is not None else None)
+        self.opt_d = (
+            torch.optim.Adam(self.discriminator.parameters(), lr=c.lr_d, betas=(0.5, 0.999))
+            if self.discriminator is not None
+            else None
+        )
         self.rng = torch.Generator().manual_seed(c.seed + 1)  # noise and balanced sampling (checkpointed)
         self.class_counts = torch.zeros(NUM_ACTIONS, dtype=torch.int64)
         self.alpha = torch.ones(NUM_ACTIONS)
@@ -107,8 +111,14 @@ class LCGANTask:
     # -- GANTask protocol -------------------------------------------------------------------------------
     def architecture(self) -> dict:
         c = self.cfg
-        return {"noise_dim": c.noise_dim, "hidden": c.hidden, "layers": c.layers, "adversarial": c.adversarial,
-                "condition_size": condition_size(), "actions": list(K.LC_ACTIONS)}
+        return {
+            "noise_dim": c.noise_dim,
+            "hidden": c.hidden,
+            "layers": c.layers,
+            "adversarial": c.adversarial,
+            "condition_size": condition_size(),
+            "actions": list(K.LC_ACTIONS),
+        }
 
     def modules(self) -> dict[str, nn.Module]:
         mods: dict[str, nn.Module] = {"generator": self.generator}
@@ -124,8 +134,7 @@ class LCGANTask:
 
     def state(self) -> dict:
         """α, the train class counts and the noise / sampling RNG (normalisation lives in G's buffers)."""
-        return {"alpha": self.alpha.clone(), "class_counts": self.class_counts.clone(),
-                "rng": self.rng.get_state()}
+        return {"alpha": self.alpha.clone(), "class_counts": self.class_counts.clone(), "rng": self.rng.get_state()}
 
     def load_state(self, state: Mapping[str, Any]) -> None:
         self.alpha = torch.as_tensor(state["alpha"], dtype=torch.float32).clone()
@@ -213,10 +222,15 @@ class LCGANTask:
 
     def _condition(self, samples: TensorDict) -> tuple[Tensor, Tensor]:
         dev = self.device
-        return self.generator.condition(samples["s_av"].float().to(dev), samples["rel"].float().to(dev),
-                                        samples["lane_offset"].float().to(dev),
-                                        samples["mask"].to(dev), samples["key_gaps"].float().to(dev),
-                                        samples["key_gaps_mask"].to(dev), samples["num_lanes"].to(dev))
+        return self.generator.condition(
+            samples["s_av"].float().to(dev),
+            samples["rel"].float().to(dev),
+            samples["lane_offset"].float().to(dev),
+            samples["mask"].to(dev),
+            samples["key_gaps"].float().to(dev),
+            samples["key_gaps_mask"].to(dev),
+            samples["num_lanes"].to(dev),
+        )
 
     @torch.no_grad()
     def predict(self, samples: TensorDict) -> Tensor:
@@ -226,7 +240,7 @@ class LCGANTask:
         gen = torch.Generator().manual_seed(self.cfg.seed)
         n, out = samples.batch_size[0], []
         for start in range(0, n, self.cfg.eval_batch):
-            part = samples[start:start + self.cfg.eval_batch]
+            part = samples[start : start + self.cfg.eval_batch]
             c, avail = self._condition(part)
             p = torch.zeros(c.shape[0], NUM_ACTIONS, device=self.device)
             for _ in range(self.cfg.eval_draws):

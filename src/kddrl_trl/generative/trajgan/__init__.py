@@ -14,9 +14,19 @@ file               content
 ``predictor.py``   :class:`TrajGANPredictor`, the batched, gradient-free inference module of the environment
 =================  ===========================================================================
 """
+
 from .model import FEATURES_VERSION, KIND, TrajDiscriminator, TrajGenerator, condition_features
 from .predictor import TrajGANPredictor
 from .task import RECOMMENDED_PRETRAIN, TrajGANConfig, TrajGANTask
 
-__all__ = ["FEATURES_VERSION", "KIND", "RECOMMENDED_PRETRAIN", "TrajDiscriminator", "TrajGANConfig",
-           "TrajGANPredictor", "TrajGANTask", "TrajGenerator", "condition_features"]
+__all__ = [
+    "FEATURES_VERSION",
+    "KIND",
+    "RECOMMENDED_PRETRAIN",
+    "TrajDiscriminator",
+    "TrajGANConfig",
+    "TrajGANPredictor",
+    "TrajGANTask",
+    "TrajGenerator",
+    "condition_features",
+]

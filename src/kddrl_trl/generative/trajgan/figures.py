@@ -1,4 +1,5 @@
 """Figures of the trajGAN test evaluation (paper §IV.F): error per horizon step and sampled futures."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -34,13 +35,18 @@ def plot_errors(per_step: Mapping[str, Sequence[float]], path: Path) -> None:
     fig.savefig(path)
 
 
-def plot_samples(history: Tensor, prior: Tensor, many: Tensor, future: Tensor, cases: int, dt: float,
-                 seed: int, path: Path) -> None:
+def plot_samples(
+    history: Tensor, prior: Tensor, many: Tensor, future: Tensor, cases: int, dt: float, seed: int, path: Path
+) -> None:
     """History, IDM prior, sampled futures and truth of ``cases`` seeded test cases (``trajgan_samples.png``),
     drawn relative to constant velocity."""
     n = len(future)
     cases = max(1, min(cases, n))
-    idx = torch.randperm(n, generator=torch.Generator().manual_seed(seed))[:cases] if n else torch.zeros(0, dtype=torch.long)
+    idx = (
+        torch.randperm(n, generator=torch.Generator().manual_seed(seed))[:cases]
+        if n
+        else torch.zeros(0, dtype=torch.long)
+    )
     fig = _figure(4 * cases, 3.6)
     history, prior, many, future = (x.detach().cpu().double().numpy() for x in (history, prior, many, future))
     h, t = history.shape[1], future.shape[-1]
@@ -51,8 +57,14 @@ def plot_samples(history: Tensor, prior: Tensor, many: Tensor, future: Tensor, c
         y0, v0 = float(history[i, -1, 0]), float(history[i, -1, 1])
         ax.plot(th, history[i, :, 0] - y0 - v0 * th, "k.-", label="history")
         for s in range(many.shape[1]):
-            ax.plot(tf, many[i, s] - y0 - v0 * tf, color="tab:blue", alpha=0.35, lw=1,
-                    label="trajGAN samples" if s == 0 else None)
+            ax.plot(
+                tf,
+                many[i, s] - y0 - v0 * tf,
+                color="tab:blue",
+                alpha=0.35,
+                lw=1,
+                label="trajGAN samples" if s == 0 else None,
+            )
         ax.plot(tf, prior[i] - y0 - v0 * tf, "--", color="tab:orange", label="IDM prior")
         ax.plot(tf, future[i] - y0 - v0 * tf, color="k", lw=2, label="truth")
         ax.axhline(0.0, color="tab:green", lw=1, ls=":", label="constant velocity")

@@ -13,6 +13,7 @@ Generator output and discriminator input live in the standardised residual space
 ``r = (future - prior - res_mean) / res_std`` (per horizon step, train statistics), a bijection of
 ``future - y0`` given ``TC``; the statistics are buffers of the generator, so every checkpoint carries them.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -36,8 +37,13 @@ def condition_features(history: Tensor, ahead: Tensor, prior: Tensor, use_histor
     parts = [prior - y0]
     if use_history:
         present = (ahead[:, 2:3] > 0).to(prior.dtype)
-        parts += [history[:, :-1, 0] - y0, history[:, :, 1],
-                  present * (ahead[:, 0:1] - y0), present * ahead[:, 1:2], present]
+        parts += [
+            history[:, :-1, 0] - y0,
+            history[:, :, 1],
+            present * (ahead[:, 0:1] - y0),
+            present * ahead[:, 1:2],
+            present,
+        ]
     return torch.cat(parts, dim=-1)
 
 
@@ -94,8 +100,9 @@ class TrajDiscriminator(nn.Module):
 
 def generator_from_architecture(arch: Mapping[str, Any]) -> TrajGenerator:
     """An untrained generator of a checkpoint's ``architecture`` (its weights are loaded next)."""
-    return TrajGenerator(int(arch["cond_dim"]), int(arch["horizon"]), int(arch["noise_dim"]),
-                         [int(h) for h in arch["g_hidden"]])
+    return TrajGenerator(
+        int(arch["cond_dim"]), int(arch["horizon"]), int(arch["noise_dim"]), [int(h) for h in arch["g_hidden"]]
+    )
 
 
 def refine(gen: TrajGenerator, cond: Tensor, prior: Tensor, z: Tensor) -> Tensor:

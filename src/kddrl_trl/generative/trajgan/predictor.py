@@ -1,4 +1,5 @@
 """``TrajGANPredictor``: batched trajGAN inference at RL time, ``TG = TC + G(Z, TC)`` (paper Eq. 13)."""
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -32,8 +33,14 @@ class TrajGANPredictor(GANPredictor):
     in_keys = [K.LEADERS_HISTORY, K.LEADERS_AHEAD, K.NEIGHBORS_MASK, K.PRED_PRIOR_TRAJ]  # noqa: RUF012
     out_keys = [K.PRED_TRAJ]  # noqa: RUF012
 
-    def __init__(self, generator_net: TrajGenerator, architecture: Mapping[str, Any], num_samples: int = 1,
-                 reduce: str = "sample", seed: int = 0):
+    def __init__(
+        self,
+        generator_net: TrajGenerator,
+        architecture: Mapping[str, Any],
+        num_samples: int = 1,
+        reduce: str = "sample",
+        seed: int = 0,
+    ):
         if reduce not in ("sample", "mean"):
             raise ValueError(f"reduce must be 'sample' or 'mean', got {reduce!r}")
         if int(num_samples) < 1:
@@ -51,8 +58,9 @@ class TrajGANPredictor(GANPredictor):
     @classmethod
     def check_architecture(cls, path: str | Path, architecture: Mapping[str, Any]) -> None:
         if architecture.get("features") != FEATURES_VERSION:
-            raise CheckpointError(f"{path}: condition layout {architecture.get('features')!r} is not "
-                                  f"{FEATURES_VERSION!r}")
+            raise CheckpointError(
+                f"{path}: condition layout {architecture.get('features')!r} is not {FEATURES_VERSION!r}"
+            )
 
     @classmethod
     def from_net(cls, net: TrajGenerator, architecture: Mapping[str, Any], **kwargs) -> TrajGANPredictor:
@@ -82,13 +90,18 @@ class TrajGANPredictor(GANPredictor):
         batch = hist.shape[:-3]
         h, t = hist.shape[-2], prior.shape[-1]
         if t != self.horizon or (self.use_history and h != self.history_len):
-            raise ValueError(f"trajGAN was trained with history {self.history_len} / horizon {self.horizon}, "
-                             f"got history {h} / horizon {t}")
+            raise ValueError(
+                f"trajGAN was trained with history {self.history_len} / horizon {self.horizon}, "
+                f"got history {h} / horizon {t}"
+            )
         dev, out_dev = self.device(), prior.device
-        out = self._refine_rows(hist.reshape(-1, h, 2).to(dev, torch.float32),
-                                ahead.reshape(-1, 3).to(dev, torch.float32),
-                                prior.reshape(-1, t).to(dev, torch.float32),
-                                mask.reshape(-1).to(dev, torch.bool), z)
+        out = self._refine_rows(
+            hist.reshape(-1, h, 2).to(dev, torch.float32),
+            ahead.reshape(-1, 3).to(dev, torch.float32),
+            prior.reshape(-1, t).to(dev, torch.float32),
+            mask.reshape(-1).to(dev, torch.bool),
+            z,
+        )
         out = torch.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
         return out.reshape(*batch, 3, t).to(out_dev)
 
@@ -96,7 +109,14 @@ class TrajGANPredictor(GANPredictor):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         hist = tensordict.get(K.LEADERS_HISTORY)
         z = self.noise(hist.shape[:-3].numel() * 3)
-        tensordict.set(K.PRED_TRAJ, self.predict(hist, tensordict.get(K.LEADERS_AHEAD),
-                                                 tensordict.get(K.NEIGHBORS_MASK)[..., :3].bool(),
-                                                 tensordict.get(K.PRED_PRIOR_TRAJ), z))
+        tensordict.set(
+            K.PRED_TRAJ,
+            self.predict(
+                hist,
+                tensordict.get(K.LEADERS_AHEAD),
+                tensordict.get(K.NEIGHBORS_MASK)[..., :3].bool(),
+                tensordict.get(K.PRED_PRIOR_TRAJ),
+                z,
+            ),
+        )
         return tensordict

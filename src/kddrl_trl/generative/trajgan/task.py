@@ -7,6 +7,7 @@ Losses (``BCEWithLogitsLoss`` on logits instead of ``log`` of a sigmoid output, 
 * Eq. 15, generator: the non-saturating adversarial term ``BCE(D(TG, TC), 1) = -log D(TG)`` (Eq. 15 as
   printed has a double minus sign, which we read as a typo) plus ``omega * MAE(TR, TG)`` in metres.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -38,16 +39,16 @@ class TrajGANConfig:
 
     g_hidden: list[int] = field(default_factory=lambda: [128, 128])  # generator MLP widths
     d_hidden: list[int] = field(default_factory=lambda: [128, 128])  # discriminator MLP widths
-    noise_dim: int = 8            # size of Z (Eq. 13)
-    omega: float = 10.0           # weight of the MAE reconstruction term (Eq. 15), MAE in metres
+    noise_dim: int = 8  # size of Z (Eq. 13)
+    omega: float = 10.0  # weight of the MAE reconstruction term (Eq. 15), MAE in metres
     lr_g: float = 1e-3
     lr_d: float = 1e-3
     betas: list[float] = field(default_factory=lambda: [0.5, 0.999])  # Adam betas of both optimisers
-    use_history: bool = True      # condition on leader history and vehicle ahead, not only on the prior
-    num_eval_samples: int = 8     # K futures per input for min-of-K / spread metrics
-    dt: float = 0.1               # s per step (10 Hz data), for the constant-velocity baseline
-    eval_batch_size: int = 8192   # inputs per generator call in validation / evaluation
-    num_figure_cases: int = 4     # test cases drawn in trajgan_samples.png
+    use_history: bool = True  # condition on leader history and vehicle ahead, not only on the prior
+    num_eval_samples: int = 8  # K futures per input for min-of-K / spread metrics
+    dt: float = 0.1  # s per step (10 Hz data), for the constant-velocity baseline
+    eval_batch_size: int = 8192  # inputs per generator call in validation / evaluation
+    num_figure_cases: int = 4  # test cases drawn in trajgan_samples.png
     seed: int = 0
 
     @classmethod
@@ -79,16 +80,28 @@ class TrajGANConfig:
 def architecture(cfg: TrajGANConfig, history_len: int, horizon: int) -> dict:
     """What a trajGAN checkpoint must match to be loaded (condition layout and network sizes)."""
     return {
-        "features": FEATURES_VERSION, "history_len": int(history_len), "horizon": int(horizon),
-        "use_history": bool(cfg.use_history), "cond_dim": cond_dim(history_len, horizon, cfg.use_history),
-        "noise_dim": int(cfg.noise_dim), "g_hidden": [int(h) for h in cfg.g_hidden],
+        "features": FEATURES_VERSION,
+        "history_len": int(history_len),
+        "horizon": int(horizon),
+        "use_history": bool(cfg.use_history),
+        "cond_dim": cond_dim(history_len, horizon, cfg.use_history),
+        "noise_dim": int(cfg.noise_dim),
+        "g_hidden": [int(h) for h in cfg.g_hidden],
         "d_hidden": [int(h) for h in cfg.d_hidden],
     }
 
 
 @torch.no_grad()
-def _sample(gen: TrajGenerator, history: Tensor, ahead: Tensor, prior: Tensor, k: int, use_history: bool,
-            generator: torch.Generator | None, chunk: int = 0) -> Tensor:
+def _sample(
+    gen: TrajGenerator,
+    history: Tensor,
+    ahead: Tensor,
+    prior: Tensor,
+    k: int,
+    use_history: bool,
+    generator: torch.Generator | None,
+    chunk: int = 0,
+) -> Tensor:
     """``k`` absolute future positions per input: ``[N, H, 2]``, ``[N, 3]``, ``[N, T]`` -> ``[N, k, T]``.
 
     The noise of all chunks is drawn up front (CPU generator), so the result does not depend on ``chunk``."""
@@ -144,7 +157,7 @@ class TrajGANTask:
         n = len(train)
         s1 = s2 = r1 = r2 = 0.0
         for s in range(0, n, chunk):
-            b = train[s:s + chunk]
+            b = train[s : s + chunk]
             x = condition_features(b["history"], b["ahead"], b["prior"], self.cfg.use_history).double()
             r = (b["future"] - b["prior"]).double()
             s1, s2 = s1 + x.sum(0), s2 + (x * x).sum(0)
@@ -208,16 +221,23 @@ class TrajGANTask:
         loss_g.backward()
         self.opt_g.step()
         self.steps += 1
-        return {"loss_d": loss_d.item(), "loss_g": loss_g.item(), "loss_adv": adv.item(), "mae": mae.item(),
-                "d_real": torch.sigmoid(logit_real).mean().item(), "d_fake": torch.sigmoid(logit_fake).mean().item()}
+        return {
+            "loss_d": loss_d.item(),
+            "loss_g": loss_g.item(),
+            "loss_adv": adv.item(),
+            "mae": mae.item(),
+            "d_real": torch.sigmoid(logit_real).mean().item(),
+            "d_fake": torch.sigmoid(logit_fake).mean().item(),
+        }
 
     def sample(self, cond: TensorDictBase, k: int = 1, generator: torch.Generator | None = None) -> Tensor:
         """``k`` absolute future positions per input of ``cond`` (fields ``history``, ``ahead``, ``prior``):
         ``[N, k, horizon]``. ``generator`` (CPU) draws the noise (global RNG if None)."""
         self.generator.eval()
         history, ahead, prior = self._inputs(cond)
-        return _sample(self.generator, history, ahead, prior, int(k), self.cfg.use_history, generator,
-                       self.cfg.eval_batch_size)
+        return _sample(
+            self.generator, history, ahead, prior, int(k), self.cfg.use_history, generator, self.cfg.eval_batch_size
+        )
 
     def validation_loss(self, data: TensorDictBase) -> float:
         """MAE (m) over all horizon steps of ONE sample per input (noise seeded with ``seed``, so the value
@@ -248,8 +268,11 @@ class TrajGANTask:
         best_err = (many[torch.arange(len(best)), best] - future).abs()
         last = _LAST - 1
         spread = many[..., last].std(dim=1, unbiased=False) if k > 1 else torch.zeros(len(future))
-        metrics["min_of_k"] = {"k": k, "mae": float(best_err.mean()),
-                               f"mae_step{_LAST}": float(best_err[:, last].mean())}
+        metrics["min_of_k"] = {
+            "k": k,
+            "mae": float(best_err.mean()),
+            f"mae_step{_LAST}": float(best_err[:, last].mean()),
+        }
         metrics[f"spread_step{_LAST}"] = float(spread.mean())
         drivers = test["leader_driver"].cpu() if "leader_driver" in test.keys() else None  # noqa: SIM118
         per_driver = {}
@@ -260,10 +283,12 @@ class TrajGANTask:
                 if n == 0:
                     continue
                 per_driver[name] = {
-                    "n": n, f"mae_step{_LAST}": float(err["trajgan"][sel, last].abs().mean()),
+                    "n": n,
+                    f"mae_step{_LAST}": float(err["trajgan"][sel, last].abs().mean()),
                     f"idm_prior_mae_step{_LAST}": float(err["idm_prior"][sel, last].abs().mean()),
                     f"min_of_k_mae_step{_LAST}": float(best_err[sel, last].mean()),
-                    f"spread_step{_LAST}": float(spread[sel].mean())}
+                    f"spread_step{_LAST}": float(spread[sel].mean()),
+                }
         metrics["per_driver"] = per_driver
         braking = braking_events(history[:, -1, 0], future, cfg.dt)
         metrics["braking_decel_threshold"] = BRAKING_DECEL
@@ -272,8 +297,9 @@ class TrajGANTask:
         metrics["n"] = len(future)
         metrics["mae_per_step"] = {name: e.abs().mean(0).tolist() for name, e in err.items()}
         plot_errors(metrics["mae_per_step"], out_dir / "trajgan_errors.png")
-        plot_samples(history, prior, many, future, cfg.num_figure_cases, cfg.dt, cfg.seed,
-                     out_dir / "trajgan_samples.png")
+        plot_samples(
+            history, prior, many, future, cfg.num_figure_cases, cfg.dt, cfg.seed, out_dir / "trajgan_samples.png"
+        )
         return metrics
 
 
