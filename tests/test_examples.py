@@ -1,0 +1,31 @@
+"""The examples run as a user runs them: the transforms in a plain TorchRL TD3 loop, both arms, a few frames."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "transforms_in_torchrl_td3.py"
+
+
+def _example():
+    spec = importlib.util.spec_from_file_location("transforms_in_torchrl_td3", EXAMPLE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("transforms", [True, False])
+def test_transforms_in_a_torchrl_td3_loop(transforms):
+    example = _example()
+    env = example.make_env("sumo", 2, 0, transforms)
+    try:
+        width = env.observation_spec["observation"].shape[-1]
+    finally:
+        env.close()
+    assert width == (3 + 24 + 6) + ((6 + 3 + 3) if transforms else 0)  # raw; + key gaps and both priors
+    args = ["--frames", "320", "--warmup", "160", "--roads", "2", "--eval-frames", "100"]
+    result = example.main(args if transforms else [*args, "--no-transforms"])
+    assert 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1.0
