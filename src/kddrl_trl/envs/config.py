@@ -23,6 +23,8 @@ from omegaconf.errors import OmegaConfBaseException
 KMH = 1.0 / 3.6
 #: values of ``HighwayConfig.ego_start``
 EGO_STARTS = ("entry", "window")
+#: values of ``HighwayConfig.reward``: the reward variants of envs/rewards.py
+REWARDS = ("paper", "safe")
 
 
 @dataclass
@@ -155,8 +157,6 @@ class HighwayConfig:
         _check("accel_low", self.accel_low, self.accel_low < 0 < self.accel_high, "need accel_low < 0 < accel_high")
         _check("pick_window", self.pick_window, self.pick_window <= self.entry_length, "must be <= entry_length")
         _check("ego_start", self.ego_start, self.ego_start in EGO_STARTS, f"must be one of {', '.join(EGO_STARTS)}")
-        from .rewards import REWARDS
-
         _check("reward", self.reward, self.reward in REWARDS, f"must be one of {', '.join(REWARDS)}")
         if self.ego_lane is not None:
             _check(

@@ -18,9 +18,6 @@ from __future__ import annotations
 
 from .config import HighwayConfig
 
-#: the values of ``HighwayConfig.reward``
-REWARDS = ("paper", "safe")
-
 
 def _where(cond, a, b):
     """Elementwise ``a if cond else b`` for floats, numpy arrays and torch tensors (cond as 0/1)."""
