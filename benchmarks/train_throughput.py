@@ -68,13 +68,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 
 from kddrl_trl import keys as K  # noqa: E402
-from kddrl_trl.collectors import DecisionClock, MultiTimescaleCollector  # noqa: E402
+from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
 from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.training.learner import adam  # noqa: E402
-from kddrl_trl.transforms import make_kddrl_transforms  # noqa: E402
+from kddrl_trl.transforms import (
+    DecisionClock,  # noqa: E402
+    make_kddrl_transforms,  # noqa: E402
+)
 
 CONF = Path(__file__).resolve().parents[1] / "src" / "kddrl_trl" / "conf" / "algo" / "kddrl.yaml"
 

@@ -51,10 +51,10 @@ def fake_samples(n_frames: int, n_macros: int) -> tuple[list, list]:
     the fake env with the full transform stack and a :data:`SMALL` learner's exploring policy."""
     from torchrl.envs import Compose, TransformedEnv
 
-    from kddrl_trl.collectors import DecisionClock, MultiTimescaleCollector
+    from kddrl_trl.collectors import MultiTimescaleCollector
     from kddrl_trl.envs import FakeHighwayEnv
     from kddrl_trl.training import HierarchicalLearner, make_buffer
-    from kddrl_trl.transforms import make_kddrl_transforms
+    from kddrl_trl.transforms import DecisionClock, make_kddrl_transforms
 
     torch.manual_seed(0)
     env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), Compose(make_kddrl_transforms(), DecisionClock(5)))

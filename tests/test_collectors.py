@@ -10,8 +10,9 @@ from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from kddrl_trl import keys as K
-from kddrl_trl.collectors import DecisionClock, MacroTransitionWriter, MultiRatePolicy, MultiTimescaleCollector
+from kddrl_trl.collectors import MacroTransitionWriter, MultiRatePolicy, MultiTimescaleCollector
 from kddrl_trl.envs import FakeHighwayEnv
+from kddrl_trl.transforms import DecisionClock
 
 # ------------------------------------------------------------------------------------------ helpers
 

@@ -10,9 +10,9 @@ from conftest import SMALL, fake_samples
 from torchrl.envs import TransformedEnv
 
 from kddrl_trl import keys as K
-from kddrl_trl.collectors import DecisionClock
 from kddrl_trl.envs import FakeHighwayEnv
 from kddrl_trl.training import HierarchicalLearner
+from kddrl_trl.transforms import DecisionClock
 
 
 @pytest.fixture(scope="module")

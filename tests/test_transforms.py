@@ -784,10 +784,9 @@ def test_mobil_safety_mask_ands_eq_20_21_into_the_command_mask():
 
 
 def test_mobil_safety_mask_is_switched_by_the_algo_option():
-    from kddrl_trl.collectors import DecisionClock
     from kddrl_trl.conf.schema import HierarchicalAlgo
     from kddrl_trl.factories import make_transforms
-    from kddrl_trl.transforms import MOBILSafetyMask, SafetyShield
+    from kddrl_trl.transforms import DecisionClock, MOBILSafetyMask, SafetyShield
     from tests.test_collectors import compose_job
 
     job = compose_job("algo=d3qn_td3")

@@ -42,7 +42,7 @@ from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs import Compose, EnvBase, TransformedEnv
 
 from . import keys as K
-from .collectors import DecisionClock, MultiTimescaleCollector
+from .collectors import MultiTimescaleCollector
 from .collectors.workers import WorkerEnv
 from .conf.schema import (
     CollectorConfig,
@@ -149,7 +149,7 @@ def make_transforms(
     (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
     :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
     (:class:`~kddrl_trl.transforms.SafetyShield`, every algo)."""
-    from .transforms import MOBILCriteria, MOBILSafetyMask, SafetyShield, make_kddrl_transforms
+    from .transforms import DecisionClock, MOBILCriteria, MOBILSafetyMask, SafetyShield, make_kddrl_transforms
 
     stack = []
     learning = isinstance(algo, LearningAlgo)

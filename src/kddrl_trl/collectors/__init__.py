@@ -1,8 +1,8 @@
-"""Multi-timescale collection (docs/design.md, "Clocks"; paper Algorithm 1): a decision clock transform, a policy
-acting on two clocks, and the writer of the lane-change agent's macro-transitions. None of it is specific to
+"""Multi-timescale collection (docs/design.md, "Clocks"; paper Algorithm 1): a policy acting on two clocks (the
+clock itself is a transform: :class:`kddrl_trl.transforms.DecisionClock`), and the writer of the lane-change agent's
+macro-transitions. None of it is specific to
 SUMO: any TorchRL env batch and any pair of TensorDict policies."""
 
-from .clock import DecisionClock
 from .collector import MultiTimescaleCollector
 from .macro import MacroTransitionWriter
 from .overlap import OverlappedCollector
@@ -10,7 +10,6 @@ from .policy import MultiRatePolicy
 from .snapshot import PolicySnapshot
 
 __all__ = [
-    "DecisionClock",
     "MacroTransitionWriter",
     "MultiRatePolicy",
     "MultiTimescaleCollector",

@@ -43,7 +43,7 @@ class MultiTimescaleBatch(NamedTuple):
 
 
 class MultiTimescaleCollector:
-    """Wraps any TorchRL collector whose env carries a :class:`~kddrl_trl.collectors.DecisionClock` and whose
+    """Wraps any TorchRL collector whose env carries a :class:`~kddrl_trl.transforms.DecisionClock` and whose
     policy acts on two clocks (:class:`~kddrl_trl.collectors.MultiRatePolicy`).
 
     Each iteration yields a :class:`MultiTimescaleBatch`: the frames ``[B, T]`` and the macro-transitions that

@@ -33,7 +33,7 @@ class MacroTransitionWriter:
 
     The interval of a decision ends on the frame whose ``("next", decide_key)`` is True (the next frame is a
     decision frame) or whose ``("next", done_key)`` is True. Both are written by
-    :class:`~kddrl_trl.collectors.DecisionClock` and the env, so nothing here is specific to an environment
+    :class:`~kddrl_trl.transforms.DecisionClock` and the env, so nothing here is specific to an environment
     or to ``lc_period``. Frames before the first decision of a row (a collection that starts mid-interval)
     cannot form a transition and are counted in :attr:`dropped_frames`.
 

@@ -22,7 +22,7 @@ class MultiRatePolicy(TensorDictModuleBase):
     1. ``shared`` (optional, e.g. the shared embedding of Eq. 23-24) runs once on a shallow copy;
     2. rows with ``decide_key`` True get the lane-change policy's action (Algorithm 1 lines 23-24) — the
        lane-change policy runs **only on those rows** (on a sub-batch of its own in-keys); the other rows keep
-       ``held_key`` (the action in force, written by :class:`~kddrl_trl.collectors.DecisionClock`). Running it on
+       ``held_key`` (the action in force, written by :class:`~kddrl_trl.transforms.DecisionClock`). Running it on
        all rows and keeping the decision rows would draw the ε-greedy coin for every row, so the random stream,
        and with it every later exploring action, would differ (and it is hardly faster);
     3. the car-following policy runs on all rows, reading the lane-change action just set (Eq. 30: the held

@@ -135,7 +135,7 @@ def minibatches(buffer: TensorDictReplayBuffer, n: int):
 class Trainer:
     """Trains a :class:`~kddrl_trl.training.Learner` for ``episodes`` episodes (:meth:`run`, on a
     :class:`~kddrl_trl.collectors.MultiTimescaleCollector` whose env carries the predictive-state transforms and
-    a :class:`~kddrl_trl.collectors.DecisionClock`, and which fills ``buffers``).
+    a :class:`~kddrl_trl.transforms.DecisionClock`, and which fills ``buffers``).
 
     ``buffers``: (buffer L of frames, buffer H of macro-transitions). ``cfg``: the typed ``train`` node
     (:class:`~kddrl_trl.conf.schema.TrainConfig`, ranges checked there). ``logger`` has

@@ -15,6 +15,8 @@ transform              writes                               paper
 :class:`LeaderHistory`  ``("leaders", "history")`` [3, H, 2] the leaders' last H (y, v), for envs without it
 :class:`MOBILCriteria`  ``("prior", "mobil_incentive")`` [3], MOBIL utilities (Eq. 21-22) and safety flags
                         ``("prior", "mobil_safe")`` [3]       (Eq. 20-21): the state of Peng et al. (``algo=peng``)
+:class:`DecisionClock`  ``("lc", "decide")`` [1], the held      the lane-change agent's clock, Algorithm 1 line 22
+                        ``("lc", "held")`` [3]
 =====================  ==================================  ================================================
 
 :func:`make_kddrl_transforms` builds the stack (and its ablations) as a :class:`PredictiveStack`: a ``Compose``
@@ -24,6 +26,7 @@ stateless per frame (except :class:`LeaderHistory`, whose per-row window travels
 ``RewardSum`` does), and work on reset, step and replay-buffer samples (``forward``) of any batch shape.
 """
 
+from .clock import DecisionClock
 from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
@@ -36,6 +39,7 @@ from .trajgan import TrajGANPrediction
 
 __all__ = [
     "KEY_STEPS",
+    "DecisionClock",
     "IDMPrior",
     "KeyGapsFromPrior",
     "LCGANPrior",
