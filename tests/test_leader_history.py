@@ -166,3 +166,16 @@ def test_on_the_sumo_env_it_reproduces_its_history_where_the_leaders_stay():
         assert compared > 500
     finally:
         env.close()
+
+
+def test_the_stack_refuses_an_env_of_another_frame_time():
+    """The history and trajGAN's key steps are in frames of 0.1 s: an env stepping 0.2 s is refused, by name."""
+    from torchrl.envs import TransformedEnv
+
+    from kddrl_trl.envs import FakeHighwayEnv
+    from kddrl_trl.transforms import make_kddrl_transforms
+
+    TransformedEnv(FakeHighwayEnv(num_roads=2), make_kddrl_transforms()).rollout(2)  # 0.1 s: accepted
+    with pytest.raises(ValueError, match=r"frames last 0.2 s \(config.step_length\)"):
+        env = TransformedEnv(FakeHighwayEnv(num_roads=2, step_length=0.2), make_kddrl_transforms())
+        env.rollout(2)

@@ -145,8 +145,28 @@ class PredictiveStack(Compose):
 
     def transform_input_spec(self, input_spec):
         if self.history is not None:
+            self._check_frame_time()
             input_spec = self.history.declare_state(input_spec, self._env_observation_spec())
         return super().transform_input_spec(input_spec)
+
+    def _check_frame_time(self) -> None:
+        """Refuses an env whose frames last another time than the leaders' history assumes (``LeaderHistory.dt``;
+        trajGAN's key steps, 10 and 20 frames = 1 and 2 s, Eq. 24, were learned at that rate). The env's frame
+        time is read from its ``config.step_length`` (kddrl_trl's envs); an env without one is taken on trust."""
+        from torchrl.envs import TransformedEnv
+
+        env = self.parent
+        while isinstance(env, TransformedEnv):
+            env = env.base_env
+        # the instance's own attributes only: a batched env forwards unknown names to workers that may not run yet
+        step = getattr(vars(env).get("config") if env is not None else None, "step_length", None)
+        if step is not None and abs(float(step) - self.history.dt) > 1e-9:
+            raise ValueError(
+                f"PredictiveStack: the env's frames last {float(step)} s (config.step_length), but the leaders' "
+                f"history and trajGAN's key steps assume {self.history.dt} s frames: step the env at "
+                f"{self.history.dt} s, or build the stack for your rate (a LeaderHistory(dt=...) and a trajGAN "
+                "trained on recordings at that rate)"
+            )
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Replay-buffer use, as :meth:`PredictiveTransform.forward`: the root and, when it holds the raw keys,
