@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Copy the study's finished runs (those with summary.json) into docs/paper/runs/, without checkpoints, TorchRL logs
-# or per-run curve images (the report redraws them), their CSVs xz-compressed (the report reads them as they are):
+# or per-run curve images (the report redraws them), their CSVs and logs xz-compressed (the report reads them as they are):
 #   bash docs/paper/collect.sh <study sweep dir>
 set -euo pipefail
 SRC=${1:?usage: collect.sh <study sweep dir>}
@@ -15,7 +15,7 @@ for run in "$SRC"/*/; do
     | while read -r f; do
         mkdir -p "$DST/$name/$(dirname "$f")"
         case "$f" in
-          *.csv) [ -f "$DST/$name/$f.xz" ] || xz -9 -c "$run/$f" > "$DST/$name/$f.xz" ;;
+          *.csv|*.log) [ -f "$DST/$name/$f.xz" ] || xz -9 -c "$run/$f" > "$DST/$name/$f.xz" ;;
           *) cp "$run/$f" "$DST/$name/$f" ;;
         esac
       done
