@@ -3,19 +3,45 @@
 # Run it from a checkout of the study's pinned commit (docs/paper/README.md); it resumes job by job: a finished run
 # (summary.json) is skipped, a killed one continues from its newest checkpoint.
 #   bash docs/paper/study.sh [SWEEP_DIR] [extra Hydra overrides...]
-# Launcher: joblib, 2 runs at a time, one torch thread each (JOBS=N to change). On a Ray cluster instead:
-#   LAUNCHER="hydra/launcher=ray" bash docs/paper/study.sh ...   (the optional extra .[ray])
+# Every job runs in a process of its own, JOBS (default 2) at a time, one torch thread each: a worker process that
+# ran earlier jobs (joblib's, Ray's) keeps their compiled graphs, and the pinned commit's learner then hits
+# TorchDynamo's recompile limit and falls back to eager (about 3x slower; the numbers are the same).
+# On a Ray cluster instead, one Hydra sweep per table through the Ray launcher (the optional extra .[ray]):
+#   LAUNCHER="hydra/launcher=ray" bash docs/paper/study.sh ...
 set -euo pipefail
 SWEEP=${1:-runs/paper}
 shift || true
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
-LAUNCHER=${LAUNCHER:-"hydra/launcher=joblib hydra.launcher.n_jobs=${JOBS:-2}"}
-run() { python -m kddrl_trl.train -m $LAUNCHER progress=false resume="$SWEEP" "$@"; }
-# Table II (baseline: KDDRL, Ni, Peng, the two unified systems) and Table V (baseline: the ablations), IDM+MOBIL;
-# seed-major, so every system's seed 0 lands first
-run seed=0,1,2,3,4 +scenario=baseline \
-    algo=ni,pasac_unified,kddrl,peng,d3qn_unified,d3qn_td3,d3qn_td3_lg,kddrl_same_clock,idm_mobil "$@"
-# Tables III (congested) and IV (braking)
-run seed=0,1,2,3,4 +scenario=congested,braking algo=kddrl,ni,peng,idm_mobil "$@"
-# The preset's confirmation on fresh seeds (never used to choose it), for KDDRL and D3QN+TD3
-run seed=5,6,7,8,9 +scenario=baseline,braking +preset=plus algo=kddrl,d3qn_td3 "$@"
+EXTRA=("$@")
+
+jobs() {  # one line of Hydra overrides per job, seed-major, so every system's seed 0 lands first
+  local seed sc algo
+  # Table II (baseline: KDDRL, Ni, Peng, the two unified systems), Table V (baseline: the ablations), IDM+MOBIL
+  for seed in 0 1 2 3 4; do
+    for algo in ni pasac_unified kddrl peng d3qn_unified d3qn_td3 d3qn_td3_lg kddrl_same_clock idm_mobil; do
+      echo "seed=$seed +scenario=baseline algo=$algo"; done; done
+  # Tables III (congested) and IV (braking)
+  for seed in 0 1 2 3 4; do for sc in congested braking; do for algo in kddrl ni peng idm_mobil; do
+    echo "seed=$seed +scenario=$sc algo=$algo"; done; done; done
+  # The preset's confirmation on fresh seeds (never used to choose it), for KDDRL and D3QN+TD3
+  for seed in 5 6 7 8 9; do for sc in baseline braking; do for algo in kddrl d3qn_td3; do
+    echo "seed=$seed +scenario=$sc +preset=plus algo=$algo"; done; done; done
+}
+
+if [ -n "${LAUNCHER:-}" ]; then
+  run() { python -m kddrl_trl.train -m $LAUNCHER progress=false resume="$SWEEP" "$@" ${EXTRA[@]+"${EXTRA[@]}"}; }
+  run seed=0,1,2,3,4 +scenario=baseline \
+      algo=ni,pasac_unified,kddrl,peng,d3qn_unified,d3qn_td3,d3qn_td3_lg,kddrl_same_clock,idm_mobil
+  run seed=0,1,2,3,4 +scenario=congested,braking algo=kddrl,ni,peng,idm_mobil
+  run seed=5,6,7,8,9 +scenario=baseline,braking +preset=plus algo=kddrl,d3qn_td3
+  exit
+fi
+
+one() {  # a single-job sweep into the shared folder: its subdir is named as in a full sweep
+  # shellcheck disable=SC2086
+  python -m kddrl_trl.train -m progress=false resume="$SWEEP" $1 $STUDY_EXTRA \
+    || echo "study.sh: job failed: $1" >&2
+}
+export -f one
+export SWEEP STUDY_EXTRA="${EXTRA[*]:-}"
+jobs | xargs -d '\n' -P "${JOBS:-2}" -I{} bash -c 'one "$1"' _ {}

@@ -41,6 +41,19 @@ def resolve_compile(compile: bool | str) -> bool:
     return compile
 
 
+def fresh_compiler() -> None:
+    """Empties TorchDynamo's caches, at the start of every job of an entry point.
+
+    A launcher may run many jobs in one worker process (Hydra's joblib launcher reuses loky workers, Ray reuses its
+    workers), and TorchDynamo keeps every graph compiled so far, each guarded on the objects of the job that made
+    it. A code object holds at most ``torch._dynamo.config.recompile_limit`` graphs (8); past that a new job's
+    calls of the same code (the learner's loss, the transform stack) run eagerly, and under
+    :class:`WarmCompiled` each call first fails its guard-skipping attempt: the same numbers, several times slower.
+    The graphs' kernels stay in TorchInductor's on-disk cache, so a job recompiles no faster or slower than the
+    first job of a fresh process."""
+    torch._dynamo.reset()
+
+
 #: comparisons of a tensor with a number: the ops whose ``bool`` results :func:`recompute_bool_masks` recomputes
 _MASK_OPS = frozenset(getattr(torch.ops.aten, op).Scalar for op in ("le", "lt", "ge", "gt", "eq", "ne"))
 

@@ -18,6 +18,7 @@ from omegaconf import DictConfig
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from .conf.schema import EvaluateJob
 from .eval.protocol import check_disjoint, test_seed
+from .compiling import fresh_compiler
 from .factories import evaluate_and_report, load_trained_learner, make_job, make_logger, seed_everything
 from .provenance import code_commit
 
@@ -26,6 +27,7 @@ from .provenance import code_commit
 def main(cfg: DictConfig) -> dict:
     code_commit()  # the commit of the code loaded now, whatever is checked out when the evaluation ends
     job: EvaluateJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
+    fresh_compiler()  # a launcher's reused worker holds earlier jobs' graphs
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     algo, learner, ckpt, saved = load_trained_learner(Path(job.run), job.checkpoint, job.torch_device)
     env_seed, trained_on = test_seed(job.seed, job.eval_seed), str(saved.env.scenario)

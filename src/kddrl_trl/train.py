@@ -34,6 +34,7 @@ from . import conf as _conf  # noqa: F401  (registers the typed schemas and the 
 from .conf.schema import LearningAlgo, TrainJob
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol
+from .compiling import fresh_compiler
 from .factories import (
     evaluate_and_report,
     make_buffers,
@@ -105,6 +106,7 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
 def main(cfg: DictConfig) -> dict:
     code_commit()  # the commit of the code loaded now, whatever is checked out when the run ends
     job: TrainJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
+    fresh_compiler()  # a launcher's reused worker holds earlier jobs' graphs
     run_dir, resuming = make_run_dir(job.resume)
     if (run_dir / "config.yaml").is_file():  # a resumed run or sweep job: the same config, or refuse
         different = config_differences(
