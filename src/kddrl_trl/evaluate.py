@@ -16,9 +16,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
+from .compiling import fresh_compiler
 from .conf.schema import EvaluateJob
 from .eval.protocol import check_disjoint, test_seed
-from .compiling import fresh_compiler
 from .factories import evaluate_and_report, load_trained_learner, make_job, make_logger, seed_everything
 from .provenance import code_commit
 

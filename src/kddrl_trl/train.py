@@ -31,10 +31,10 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
+from .compiling import fresh_compiler
 from .conf.schema import LearningAlgo, TrainJob
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol
-from .compiling import fresh_compiler
 from .factories import (
     evaluate_and_report,
     make_buffers,
