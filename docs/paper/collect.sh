@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Copy the study's finished runs (those with summary.json) into docs/paper/runs/, without checkpoints, TorchRL logs
-# or per-run curve images (the report redraws them), their CSVs and logs xz-compressed (the report reads them as they are):
+# or per-run curve images (the report redraws them), their CSVs and logs xz-compressed (the report reads them as they are),
+# the training records cut to the columns the report and a reader of the learning curves use (docs/compact_records.py):
 #   bash docs/paper/collect.sh <study sweep dir>
 set -euo pipefail
 SRC=${1:?usage: collect.sh <study sweep dir>}
@@ -20,4 +21,5 @@ for run in "$SRC"/*/; do
         esac
       done
 done
+python "$(dirname "$0")/../compact_records.py" "$DST"
 ls "$DST"
