@@ -61,6 +61,11 @@ class RunRecord:
         if self.trained is None:  # records of a run folder itself
             self.trained, self.trained_summary = self.path, self.summary
 
+    @property
+    def commit(self) -> str:
+        """The commit of the code that made the run (its ``summary.json``), or ``"not recorded"``."""
+        return str(self.summary.get("commit", "not recorded"))
+
     def metrics(self) -> dict:
         """The per-run driving metrics of Tables II-V (:func:`~kddrl_trl.eval.summarize` of its episodes)."""
         out = summarize(self.episodes.to_dict("records"))

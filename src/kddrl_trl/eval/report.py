@@ -97,7 +97,7 @@ def rows(runs: list[RunRecord]) -> list[dict]:
             {
                 "algo": algo,
                 "scenario": scenario,
-                "commits": sorted({str(r.summary.get("commit", "not recorded")) for r in group}),
+                "commits": sorted({r.commit for r in group}),
                 "trained_on": str(
                     group[0].summary.get("trained_on", scenario)
                 ),  # algo: "<name> (trained on ...)" if not
@@ -285,7 +285,7 @@ def footer(runs: list[RunRecord], command: str) -> list[str]:
         ] += 1
     training, wall = zip(*_run_times(runs)) if runs else ((), ())
     machines = Counter(r.summary.get("machine", "not recorded") for r in runs)
-    commits = Counter(r.summary.get("commit", "not recorded") for r in runs)
+    commits = Counter(r.commit for r in runs)
     packages = Counter(
         ", ".join(f"{k} {v}" for k, v in r.summary["packages"].items()) if "packages" in r.summary else "not recorded"
         for r in runs
@@ -327,11 +327,11 @@ def _run_times(runs: list[RunRecord]) -> list[tuple[float | None, float | None]]
 def split_commits(runs: list[RunRecord]) -> list[RunRecord]:
     """The runs, those made at a commit other than the most common one renamed ``"<algo> @<commit>"``: a row of
     their own, never pooled with the study's runs."""
-    commits = Counter(str(r.summary.get("commit", "not recorded")) for r in runs)
+    commits = Counter(r.commit for r in runs)
     main = commits.most_common(1)[0][0]
     return [
         r
-        if str(r.summary.get("commit", "not recorded")) == main
+        if r.commit == main
         else replace(r, algo=f"{r.algo} @{r.summary.get('commit', 'not recorded')}")
         for r in runs
     ]
@@ -504,7 +504,7 @@ def build_report(
         for row in table_rows
     ]
     if verdict:
-        commits = Counter(str(r.summary.get("commit", "not recorded")) for r in runs)
+        commits = Counter(r.commit for r in runs)
         write_json_atomic(out_dir / "report.json", {"rows": report, "claims": claims, "commits": dict(commits)})
     else:
         write_json_atomic(out_dir / "report.json", report)
