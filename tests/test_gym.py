@@ -8,7 +8,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import kddrl_trl  # noqa: F401  (registers the id)
-from kddrl_trl.envs.gym import ENV_ID
+from kddrl_trl.gym_env import ENV_ID
 
 pytestmark = pytest.mark.usefixtures("no_sumo_open")
 

@@ -5,6 +5,6 @@ Importing the package registers the Gymnasium id ``kddrl_trl/SumoHighway-v0``.
 
 __version__ = "0.1.0"
 
-from .envs.gym import register as _register_gym
+from .gym_env import register as _register_gym
 
 _register_gym()

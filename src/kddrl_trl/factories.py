@@ -499,7 +499,7 @@ def make_gan_data(
     import json
 
     from .data.extract import load_dataset
-    from .data.prepare import synthetic_dataset
+    from .data.synthetic import synthetic_dataset
 
     if (data_dir / "meta.json").is_file():
         meta = json.loads((data_dir / "meta.json").read_text())

@@ -30,15 +30,14 @@ from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas 
 from kddrl_trl.data.calibrate import CalibrationImpossible, calibrate, write_calibration
 from kddrl_trl.data.extract import extract_dataset
 from kddrl_trl.data.highd import list_recordings, read_recording
-from kddrl_trl.data.record import print_summary
 from kddrl_trl.data.recorder import (
     PAPER_LANE_CHANGER_SHARE,
     PAPER_VEHICLES_PER_HOUR,
     read_driver_params,
-    record_to_directory,
 )
+from kddrl_trl.data.synthetic import ensure_recordings
 from kddrl_trl.data.tracks import longitudinal_tracks
-from kddrl_trl.envs.config import HighwayConfig, default_drivers
+from kddrl_trl.envs.config import default_drivers
 from kddrl_trl.io import write_json_atomic
 from kddrl_trl.runs import no_folder_if_refused
 
@@ -62,36 +61,6 @@ def recordings_directory(cfg: DictConfig) -> Path:
         int(cfg.record.num_roads),
         bool(cfg.progress),
     )
-
-
-def ensure_recordings(
-    hw: HighwayConfig, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int, progress: bool = True
-) -> Path:
-    """``recordings_dir``, after recording ``num_roads`` x ``duration_s`` of ``hw`` traffic into it if it holds
-    none."""
-    rec_dir = Path(recordings_dir)
-    if not (rec_dir.is_dir() and list_recordings(rec_dir)):
-        s = record_to_directory(hw, rec_dir, duration_s, num_roads=num_roads, seed=seed, progress=progress)
-        print_summary(s, hw, seed, duration_s, num_roads)
-    return rec_dir
-
-
-def synthetic_dataset(
-    hw: HighwayConfig,
-    out_dir: str | Path,
-    recordings_dir: str | Path,
-    seed: int = 0,
-    duration_s: float = 900.0,
-    num_roads: int = 4,
-    stride: int = 1,
-    progress: bool = True,
-) -> dict:
-    """The default naturalistic dataset from our own recordings of ``hw`` traffic: record into
-    ``recordings_dir`` if it holds none, then extract (a cache hit when ``out_dir`` already holds this dataset).
-    Returns its meta."""
-    rec_dir = ensure_recordings(hw, recordings_dir, seed, duration_s, num_roads, progress)
-    recordings = [read_recording(rec_dir, i) for i in list_recordings(rec_dir)]
-    return extract_dataset(recordings, out_dir, seed=seed, stride=stride, progress=progress)
 
 
 def print_dataset(meta: dict, hours: float) -> None:

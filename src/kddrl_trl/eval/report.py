@@ -330,10 +330,7 @@ def split_commits(runs: list[RunRecord]) -> list[RunRecord]:
     commits = Counter(r.commit for r in runs)
     main = commits.most_common(1)[0][0]
     return [
-        r
-        if r.commit == main
-        else replace(r, algo=f"{r.algo} @{r.summary.get('commit', 'not recorded')}")
-        for r in runs
+        r if r.commit == main else replace(r, algo=f"{r.algo} @{r.summary.get('commit', 'not recorded')}") for r in runs
     ]
 
 

@@ -7,7 +7,7 @@ from typing import Callable
 import torch
 from tqdm.auto import tqdm
 
-from .tracker import IN_KEYS, OPTIONAL_KEYS, EpisodeTracker
+from ..envs.episode_metrics import IN_KEYS, OPTIONAL_KEYS, EpisodeTracker
 
 
 def unwrap_env(env):

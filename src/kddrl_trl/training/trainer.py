@@ -29,7 +29,6 @@ import time
 import warnings
 from collections import deque
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -37,13 +36,10 @@ from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplay
 
 from .. import keys as K
 from ..collectors import MultiTimescaleCollector
-from ..eval.tracker import EpisodeTracker
+from ..envs.episode_metrics import EpisodeTracker
 from .base import Learner
 from .checkpoint import load_latest_training_checkpoint, save_best_checkpoint, save_training_checkpoint
 from .priority_trees import PortablePrioritizedSampler
-
-if TYPE_CHECKING:
-    from ..conf.schema import TrainConfig
 
 log = logging.getLogger(__name__)
 
@@ -149,7 +145,7 @@ class Trainer:
         self,
         learner: Learner,
         buffers: tuple[TensorDictReplayBuffer, TensorDictReplayBuffer],
-        cfg: TrainConfig,
+        cfg,
         run_dir: str | Path,
         logger,
         *,

@@ -23,10 +23,10 @@ from gymnasium import spaces
 from tensordict import TensorDict
 from torchrl.data import Bounded, Composite
 
-from ..eval.tracker import EpisodeTracker
-from .config import make_config
-from .sim import HighwaySim
-from .specs import observation_spec
+from .envs.config import make_config
+from .envs.episode_metrics import EpisodeTracker
+from .envs.sim import HighwaySim
+from .envs.specs import observation_spec
 
 ENV_ID = "kddrl_trl/SumoHighway-v0"
 
@@ -111,7 +111,7 @@ class SumoHighwayGymEnv(gym.Env):
         """Keep the current frame for :meth:`render` (the renderer of ``kddrl_trl.eval.render``)."""
         if self.render_mode is None:
             return
-        from ..eval.trace import TraceRecorder
+        from .eval.trace import TraceRecorder
 
         if first:
             c = self.config
@@ -133,7 +133,7 @@ class SumoHighwayGymEnv(gym.Env):
             return None
         if self._frame is None:
             raise RuntimeError("call reset() before render()")
-        from ..eval.render import frame_rgb
+        from .eval.render import frame_rgb
 
         return frame_rgb(self._frame, self._recorder.meta)
 
@@ -162,4 +162,4 @@ class SumoHighwayGymEnv(gym.Env):
 def register() -> None:
     """Register ``kddrl_trl/SumoHighway-v0`` with Gymnasium (idempotent; done on ``import kddrl_trl``)."""
     if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="kddrl_trl.envs.gym:SumoHighwayGymEnv", max_episode_steps=None)
+        gym.register(id=ENV_ID, entry_point="kddrl_trl.gym_env:SumoHighwayGymEnv", max_episode_steps=None)

@@ -1,0 +1,26 @@
+"""The package's imports follow its layers (kddrl_trl.devtools.imports): no cycle, no upward import."""
+
+from kddrl_trl.devtools import imports
+
+
+def test_the_package_has_no_cycle_and_no_upward_import():
+    assert imports.findings() == []
+
+
+def test_the_scan_reports_a_cycle_and_an_upward_import(monkeypatch):
+    edges = imports.graph()
+    edges["kddrl_trl.envs.episode_metrics"] = edges["kddrl_trl.envs.episode_metrics"] | {"kddrl_trl.training.trainer"}
+    monkeypatch.setattr(imports, "graph", lambda: edges)
+    found = imports.findings()
+    assert any(
+        f.startswith("upward import: envs") and "kddrl_trl.envs.episode_metrics -> kddrl_trl.training.trainer" in f
+        for f in found
+    )
+    assert any(f.startswith("cycle between modules") and "kddrl_trl.envs.episode_metrics" in f for f in found)
+    assert any(f.startswith("cycle between parts") and "envs" in f and "training" in f for f in found)
+
+
+def test_lazy_and_relative_imports_are_seen():
+    edges = imports.graph()
+    assert "kddrl_trl.eval.periodic" in edges["kddrl_trl.conf.schema"]  # imported inside a function
+    assert "kddrl_trl.envs.episode_metrics" in edges["kddrl_trl.training.trainer"]  # from ..envs.episode_metrics
