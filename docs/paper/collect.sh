@@ -7,10 +7,12 @@ set -euo pipefail
 SRC=${1:?usage: collect.sh <study sweep dir>}
 DST=$(dirname "$0")/runs
 mkdir -p "$DST"
-cp "$SRC/multirun.yaml" "$DST/" 2>/dev/null || true
+[ -f "$DST/multirun.yaml" ] || cp "$SRC/multirun.yaml" "$DST/" 2>/dev/null || true
 for run in "$SRC"/*/; do
   name=$(basename "$run")
   [ -f "$run/summary.json" ] || continue
+  [ -f "$DST/$name/summary.json" ] && continue  # collected already: a finished run's records never change (a resumed
+  # sweep rewrites a skipped job's .hydra/ with its own launch; the copy here keeps the run's own)
   mkdir -p "$DST/$name"
   (cd "$run" && find . -path ./checkpoints -prune -o -path ./logs -prune -o -name training_curves.png -prune -o -type f -print) \
     | while read -r f; do
