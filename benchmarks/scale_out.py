@@ -141,7 +141,9 @@ def measure_collect(args) -> tuple[dict, dict]:
     from train_throughput import measure_collect_workers
 
     os.environ.setdefault("OMP_NUM_THREADS", str(args.threads or 1))
-    compile = {"true": True, "false": False}.get(args.compile, args.compile)
+    from kddrl_trl.compiling import resolve_compile
+
+    compile = resolve_compile(args.compile)
     details = measure_collect_workers(
         args.collect_roads, [1, 2], args.collect_frames, seed=0, compile=compile, backend="ray"
     )

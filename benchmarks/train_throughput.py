@@ -70,6 +70,7 @@ from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 from kddrl_trl import keys as K  # noqa: E402
 from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
+from kddrl_trl.compiling import resolve_compile  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
 from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
@@ -101,7 +102,7 @@ def transform_kwargs(compile: bool | str | None = None) -> dict:
     cfg.pop("enabled", None)
     if compile is None:
         compile = OmegaConf.load(CONF.parents[1] / "config.yaml")["compile"]
-    return {**cfg, "compile": compile}
+    return {**cfg, "compile": resolve_compile(compile)}  # as make_job resolves it
 
 
 def collect_env(k: int, compile: bool | str | None = None, *, seed: int) -> TransformedEnv:
@@ -832,7 +833,7 @@ def main(argv=None) -> int:
         help="the transform stack's compile in (b) and (w) (default: conf/config.yaml's)",
     )
     args = p.parse_args(argv)
-    compile = {"true": True, "false": False}.get(args.compile, args.compile)
+    compile = None if args.compile is None else resolve_compile(args.compile)
 
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():

@@ -138,11 +138,19 @@ def test_device_auto_is_the_cpu_without_a_gpu_and_cuda_fails_at_once(monkeypatch
 
 
 def test_cudagraphs_are_refused_on_the_cpu_and_auto_is_off_there():
-    learner = HierarchicalLearner(**SMALL, cudagraphs="auto")
+    from kddrl_trl.compiling import resolve_cudagraphs
+
+    assert resolve_cudagraphs("auto", torch.device("cpu")) is False
+    assert resolve_cudagraphs("auto", torch.device("cuda")) is True
+    learner = HierarchicalLearner(**SMALL, cudagraphs=False)
     assert learner.device == torch.device("cpu") and learner.cudagraphs is False
     assert learner.policy().__class__.__name__ == "MultiRatePolicy"  # nothing wrapped on a CPU learner
     with pytest.raises(ValueError, match="cudagraphs=true needs device=cuda"):
         HierarchicalLearner(**SMALL, cudagraphs=True)
+    with pytest.raises(ValueError, match="cudagraphs=true needs device=cuda"):
+        resolve_cudagraphs("true", torch.device("cpu"))
+    with pytest.raises(ValueError, match="cudagraphs must be a bool here, got 'auto'"):
+        HierarchicalLearner(**SMALL, cudagraphs="auto")  # the parts get resolved knobs (make_job resolves them)
 
 
 def cpu_state(learner: HierarchicalLearner) -> dict:

@@ -54,6 +54,32 @@ def fresh_compiler() -> None:
     torch._dynamo.reset()
 
 
+def resolve_cudagraphs(cudagraphs: bool | str, device: torch.device) -> bool:
+    """A ``cudagraphs`` option (true | false | auto) -> bool: ``auto`` is on for a CUDA learner, off on the CPU;
+    ``true`` on a CPU learner is refused (CUDA graphs exist on CUDA only)."""
+    if isinstance(cudagraphs, str):
+        if cudagraphs.lower() not in ("true", "false", "auto"):
+            raise ValueError(f"cudagraphs must be true, false or auto, got {cudagraphs!r}")
+        if cudagraphs.lower() == "auto":
+            return device.type == "cuda"
+        cudagraphs = cudagraphs.lower() == "true"
+    if not isinstance(cudagraphs, bool):
+        raise ValueError(f"cudagraphs must be true, false or auto, got {cudagraphs!r}")
+    if cudagraphs and device.type != "cuda":
+        raise ValueError(f"cudagraphs=true needs device=cuda (the learner is on {device}); use cudagraphs=auto")
+    return cudagraphs
+
+
+def resolved(name: str, value) -> bool:
+    """A knob a part receives already resolved (:func:`kddrl_trl.factories.make_job` resolves ``compile`` and
+    ``cudagraphs`` once per job): a bool, or a ``ValueError`` naming the knob and the resolver."""
+    if not isinstance(value, bool):
+        raise ValueError(
+            f"{name} must be a bool here, got {value!r}: resolve it first (kddrl_trl.compiling.resolve_{name})"
+        )
+    return value
+
+
 #: comparisons of a tensor with a number: the ops whose ``bool`` results :func:`recompute_bool_masks` recomputes
 _MASK_OPS = frozenset(getattr(torch.ops.aten, op).Scalar for op in ("le", "lt", "ge", "gt", "eq", "ne"))
 

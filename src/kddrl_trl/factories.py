@@ -44,6 +44,7 @@ from torchrl.envs import Compose, EnvBase, TransformedEnv
 from . import keys as K
 from .collectors import MultiTimescaleCollector
 from .collectors.workers import WorkerEnv
+from .compiling import resolve_compile, resolve_cudagraphs
 from .conf.schema import (
     CollectorConfig,
     EnvNode,
@@ -96,12 +97,17 @@ def make_job(cfg: DictConfig):
     """The typed job of a composed entry-point config (``OmegaConf.to_object``: types and ranges checked once,
     before any simulator starts). A refused config raises, naming the key, and removes the output folder Hydra
     already made for it (:func:`kddrl_trl.runs.no_folder_if_refused`): a bad value leaves no empty run folder.
-    A job's ``device`` is resolved here too (:func:`make_device`), so ``device=cuda`` without a GPU stops at
-    once; the resolved device is ``job.torch_device``."""
+    A job's top-level knobs are resolved here, once, and the parts receive the results: ``device``
+    (:func:`make_device`, so ``device=cuda`` without a GPU stops at once; as ``job.torch_device``), ``compile``
+    and ``cudagraphs`` (bools, :func:`kddrl_trl.compiling.resolve_compile` / ``resolve_cudagraphs``)."""
     with no_folder_if_refused():
         job = OmegaConf.to_object(cfg)
         if hasattr(job, "device"):
             job.torch_device = make_device(job.device)
+        if hasattr(job, "compile"):
+            job.compile = resolve_compile(job.compile)
+        if hasattr(job, "cudagraphs"):
+            job.cudagraphs = resolve_cudagraphs(job.cudagraphs, job.torch_device)
         return job
 
 
@@ -140,9 +146,7 @@ def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> Mul
     return MultiLogger(loggers)
 
 
-def make_transforms(
-    algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayConfig, compile: bool | str = False
-) -> Compose:
+def make_transforms(algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayConfig, compile: bool = False) -> Compose:
     """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
     ``algo.transforms`` (none with ``enabled: false``) and MOBIL's criteria (``mobil_criteria: true``,
     :class:`~kddrl_trl.transforms.MOBILCriteria`); MOBIL's safety mask where ``algo.mobil_safety_mask``
@@ -170,7 +174,7 @@ def make_transforms(
 
 
 def make_env(
-    env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bool | str = False, fake: bool = False
+    env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bool = False, fake: bool = False
 ) -> EnvBase:
     """The env of ``env.simulator`` with ``env.num_roads`` roads on the composed highway config: ``SumoHighwayEnv``
     (``sumo``; ``FakeHighwayEnv`` with ``fake=True``) or ``HighwayEnvAdapter`` (``highwayenv``, the optional extra
@@ -210,9 +214,9 @@ def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[Wor
 
 def make_learner(
     algo: LearningAlgo,
-    compile: bool | str = False,
+    compile: bool = False,
     device: torch.device | str | None = None,
-    cudagraphs: bool | str = False,
+    cudagraphs: bool = False,
 ) -> Learner:
     """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` and ``algo.state_extras`` (every
     learner's states) on ``device`` (None: the CPU; ``compile``: its update functions, the learner's one compile

@@ -49,7 +49,7 @@ from torch import nn
 
 from .. import keys as K
 from ..collectors import PolicySnapshot
-from ..compiling import GraphedUpdate, WarmCompiled, resolve_compile
+from ..compiling import GraphedUpdate, WarmCompiled, resolved
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
 STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
@@ -63,22 +63,6 @@ def adam(params, lr: float, device: torch.device | str | None = None) -> torch.o
     params = [p for p in params if p.requires_grad]
     capturable = device is not None and torch.device(device).type == "cuda"
     return torch.optim.Adam(params, lr=lr, fused=True, capturable=capturable)
-
-
-def resolve_cudagraphs(cudagraphs: bool | str, device: torch.device) -> bool:
-    """A ``cudagraphs`` option (true | false | auto) -> bool: ``auto`` is on for a CUDA learner, off on the CPU;
-    ``true`` on a CPU learner is refused (CUDA graphs exist on CUDA only)."""
-    if isinstance(cudagraphs, str):
-        if cudagraphs.lower() not in ("true", "false", "auto"):
-            raise ValueError(f"cudagraphs must be true, false or auto, got {cudagraphs!r}")
-        if cudagraphs.lower() == "auto":
-            return device.type == "cuda"
-        cudagraphs = cudagraphs.lower() == "true"
-    if not isinstance(cudagraphs, bool):
-        raise ValueError(f"cudagraphs must be true, false or auto, got {cudagraphs!r}")
-    if cudagraphs and device.type != "cuda":
-        raise ValueError(f"cudagraphs=true needs device=cuda (the learner is on {device}); use cudagraphs=auto")
-    return cudagraphs
 
 
 def transition_keys(obs: Sequence[NestedKey], actions: Sequence[NestedKey]) -> list:
@@ -113,9 +97,9 @@ class Learner(nn.Module):
             self._buffers["counters"] = self.counters.cpu()
         return self.device
 
-    def _compile(self, compile: bool | str, cudagraphs: bool | str = False) -> None:
-        """The learner's one compile site (module docstring), when ``compile`` (``"auto"``: when a C++ compiler is
-        found), with fixed minibatch shapes (``dynamic=False``):
+    def _compile(self, compile: bool, cudagraphs: bool = False) -> None:
+        """The learner's one compile site (module docstring), when ``compile`` (resolved by
+        :func:`kddrl_trl.factories.make_job`), with fixed minibatch shapes (``dynamic=False``):
 
         - without CUDA graphs (the CPU): the learner's :meth:`loss` is ``torch.compile`` d and, once warm, called
           without TorchDynamo's guard evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the update functions
@@ -123,10 +107,14 @@ class Learner(nn.Module):
           one call each already, and each of them would be a graph break (with its guarded resume frames) inside a
           compiled update function (``benchmarks/train_throughput.py``: TorchDynamo's cache lookups were 40 % of a
           compiled TD3 update; now the update costs what a plain-PyTorch one does);
-        - with ``cudagraphs`` (``"auto"``: on CUDA): each of :meth:`update_functions` is ``torch.compile`` d whole and
+        - with ``cudagraphs`` (CUDA learners only): each of :meth:`update_functions` is ``torch.compile`` d whole and
           wrapped in ``CudaGraphModule``, whose replays skip Python, guards included."""
-        self.compiled = resolve_compile(compile)
-        self.cudagraphs = resolve_cudagraphs(cudagraphs, self.device)
+        self.compiled = resolved("compile", compile)
+        self.cudagraphs = resolved("cudagraphs", cudagraphs)
+        if self.cudagraphs and self.device.type != "cuda":
+            raise ValueError(
+                f"cudagraphs=true needs device=cuda (the learner is on {self.device}); use cudagraphs=auto"
+            )
         if self.compiled and not self.cudagraphs:
             self.__dict__["loss"] = WarmCompiled(torch.compile(self.loss, dynamic=False))
         fns = {}

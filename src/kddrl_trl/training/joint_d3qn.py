@@ -61,9 +61,9 @@ class JointD3QNLearner(Learner):
         low: float = -5.0,
         high: float = 5.0,
         d3qn: Mapping[str, Any] | None = None,
-        compile: bool | str = False,
+        compile: bool = False,
         device: torch.device | str | None = None,
-        cudagraphs: bool | str = False,
+        cudagraphs: bool = False,
         state_extras=(),
     ):
         super().__init__()

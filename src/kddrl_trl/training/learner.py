@@ -67,10 +67,10 @@ class HierarchicalLearner(Learner):
         embed_lr: learning rate of the embedding's own optimiser.
         compile: ``torch.compile`` the losses (the learner's one compile site,
             :meth:`~kddrl_trl.training.base.Learner._compile`): removes most of TensorDict's per-call overhead,
-            after a one-off compile; ``"auto"``: when a C++ compiler is found. Measured gain: see
+            after a one-off compile (a bool: a config's ``auto`` is resolved once, by ``make_job``). Measured gain: see
             ``benchmarks/results/train_throughput.json`` (``python benchmarks/train_throughput.py``).
         device: where the networks, the sampled batches and the updates live (None: the CPU).
-        cudagraphs: wrap the update functions in ``CudaGraphModule`` (``"auto"``: on CUDA; refused on the CPU).
+        cudagraphs: wrap the update functions in ``CudaGraphModule`` (CUDA only; refused on the CPU).
 
     Updates (one call = one gradient step), three update functions (:meth:`update_functions`):
 
@@ -96,12 +96,12 @@ class HierarchicalLearner(Learner):
         td3: Mapping[str, Any] | None = None,
         embed_lr: float = 3e-4,
         tau: float | None = None,
-        compile: bool | str = False,
+        compile: bool = False,
         cf_agent: str = "td3",
         ddpg: Mapping[str, Any] | None = None,
         mobil_criteria: bool = False,
         device: torch.device | str | None = None,
-        cudagraphs: bool | str = False,
+        cudagraphs: bool = False,
         state_extras=(),
     ):
         super().__init__()

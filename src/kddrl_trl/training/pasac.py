@@ -51,9 +51,9 @@ class PASACLearner(Learner):
         self,
         *,
         pasac: Mapping[str, Any] | None = None,
-        compile: bool | str = False,
+        compile: bool = False,
         device: torch.device | str | None = None,
-        cudagraphs: bool | str = False,
+        cudagraphs: bool = False,
         state_extras=(),
     ):
         super().__init__()

@@ -32,7 +32,7 @@ def make_kddrl_transforms(
     mobil: MOBILParams | Mapping | None = None,
     num_lanes: int = 3,
     device: str | torch.device = "cpu",
-    compile: bool | str = False,
+    compile: bool = False,
 ) -> PredictiveStack:
     """The KDDRL predictive-state transforms, in the order of Algorithm 1 (paper §III.B-C).
 
@@ -68,7 +68,8 @@ def make_kddrl_transforms(
         device: device of the generative networks.
         compile: ``torch.compile`` the whole stack (physics priors and GAN inference) as ONE function per
             frame (:func:`~kddrl_trl.transforms.stack.compiled_frames`, where the measured gain is stated),
-            after a one-off compile per process; ``"auto"``: when a C++ compiler is found. Off by default.
+            after a one-off compile per process (a bool: a config's ``auto`` is resolved once, by ``make_job``).
+            Off by default.
 
     A Hydra / plain-dict config maps onto the keyword arguments: ``make_kddrl_transforms(**cfg)``.
 

@@ -25,7 +25,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs.transforms import Compose, Transform
 
-from ..compiling import resolve_compile, specializing_floats
+from ..compiling import resolved, specializing_floats
 from ._base import PredictiveTransform, call_on_root_and_next
 from .leader_history import LeaderHistory
 
@@ -69,7 +69,7 @@ class PredictiveStack(Compose):
         *transforms: the members, in order (each may read what the earlier ones write).
         history: a :class:`LeaderHistory` run before the members (``make_kddrl_transforms`` adds one in front of
             trajGAN): it builds ``("leaders","history")`` where the env does not write it, and is inert where it does.
-        compile: ``torch.compile`` the fused function (``True`` / ``False`` / ``"auto"``, see
+        compile: ``torch.compile`` the fused function (a bool: a config's ``auto`` is resolved by
             :func:`kddrl_trl.compiling.resolve_compile`; gain measured in :func:`compiled_frames`); only when
             every member is ``pure`` (a member wrapping a user's TensorDict module is run eagerly).
 
@@ -82,9 +82,9 @@ class PredictiveStack(Compose):
         ['p_mobil']
     """
 
-    def __init__(self, *transforms: Transform, history: LeaderHistory | None = None, compile: bool | str = False):
+    def __init__(self, *transforms: Transform, history: LeaderHistory | None = None, compile: bool = False):
         super().__init__(*transforms)
-        self.compiled = resolve_compile(compile)  # not `.compile`: that hides nn.Module.compile
+        self.compiled = resolved("compile", compile)  # not `.compile`: that hides nn.Module.compile
         #: builds ``("leaders","history")`` before the members where the env does not write it (not a member:
         #: indexing and the fused members are as without it; inert on an env keeping its own history)
         self.history = history
