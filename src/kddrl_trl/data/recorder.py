@@ -333,71 +333,128 @@ def record_traffic(
     return out
 
 
-def _build_recording(
-    cfg: HighwayConfig,
-    road: int,
-    rows: np.ndarray,
-    vid_names: list[str],
-    params: dict,
-    duration_s: float,
-    num_frames: int,
-    seed: int,
-    y_lat_offset: float,
-) -> RecordedTraffic:
-    """Turn the 0.1 s samples of one road into one HighD recording (see the module docstring)."""
-    dt, L, n_lanes = cfg.step_length, cfg.section_length, cfg.num_lanes
-    length_m = float(cfg.vehicle_length)
-    upper, lower = lane_markings(cfg)
-    recording_id = road + 1
+@dataclass
+class _Samples:
+    """The 0.1 s samples of one road sorted by (vehicle, step), contiguous in step per vehicle."""
 
-    # ---- samples sorted by (vehicle, k); contiguous in k per vehicle
+    k: np.ndarray  # simulation step of each sample
+    front: np.ndarray  # x of the vehicle's front (m)
+    lat_pos: np.ndarray  # x_lat from the right edge of the road (m)
+    v: np.ndarray
+    v_lat: np.ndarray
+    acc: np.ndarray
+    a_lat: np.ndarray
+    lane: np.ndarray  # SUMO's lane index
+    vehicles: np.ndarray  # the vehicle numbers, sorted
+    start: np.ndarray  # each vehicle's first sample row
+    count: np.ndarray  # each vehicle's number of samples
+    k_first: np.ndarray
+    k_last: np.ndarray
+
+
+@dataclass
+class _Frames:
+    """The 25 Hz frames of every vehicle inside its own sampled time span, interpolated between samples."""
+
+    f_lo: np.ndarray  # each vehicle's first frame
+    f_start: np.ndarray  # each vehicle's first row among the frames
+    veh_of: np.ndarray  # frame row -> vehicle index
+    f: np.ndarray  # frame row -> frame number
+    r0: np.ndarray  # frame row -> the sample row at or before it
+    front: np.ndarray
+    lat: np.ndarray
+    v: np.ndarray
+    vlat: np.ndarray
+    a: np.ndarray
+    alat: np.ndarray
+    in_view: np.ndarray
+
+
+@dataclass
+class _View:
+    """Each vehicle's in-view frame interval and its HighD id (0: never in view)."""
+
+    first: np.ndarray
+    last: np.ndarray
+    rec_id: np.ndarray
+    ranked: np.ndarray  # vehicle indices in HighD id order
+
+
+def _samples(rows: np.ndarray, road: int, dt: float, y_lat_offset: float) -> _Samples:
     order = np.lexsort((rows[:, 1], rows[:, 0]))
     rows = rows[order]
     g = rows[:, 0].astype(np.int64)
     k = rows[:, 1].astype(np.int64)
-    front, lat_pos = rows[:, 2], rows[:, 3] + y_lat_offset  # x_lat from the right edge of the road
-    v, v_lat, acc = rows[:, 4], rows[:, 5], rows[:, 6]
-    lane = rows[:, 7].astype(np.int64)
     vehicles, start, count = np.unique(g, return_index=True, return_counts=True)
     k_first = k[start]
     k_last = k[start + count - 1]
     if np.any(k_last - k_first + 1 != count):
         raise RuntimeError(f"road {road}: a vehicle left and re-entered the simulation (non-contiguous samples)")
+    v_lat = rows[:, 5]
     new_vehicle = np.zeros(len(g), bool)
     new_vehicle[start] = True
     a_lat = np.zeros(len(g))
     a_lat[1:] = np.diff(v_lat) / dt
     a_lat[new_vehicle] = 0.0
-    length = np.full(len(g), length_m)
-    neighbours = _neighbours(k, lane, front, length, n_lanes, cfg.road_length)
+    return _Samples(
+        k=k,
+        front=rows[:, 2],
+        lat_pos=rows[:, 3] + y_lat_offset,
+        v=rows[:, 4],
+        v_lat=v_lat,
+        acc=rows[:, 6],
+        a_lat=a_lat,
+        lane=rows[:, 7].astype(np.int64),
+        vehicles=vehicles,
+        start=start,
+        count=count,
+        k_first=k_first,
+        k_last=k_last,
+    )
 
-    # ---- 25 Hz frames of every vehicle inside its own sampled time span
+
+def _frames(s: _Samples, dt: float, num_frames: int, section_length: float, length_m: float) -> _Frames:
     per_frame = 1.0 / (FRAME_RATE * dt)  # steps per 25 Hz frame
-    f_lo = np.ceil(k_first / per_frame - 1e-9).astype(np.int64)
-    f_hi = np.minimum(np.floor(k_last / per_frame + 1e-9).astype(np.int64), num_frames - 1)
+    f_lo = np.ceil(s.k_first / per_frame - 1e-9).astype(np.int64)
+    f_hi = np.minimum(np.floor(s.k_last / per_frame + 1e-9).astype(np.int64), num_frames - 1)
     n_f = np.maximum(f_hi - f_lo + 1, 0)
-    veh_of = np.repeat(np.arange(len(vehicles)), n_f)
+    veh_of = np.repeat(np.arange(len(s.vehicles)), n_f)
     f_start = np.r_[0, np.cumsum(n_f)[:-1]]
     f = f_lo[veh_of] + (np.arange(n_f.sum()) - f_start[veh_of])
-    s = f * per_frame
-    k0 = np.floor(s + 1e-9).astype(np.int64)
-    alpha = np.clip(s - k0, 0.0, 1.0)
+    step = f * per_frame
+    k0 = np.floor(step + 1e-9).astype(np.int64)
+    alpha = np.clip(step - k0, 0.0, 1.0)
     alpha[alpha < 1e-9] = 0.0
-    r0 = start[veh_of] + (k0 - k_first[veh_of])
+    r0 = s.start[veh_of] + (k0 - s.k_first[veh_of])
     r1 = r0 + (alpha > 0)
 
     def lerp(x: np.ndarray) -> np.ndarray:
         return x[r0] + alpha * (x[r1] - x[r0])
 
-    fr_front, fr_lat, fr_v, fr_vlat, fr_a, fr_alat = (lerp(x) for x in (front, lat_pos, v, v_lat, acc, a_lat))
-    in_view = (fr_front > 0.0) & (fr_front - length_m < L)
+    front = lerp(s.front)
+    return _Frames(
+        f_lo=f_lo,
+        f_start=f_start,
+        veh_of=veh_of,
+        f=f,
+        r0=r0,
+        front=front,
+        lat=lerp(s.lat_pos),
+        v=lerp(s.v),
+        vlat=lerp(s.v_lat),
+        a=lerp(s.acc),
+        alat=lerp(s.a_lat),
+        in_view=(front > 0.0) & (front - length_m < section_length),
+    )
 
-    # ---- per vehicle: in-view interval (front is non-decreasing, so the interval is contiguous)
-    nveh = len(vehicles)
+
+def _view(fr: _Frames, nveh: int, road: int) -> _View:
+    """In-view intervals (a front is non-decreasing, so each is contiguous) and HighD ids: the order of first
+    appearance, the front-most first among simultaneous ones."""
     view_first = np.full(nveh, -1, np.int64)
     view_last = np.full(nveh, -2, np.int64)
-    vi = veh_of[in_view]
-    fi = f[in_view]
+    vi = fr.veh_of[fr.in_view]
+    fi = fr.f[fr.in_view]
     np.maximum.at(view_last, vi, fi)
     first_tmp = np.full(nveh, np.iinfo(np.int64).max)
     np.minimum.at(first_tmp, vi, fi)
@@ -405,49 +462,47 @@ def _build_recording(
     view_first[seen] = first_tmp[seen]
     if np.any(np.bincount(vi, minlength=nveh)[seen] != (view_last - view_first + 1)[seen]):
         raise RuntimeError(f"road {road}: a vehicle left the view and came back")
-    # HighD ids: order of first appearance, front-most first among simultaneous ones
     seen_idx = np.flatnonzero(seen)
-    first_front = fr_front[f_start[seen_idx] + (view_first[seen_idx] - f_lo[seen_idx])]
+    first_front = fr.front[fr.f_start[seen_idx] + (view_first[seen_idx] - fr.f_lo[seen_idx])]
     ranked = seen_idx[np.lexsort((-first_front, view_first[seen_idx]))]
     rec_id = np.zeros(nveh, np.int64)
     rec_id[ranked] = np.arange(1, len(ranked) + 1)
-    # sample row -> vehicle index
-    veh_of_row = np.repeat(np.arange(nveh), count)
+    return _View(view_first, view_last, rec_id, ranked)
 
-    # ---- rows of the recording, sorted by (id, frame)
-    sel = np.flatnonzero(in_view)
-    sel = sel[np.lexsort((f[sel], rec_id[veh_of[sel]]))]
-    sv, sf, sr0 = veh_of[sel], f[sel], r0[sel]
 
-    def frame_row(veh: np.ndarray, frame: np.ndarray) -> np.ndarray:
-        return f_start[veh] + (frame - f_lo[veh])
-
+def _neighbour_gaps(s: _Samples, fr: _Frames, view: _View, neighbours: np.ndarray, sel: np.ndarray, length_m: float):
+    """Of each recording row ``sel``: the HighD ids of its 8 neighbours in view (0: none), and the gap, time
+    gap, time to collision (-1: undefined) and speed of its preceding vehicle."""
+    veh_of_row = np.repeat(np.arange(len(s.vehicles)), s.count)  # sample row -> vehicle index
+    sf, sr0 = fr.f[sel], fr.r0[sel]
     nb_ids = np.zeros((len(sel), 8), np.int64)
     for j in range(8):
         nb_row = neighbours[sr0, j]
         has = nb_row >= 0
         nb_veh = np.where(has, veh_of_row[np.maximum(nb_row, 0)], 0)
-        visible = has & (view_first[nb_veh] <= sf) & (sf <= view_last[nb_veh])
-        nb_ids[:, j] = np.where(visible, rec_id[nb_veh], 0)
+        visible = has & (view.first[nb_veh] <= sf) & (sf <= view.last[nb_veh])
+        nb_ids[:, j] = np.where(visible, view.rec_id[nb_veh], 0)
     prec_veh = np.where(nb_ids[:, 0] > 0, veh_of_row[np.maximum(neighbours[sr0, 0], 0)], 0)
     has_prec = nb_ids[:, 0] > 0
-    prec_row = frame_row(prec_veh[has_prec], sf[has_prec])
-    x_front = fr_front[sel]
-    speed = fr_v[sel]
+    prec_row = fr.f_start[prec_veh[has_prec]] + (sf[has_prec] - fr.f_lo[prec_veh[has_prec]])
+    x_front = fr.front[sel]
+    speed = fr.v[sel]
     dhw = np.full(len(sel), -1.0)
     thw = np.full(len(sel), -1.0)
     ttc = np.full(len(sel), -1.0)
     prec_v = np.zeros(len(sel))
-    dhw[has_prec] = (fr_front[prec_row] - length_m) - x_front[has_prec]
-    prec_v[has_prec] = fr_v[prec_row]
+    dhw[has_prec] = (fr.front[prec_row] - length_m) - x_front[has_prec]
+    prec_v[has_prec] = fr.v[prec_row]
     moving = has_prec & (speed > 0)
     thw[moving] = dhw[moving] / speed[moving]
     closing = has_prec & (speed > prec_v)
     ttc[closing] = dhw[closing] / (speed[closing] - prec_v[closing])
+    return nb_ids, dhw, thw, ttc, prec_v
 
-    # ---- lanes and image y (box centre moved off a marking into SUMO's lane: see module docstring)
-    sim_lane = lane[sr0]
-    centre = lower[-1] - fr_lat[sel]
+
+def _image_y(centre: np.ndarray, sim_lane: np.ndarray, lower: np.ndarray, n_lanes: int, road: int) -> np.ndarray:
+    """Image y of each row's box: a box centre within ``_TIE`` of a marking is moved into SUMO's lane (module
+    docstring); any other centre outside SUMO's lane is logged."""
     y = centre - VEHICLE_HEIGHT / 2.0
     bad = _geometric_lane(y, lower) != sim_lane
     if bad.any():
@@ -463,12 +518,123 @@ def _build_recording(
                 "road %d: %d of %d rows have their box centre outside SUMO's lane by more than %g m",
                 road,
                 int(left.sum()),
-                len(sel),
+                len(y),
                 _TIE,
             )
-    lane_id = 2 * n_lanes + 2 - sim_lane
+    return y
 
-    ids = rec_id[sv]
+
+def _tracks_meta(
+    ids: np.ndarray,
+    starts: np.ndarray,
+    sf: np.ndarray,
+    lane_id: np.ndarray,
+    x_front: np.ndarray,
+    speed: np.ndarray,
+    gaps: tuple[np.ndarray, np.ndarray, np.ndarray],
+    driver: list[str],
+    length_m: float,
+) -> pd.DataFrame:
+    """HighD's ``tracksMeta`` of the recording rows (those of one id contiguous from ``starts``, sorted by frame);
+    ``gaps``: the rows' dhw, thw and ttc (-1: undefined)."""
+    dhw, thw, ttc = gaps
+    n = len(ids)
+    ends = np.r_[starts[1:], n] - 1
+    frames_n = ends - starts + 1
+
+    def seg_min_defined(x: np.ndarray, defined: np.ndarray) -> np.ndarray:
+        if not len(x):
+            return np.zeros(0)
+        m = np.minimum.reduceat(np.where(defined, x, np.inf), starts)
+        return np.where(np.isfinite(m), m, -1.0)
+
+    lane_change = np.r_[False, (lane_id[1:] != lane_id[:-1]) & (ids[1:] == ids[:-1])]
+    return pd.DataFrame(
+        {
+            "id": ids[starts] if n else np.zeros(0, np.int64),
+            "width": length_m,
+            "height": VEHICLE_HEIGHT,
+            "initialFrame": sf[starts] if n else np.zeros(0, np.int64),
+            "finalFrame": sf[ends] if n else np.zeros(0, np.int64),
+            "numFrames": frames_n,
+            "class": "Car",
+            "drivingDirection": 2,
+            "traveledDistance": x_front[ends] - x_front[starts] if n else np.zeros(0),
+            "minXVelocity": np.minimum.reduceat(speed, starts) if n else np.zeros(0),
+            "maxXVelocity": np.maximum.reduceat(speed, starts) if n else np.zeros(0),
+            "meanXVelocity": np.add.reduceat(speed, starts) / frames_n if n else np.zeros(0),
+            "minDHW": seg_min_defined(dhw, dhw >= 0),
+            "minTHW": seg_min_defined(thw, thw >= 0),
+            "minTTC": seg_min_defined(ttc, ttc >= 0),
+            "numLaneChanges": np.add.reduceat(lane_change.astype(np.int64), starts) if n else np.zeros(0, np.int64),
+            "driverType": driver,
+        },
+        columns=[*TRACKS_META_COLUMNS, "driverType"],
+    )
+
+
+def _recording_meta(
+    cfg: HighwayConfig, road: int, duration_s: float, num_frames: int, meta: pd.DataFrame, upper, lower
+) -> pd.DataFrame:
+    """HighD's ``recordingMeta``: road ``road``'s recording starts ``road * duration_s`` after 08:00."""
+    hh, mm = divmod(8 * 60 + round(road * duration_s / 60.0), 60)
+    n_rec = len(meta)
+    return pd.DataFrame(
+        [
+            {
+                "id": road + 1,
+                "frameRate": FRAME_RATE,
+                "locationId": 0,
+                "speedLimit": float(cfg.v_max),
+                "month": "06.2024",
+                "weekDay": "Tue",
+                "startTime": f"{hh % 24:02d}:{mm:02d}",
+                "duration": float(num_frames / FRAME_RATE),
+                "totalDrivenDistance": float(meta["traveledDistance"].sum()),
+                "totalDrivenTime": float(meta["numFrames"].to_numpy().sum() / FRAME_RATE),
+                "numVehicles": n_rec,
+                "numCars": n_rec,
+                "numTrucks": 0,
+                "upperLaneMarkings": format_markings(upper),
+                "lowerLaneMarkings": format_markings(lower),
+            }
+        ]
+    )
+
+
+def _build_recording(
+    cfg: HighwayConfig,
+    road: int,
+    rows: np.ndarray,
+    vid_names: list[str],
+    params: dict,
+    duration_s: float,
+    num_frames: int,
+    seed: int,
+    y_lat_offset: float,
+) -> RecordedTraffic:
+    """Turn the 0.1 s samples of one road into one HighD recording (see the module docstring), in steps: the
+    samples per vehicle (:func:`_samples`), their 25 Hz frames (:func:`_frames`), who is in view and their HighD
+    ids (:func:`_view`), each recording row's neighbours and gaps (:func:`_neighbour_gaps`) and image y
+    (:func:`_image_y`); then the four tables: tracks, tracksMeta (:func:`_tracks_meta`), the drivers' parameters
+    and recordingMeta (:func:`_recording_meta`)."""
+    dt, n_lanes = cfg.step_length, cfg.num_lanes
+    length_m = float(cfg.vehicle_length)
+    upper, lower = lane_markings(cfg)
+    s = _samples(rows, road, dt, y_lat_offset)
+    neighbours = _neighbours(s.k, s.lane, s.front, np.full(len(s.k), length_m), n_lanes, cfg.road_length)
+    fr = _frames(s, dt, num_frames, cfg.section_length, length_m)
+    view = _view(fr, len(s.vehicles), road)
+
+    sel = np.flatnonzero(fr.in_view)  # the recording's rows, sorted by (id, frame)
+    sel = sel[np.lexsort((fr.f[sel], view.rec_id[fr.veh_of[sel]]))]
+    sv, sf = fr.veh_of[sel], fr.f[sel]
+    nb_ids, dhw, thw, ttc, prec_v = _neighbour_gaps(s, fr, view, neighbours, sel, length_m)
+    sim_lane = s.lane[fr.r0[sel]]
+    y = _image_y(lower[-1] - fr.lat[sel], sim_lane, lower, n_lanes, road)
+    lane_id = 2 * n_lanes + 2 - sim_lane
+    ids = view.rec_id[sv]
+    x_front, speed = fr.front[sel], fr.v[sel]
     tracks = pd.DataFrame(
         {
             "frame": sf,
@@ -478,10 +644,10 @@ def _build_recording(
             "width": length_m,
             "height": VEHICLE_HEIGHT,
             "xVelocity": speed,
-            "yVelocity": 0.0 - fr_vlat[sel],
-            "xAcceleration": fr_a[sel],
-            "yAcceleration": 0.0 - fr_alat[sel],
-            "frontSightDistance": L - x_front,
+            "yVelocity": 0.0 - fr.vlat[sel],
+            "xAcceleration": fr.a[sel],
+            "yAcceleration": 0.0 - fr.alat[sel],
+            "frontSightDistance": cfg.section_length - x_front,
             "backSightDistance": x_front - length_m,
             "dhw": dhw,
             "thw": thw,
@@ -493,51 +659,11 @@ def _build_recording(
         columns=list(TRACKS_COLUMNS),
     )
 
-    # ---- tracksMeta (rows of one id are contiguous)
-    n_rec = len(ranked)
-    if len(sel):
-        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-    else:
-        starts = np.zeros(0, np.int64)
-    ends = np.r_[starts[1:], len(sel)] - 1
-    frames_n = ends - starts + 1
-
-    def seg_min_defined(x: np.ndarray, defined: np.ndarray) -> np.ndarray:
-        if not len(x):
-            return np.zeros(0)
-        m = np.minimum.reduceat(np.where(defined, x, np.inf), starts)
-        return np.where(np.isfinite(m), m, -1.0)
-
-    lane_change = np.r_[False, (lane_id[1:] != lane_id[:-1]) & (ids[1:] == ids[:-1])]
-    veh_sorted = sv[starts] if len(sel) else np.zeros(0, np.int64)
-    names = [vid_names[vehicles[i]] for i in veh_sorted]
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]) if len(sel) else np.zeros(0, np.int64)
+    names = [vid_names[s.vehicles[i]] for i in (sv[starts] if len(sel) else np.zeros(0, np.int64))]
     driver = [params.get(nm, {}).get("driver", "inserted") for nm in names]
-    meta = pd.DataFrame(
-        {
-            "id": ids[starts] if len(sel) else np.zeros(0, np.int64),
-            "width": length_m,
-            "height": VEHICLE_HEIGHT,
-            "initialFrame": sf[starts] if len(sel) else np.zeros(0, np.int64),
-            "finalFrame": sf[ends] if len(sel) else np.zeros(0, np.int64),
-            "numFrames": frames_n,
-            "class": "Car",
-            "drivingDirection": 2,
-            "traveledDistance": x_front[ends] - x_front[starts] if len(sel) else np.zeros(0),
-            "minXVelocity": np.minimum.reduceat(speed, starts) if len(sel) else np.zeros(0),
-            "maxXVelocity": np.maximum.reduceat(speed, starts) if len(sel) else np.zeros(0),
-            "meanXVelocity": np.add.reduceat(speed, starts) / frames_n if len(sel) else np.zeros(0),
-            "minDHW": seg_min_defined(dhw, dhw >= 0),
-            "minTHW": seg_min_defined(thw, thw >= 0),
-            "minTTC": seg_min_defined(ttc, ttc >= 0),
-            "numLaneChanges": np.add.reduceat(lane_change.astype(np.int64), starts)
-            if len(sel)
-            else np.zeros(0, np.int64),
-            "driverType": driver,
-        },
-        columns=[*TRACKS_META_COLUMNS, "driverType"],
-    )
-    assert len(meta) == n_rec
-
+    meta = _tracks_meta(ids, starts, sf, lane_id, x_front, speed, (dhw, thw, ttc), driver, length_m)
+    assert len(meta) == len(view.ranked)
     driver_params = pd.DataFrame(
         {
             "id": meta["id"].to_numpy(),
@@ -546,35 +672,12 @@ def _build_recording(
         },
         columns=list(DRIVER_PARAMS_COLUMNS),
     )
-
-    hh, mm = divmod(8 * 60 + round(road * duration_s / 60.0), 60)
-    recording_meta = pd.DataFrame(
-        [
-            {
-                "id": recording_id,
-                "frameRate": FRAME_RATE,
-                "locationId": 0,
-                "speedLimit": float(cfg.v_max),
-                "month": "06.2024",
-                "weekDay": "Tue",
-                "startTime": f"{hh % 24:02d}:{mm:02d}",
-                "duration": float(num_frames / FRAME_RATE),
-                "totalDrivenDistance": float(meta["traveledDistance"].sum()),
-                "totalDrivenTime": float(frames_n.sum() / FRAME_RATE),
-                "numVehicles": n_rec,
-                "numCars": n_rec,
-                "numTrucks": 0,
-                "upperLaneMarkings": format_markings(upper),
-                "lowerLaneMarkings": format_markings(lower),
-            }
-        ]
-    )
-    recording = HighDRecording(recording_id, tracks, meta, recording_meta)
-    sumo_ids = {int(i): nm for i, nm in zip(meta["id"], names)}
+    recording_meta = _recording_meta(cfg, road, duration_s, num_frames, meta, upper, lower)
+    recording = HighDRecording(road + 1, tracks, meta, recording_meta)
     return RecordedTraffic(
         recording=recording,
         driver_params=driver_params,
-        sumo_ids=sumo_ids,
+        sumo_ids={int(i): nm for i, nm in zip(meta["id"], names)},
         sim_lane=sim_lane.astype(np.int64),
         road=road,
     )
