@@ -542,6 +542,91 @@ def _params_json(**params) -> dict:
     return json.loads(json.dumps(out))
 
 
+def _extraction_params(
+    recordings, seed, stride, hz, history, horizon, window, label, sensing_range, idm, fractions
+) -> dict:
+    """The checked parameters of :func:`extract_dataset` (a ``ValueError`` names the first bad one):
+    ``(seed, stride, history, horizon, window, sensing_range, fractions)`` and all of them as ``meta.json``
+    stores them."""
+    if not recordings:
+        raise ValueError("extract_dataset: no recordings given")
+    if not all(isinstance(r, HighDRecording) for r in recordings):
+        raise ValueError("extract_dataset: recordings must be HighDRecording objects")
+    ids = [int(r.recording_id) for r in recordings]
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"extract_dataset: duplicate recording ids {sorted(ids)}")
+    seed = _positive_int("seed", seed, minimum=0)
+    stride = _positive_int("stride", stride)
+    _positive_float("hz", hz)
+    fractions = _check_fractions(fractions)
+    history, horizon, window = (
+        _positive_int(n, v) for n, v in (("history", history), ("horizon", horizon), ("window", window))
+    )
+    sensing_range = _positive_float("sensing_range", sensing_range)
+    _check_label(label)
+    _check_idm(idm)
+    checked = (seed, stride, history, horizon, window, sensing_range, fractions)
+    return checked, _params_json(
+        seed=seed,
+        stride=stride,
+        hz=float(hz),
+        history=history,
+        horizon=horizon,
+        window=window,
+        label=label,
+        sensing_range=float(sensing_range),
+        idm=idm,
+        fractions=fractions,
+        key_steps=KEY_STEPS,
+        schema_version=SCHEMA_VERSION,
+    )
+
+
+def _cached_meta(out_dir: Path, digest: str, params: dict) -> dict | None:
+    """``out_dir``'s stored meta (with ``"cached": True``) when it was made from the same input and parameters
+    and its split folders exist; else None."""
+    meta_path = out_dir / "meta.json"
+    if not meta_path.is_file():
+        return None
+    try:
+        old = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        old = None
+    if (
+        old
+        and old.get("input_hash") == digest
+        and old.get("params") == params
+        and all((out_dir / k / s).is_dir() for k in KINDS for s in SPLITS)
+    ):
+        return {**old, "cached": True}
+    return None
+
+
+def _samples_of(recordings, hz, history, horizon, window, label, sensing_range, idm, stride, progress):
+    """Both sample kinds of every recording, concatenated; the keys of every vehicle; the number of lane
+    changers."""
+    leaders, changes, vehicles, changers = [], [], [], []
+    for rec in tqdm(recordings, desc="extract", unit="rec", disable=not progress):
+        tracks = longitudinal_tracks(rec, hz=hz)
+        lanes = vehicle_num_lanes(rec)
+        lanes.index = pd.MultiIndex.from_arrays([np.full(len(lanes), int(rec.recording_id)), lanes.index])
+        leaders.append(
+            leader_samples(
+                tracks, history=history, horizon=horizon, stride=stride, idm=idm, sensing_range=sensing_range
+            )
+        )
+        changes.append(
+            lane_change_samples(
+                tracks, window=window, stride=stride, sensing_range=sensing_range, num_lanes=lanes, label=label
+            )
+        )
+        vehicles.append(np.unique(_vehicle_keys(tracks["recording_id"], tracks["vehicle_id"])))
+        changers.append(int((tracks.groupby("vehicle_id")["lane"].nunique() > 1).sum()))
+    data = {"leaders": torch.cat(leaders), "lane_changes": torch.cat(changes)}
+    universe = np.concatenate(vehicles)
+    return data, universe, int(sum(changers))
+
+
 def extract_dataset(
     recordings: Sequence[HighDRecording],
     out_dir: str | os.PathLike,
@@ -569,77 +654,26 @@ def extract_dataset(
     meta is returned with ``"cached": True`` added (``force=True`` recomputes).
     """
     recordings = list(recordings)
-    if not recordings:
-        raise ValueError("extract_dataset: no recordings given")
-    if not all(isinstance(r, HighDRecording) for r in recordings):
-        raise ValueError("extract_dataset: recordings must be HighDRecording objects")
-    ids = [int(r.recording_id) for r in recordings]
-    if len(set(ids)) != len(ids):
-        raise ValueError(f"extract_dataset: duplicate recording ids {sorted(ids)}")
-    seed = _positive_int("seed", seed, minimum=0)
-    stride = _positive_int("stride", stride)
-    _positive_float("hz", hz)
-    fractions = _check_fractions(fractions)
-    history, horizon, window = (
-        _positive_int(n, v) for n, v in (("history", history), ("horizon", horizon), ("window", window))
+    checked, params = _extraction_params(
+        recordings, seed, stride, hz, history, horizon, window, label, sensing_range, idm, fractions
     )
-    sensing_range = _positive_float("sensing_range", sensing_range)
-    _check_label(label)
-    _check_idm(idm)
+    seed, stride, history, horizon, window, sensing_range, fractions = checked
     out_dir = Path(out_dir)
-    params = _params_json(
-        seed=seed,
-        stride=stride,
-        hz=float(hz),
-        history=history,
-        horizon=horizon,
-        window=window,
-        label=label,
-        sensing_range=float(sensing_range),
-        idm=idm,
-        fractions=fractions,
-        key_steps=KEY_STEPS,
-        schema_version=SCHEMA_VERSION,
-    )
+    ids = [int(r.recording_id) for r in recordings]
     digest = _hash_recordings(recordings)
     meta_path = out_dir / "meta.json"
-    if not force and meta_path.is_file():
-        try:
-            old = json.loads(meta_path.read_text())
-        except (OSError, ValueError):
-            old = None
-        if (
-            old
-            and old.get("input_hash") == digest
-            and old.get("params") == params
-            and all((out_dir / k / s).is_dir() for k in KINDS for s in SPLITS)
-        ):
-            return {**old, "cached": True}
+    cached = None if force else _cached_meta(out_dir, digest, params)
+    if cached is not None:
+        return cached
 
-    leaders, changes, vehicles, changers = [], [], [], []
-    for rec in tqdm(recordings, desc="extract", unit="rec", disable=not progress):
-        tracks = longitudinal_tracks(rec, hz=hz)
-        lanes = vehicle_num_lanes(rec)
-        lanes.index = pd.MultiIndex.from_arrays([np.full(len(lanes), int(rec.recording_id)), lanes.index])
-        leaders.append(
-            leader_samples(
-                tracks, history=history, horizon=horizon, stride=stride, idm=idm, sensing_range=sensing_range
-            )
-        )
-        changes.append(
-            lane_change_samples(
-                tracks, window=window, stride=stride, sensing_range=sensing_range, num_lanes=lanes, label=label
-            )
-        )
-        vehicles.append(np.unique(_vehicle_keys(tracks["recording_id"], tracks["vehicle_id"])))
-        changers.append(int((tracks.groupby("vehicle_id")["lane"].nunique() > 1).sum()))
-    data = {"leaders": torch.cat(leaders), "lane_changes": torch.cat(changes)}
-    universe = np.concatenate(vehicles)
+    data, universe, changers = _samples_of(
+        recordings, hz, history, horizon, window, label, sensing_range, idm, stride, progress
+    )
 
     out_dir.mkdir(parents=True, exist_ok=True)
     if meta_path.exists():
         meta_path.unlink()  # invalidate the cache before touching the data
-    counts: dict = {"vehicles": int(len(universe)), "lane_changers": int(sum(changers))}
+    counts: dict = {"vehicles": int(len(universe)), "lane_changers": changers}
     for kind, td in data.items():
         key = "leader_id" if kind == "leaders" else "vehicle_id"
         splits = split_by_vehicle(td, fractions, seed=seed, key=key, vehicles=universe)

@@ -240,6 +240,45 @@ def _neighbours(
 
 
 # -------------------------------------------------------------------------------------------- recorder
+class _Sampler:
+    """Subscribes to every vehicle of a running :class:`~kddrl_trl.envs.sim.HighwaySim` and keeps their samples:
+    ``chunks`` (per sample ``[g, k, front, x_lat, v, v_lat, a, lane]``, ``g`` the vehicle's index in
+    ``vid_names``), each vehicle's road (``vid_road``) and its drawn driver parameters (``params``: the
+    simulation forgets those of vehicles that left)."""
+
+    def __init__(self, ls, sim):
+        c = ls.constants
+        self.ls, self.sim = ls, sim
+        self.variables = [c.VAR_POSITION, c.VAR_SPEED, c.VAR_SPEED_LAT, c.VAR_ACCELERATION, c.VAR_LANE_INDEX]
+        self.vid_index: dict[str, int] = {}  # SUMO id -> global vehicle index g
+        self.vid_road: list[int] = []
+        self.vid_names: list[str] = []
+        self.chunks: list[np.ndarray] = []
+        self.params: dict[str, dict] = {}
+
+    def subscribe(self, ids) -> None:
+        for vid in ids:
+            self.ls.vehicle.subscribe(vid, self.variables)
+            if vid not in self.vid_index:
+                if vid in self.sim.vehicle_params:
+                    self.params[vid] = self.sim.vehicle_params[vid]
+                road = int(self.params[vid]["road"]) if vid in self.params else int(vid[1:].split(".")[0])
+                self.vid_index[vid] = len(self.vid_names)
+                self.vid_names.append(vid)
+                self.vid_road.append(road)
+
+    def sample(self, k: int) -> None:
+        res = self.ls.vehicle.getAllSubscriptionResults()
+        if not res:
+            return
+        pos_, speed_, lat_, acc_, lane_ = self.variables
+        rows = [
+            (self.vid_index[v], k, d[pos_][0], d[pos_][1], d[speed_], d[lat_], d[acc_], d[lane_])
+            for v, d in res.items()
+        ]
+        self.chunks.append(np.array(rows, np.float64))
+
+
 def record_traffic(
     cfg: HighwayConfig, duration_s: float, num_roads: int = 4, seed: int = 0, progress: bool = True
 ) -> list[RecordedTraffic]:
@@ -264,44 +303,14 @@ def record_traffic(
     num_frames = round(duration_s * FRAME_RATE)
     if num_steps * dt < (num_frames - 1) / FRAME_RATE - 1e-9:
         num_steps += 1
-    ls = _libsumo()
-    c = ls.constants
-    variables = [c.VAR_POSITION, c.VAR_SPEED, c.VAR_SPEED_LAT, c.VAR_ACCELERATION, c.VAR_LANE_INDEX]
-    pos_, speed_, lat_, acc_, lane_ = variables
 
     sim = HighwaySim(cfg, int(num_roads), seed=seed)
     try:
         x_off = cfg.entry_length
         y_off = cfg.num_lanes * cfg.lane_width
-        vid_index: dict[str, int] = {}  # SUMO id -> global vehicle index g
-        vid_road: list[int] = []
-        vid_names: list[str] = []
-        chunks: list[np.ndarray] = []  # per sample: [g, k, front, x_lat, v, v_lat, a, lane]
-        params: dict[str, dict] = {}  # drawn driver parameters of every recorded vehicle (the simulation
-        # forgets those of vehicles that left)
-
-        def subscribe(ids) -> None:
-            for vid in ids:
-                ls.vehicle.subscribe(vid, variables)
-                if vid not in vid_index:
-                    if vid in sim.vehicle_params:
-                        params[vid] = sim.vehicle_params[vid]
-                    road = int(params[vid]["road"]) if vid in params else int(vid[1:].split(".")[0])
-                    vid_index[vid] = len(vid_names)
-                    vid_names.append(vid)
-                    vid_road.append(road)
-
-        def sample(k: int) -> None:
-            res = ls.vehicle.getAllSubscriptionResults()
-            if not res:
-                return
-            rows = [
-                (vid_index[v], k, d[pos_][0], d[pos_][1], d[speed_], d[lat_], d[acc_], d[lane_]) for v, d in res.items()
-            ]
-            chunks.append(np.array(rows, np.float64))
-
-        subscribe(ls.vehicle.getIDList())
-        sample(0)
+        sampler = _Sampler(_libsumo(), sim)
+        sampler.subscribe(sampler.ls.vehicle.getIDList())
+        sampler.sample(0)
         keep, no_accel = np.full(sim.num_roads, 1), np.zeros(sim.num_roads)
         with tqdm(
             total=round(num_steps * dt, 6),
@@ -312,13 +321,14 @@ def record_traffic(
         ) as bar:
             for k in range(1, num_steps + 1):
                 sim.step(keep, no_accel)
-                subscribe(ls.simulation.getDepartedIDList())
-                sample(k)
+                sampler.subscribe(sampler.ls.simulation.getDepartedIDList())
+                sampler.sample(k)
                 if k % 10 == 0 or k == num_steps:
                     bar.update(round(k * dt - bar.n, 6))
     finally:
         sim.close()
 
+    chunks, vid_road, vid_names, params = sampler.chunks, sampler.vid_road, sampler.vid_names, sampler.params
     data = np.concatenate(chunks) if chunks else np.zeros((0, 8))
     data[:, 2] -= x_off  # front bumper from the start of the study section
     road_of = np.asarray(vid_road, np.int64)

@@ -9,6 +9,8 @@ index arithmetic and a single ``searchsorted``); there is no Python loop over ve
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pandas as pd
 
@@ -85,30 +87,26 @@ def vehicle_num_lanes(recording: HighDRecording) -> pd.Series:
     return pd.Series(values, index=meta["id"].to_numpy(dtype=np.int64), name="num_lanes")
 
 
-def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataFrame:
-    """Resample ``recording`` to ``hz`` and normalise both driving directions (``TRACKS10.md``).
+@dataclass
+class _Rows25:
+    """A recording's 25 Hz rows in the direction-free frame, sorted by (vehicle, frame), and each vehicle's
+    block of rows ``[starts, ends)``."""
 
-    Kinematics (``y, v, a, x_lat, vx_lat``) are linearly interpolated at ``t = frame / hz`` inside each
-    vehicle's own first..last 25 Hz timestamps; ``lane`` and the neighbour ids come from the last 25 Hz row
-    at or before ``t``. ``x_lat`` is the box centre measured from the right edge of the carriageway in the
-    direction of travel (the outermost lane marking), growing to the left; ``vx_lat`` is + to the left;
-    ``lane_offset`` is ``x_lat`` minus the centre of ``lane`` (from the lane markings), + = left of the centre.
+    ids: np.ndarray
+    frames: np.ndarray
+    lane: np.ndarray
+    direction: np.ndarray
+    cols: dict  # the kinematics: y, v, a, x_lat, vx_lat
+    neighbours: dict  # the neighbour id columns
+    starts: np.ndarray
+    ends: np.ndarray
+    vids: np.ndarray
 
-    Raises:
-        ValueError: ``hz`` not finite and > 0, no vehicles in the recording, a vehicle with repeated 25 Hz
-            frames, or a non-finite value in a required column (the message names column and vehicle).
-    """
-    if not (isinstance(hz, (int, float, np.floating, np.integer)) and np.isfinite(hz) and hz > 0):
-        raise ValueError(f"hz must be a finite number > 0, got {hz!r}")
-    rid = int(recording.recording_id)
+
+def _rows25(recording: HighDRecording, rid: int, fr: float, hz: float) -> _Rows25:
+    """The 25 Hz rows of ``recording`` (id ``rid``, frame rate ``fr``); refuses a vehicle missing from
+    tracksMeta, non-finite kinematics and repeated frames, naming the vehicle."""
     raw = recording.tracks
-    if len(raw) == 0 or len(recording.tracks_meta) == 0:
-        raise ValueError(f"recording {rid} has no vehicles (empty tracks or tracksMeta table)")
-    fr = float(recording.frame_rate)
-    if not (np.isfinite(fr) and fr > 0):
-        raise ValueError(f"recording {rid}: frameRate must be > 0, got {fr}")
-
-    # ---- 25 Hz per-row quantities in the direction-free frame
     direction = driving_direction(recording).to_numpy()
     if np.isnan(direction.astype(np.float64)).any():
         bad = int(raw["id"].to_numpy()[np.isnan(direction.astype(np.float64))][0])
@@ -136,7 +134,7 @@ def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataF
     for name, values in cols25.items():  # non-finite 25 Hz inputs would poison the interpolation
         _check_finite(values, name, rid, ids25, frames25 / fr * hz)
 
-    # ---- sort by (vehicle, frame) and find each vehicle's block of rows
+    # sorted by (vehicle, frame), each vehicle's block of rows
     order = np.lexsort((frames25, ids25))
     ids25, frames25, lane25, dir25 = ids25[order], frames25[order], lane25[order], direction[order]
     cols25 = {k: v[order] for k, v in cols25.items()}
@@ -149,9 +147,15 @@ def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataF
     starts = np.flatnonzero(new_vehicle)
     ends = np.r_[starts[1:], len(ids25)]  # exclusive
     vids = ids25[starts]
-    f0, f1 = frames25[starts], frames25[ends - 1]
+    return _Rows25(ids25, frames25, lane25, dir25, cols25, nb25, starts, ends, vids)
 
-    # ---- 10 Hz frames k with k / hz inside [f0 / fr, f1 / fr]
+
+def _sample_points(r: _Rows25, fr: float, hz: float):
+    """The ``hz`` frames ``k`` with ``k / hz`` inside each vehicle's first..last 25 Hz timestamps: for each,
+    its vehicle index, ``k``, the 25 Hz rows at or before (``lo``) and after (``hi``) it and the weight ``w``
+    of ``hi`` in the linear interpolation."""
+    frames25, starts, ends, vids = r.frames, r.starts, r.ends, r.vids
+    f0, f1 = frames25[starts], frames25[ends - 1]
     eps = 1e-9
     k_first = np.ceil(f0 * (hz / fr) - eps).astype(np.int64)
     k_last = np.floor(f1 * (hz / fr) + eps).astype(np.int64)
@@ -161,7 +165,7 @@ def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataF
     k = k_first[veh] + (np.arange(len(veh)) - offsets[veh])
     p = np.clip(k * (fr / hz), f0[veh], f1[veh])  # fractional 25 Hz frame
 
-    # ---- one searchsorted over (vehicle block, frame) keys for all rows at once
+    # one searchsorted over (vehicle block, frame) keys for all rows at once
     span = float(frames25.max() - frames25.min() + 2)
     base = frames25.min()
     block = np.repeat(np.arange(len(vids)), ends - starts)
@@ -173,13 +177,48 @@ def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataF
     df_ = (frames25[hi] - frames25[lo]).astype(np.float64)
     w = np.where(hi > lo, (p - frames25[lo]) / np.where(df_ > 0, df_, 1.0), 0.0)
     w = np.clip(w, 0.0, 1.0)
+    return veh, k, lo, hi, w
 
+
+def _vehicle_meta(recording: HighDRecording, vids: np.ndarray):
+    """Each vehicle's length and driver type (``""`` where the recording has no ``driverType``)."""
     meta = recording.tracks_meta.set_index("id")
     length = meta["width"].reindex(vids).to_numpy(dtype=np.float64)
     if "driverType" in meta.columns:
         driver = meta["driverType"].reindex(vids).astype(str).to_numpy(dtype=object)
     else:
         driver = np.full(len(vids), "", dtype=object)
+    return length, driver
+
+
+def longitudinal_tracks(recording: HighDRecording, hz: float = 10.0) -> pd.DataFrame:
+    """Resample ``recording`` to ``hz`` and normalise both driving directions (``TRACKS10.md``).
+
+    Kinematics (``y, v, a, x_lat, vx_lat``) are linearly interpolated at ``t = frame / hz`` inside each
+    vehicle's own first..last 25 Hz timestamps; ``lane`` and the neighbour ids come from the last 25 Hz row
+    at or before ``t``. ``x_lat`` is the box centre measured from the right edge of the carriageway in the
+    direction of travel (the outermost lane marking), growing to the left; ``vx_lat`` is + to the left;
+    ``lane_offset`` is ``x_lat`` minus the centre of ``lane`` (from the lane markings), + = left of the centre.
+
+    Raises:
+        ValueError: ``hz`` not finite and > 0, no vehicles in the recording, a vehicle with repeated 25 Hz
+            frames, or a non-finite value in a required column (the message names column and vehicle).
+    """
+    if not (isinstance(hz, (int, float, np.floating, np.integer)) and np.isfinite(hz) and hz > 0):
+        raise ValueError(f"hz must be a finite number > 0, got {hz!r}")
+    rid = int(recording.recording_id)
+    raw = recording.tracks
+    if len(raw) == 0 or len(recording.tracks_meta) == 0:
+        raise ValueError(f"recording {rid} has no vehicles (empty tracks or tracksMeta table)")
+    fr = float(recording.frame_rate)
+    if not (np.isfinite(fr) and fr > 0):
+        raise ValueError(f"recording {rid}: frameRate must be > 0, got {fr}")
+
+    r = _rows25(recording, rid, fr, hz)
+    veh, k, lo, hi, w = _sample_points(r, fr, hz)
+    vids = r.vids
+    length, driver = _vehicle_meta(recording, vids)
+    lane25, dir25, cols25, nb25 = r.lane, r.direction, r.cols, r.neighbours
 
     out = {
         "recording_id": np.full(len(veh), rid, dtype=np.int64),
