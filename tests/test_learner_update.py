@@ -11,6 +11,8 @@ import torch
 from conftest import SMALL, fake_samples
 
 from kddrl_trl import keys as K
+from kddrl_trl.devtools.bench_results import keep_previous
+from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors
 from kddrl_trl.training import HierarchicalLearner
 
 
@@ -193,18 +195,6 @@ def test_cuda_learner_with_cudagraphs_matches_the_cpu_one_and_checkpoints_cross_
         torch.testing.assert_close(ref[name], got[name], msg=name)
 
 
-def train_throughput():
-    """``benchmarks/train_throughput.py`` as a module (its plain-PyTorch reference ``PlainKDDRL``)."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "train_throughput.py"
-    spec = importlib.util.spec_from_file_location("train_throughput", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def plain_tensors(ref) -> dict:
     """The plain reference's networks as named tensors, under the names of the learner's losses."""
     out = {
@@ -242,15 +232,14 @@ def learner_tensors(learner: HierarchicalLearner) -> dict:
 
 
 def test_benchmark_plain_reference_makes_the_learners_update(samples):
-    """``PlainKDDRL`` (the plain-PyTorch reference of ``benchmarks/train_throughput.py``) computes the learner's
+    """``PlainKDDRL`` (the plain-PyTorch reference, ``kddrl_trl.devtools.plain_kddrl``, the benchmark's plain arm) computes the learner's
     update: from the same weights, on the same batches, with the same TD3 target noise (same seeds), both reach the
     same networks and targets after 6 TD3 and 3 D3QN updates, the D3QN's greedy next lane-change action in the TD3
     target (F6) included: the batches hold decision frames where it differs from the held action."""
-    tt = train_throughput()
     frames, macros = samples
     torch.manual_seed(1)
     learner = HierarchicalLearner(**SMALL)
-    ref = tt.PlainKDDRL(learner)
+    ref = PlainKDDRL(learner)
     ours, plain = learner_tensors(learner), plain_tensors(ref)
     for name in ours:
         assert len(ours[name]) == len(plain[name]), name
@@ -259,7 +248,7 @@ def test_benchmark_plain_reference_makes_the_learners_update(samples):
     start = {n: [t.detach().clone() for t in ts] for n, ts in ours.items()}
     f6 = 0
     for i, (f, m) in enumerate(zip(frames, macros * 2)):
-        x, nx = tt.tensors(f)
+        x, nx = tensors(f)
         with torch.no_grad():
             obs2 = ref.lc_state(nx["ego"], nx["rel"], nx["mask"], ref._s_e(nx, True))
             differs = (ref._greedy_lc(obs2, nx["action_mask"]) != x["lc_action"]).any(-1, keepdim=True)
@@ -270,7 +259,7 @@ def test_benchmark_plain_reference_makes_the_learners_update(samples):
         ref.update_cf(x, nx)
         if i % 2 == 0:
             learner.update_lc(m)
-            ref.update_lc(*tt.tensors(m))
+            ref.update_lc(*tensors(m))
     assert f6 > 0, "no decision frame where the D3QN's next choice differs from the held action: F6 untested"
     ours, plain = learner_tensors(learner), plain_tensors(ref)
     for name in ours:
@@ -280,9 +269,8 @@ def test_benchmark_plain_reference_makes_the_learners_update(samples):
 
 
 def test_benchmark_results_keep_what_a_run_did_not_measure_and_say_which_run_did():
-    """``train_throughput.keep_previous``: a run that measured only the full job keeps the previous file's update
+    """``keep_previous`` (the results merger of ``benchmarks/train_throughput.py``): a run that measured only the full job keeps the previous file's update
     and GPU figures, each attributed to the run that made it, across two merges; this run's own figure wins."""
-    keep_previous = train_throughput().keep_previous
     run = lambda note: {"args": {"n": note}, "machine": {}, "note": note}  # noqa: E731
     gpu_file = {**run("gpu"), "gpu": {"td3": 2125}, "update": {"x": 1}}
     cpu = {**run("cpu"), "update": {"x": 2}, "gpu": None, "collect": []}
