@@ -372,7 +372,7 @@ def test_sumo_recordings_recover_desired_speed_and_headway_per_class(tmp_path):
     their segments are short and often start right after a cut-in, far from the IDM equilibrium."""
     import numpy as np
 
-    from kddrl_trl.data.recorder import record_traffic
+    from kddrl_trl.data.sumo_to_highd import record_traffic
     from kddrl_trl.data.tracks import longitudinal_tracks
     from kddrl_trl.envs import make_config
 

@@ -146,17 +146,20 @@ def test_decision_reading_counts_the_efficiency_term_once_per_decision():
     """F5, ``algo.lc_reward=decision`` (§III.G, "calculated at each 2-second decision step"): sum(r - e) + mean(e) over
     the interval, e the per-frame efficiency term; the same across batch cuts."""
 
-    def efficiency(nxt):
-        return 0.5 * nxt.get("obs")[..., 0]
+    def with_efficiency(td):  # the env's efficiency term e = 0.5 obs of each frame, under "next"
+        td["next", *K.EFFICIENCY_TERM] = 0.5 * td["next", "obs"][..., :1]
+        return td
 
-    td, _ = episode_frames([[5, 4]], period=3)
-    macros = MacroTransitionWriter(efficiency=efficiency)(td)
+    td = with_efficiency(episode_frames([[5, 4]], period=3)[0])
+    with pytest.raises(KeyError, match="efficiency term"):
+        MacroTransitionWriter(efficiency_key=("reward_terms", "absent"))(td)
+    macros = MacroTransitionWriter(efficiency_key=K.EFFICIENCY_TERM)(td)
     # frames 0-2: r = 0, 1, 2 and e = 0.5, 1, 1.5 -> 3 - 3 + 1; frames 3-4 (terminal): r = 3, 4, e = 2, 2.5
     assert macros[0]["next", K.LC_REWARD].item() == pytest.approx(0.0 + 1.0)
     assert macros[1]["next", K.LC_REWARD].item() == pytest.approx(7.0 - 4.5 + 2.25)
-    td, _ = episode_frames([[9, 3, 14], [1, 2, 17], [30, 4, 4]], period=4)
-    whole = MacroTransitionWriter(efficiency=efficiency)(td)
-    writer, parts = MacroTransitionWriter(efficiency=efficiency), []
+    td = with_efficiency(episode_frames([[9, 3, 14], [1, 2, 17], [30, 4, 4]], period=4)[0])
+    whole = MacroTransitionWriter(efficiency_key=K.EFFICIENCY_TERM)(td)
+    writer, parts = MacroTransitionWriter(efficiency_key=K.EFFICIENCY_TERM), []
     for s in range(td.shape[1]):
         out = writer(td[:, s : s + 1])
         if out is not None:

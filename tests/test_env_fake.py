@@ -72,3 +72,7 @@ def test_collision_and_rewards():
     hit = td["next", "collision"].squeeze(-1)
     assert hit.any()
     assert (td["next", "terminated"][hit]).all() and (td["next", "lc", "reward"][hit] <= -99).all()
+    eff, lc, col, acc = (td["next", *key] for key in K.TERM_KEYS)  # the named terms sum to the rewards
+    torch.testing.assert_close(td["next", *K.LC_REWARD], eff + lc + col, rtol=0, atol=1e-5)
+    torch.testing.assert_close(td["next", *K.CF_REWARD], eff + acc + col, rtol=0, atol=1e-5)
+    assert (col[hit] == -100).all() and (col[~hit] == 0).all()

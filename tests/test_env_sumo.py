@@ -446,3 +446,24 @@ def test_mixed_scenario_has_braking_and_baseline_episodes_on_sumo():
             assert 100.0 <= e["braking_distance"] <= 300.0
     finally:
         env.close()
+
+
+def test_reward_terms_are_written_and_sum_to_the_rewards():
+    """The env writes the rewards' named terms (keys.TERM_KEYS) beside them: r_D3QN = eff + lc + collision and
+    r_TD3 = eff + comfort + collision, frame by frame, the lane-change term on the frames a change starts, the
+    efficiency term Eq. 27 of the ego's speed."""
+    from kddrl_trl.envs.rewards import efficiency_term
+
+    env = SumoHighwayEnv("baseline", num_roads=4, seed=2)
+    try:
+        td = torch.stack(rollout(env, RandomDrivingPolicy(generator=torch.Generator().manual_seed(0)), 200), 1)
+    finally:
+        env.close()
+    nxt = td["next"]
+    eff, lc, col, acc = (nxt[key] for key in K.TERM_KEYS)
+    torch.testing.assert_close(nxt[K.LC_REWARD], eff + lc + col, rtol=0, atol=1e-5)
+    torch.testing.assert_close(nxt[K.CF_REWARD], eff + acc + col, rtol=0, atol=1e-5)
+    started = nxt[K.LC_STARTED].float()
+    assert started.any() and torch.equal(lc, -started)
+    assert torch.equal(col, -100.0 * nxt[K.COLLISION].float())
+    torch.testing.assert_close(eff, efficiency_term(nxt[K.EGO_STATE][..., 1:2], env.config), rtol=0, atol=1e-4)

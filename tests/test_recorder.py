@@ -16,7 +16,7 @@ from kddrl_trl.data.highd import (
     longitudinal_position,
     read_recording,
 )
-from kddrl_trl.data.recorder import (
+from kddrl_trl.data.sumo_to_highd import (
     DRIVER_PARAMS_COLUMNS,
     FRAME_RATE,
     read_driver_params,

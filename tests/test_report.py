@@ -153,7 +153,7 @@ def test_compressed_records_read_as_plain_ones(tmp_path, suffix):
 
 def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
     from kddrl_trl.eval.records import find_runs
-    from kddrl_trl.eval.report import build_report
+    from kddrl_trl.eval.report_builder import build_report
 
     for seed, speed in enumerate((100.0, 120.0, 140.0)):
         _fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(speed, speed + 10), collisions=(False, False))
@@ -184,7 +184,7 @@ def test_shield_interventions_and_collisions_are_read_against_the_rules(tmp_path
     """Issue 14: a shielded row shows how often its shield acted (fraction of frames), and every row's speed ratio
     and collision difference to IDM+MOBIL come with their intervals."""
     from kddrl_trl.eval.records import find_runs
-    from kddrl_trl.eval.report import build_report
+    from kddrl_trl.eval.report_builder import build_report
 
     for seed in range(3):
         run = _fake_run(
@@ -206,7 +206,7 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
     """A run trained on ``mixed`` (its ``final__*`` evaluations) and a ``kddrl_trl.evaluate`` folder named on the
     command line are reported as "<algo> (trained on <scenario>)", beside, not inside, the runs trained there."""
     from kddrl_trl.eval.records import find_runs
-    from kddrl_trl.eval.report import build_report
+    from kddrl_trl.eval.report_builder import build_report
 
     for seed in range(3):
         _fake_run(tmp_path / "runs" / f"b{seed}", seed=seed, scenario="braking", speeds=(100.0, 100.0))

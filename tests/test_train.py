@@ -270,7 +270,7 @@ def fake_trainer(job, tmp_path, **train):
         env,
         learner,
         trainer,
-        make_collector(env, learner, buffers, train_cfg, job.algo.lc_reward, job.env.highway()),
+        make_collector(env, learner, buffers, train_cfg, job.algo.lc_reward),
     )
 
 

@@ -92,7 +92,7 @@ def test_the_claims_cover_the_issue_list():
 
 def test_verdict_report_keeps_commits_apart_and_writes_claims(tmp_path):
     from kddrl_trl.eval.records import find_runs
-    from kddrl_trl.eval.report import build_report
+    from kddrl_trl.eval.report_builder import build_report
 
     for seed in range(3):
         _fake_run(

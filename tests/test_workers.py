@@ -211,7 +211,6 @@ def probe_training(tmp_path, collector_override: str):
         buffers,
         train,
         job.algo.lc_reward,
-        job.env.highway(),
         collector=job.collector,
         rows=job.env.num_roads,
     )

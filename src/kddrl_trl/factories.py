@@ -190,7 +190,7 @@ def make_env(
 
         options = {"options": env.highwayenv}
     else:
-        from .envs.highway import SumoHighwayEnv as Env
+        from .envs.sumo_env import SumoHighwayEnv as Env
     base = Env(highway, num_roads=env.num_roads, seed=seed, **options)
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
@@ -266,7 +266,6 @@ def make_collector(
     buffers: tuple,
     train: TrainConfig,
     lc_reward: str = "frames",
-    highway: HighwayConfig | None = None,
     *,
     collector: CollectorConfig | None = None,
     rows: int | None = None,
@@ -276,19 +275,11 @@ def make_collector(
     ``env``: a batched env (the caller closes it), or the env factories of :func:`make_env_factories` (``rows``:
     ``env.num_roads``), run in this process or in ``collector.workers`` workers of ``collector.backend``
     (:meth:`MultiTimescaleCollector.from_env`). ``lc_reward`` (``algo.lc_reward``): ``frames`` sums the per-frame
-    lane-change rewards of a macro-transition (Algorithm 1 line 35); ``decision`` counts the efficiency term of
-    ``highway`` 's reward variant once per decision (§III.G, :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
+    lane-change rewards of a macro-transition (Algorithm 1 line 35); ``decision`` counts the efficiency term the env
+    writes (``keys.EFFICIENCY_TERM``) once per decision (§III.G, :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
     from .collectors import MacroTransitionWriter
 
-    efficiency = None
-    if lc_reward == "decision":
-        if highway is None:
-            raise ValueError("make_collector: lc_reward='decision' needs the highway config (its efficiency term)")
-        from .envs.rewards import efficiency_term
-
-        def efficiency(nxt):  # Eq. 27 (or its reward=safe variant) of each frame's speed
-            return efficiency_term(nxt.get(K.EGO_STATE)[..., 1], highway)
-    elif lc_reward != "frames":
+    if lc_reward not in ("frames", "decision"):
         raise ValueError(f"make_collector: lc_reward must be frames or decision, got {lc_reward!r}")
     collector = collector or CollectorConfig()
     frame_keys, nstep = learner.buffer_keys(), None
@@ -309,7 +300,7 @@ def make_collector(
         frame_keys=frame_keys,
         frame_transform=nstep,
         macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],
-        writer=MacroTransitionWriter(efficiency=efficiency),
+        writer=MacroTransitionWriter(efficiency_key=K.EFFICIENCY_TERM if lc_reward == "decision" else None),
     )
 
 

@@ -115,6 +115,14 @@ LC_DECIDE = ("lc", "decide")  # [1] bool, the lane-change agent decides on this 
 CF_ACTION = ("cf", "action")  # [1] acceleration in [-5, 5] m/s²
 LC_REWARD = ("lc", "reward")  # [1] paper Eq. 26-29
 CF_REWARD = ("cf", "reward")  # [1] paper Eq. 32-33
+# the rewards' named terms, written by the env under "next" beside the two rewards (which are their sums: LC_REWARD =
+# efficiency + lane_change + collision, CF_REWARD = efficiency + comfort + collision; envs/rewards.py)
+REWARD_TERMS = "reward_terms"
+EFFICIENCY_TERM = (REWARD_TERMS, "efficiency")  # [1] r_eff, Eq. 27 (or the variant of HighwayConfig.reward)
+LANE_CHANGE_TERM = (REWARD_TERMS, "lane_change")  # [1] r_lc, Eq. 28
+COLLISION_TERM = (REWARD_TERMS, "collision")  # [1] r_collision, Eq. 29
+COMFORT_TERM = (REWARD_TERMS, "comfort")  # [1] r_acc, Eq. 33
+TERM_KEYS = (EFFICIENCY_TERM, LANE_CHANGE_TERM, COLLISION_TERM, COMFORT_TERM)
 CF_SHIELD = ("cf", "shield")  # [1] bool, the car-following shield lowered the command in this frame (under "next";
 #                                     transforms.SafetyShield, algo.shield; absent without a shield)
 JOINT_ACTION = ("joint", "action")  # [3 x levels] one-hot joint (lane command, acceleration level) of d3qn_unified

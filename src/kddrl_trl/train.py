@@ -84,7 +84,6 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
             buffers,
             job.train,
             job.algo.lc_reward,
-            job.env.highway(),
             collector=job.collector,
             rows=job.env.num_roads,
         )

@@ -3,8 +3,6 @@ paper Algorithm 1 lines 25-26, 35)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
@@ -24,7 +22,7 @@ class MacroTransitionWriter:
     - the root of that frame (state s^t at the decision and the action taken, ``keys.LC_ACTION``),
     - ``("next", reward_key)``: the **undiscounted sum** of the per-frame lane-change rewards from the decision
       frame to the last frame of the interval (Algorithm 1 line 35, "cumulative r_D3QN"); or, with
-      ``efficiency`` given (``algo.lc_reward=decision``), §III.G's reading, the reward "calculated at each
+      ``efficiency_key`` given (``algo.lc_reward=decision``), §III.G's reading, the reward "calculated at each
       2-second decision step": the efficiency term counted once (its mean over the interval's frames) plus the
       event terms in full (r_lc of Eq. 28, r_collision of Eq. 29), i.e. ``sum(r - e) + mean(e)``,
     - ``"next"``: the observation after that last frame — the state at the next decision, or the terminal /
@@ -44,9 +42,8 @@ class MacroTransitionWriter:
     decision against the -1 lane-change penalty (Eq. 28) counted once; with ``decision`` they weigh 1 : 1.
 
     Args:
-        efficiency: ``frames["next"] -> [B, T]`` per-frame efficiency term e (e.g.
-            :func:`kddrl_trl.envs.rewards.efficiency_term` of the speed, as ``factories.make_collector`` builds it);
-            None: the sum.
+        efficiency_key: the key under ``"next"`` of the per-frame efficiency term e that the env writes beside the
+            reward (``keys.EFFICIENCY_TERM``, :func:`kddrl_trl.envs.rewards.reward_terms`); None: the sum.
     """
 
     def __init__(
@@ -57,11 +54,11 @@ class MacroTransitionWriter:
         done_key: NestedKey = "done",
         frames_key: NestedKey = K.LC_MACRO_FRAMES,
         exclude: tuple[NestedKey, ...] = DROP_KEYS,
-        efficiency: Callable[[TensorDictBase], torch.Tensor] | None = None,
+        efficiency_key: NestedKey | None = None,
     ):
         self.decide_key, self.reward_key, self.done_key, self.frames_key = decide_key, reward_key, done_key, frames_key
         self.exclude = tuple(exclude)
-        self.efficiency = efficiency
+        self.efficiency_key = efficiency_key
         self.reset()
 
     def reset(self) -> None:
@@ -91,10 +88,17 @@ class MacroTransitionWriter:
             frames, ("next", self.done_key), "done"
         )
         reward = frames.get(("next", self.reward_key)).reshape(b, t, -1).sum(-1).to(torch.float32)
-        if self.efficiency is None:
+        if self.efficiency_key is None:
             reward = reward.unsqueeze(-1)  # [B, T, 1]
         else:
-            eff = self.efficiency(frames.get("next")).reshape(b, t).to(torch.float32)
+            key = ("next", *((self.efficiency_key,) if isinstance(self.efficiency_key, str) else self.efficiency_key))
+            eff = frames.get(key, None)
+            if eff is None:
+                raise KeyError(
+                    f"MacroTransitionWriter: lc_reward=decision reads the efficiency term {key!r}, which the env "
+                    "did not write (kddrl_trl.envs.rewards.reward_terms)"
+                )
+            eff = eff.reshape(b, t).to(torch.float32)
             reward = torch.stack([reward - eff, eff], -1)  # [B, T, 2]
         if self._open is None or self._open.shape[0] != b:
             if self._open is not None:
@@ -128,7 +132,7 @@ class MacroTransitionWriter:
                 root[from_earlier] = self._start[rows[from_earlier]]
             total = seg_reward[rows, cols]
             n = seg_frames[rows, cols].to(total.dtype)
-            total = total[:, 0] if self.efficiency is None else total[:, 0] + total[:, 1] / n
+            total = total[:, 0] if self.efficiency_key is None else total[:, 0] + total[:, 1] / n
             nxt.set(self.reward_key, total.unsqueeze(-1).to(nxt.get(self.reward_key).dtype))
             nxt.set(self.frames_key, seg_frames[rows, cols].unsqueeze(-1))
             root.set("next", nxt)

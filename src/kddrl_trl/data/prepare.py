@@ -30,7 +30,7 @@ from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas 
 from kddrl_trl.data.calibrate import CalibrationImpossible, calibrate, write_calibration
 from kddrl_trl.data.extract import extract_dataset
 from kddrl_trl.data.highd import list_recordings, read_recording
-from kddrl_trl.data.recorder import (
+from kddrl_trl.data.sumo_to_highd import (
     PAPER_LANE_CHANGER_SHARE,
     PAPER_VEHICLES_PER_HOUR,
     read_driver_params,

@@ -1,6 +1,6 @@
 """Record naturalistic traffic: ``python -m kddrl_trl.data.record [+scenario=congested] [duration_s=900] ...``.
 
-Runs :func:`kddrl_trl.data.recorder.record_traffic` on the highway config composed from
+Runs :func:`kddrl_trl.data.sumo_to_highd.record_traffic` on the highway config composed from
 ``conf/record.yaml`` (``env: highway`` + optional ``+scenario=...`` + ``env.*`` overrides), writes one HighD
 recording per road into ``out_dir`` (``XX_tracks.csv``, ``XX_tracksMeta.csv``, ``XX_recordingMeta.csv``
 and ``XX_driverParams.csv``, each atomically) and prints the vehicle count, the share of lane changers and
@@ -17,7 +17,7 @@ from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
-from kddrl_trl.data.recorder import record_to_directory
+from kddrl_trl.data.sumo_to_highd import record_to_directory
 from kddrl_trl.data.synthetic import print_summary
 
 

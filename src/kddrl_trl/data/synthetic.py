@@ -10,7 +10,7 @@ from pathlib import Path
 
 from kddrl_trl.data.extract import extract_dataset
 from kddrl_trl.data.highd import list_recordings, read_recording
-from kddrl_trl.data.recorder import PAPER_LANE_CHANGER_SHARE, PAPER_VEHICLES_PER_HOUR, record_to_directory
+from kddrl_trl.data.sumo_to_highd import PAPER_LANE_CHANGER_SHARE, PAPER_VEHICLES_PER_HOUR, record_to_directory
 from kddrl_trl.envs.config import HighwayConfig
 
 

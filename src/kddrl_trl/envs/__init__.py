@@ -2,7 +2,7 @@
 
 from .config import BrakingEvent, DriverClass, HighwayConfig, make_config, scenario_names
 from .fake import FakeHighwayEnv
-from .highway import SumoHighwayEnv
+from .sumo_env import SumoHighwayEnv
 
 __all__ = [
     "BrakingEvent",

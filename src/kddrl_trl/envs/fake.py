@@ -15,7 +15,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from .. import keys as K
-from .rewards import car_following_reward, lane_change_reward
+from .rewards import car_following_total, lane_change_total, reward_terms
 from .specs import HighwayEnvBase, lc_command
 
 _PER_LANE = 4  # background vehicles per lane
@@ -205,8 +205,11 @@ class FakeHighwayEnv(HighwayEnvBase):
         )
         out = self._output(self._observe(), collision, outcome, kind, slot)
         col = collision.float()
-        out.set(K.LC_REWARD, lane_change_reward(self.ego_v, want.float(), col, cfg)[:, None].float())
-        out.set(K.CF_REWARD, car_following_reward(self.ego_v, self.accel, col, cfg)[:, None].float())
+        terms = reward_terms(self.ego_v, self.accel, want.float(), col, cfg)
+        out.set(K.LC_REWARD, lane_change_total(terms)[:, None].float())
+        out.set(K.CF_REWARD, car_following_total(terms)[:, None].float())
+        for key, value in terms.items():
+            out.set(key, torch.as_tensor(value, dtype=torch.float32).expand_as(self.ego_v)[:, None].clone())
         return out
 
     def _set_seed(self, seed: int | None) -> None:

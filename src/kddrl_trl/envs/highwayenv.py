@@ -80,7 +80,7 @@ from tensordict import TensorDict, TensorDictBase
 from .. import keys as K
 from .config import HighwayConfig
 from .observe import lane_and_offset
-from .rewards import car_following_reward, lane_change_reward
+from .rewards import car_following_total, lane_change_total, reward_terms
 from .specs import HighwayEnvBase, lc_command
 
 #: HighwayEnv's lane width (``StraightLane.DEFAULT_WIDTH``, m) and perception distance (``AbstractEnv``, m)
@@ -448,18 +448,13 @@ class HighwayEnvAdapter(HighwayEnvBase):
         out = self._output(out_obs, accel, started, collision, outcome, kind, slot)
         speed = out_obs[K.EGO_STATE][:, 1]
         col = torch.as_tensor(collision, dtype=torch.float32)
-        out.set(
-            K.LC_REWARD,
-            lane_change_reward(speed, torch.as_tensor(started, dtype=torch.float32), col, cfg)[:, None]
-            .float()
-            .to(out.device),
+        terms = reward_terms(
+            speed, torch.as_tensor(accel, dtype=torch.float32), torch.as_tensor(started, dtype=torch.float32), col, cfg
         )
-        out.set(
-            K.CF_REWARD,
-            car_following_reward(speed, torch.as_tensor(accel, dtype=torch.float32), col, cfg)[:, None]
-            .float()
-            .to(out.device),
-        )
+        out.set(K.LC_REWARD, lane_change_total(terms)[:, None].float().to(out.device))
+        out.set(K.CF_REWARD, car_following_total(terms)[:, None].float().to(out.device))
+        for key, value in terms.items():
+            out.set(key, torch.as_tensor(value, dtype=torch.float32).expand_as(speed)[:, None].to(out.device))
         return out
 
     @staticmethod

@@ -238,7 +238,7 @@ class Observer:
     def _lane_offsets(self, rows: np.ndarray, ego_lat: np.ndarray) -> None:
         """``EGO_LANE_OFFSET`` and ``NEIGHBORS_LANE_OFFSET`` of ``rows`` (:func:`lane_and_offset`) from the lateral
         positions already read (the egos' network lateral positions ``ego_lat`` and ``NEIGHBORS_REL``'s dx): each
-        vehicle's offset from the centre of the lane holding its centre (SUMO's lane, see ``data/recorder.py``);
+        vehicle's offset from the centre of the lane holding its centre (SUMO's lane, see ``data/sumo_to_highd.py``);
         0 for absent slots. No extra SUMO query."""
         cfg, o = self.cfg, self.obs
         x = ego_lat - self.road_y[rows] + cfg.num_lanes * cfg.lane_width  # ego centres' distance from the right edge

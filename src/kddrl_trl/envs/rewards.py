@@ -16,6 +16,7 @@ torch tensors.
 
 from __future__ import annotations
 
+from .. import keys as K
 from .config import HighwayConfig
 
 
@@ -60,11 +61,37 @@ def comfort_reward(accel, cfg: HighwayConfig):
     return -((excess * ((excess > 0) * 1.0)) ** 2)
 
 
+def reward_terms(v, accel, started, collision, cfg: HighwayConfig) -> dict:
+    """The rewards' named terms of a frame, by their keys in :mod:`kddrl_trl.keys` (``TERM_KEYS``): r_eff (Eq. 27
+    or its ``safe`` variant), r_lc (Eq. 28), r_collision (Eq. 29), r_acc (Eq. 33). The env writes them beside the
+    rewards, so that a reading of the rewards that weighs a term differently (``algo.lc_reward=decision``) reads it
+    instead of computing it again."""
+    return {
+        K.EFFICIENCY_TERM: efficiency_term(v, cfg),
+        K.LANE_CHANGE_TERM: lane_change_penalty(started, cfg),
+        K.COLLISION_TERM: collision_reward(collision, cfg),
+        K.COMFORT_TERM: comfort_reward(accel, cfg),
+    }
+
+
+def lane_change_total(terms: dict):
+    """r_D3QN = r_eff + r_lc + r_collision, Eq. 26, of the terms of :func:`reward_terms` (per frame; buffer H
+    sums them)."""
+    return terms[K.EFFICIENCY_TERM] + terms[K.LANE_CHANGE_TERM] + terms[K.COLLISION_TERM]
+
+
+def car_following_total(terms: dict):
+    """r_TD3 = r_eff + r_acc + r_collision, Eq. 32, of the terms of :func:`reward_terms`."""
+    return terms[K.EFFICIENCY_TERM] + terms[K.COMFORT_TERM] + terms[K.COLLISION_TERM]
+
+
 def lane_change_reward(v, started, collision, cfg: HighwayConfig):
-    """r_D3QN = r_eff + r_lc + r_collision, Eq. 26 with Eq. 27-29 (per frame; buffer H sums them)."""
-    return efficiency_term(v, cfg) + lane_change_penalty(started, cfg) + collision_reward(collision, cfg)
+    """r_D3QN of a speed, a lane-change start and a collision (Eq. 26 with Eq. 27-29)."""
+    terms = {K.EFFICIENCY_TERM: efficiency_term(v, cfg), K.LANE_CHANGE_TERM: lane_change_penalty(started, cfg)}
+    return lane_change_total({**terms, K.COLLISION_TERM: collision_reward(collision, cfg)})
 
 
 def car_following_reward(v, accel, collision, cfg: HighwayConfig):
-    """r_TD3 = r_eff + r_acc + r_collision, Eq. 32 with Eq. 27, 29 and 33."""
-    return efficiency_term(v, cfg) + comfort_reward(accel, cfg) + collision_reward(collision, cfg)
+    """r_TD3 of a speed, an acceleration and a collision (Eq. 32 with Eq. 27, 29 and 33)."""
+    terms = {K.EFFICIENCY_TERM: efficiency_term(v, cfg), K.COMFORT_TERM: comfort_reward(accel, cfg)}
+    return car_following_total({**terms, K.COLLISION_TERM: collision_reward(collision, cfg)})

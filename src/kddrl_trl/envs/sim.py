@@ -40,7 +40,7 @@ from .braking import BrakingEvents
 from .config import HighwayConfig
 from .network import LC_MODE_DEFAULT, SPEED_MODE_DEFAULT, build_road_files, edge_ids, sumo_args
 from .observe import Observer, _libsumo, longitudinal, observation_arrays
-from .rewards import car_following_reward, lane_change_reward
+from .rewards import car_following_total, lane_change_total, reward_terms
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +57,7 @@ class HighwaySim:
             parameter draws, ego designation, braking events). Same seed -> identical rollouts.
 
     Outputs of a frame (:meth:`outputs`): ``obs`` (every raw key of ``kddrl_trl.keys``), ``reward_lc``,
-    ``reward_cf``, ``terminated``, ``truncated``. A road whose episode ended keeps the outputs of its final
+    ``reward_cf`` and their named ``terms``, ``terminated``, ``truncated``. A road whose episode ended keeps the outputs of its final
     frame until it is reset.
     """
 
@@ -90,6 +90,7 @@ class HighwaySim:
         self.obs = observation_arrays(self.cfg, k)
         self.reward_lc = np.zeros((k, 1), np.float32)
         self.reward_cf = np.zeros((k, 1), np.float32)
+        self.terms = {key: np.zeros((k, 1), np.float32) for key in K.TERM_KEYS}
         self.terminated = np.zeros((k, 1), bool)
         self.truncated = np.zeros((k, 1), bool)
         self.ego: list[str | None] = [None] * k
@@ -149,7 +150,7 @@ class HighwaySim:
         two rewards (``with_reward``), ``terminated`` and ``truncated``."""
         out = {**self.obs, "terminated": self.terminated, "truncated": self.truncated}
         if with_reward:
-            out.update({K.LC_REWARD: self.reward_lc, K.CF_REWARD: self.reward_cf})
+            out.update({K.LC_REWARD: self.reward_lc, K.CF_REWARD: self.reward_cf, **self.terms})
         return out
 
     # ----------------------------------------------------------------------------------- traffic
@@ -337,6 +338,8 @@ class HighwaySim:
         self.obs[K.LC_STARTED][roads] = False
         self.reward_lc[roads] = 0.0
         self.reward_cf[roads] = 0.0
+        for term in self.terms.values():
+            term[roads] = 0.0
         self.obs[K.OUTCOME][roads] = K.RUNNING
         self.obs[K.COLLISION_KIND][roads] = K.NO_CONTACT
         self.obs[K.COLLISION_SLOT][roads] = -1
@@ -434,8 +437,11 @@ class HighwaySim:
             outcome = self._is_terminated(contact is not None, y) or self._is_truncated(r)
             collision = contact is not None
             a, v = float(executed[r]), float(self.speed[r])
-            self.reward_lc[r, 0] = lane_change_reward(v, bool(self.obs[K.LC_STARTED][r, 0]), collision, cfg)
-            self.reward_cf[r, 0] = car_following_reward(v, a, collision, cfg)
+            terms = reward_terms(v, a, bool(self.obs[K.LC_STARTED][r, 0]), collision, cfg)
+            self.reward_lc[r, 0] = lane_change_total(terms)
+            self.reward_cf[r, 0] = car_following_total(terms)
+            for key, value in terms.items():
+                self.terms[key][r, 0] = value
             self.obs[K.COLLISION][r] = collision
             if collision:
                 self._contact(r, *contact, changing)

@@ -68,11 +68,14 @@ def action_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
 
 
 def reward_spec(batch: tuple[int, ...]) -> Composite:
-    """Per-agent rewards: lane change Eq. 26-29, car following Eq. 32-33."""
+    """Per-agent rewards, lane change Eq. 26-29 and car following Eq. 32-33, and their named terms
+    (``keys.TERM_KEYS``, :func:`kddrl_trl.envs.rewards.reward_terms`)."""
     b = tuple(batch)
+    terms = {key[-1]: Unbounded(shape=(*b, 1), dtype=torch.float32) for key in K.TERM_KEYS}
     return Composite(
         lc=Composite(reward=Unbounded(shape=(*b, 1), dtype=torch.float32), shape=b),
         cf=Composite(reward=Unbounded(shape=(*b, 1), dtype=torch.float32), shape=b),
+        **{K.REWARD_TERMS: Composite(terms, shape=b)},
         shape=b,
     )
 

@@ -14,9 +14,9 @@ from importlib import resources
 from pathlib import Path
 
 from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint, save_checkpoint
+from .gan_report import format_metrics
 from .lcgan import LCGANPredictor, LCGANTask
 from .predictor import GANPredictor
-from .report import format_metrics
 from .trajgan import TrajGANPredictor, TrajGANTask
 
 TASKS = {"trajgan": TrajGANTask, "lcgan": LCGANTask}
