@@ -8,7 +8,7 @@
     modules (deep copies holding the losses' weights), the same batch tensors and the same arithmetic (double-DQN
     target with masked argmax, twin critics with clipped target smoothing, the D3QN's greedy next lane-change
     action on decision frames in the TD3 target, delayed actor on detached s_e, Polyak updates of every target
-    incl. the embedding's; :class:`PlainKDDRL`, proved equal by ``tests/test_learner_update.py``).
+    incl. the embedding's; :class:`PlainKDDRL`, proved equal by ``tests/training/test_learner_update.py``).
     ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs nothing extra). Replay sampling is outside the timed part for both.
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
     ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is

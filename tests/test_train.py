@@ -8,6 +8,7 @@ import sys
 
 import pytest
 from hydra import compose, initialize_config_module
+from testkit import SMALL_NETS, compose_job, fake_trainer
 
 
 def test_scenario_is_appended_not_required():
@@ -236,50 +237,6 @@ def test_summary_statistics_by_hand():
     assert s["outcomes"] == {"left_section": 1, "collision": 1}
 
 
-def compose_job(*overrides: str):
-    """The typed ``train.py`` job (:class:`kddrl_trl.conf.schema.TrainJob`) of the package's config."""
-    from omegaconf import OmegaConf
-
-    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
-        return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))
-
-
-def fake_trainer(job, tmp_path, **train):
-    """(env, learner, trainer, collector) of ``job`` on the fake env, with ``train`` overrides, as train.py wires
-    them."""
-    from dataclasses import replace
-
-    from kddrl_trl.conf.schema import LoggerConfig
-    from kddrl_trl.factories import make_buffers, make_collector, make_env, make_learner, make_logger
-    from kddrl_trl.training import Trainer
-
-    env = make_env(job.env, job.algo, seed=0, compile=False, fake=True)
-    learner = make_learner(job.algo, compile=False)
-    train_cfg = replace(job.train, **train)
-    buffers = make_buffers(train_cfg, seed=0)
-    trainer = Trainer(
-        learner,
-        buffers,
-        train_cfg,
-        tmp_path,
-        make_logger(LoggerConfig(csv=True, tensorboard=False), tmp_path),
-        episodes=3,
-        progress=False,
-    )
-    return (
-        env,
-        learner,
-        trainer,
-        make_collector(env, learner, buffers, train_cfg, job.algo.lc_reward),
-    )
-
-
-#: small networks of every learning algo (each override names a node the algo has)
-SMALL_NETS = {
-    "peng": ["algo.learner.d3qn.hidden=[16]", "algo.learner.ddpg.hidden=[16]"],
-    "d3qn_unified": ["algo.learner.d3qn.hidden=[16]"],
-    "pasac_unified": ["algo.learner.pasac.hidden=[16]"],
-}
 KINDS = {"d3qn_unified": "joint_d3qn", "pasac_unified": "pasac"}
 
 

@@ -86,7 +86,7 @@ class Observer:
     road), keeps the answers as Python floats, and then writes every raw key
     of all the roads with one numpy assignment per key. Relative kinematics are computed in float64 and rounded to
     the arrays' float32 once, as the per-road code before it did, so the output is bit-for-bit the same
-    (``tests/test_env_reference.py``).
+    (``tests/envs/test_env_reference.py``).
 
     Why not libsumo subscriptions: measured at K = 32 (582 vehicles), ``vehicle.getAllSubscriptionResults()``
     costs 3.4 ms per call (it builds a dict of every vehicle's variables), more than asking the ~10 vehicles each ego
@@ -123,7 +123,7 @@ class Observer:
         rng_, entry, h = cfg.sensing_range, cfg.entry_length, cfg.history_len
         slot_b, slot_e = K.SLOT["b"], K.SLOT["e"]
         side = [(K.SLOT[name], mode) for name, mode in (("a", 2), ("c", 3), ("d", 0), ("f", 1))]
-        # getNeighbors mode: bit 0 set = right side, bit 1 set = leaders (checked in tests/test_env_sumo.py)
+        # getNeighbors mode: bit 0 set = right side, bit 1 set = leaders (checked in tests/envs/test_env_sumo.py)
         failed: dict[int, str] = {}
         rows, ego_rows, lanes, active = [], [], [], []  # per observed road
         nb_at, nb_rows = [], []  # (row, slot), (ny, nlat, nv, nvx, na)

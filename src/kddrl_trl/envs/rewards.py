@@ -8,7 +8,7 @@ torch tensors.
   is the paper's. Why: under ``paper`` a stop costs more than a crash. Below 72 km/h Eq. 27 pays -1 per frame,
   and Eq. 33 another -1 at -5 m/s², so standing behind a stopped leader costs ~-1 per frame forever, about
   -1/(1 - γ) = -100 discounted at γ = 0.99 per frame, as much as the -100 collision (Eq. 29), which moreover
-  comes discounted by γ^t. Toy case (``tests/test_rewards.py``): ego at 36 m/s, a leader 100 m ahead brakes at
+  comes discounted by γ^t. Toy case (``tests/envs/test_rewards.py``): ego at 36 m/s, a leader 100 m ahead brakes at
   8 m/s² to a stop; the best constant-deceleration stop scores below the best crash under ``paper`` and clearly
   above any crash of that family under ``safe``. A slow ego is already punished by earning nothing; the -1 made
   stopping for safety the worst thing it could do.

@@ -50,7 +50,7 @@ thus become two fresh, independent embeddings, and one inside the D3QN network a
 not be shared. So the losses only get *heads* on ``keys.LC_OBS`` / ``keys.CF_OBS``, and the learning loop
 computes those states on each sampled batch with :func:`build_agent_states` before calling a loss. The
 losses shallow-clone their input (``tensordict.clone(False)``) and keep its autograd graph, so the value
-losses' gradients reach the embedding through the state tensors (tests/test_modules.py proves the routing
+losses' gradients reach the embedding through the state tensors (tests/modules/test_modules.py proves the routing
 with real ``DQNLoss`` and ``TD3Loss``).
 
 What the learning loop must do

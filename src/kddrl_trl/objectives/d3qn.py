@@ -56,7 +56,7 @@ def make_d3qn(
     there, a manoeuvre in progress and, with ``algo.mobil_safety_mask``, an unsafe gap by MOBIL's Eq. 20-21:
     :class:`~kddrl_trl.transforms.MOBILSafetyMask`) are never chosen, greedily or at random; in the double-DQN
     target the argmax over next actions is masked with the next state's mask, which ``DQNLoss`` hands the Q actor
-    through ``step_mdp`` (tested in ``tests/test_learner.py``).
+    through ``step_mdp`` (tested in ``tests/training/test_learner.py``).
     ε decays linearly from ``eps_init`` to ``eps_end`` over ``eps_decisions`` decisions (call
     ``explore.step(n)`` with the number of decisions taken).
 

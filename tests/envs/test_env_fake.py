@@ -6,7 +6,7 @@ from functools import partial
 
 import pytest
 import torch
-from conftest import command
+from testkit import command
 from torchrl.envs import Compose, ParallelEnv, RewardSum, SerialEnv, StepCounter, TransformedEnv
 from torchrl.envs.utils import check_env_specs, step_mdp
 

@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+from testkit import fake_run
 
 from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
 from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
@@ -79,38 +80,10 @@ def test_bootstrap_intervals_over_seeds():
         ratio_ci([1.0], [0.0])
 
 
-# -------------------------------------------------------------------------------------------- records
-def _fake_run(
-    folder, algo="kddrl", seed=0, speeds=(100.0, 110.0), collisions=(False, True), scenario="baseline", **fields
-):
-    folder.mkdir(parents=True)
-    n = len(speeds)
-    pd.DataFrame(
-        {
-            "mean_speed_kmh": speeds,
-            "mean_speed": np.asarray(speeds) / 3.6,
-            "mean_sq_speed": (np.asarray(speeds) / 3.6) ** 2,
-            "mean_accel": [0.1] * n,
-            "mean_sq_accel": [0.01] * n,
-            "mean_abs_accel": [0.1] * n,
-            "lane_changes": [1] * n,
-            "frames": [100] * n,
-            "return_lc": [1.0] * n,
-            "return_cf": [2.0] * n,
-            "collision": list(collisions),
-            "outcome": ["collision" if c else "left_section" for c in collisions],
-            "collision_kind": ["rear_end" if c else "none" for c in collisions],
-            "collision_with": ["b" if c else "" for c in collisions],
-        }
-    ).to_csv(folder / "eval_episodes.csv", index=False)
-    (folder / "summary.json").write_text(json.dumps({"algo": algo, "scenario": scenario, "seed": seed, **fields}))
-    return folder
-
-
 def test_records_refuse_bad_files_naming_file_and_column(tmp_path):
     from kddrl_trl.eval.records import find_runs, load_run
 
-    run = _fake_run(tmp_path / "a")
+    run = fake_run(tmp_path / "a")
     assert load_run(run).metrics()["collision_rate"] == 0.5
     frame = pd.read_csv(run / "eval_episodes.csv")
     frame.drop(columns=["lane_changes"]).to_csv(run / "eval_episodes.csv", index=False)
@@ -121,8 +94,8 @@ def test_records_refuse_bad_files_naming_file_and_column(tmp_path):
         load_run(run)
     with pytest.raises(FileNotFoundError, match="no such run"):
         find_runs([tmp_path / "missing"])
-    _fake_run(tmp_path / "b")
-    _fake_run(tmp_path / "c")
+    fake_run(tmp_path / "b")
+    fake_run(tmp_path / "c")
     with pytest.raises(ValueError, match="two runs of kddrl on baseline with seed 0"):
         find_runs([tmp_path / "b", tmp_path / "c"])
 
@@ -136,7 +109,7 @@ def test_compressed_records_read_as_plain_ones(tmp_path, suffix):
 
     from kddrl_trl.eval.records import load_run
 
-    plain = _fake_run(tmp_path / "plain", speeds=(100.0, 120.0, 90.0), collisions=(False, True, False))
+    plain = fake_run(tmp_path / "plain", speeds=(100.0, 120.0, 90.0), collisions=(False, True, False))
     pd.DataFrame({"return_lc": [1.0, 2.0], "return_cf": [3.0, 4.0]}).to_csv(plain / "train_episodes.csv", index=False)
     packed = tmp_path / "packed"
     shutil.copytree(plain, packed)
@@ -156,8 +129,8 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
     from kddrl_trl.eval.report_builder import build_report
 
     for seed, speed in enumerate((100.0, 120.0, 140.0)):
-        _fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(speed, speed + 10), collisions=(False, False))
-        _fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(90.0, 90.0), collisions=(False, False))
+        fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(speed, speed + 10), collisions=(False, False))
+        fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(90.0, 90.0), collisions=(False, False))
     out = build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep")
     rows = {r["algo"]: r for r in json.loads((tmp_path / "rep" / "report.json").read_text())}
     speed = rows["kddrl"]["metrics"]["mean_speed_kmh"]
@@ -187,12 +160,12 @@ def test_shield_interventions_and_collisions_are_read_against_the_rules(tmp_path
     from kddrl_trl.eval.report_builder import build_report
 
     for seed in range(3):
-        run = _fake_run(
+        run = fake_run(
             tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(110.0, 110.0 + seed), collisions=(seed == 0, False)
         )
         frame = pd.read_csv(run / "eval_episodes.csv")
         frame.assign(shield_interventions=[50, 25]).to_csv(run / "eval_episodes.csv", index=False)
-        _fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(100.0, 100.0), collisions=(False, False))
+        fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(100.0, 100.0), collisions=(False, False))
     build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep")
     md = (tmp_path / "rep" / "report.md").read_text()
     table = next(line for line in md.splitlines() if line.startswith("| **kddrl**"))
@@ -209,7 +182,7 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
     from kddrl_trl.eval.report_builder import build_report
 
     for seed in range(3):
-        _fake_run(tmp_path / "runs" / f"b{seed}", seed=seed, scenario="braking", speeds=(100.0, 100.0))
+        fake_run(tmp_path / "runs" / f"b{seed}", seed=seed, scenario="braking", speeds=(100.0, 100.0))
         mixed = tmp_path / "runs" / f"m{seed}"
         mixed.mkdir(parents=True)
         (mixed / "summary.json").write_text(
@@ -225,7 +198,7 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
             )
         )
         for scenario in ("baseline", "braking"):
-            _fake_run(
+            fake_run(
                 mixed / f"final__{scenario}",
                 seed=seed,
                 scenario=scenario,
@@ -234,7 +207,7 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
                 trained_on="mixed",
                 final=True,
             )
-    evaluated = _fake_run(tmp_path / "runs" / "b0" / "eval__baseline__0__t", scenario="baseline", trained_on="braking")
+    evaluated = fake_run(tmp_path / "runs" / "b0" / "eval__baseline__0__t", scenario="baseline", trained_on="braking")
     runs = find_runs([tmp_path / "runs"])  # evaluate's eval__ folders are left out of a sweep's search
     assert sorted((r.scenario, r.algo) for r in runs) == sorted(
         [("braking", "kddrl")] * 3
@@ -447,7 +420,7 @@ def test_runs_with_options_are_rows_of_their_own(tmp_path):
     )
     for seed in range(2):
         for name, cfg in (("paper", defaults), ("options", options), ("old", {"seed": seed, "episodes": 1000})):
-            run = _fake_run(tmp_path / "runs" / f"{name}{seed}", seed=seed, scenario="braking")
+            run = fake_run(tmp_path / "runs" / f"{name}{seed}", seed=seed, scenario="braking")
             (run / "config.yaml").write_text(yaml.safe_dump(cfg))
     runs = find_runs([tmp_path / "runs" / "paper0", tmp_path / "runs" / "options0", tmp_path / "runs" / "old1"])
     assert sorted(r.algo for r in runs) == sorted(

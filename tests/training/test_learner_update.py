@@ -8,7 +8,7 @@ import io
 
 import pytest
 import torch
-from conftest import SMALL, fake_samples
+from testkit import SMALL, fake_samples
 
 from kddrl_trl import keys as K
 from kddrl_trl.devtools.bench_results import keep_previous

@@ -1,5 +1,5 @@
-"""The SUMO env's outputs are exactly those of the reference rollouts in ``tests/data/env_reference.npz``
-(produced by ``tests/env_reference.py`` from the code before the observation building was vectorised): same seed,
+"""The SUMO env's outputs are exactly those of the reference rollouts in ``tests/envs/env_reference.npz``
+(produced by ``tests/envs/env_reference.py`` from the code before the observation building was vectorised): same seed,
 same actions -> every observation key, reward, done flag and episode event identical, frame by frame, on the
 baseline, braking and congested scenarios at K = 2-4, with partial resets, collisions and truncations."""
 
@@ -9,9 +9,12 @@ from env_reference import CASES, FIXTURE, rollout
 
 pytest.importorskip("libsumo")
 
-#: keys the env gained after the fixture was made (issue 18: lane offsets for the lcGAN condition); every other key
-#: must match the fixture exactly
-ADDED_SINCE_FIXTURE = {f"{pre}{key}" for pre in ("", "next/") for key in ("ego/lane_offset", "neighbors/lane_offset")}
+#: keys the env gained after the fixture was made (the lane offsets of the lcGAN condition; the rewards' named terms);
+#: every other key must match the fixture exactly
+ADDED_SINCE_FIXTURE = {
+    *(f"{pre}{key}" for pre in ("", "next/") for key in ("ego/lane_offset", "neighbors/lane_offset")),
+    *(f"next/reward_terms/{term}" for term in ("efficiency", "lane_change", "collision", "comfort")),
+}
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 from tensordict import TensorDict
-from test_train import SMALL_NETS, compose_job, fake_trainer
+from testkit import SMALL_NETS, compose_job, fake_trainer
 
 from kddrl_trl import keys as K
 from kddrl_trl.objectives import td_priority

@@ -6,7 +6,7 @@ import io
 
 import pytest
 import torch
-from conftest import SMALL, fake_samples
+from testkit import SMALL, fake_samples
 from torchrl.envs import TransformedEnv
 
 from kddrl_trl import keys as K

@@ -214,7 +214,7 @@ def test_a_nan_from_sumo_is_refused_naming_the_key(monkeypatch, no_sumo_open):
 
 @pytest.mark.slow  # a full KDDRL trainer (136 s in a contended full run); the fallback itself is tested on files above
 def test_a_trainer_resumes_from_the_previous_checkpoint_when_the_newest_is_truncated(tmp_path, caplog):
-    from test_train import compose_job, fake_trainer
+    from testkit import compose_job, fake_trainer
 
     job = compose_job(
         "env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]"

@@ -6,6 +6,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModuleBase
+from testkit import compose_job
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
@@ -289,15 +290,6 @@ def test_collector_fills_both_buffers_with_consistent_macro_steps():
             frames["next", *K.LC_REWARD][r, c : c + n].sum().item(), rel=1e-5, abs=1e-4
         )
         assert n == period or m["next", "done"].item()
-
-
-def compose_job(*overrides: str):
-    """The typed ``train.py`` job of the package's config with ``overrides``."""
-    from hydra import compose, initialize_config_module
-    from omegaconf import OmegaConf
-
-    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
-        return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))
 
 
 def test_sumo_training_env_specs():

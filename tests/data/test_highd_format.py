@@ -12,7 +12,7 @@ import pytest
 try:  # the package is used from the source tree when it is not installed
     import kddrl_trl.data  # noqa: F401
 except ImportError:  # pragma: no cover
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
 
 from kddrl_trl.data import (
     RECORDING_META_COLUMNS,

@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 import pytest
-from test_report import _fake_run
+from testkit import fake_run
 
 from kddrl_trl.eval.verdict import CLAIMS, Claim, clopper_pearson, holm, judge, t_interval
 
@@ -95,7 +95,7 @@ def test_verdict_report_keeps_commits_apart_and_writes_claims(tmp_path):
     from kddrl_trl.eval.report_builder import build_report
 
     for seed in range(3):
-        _fake_run(
+        fake_run(
             tmp_path / "runs" / f"k{seed}",
             "kddrl",
             seed,
@@ -103,7 +103,7 @@ def test_verdict_report_keeps_commits_apart_and_writes_claims(tmp_path):
             collisions=(False, False),
             commit="aaaaaaa",
         )
-        _fake_run(
+        fake_run(
             tmp_path / "runs" / f"n{seed}",
             "ni",
             seed,
@@ -111,7 +111,7 @@ def test_verdict_report_keeps_commits_apart_and_writes_claims(tmp_path):
             collisions=(True, False),
             commit="aaaaaaa",
         )
-        _fake_run(
+        fake_run(
             tmp_path / "runs" / f"i{seed}",
             "idm_mobil",
             seed,
@@ -119,7 +119,7 @@ def test_verdict_report_keeps_commits_apart_and_writes_claims(tmp_path):
             collisions=(False, False),
             commit="aaaaaaa",
         )
-    _fake_run(tmp_path / "runs" / "k3", "kddrl", 3, speeds=(10.0, 10.0), collisions=(True, True), commit="bbbbbbb")
+    fake_run(tmp_path / "runs" / "k3", "kddrl", 3, speeds=(10.0, 10.0), collisions=(True, True), commit="bbbbbbb")
     build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep", verdict=True)
     report = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert set(report) == {"rows", "claims", "commits"} and report["commits"] == {"aaaaaaa": 9, "bbbbbbb": 1}

@@ -9,7 +9,7 @@ import libsumo
 import numpy as np
 import pytest
 import torch
-from conftest import command
+from testkit import command
 from torchrl.envs import Compose, ParallelEnv, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.utils import check_env_specs, step_mdp
 

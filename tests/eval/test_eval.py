@@ -7,7 +7,7 @@ import math
 
 import pytest
 import torch
-from conftest import command
+from testkit import command
 from torchrl.envs import StepCounter, TransformedEnv
 
 from kddrl_trl import keys as K

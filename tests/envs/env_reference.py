@@ -1,11 +1,11 @@
-"""Reference rollouts of ``SumoHighwayEnv`` for ``tests/test_env_reference.py``: a fixed action sequence, every
+"""Reference rollouts of ``SumoHighwayEnv`` for ``tests/envs/test_env_reference.py``: a fixed action sequence, every
 output key of every frame (reset and step outputs, both rewards, done flags), flattened into numpy arrays.
 
-Run as a script to regenerate ``tests/data/env_reference.npz`` (it was produced from main's code at commit
+Run as a script to regenerate ``tests/envs/env_reference.npz`` (it was produced from main's code at commit
 9dfdc7d, before the observation building was vectorised; regenerate only when the env's behaviour is meant to
 change)::
 
-    PYTHONPATH=src python tests/env_reference.py
+    PYTHONPATH=src python tests/envs/env_reference.py
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-FIXTURE = Path(__file__).resolve().parent / "data" / "env_reference.npz"
+FIXTURE = Path(__file__).resolve().parent / "env_reference.npz"
 # (scenario, K, frames, seed, overrides): baseline and braking (its leader queries), congested (dense traffic,
 # many neighbours); max_steps short so that truncations and partial resets happen too
 CASES = [

@@ -20,7 +20,7 @@ from kddrl_trl import keys as K
 
 pytest.importorskip("highway_env")
 
-from conftest import command  # noqa: E402
+from testkit import command  # noqa: E402
 
 from kddrl_trl.envs.highwayenv import HighwayEnvAdapter, HighwayEnvOptions  # noqa: E402
 from kddrl_trl.eval import evaluate_policy  # noqa: E402
