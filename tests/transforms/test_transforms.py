@@ -784,10 +784,11 @@ def test_mobil_safety_mask_ands_eq_20_21_into_the_command_mask():
 
 
 def test_mobil_safety_mask_is_switched_by_the_algo_option():
+    from testkit import compose_job
+
     from kddrl_trl.conf.schema import HierarchicalAlgo
     from kddrl_trl.factories import make_transforms
     from kddrl_trl.transforms import DecisionClock, MOBILSafetyMask, SafetyShield
-    from tests.test_collectors import compose_job
 
     job = compose_job("algo=d3qn_td3")
     assert not any(isinstance(t, MOBILSafetyMask) for t in make_transforms(job.algo, 0, job.env.highway()).transforms)
