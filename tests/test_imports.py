@@ -24,3 +24,18 @@ def test_lazy_and_relative_imports_are_seen():
     edges = imports.graph()
     assert "kddrl_trl.eval.periodic" in edges["kddrl_trl.conf.schema"]  # imported inside a function
     assert "kddrl_trl.envs.episode_metrics" in edges["kddrl_trl.training.trainer"]  # from ..envs.episode_metrics
+
+
+def test_the_schema_imports_nothing_lazily():
+    """The typed configs import what they validate against at the top of the module, never inside a function."""
+    import ast
+
+    path = imports.root() / "conf" / "schema.py"
+    lazy = [
+        f"line {node.lineno}"
+        for fn in ast.walk(ast.parse(path.read_text()))
+        if isinstance(fn, ast.FunctionDef)
+        for node in ast.walk(fn)
+        if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith("kddrl_trl"))
+    ]
+    assert not lazy, f"{path}: imports inside functions at {', '.join(lazy)}"

@@ -32,9 +32,14 @@ from typing import Any, Optional
 
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from ..envs.config import HighwayConfig
+from ..collectors.collector import check_backend
+from ..envs.config import SCENARIOS, HighwayConfig, switch_scenario
 from ..envs.highwayenv import HighwayEnvOptions, check_config
+from ..eval.periodic import BEST_METRICS
+from ..eval.protocol import MAX_WORKERS, check_disjoint, test_seed
+from ..modules.state import check_extras
 from ..physics import IDMParams, MOBILParams
+from ..training.learner import CF_AGENTS
 
 
 def _at_least(prefix: str, node, low: int, *names: str) -> None:
@@ -74,8 +79,6 @@ class EnvNode(HighwayConfig):
     def with_scenario(self, scenario: str) -> "EnvNode":
         """This node on the traffic of another ``scenario``
         (:func:`~kddrl_trl.envs.config.switch_scenario`: the current preset's keys reset, ``scenario`` 's applied)."""
-        from ..envs.config import switch_scenario
-
         return OmegaConf.to_object(
             OmegaConf.merge(OmegaConf.structured(EnvNode), switch_scenario(OmegaConf.structured(self), scenario))
         )
@@ -107,8 +110,6 @@ def _check_train(train) -> None:
     )
     _at_least("train.", train, 0, "warmup_frames", "updates_per_frame", "updates_per_decision", "eval_every")
     _at_least("train.", train, 1, "eval_episodes")
-    from ..eval.periodic import BEST_METRICS
-
     if not 0.0 < train.priority_alpha <= 1.0:
         raise ValueError(f"train.priority_alpha must be in (0, 1], got {train.priority_alpha!r}")
     if not 0.0 <= train.priority_beta <= 1.0:
@@ -200,8 +201,6 @@ DDPGConfig = _node(
 
 
 def _check_learner(learner) -> None:
-    from ..training.learner import CF_AGENTS
-
     if learner.cf_agent not in CF_AGENTS:
         raise ValueError(f"algo.learner.cf_agent={learner.cf_agent!r}: known agents are {', '.join(CF_AGENTS)}")
     if getattr(learner, learner.cf_agent) is None:
@@ -306,8 +305,6 @@ class LearningAlgo(SafetyOptions):
     transforms: TransformsConfig = MISSING
 
     def __post_init__(self) -> None:
-        from ..modules.state import check_extras
-
         _at_least("algo.", self, 1, "lc_period")
         self._check_safety()
         check_extras(self.state_extras)
@@ -450,9 +447,6 @@ class CollectorConfig:
     sync: bool = True
 
     def __post_init__(self) -> None:
-        from ..collectors.collector import check_backend
-        from ..eval.protocol import MAX_WORKERS
-
         _at_least("collector.", self, 1, "workers")
         if self.workers > MAX_WORKERS:
             raise ValueError(
@@ -482,16 +476,12 @@ class TrainJob(Job):
     def __post_init__(self) -> None:
         super().__post_init__()
         _at_least("", self, 1, "episodes")
-        from ..envs.config import SCENARIOS
-
         unknown = [s for s in self.eval_scenarios if s not in SCENARIOS]
         if unknown or len(set(self.eval_scenarios)) != len(self.eval_scenarios):
             raise ValueError(
                 f"eval_scenarios={list(self.eval_scenarios)}: each must be one of "
                 f"{', '.join(sorted(SCENARIOS))}, at most once"
             )
-        from ..eval.protocol import check_disjoint, test_seed
-
         check_disjoint(
             "eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes, self.collector.workers
         )
