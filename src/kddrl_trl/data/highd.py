@@ -56,6 +56,17 @@ __all__ = [
 ]
 
 # --------------------------------------------------------------------------------------------- schema
+#: the eight neighbour-id columns of a tracks file, in HighD's order
+NEIGHBOUR_ID_COLUMNS = (
+    "precedingId",
+    "followingId",
+    "leftPrecedingId",
+    "leftAlongsideId",
+    "leftFollowingId",
+    "rightPrecedingId",
+    "rightAlongsideId",
+    "rightFollowingId",
+)
 TRACKS_COLUMNS = (
     "frame",
     "id",
@@ -73,14 +84,7 @@ TRACKS_COLUMNS = (
     "thw",
     "ttc",
     "precedingXVelocity",
-    "precedingId",
-    "followingId",
-    "leftPrecedingId",
-    "leftAlongsideId",
-    "leftFollowingId",
-    "rightPrecedingId",
-    "rightAlongsideId",
-    "rightFollowingId",
+    *NEIGHBOUR_ID_COLUMNS,
     "laneId",
 )
 TRACKS_META_COLUMNS = (

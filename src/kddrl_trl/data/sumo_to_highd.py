@@ -66,6 +66,7 @@ from ..envs.config import HighwayConfig
 from ..envs.network import ROAD_SPACING
 from ..io import write_text_atomic
 from .highd import (
+    NEIGHBOUR_ID_COLUMNS,
     TRACKS_COLUMNS,
     TRACKS_META_COLUMNS,
     HighDRecording,
@@ -95,16 +96,7 @@ _UPPER_Y0 = 8.0  # y of the top marking of the (empty) upper carriageway
 _MEDIAN = 3.4  # m between the two carriageways
 _TIE = 1e-6  # m: a box centre this close to a marking is moved into SUMO's lane
 # neighbour columns, in the order of the arrays computed by _neighbours
-_NEIGHBOUR_COLUMNS = (
-    "precedingId",
-    "followingId",
-    "leftPrecedingId",
-    "leftAlongsideId",
-    "leftFollowingId",
-    "rightPrecedingId",
-    "rightAlongsideId",
-    "rightFollowingId",
-)
+_NEIGHBOUR_COLUMNS = NEIGHBOUR_ID_COLUMNS
 
 
 @dataclass
