@@ -23,6 +23,7 @@ from kddrl_trl.data.extract import (
     split_by_vehicle,
     window_labels,
 )
+from kddrl_trl.data.highd import NEIGHBOUR_ID_COLUMNS
 from kddrl_trl.data.tracks import TRACKS10_COLUMNS, TRACKS10_DTYPES, longitudinal_tracks, vehicle_num_lanes
 from kddrl_trl.physics.idm import IDMParams, idm_rollout
 
@@ -182,16 +183,7 @@ def synth_recording(
             "L": L,
         }
     )
-    for c in (
-        "precedingId",
-        "followingId",
-        "leftPrecedingId",
-        "leftAlongsideId",
-        "leftFollowingId",
-        "rightPrecedingId",
-        "rightAlongsideId",
-        "rightFollowingId",
-    ):
+    for c in NEIGHBOUR_ID_COLUMNS:
         df[c] = 0
     df = _neighbors(df)
     truth = df[["id", "frame", "dir", "lane", "s"]].reset_index(drop=True)

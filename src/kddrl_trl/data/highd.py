@@ -129,19 +129,7 @@ _INT = "int64"
 _FLOAT = "float64"
 _STR = str  # pandas' default string dtype ("str" in pandas >= 3)
 
-_TRACKS_INT = {
-    "frame",
-    "id",
-    "precedingId",
-    "followingId",
-    "leftPrecedingId",
-    "leftAlongsideId",
-    "leftFollowingId",
-    "rightPrecedingId",
-    "rightAlongsideId",
-    "rightFollowingId",
-    "laneId",
-}
+_TRACKS_INT = {"frame", "id", *NEIGHBOUR_ID_COLUMNS, "laneId"}
 TRACKS_DTYPES = {c: (_INT if c in _TRACKS_INT else _FLOAT) for c in TRACKS_COLUMNS}
 
 _META_INT = {"id", "initialFrame", "finalFrame", "numFrames", "drivingDirection", "numLaneChanges"}
