@@ -212,3 +212,19 @@ def test_the_plus_preset_sets_the_same_options_for_every_algo(name, scenario):
     assert algo_from_node(OmegaConf.create(plus["algo"])).shield == "idm" and mine.algo.shield == "ttc"
     plus["algo"]["shield"] = plain["algo"]["shield"]
     assert plus == plain  # nothing else changed
+
+
+def test_a_scenario_preset_on_highwayenv_names_its_simulator():
+    """``env=highwayenv +scenario=congested`` applies the preset (flow_scale 1.5: HighwayEnv's density) under the
+    name ``highwayenv_congested``: its run folder and report rows never pool with SUMO's ``congested``; moved to
+    another scenario (``eval_scenarios``), it keeps naming its simulator."""
+    from testkit import compose_job
+
+    hw = compose_job("env=highwayenv", "+scenario=congested")
+    sumo = compose_job("+scenario=congested")
+    assert (hw.env.scenario, hw.env.flow_scale) == ("highwayenv_congested", 1.5)
+    assert (sumo.env.scenario, sumo.env.flow_scale) == ("congested", 1.5)
+    assert compose_job("env=highwayenv").env.scenario == "highwayenv"
+    moved = hw.env.with_scenario("baseline")
+    assert (moved.scenario, moved.flow_scale) == ("highwayenv_baseline", 1.0)
+    assert sumo.env.with_scenario("baseline").scenario == "baseline"

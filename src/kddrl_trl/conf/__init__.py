@@ -40,7 +40,8 @@ def register() -> None:
     store.store(name="evaluate_job", node=EvaluateJob)
     store.store(name="report_job", node=ReportJob)
     for name, preset in SCENARIOS.items():
-        store.store(group="scenario", name=name, node={"env": {"scenario": name, **preset}}, package="_global_")
+        label = f"${{kddrl_scenario:{name},${{env.simulator}}}}"  # highwayenv_<name> on HighwayEnv
+        store.store(group="scenario", name=name, node={"env": {"scenario": label, **preset}}, package="_global_")
     resolvers.register()
 
 

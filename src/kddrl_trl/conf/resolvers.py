@@ -9,7 +9,10 @@ folder behind. These resolvers decide while the config is composed, once (:mod:`
 * ``${kddrl_sweep_dir:${resume},<prefix>,<stamp>}``: the sweep folder to resume (``resume=true``: the newest
   ``<prefix>*``; ``resume=<dir>``: that one), else ``<prefix><stamp>``;
 * ``${kddrl_trained_run:${run}}``: ``run`` itself, after checking that it is a training run folder
-  (holds ``config.yaml``); a clear error naming the folder otherwise.
+  (holds ``config.yaml``); a clear error naming the folder otherwise;
+* ``${kddrl_scenario:<name>,${env.simulator}}``: the ``env.scenario`` a ``+scenario=<name>`` preset sets
+  (:func:`kddrl_trl.envs.config.scenario_label`: ``highwayenv_congested`` on HighwayEnv), so that the run folder
+  already carries the simulator.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
+from ..envs.config import scenario_label
 from ..runs import find_resume_dir, find_sweep_dir, trained_run
 
 
@@ -33,6 +37,7 @@ def register() -> None:
         ("kddrl_train_dir", train_dir),
         ("kddrl_trained_run", lambda run: str(trained_run(run))),
         ("kddrl_sweep_dir", lambda resume, prefix, stamp: str(find_sweep_dir(resume, prefix, stamp))),
+        ("kddrl_scenario", scenario_label),
     ):
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, fn, use_cache=True)

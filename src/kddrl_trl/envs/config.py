@@ -275,6 +275,22 @@ def _preset_paths(preset: Mapping[str, Any], prefix: tuple = ()) -> list[tuple]:
     return out
 
 
+def scenario_label(name: str, simulator: str) -> str:
+    """The ``scenario`` a preset gives an env node of ``simulator``: the preset's name on our SUMO highway,
+    ``<simulator>_<name>`` on another simulator (``env=highwayenv +scenario=congested`` is ``highwayenv_congested``),
+    so that run folders and reports never pool another simulator's runs with the SUMO scenario of that name."""
+    return name if simulator == "sumo" else f"{simulator}_{name}"
+
+
+def preset_name(label: str) -> str | None:
+    """The :data:`SCENARIOS` preset behind a scenario label (:func:`scenario_label`), None for a label of none
+    (``highwayenv``, an env node's own name)."""
+    if label in SCENARIOS:
+        return label
+    tail = label.split("_", 1)[-1]
+    return tail if "_" in label and tail in SCENARIOS else None
+
+
 def switch_scenario(values: Mapping[str, Any], scenario: str) -> dict:
     """The env ``values`` (a dict or DictConfig of :class:`HighwayConfig` fields, e.g. a composed ``env`` node, whose
     ``scenario`` preset is already applied) moved to another ``scenario``: every key the current scenario's preset
@@ -285,7 +301,8 @@ def switch_scenario(values: Mapping[str, Any], scenario: str) -> dict:
         raise ValueError(f"unknown scenario {scenario!r}; known scenarios: {', '.join(scenario_names())}")
     out = OmegaConf.create(OmegaConf.to_container(OmegaConf.create(dict(values)), resolve=True))
     defaults = OmegaConf.structured(HighwayConfig)
-    for path in _preset_paths(SCENARIOS.get(str(out.get("scenario", "baseline")), {})):
+    for path in _preset_paths(SCENARIOS.get(preset_name(str(out.get("scenario", "baseline"))) or "", {})):
         OmegaConf.update(out, ".".join(path), OmegaConf.select(defaults, ".".join(path)), merge=False)
-    out = OmegaConf.merge(out, SCENARIOS[scenario], {"scenario": scenario})
+    label = scenario_label(scenario, str(out.get("simulator", "sumo")))  # an env node names its simulator
+    out = OmegaConf.merge(out, SCENARIOS[scenario], {"scenario": label})
     return OmegaConf.to_container(out)
