@@ -37,7 +37,7 @@ class PlainKDDRL:
       ``eps ~ N(0, policy_noise)`` drawn first (``randn_like`` of the action, as ``TD3Loss`` does), the min of the two
       target critics, ``y = r_cf + gamma (1 - terminated) min Q'``; the loss is the sum over both critics of the
       batch-mean squared error; it trains the critics and the shared embedding (their own optimisers).
-    - The next state's lane-change action in the TD3 target (F6 of issue 14, ``build_agent_states``): where the next
+    - The next state's lane-change action in the TD3 target (``build_agent_states``): where the next
       frame is a decision frame (``("next", "lc", "decide")``), the D3QN's greedy choice (online Q, next state
       with the target s_e, next action mask, the one-hot of the max as TorchRL's ``QValueModule`` writes it); the
       held root action elsewhere.
