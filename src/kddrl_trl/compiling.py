@@ -120,8 +120,8 @@ def partitioning():
     run as one batched ``bmm`` over ``[2, batch, hidden]``), the forward would save the view *and* the ReLU's mask
     as a ``bool`` tensor, and the CPU code TorchInductor (torch 2.13) generates for a ``bool`` store is over 10x
     slower than eager ``x <= 0``. With the views recomputed, the forward saves the ReLU output once and the
-    backward kernel derives the mask: the TD3 critic update stores no mask, and a compiled TD3 update takes about
-    30 % less CPU time (``update.compiled`` of ``benchmarks/results/train_throughput.json``, before and after).
+    backward kernel derives the mask: the TD3 critic update stores no mask (``update.compiled`` of
+    ``benchmarks/results/train_throughput.json`` measures the compiled update).
     Masks: the actor's graph has no weight gradient to save the ReLU outputs for, so the mask was the smallest
     thing to save; :func:`recompute_bool_masks` makes it save the float instead.
 
@@ -194,8 +194,8 @@ class GraphedUpdate:
     (``TensorDict.update_``: one ``copy_`` launch per leaf, 26 for a KDDRL buffer-L sample), CPU time that a
     CUDA graph's replay is meant to save; here the copies are one ``_foreach_copy_`` per dtype (its one-kernel
     path takes a list of floating-point tensors of one dtype; the 10 ``bool`` / integer leaves of a buffer-L sample
-    are copied one by one either way): 78 against 200 µs per buffer-L batch on an H200 machine
-    (``benchmarks/results/train_throughput.json``, ``gpu.final_code``). The graph reads the static
+    are copied one by one either way); ``gpu.final_code`` of ``benchmarks/results/train_throughput.json`` measures
+    both. The graph reads the static
     TensorDict's tensors (made from the first batch, on ``device``), so every later batch must have the first
     one's batch size and keys (a sampled minibatch does; anything else is refused, naming what differs). The
     copy is queued on the stream the graph replays on, behind the previous replay: no batch is overwritten while

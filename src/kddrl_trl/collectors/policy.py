@@ -74,7 +74,7 @@ class MultiRatePolicy(TensorDictModuleBase):
         held = work.get(self.held_key)
         if bool(decide.all()):
             action = self.lc_policy(work.clone(False)).get(self.lc_action_key).to(held.dtype)
-        elif bool(decide.any()):  # only the lane-change policy's inputs, by integer index: 0.37 ms vs 0.88 ms
+        elif bool(decide.any()):  # only the lane-change policy's inputs, by integer index: less to index and copy
             rows = decide.nonzero(as_tuple=True)
             sub = self.lc_policy(work.select(*self.lc_in_keys, strict=False)[rows])
             action = held.clone()

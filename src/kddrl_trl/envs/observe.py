@@ -88,10 +88,10 @@ class Observer:
     the arrays' float32 once, as the per-road code before it did, so the output is bit-for-bit the same
     (``tests/envs/test_env_reference.py``).
 
-    Why not libsumo subscriptions: measured at K = 32 (582 vehicles), ``vehicle.getAllSubscriptionResults()``
-    costs 3.4 ms per call (it builds a dict of every vehicle's variables), more than asking the ~10 vehicles each ego
-    sees for their four values (about 3.4 ms for 320 vehicles), and ``getSubscriptionResults`` per vehicle saves
-    only a third of that while every subscribed vehicle adds work to each simulation step.
+    Why not libsumo subscriptions: ``vehicle.getAllSubscriptionResults()`` builds a dict of every vehicle's
+    variables on each call, which at K = 32 costs about as much as asking the ~10 vehicles each ego sees for their
+    four values, and ``getSubscriptionResults`` per vehicle saves only a part of that while every subscribed vehicle
+    adds work to each simulation step (``benchmarks/env_throughput.py`` measures the env's frames/s).
 
     Keeps, per road, the recent positions of the vehicles seen as leaders (for ``LEADERS_HISTORY``) and the
     neighbour ids of the last observation in slot order a-f (:attr:`slots`; ``None`` for an empty slot), which
