@@ -46,6 +46,7 @@ from .collectors import MultiTimescaleCollector
 from .collectors.workers import WorkerEnv
 from .compiling import resolve_compile, resolve_cudagraphs
 from .conf.schema import (
+    LC_REWARDS,
     CollectorConfig,
     EnvNode,
     Job,
@@ -279,8 +280,8 @@ def make_collector(
     writes (``keys.EFFICIENCY_TERM``) once per decision (§III.G, :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
     from .collectors import MacroTransitionWriter
 
-    if lc_reward not in ("frames", "decision"):
-        raise ValueError(f"make_collector: lc_reward must be frames or decision, got {lc_reward!r}")
+    if lc_reward not in LC_REWARDS:
+        raise ValueError(f"make_collector: lc_reward must be one of {', '.join(LC_REWARDS)}, got {lc_reward!r}")
     collector = collector or CollectorConfig()
     frame_keys, nstep = learner.buffer_keys(), None
     if train.n_steps > 1:  # n-step returns in buffer L; the held lane-change action of the window's last frame

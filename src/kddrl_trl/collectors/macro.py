@@ -91,7 +91,7 @@ class MacroTransitionWriter:
         if self.efficiency_key is None:
             reward = reward.unsqueeze(-1)  # [B, T, 1]
         else:
-            key = ("next", *((self.efficiency_key,) if isinstance(self.efficiency_key, str) else self.efficiency_key))
+            key = ("next", self.efficiency_key)
             eff = frames.get(key, None)
             if eff is None:
                 raise KeyError(

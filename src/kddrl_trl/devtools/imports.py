@@ -132,7 +132,9 @@ def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
 
 
 def findings() -> list[str]:
+    """Every cycle between modules or parts and every upward import, each naming the imports behind it."""
     edges = graph()
+    # a module importing its own package's __init__ is no cycle: Python runs the __init__ first
     inner = {m: {t for t in ts if not m.startswith(t + ".")} for m, ts in edges.items()}
     out = [f"cycle between modules: {' <-> '.join(c)}" for c in cycles(inner)]
     parts: dict[str, set[str]] = defaultdict(set)

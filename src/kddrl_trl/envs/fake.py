@@ -15,8 +15,8 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from .. import keys as K
-from .rewards import car_following_total, lane_change_total, reward_terms
-from .specs import HighwayEnvBase, lc_command
+from .rewards import reward_terms
+from .specs import HighwayEnvBase, lc_command, write_rewards
 
 _PER_LANE = 4  # background vehicles per lane
 
@@ -205,11 +205,7 @@ class FakeHighwayEnv(HighwayEnvBase):
         )
         out = self._output(self._observe(), collision, outcome, kind, slot)
         col = collision.float()
-        terms = reward_terms(self.ego_v, self.accel, want.float(), col, cfg)
-        out.set(K.LC_REWARD, lane_change_total(terms)[:, None].float())
-        out.set(K.CF_REWARD, car_following_total(terms)[:, None].float())
-        for key, value in terms.items():
-            out.set(key, torch.as_tensor(value, dtype=torch.float32).expand_as(self.ego_v)[:, None].clone())
+        write_rewards(out, reward_terms(self.ego_v, self.accel, want.float(), col, cfg), self.ego_v)
         return out
 
     def _set_seed(self, seed: int | None) -> None:

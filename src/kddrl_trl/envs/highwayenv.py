@@ -80,8 +80,8 @@ from tensordict import TensorDict, TensorDictBase
 from .. import keys as K
 from .config import HighwayConfig
 from .observe import lane_and_offset
-from .rewards import car_following_total, lane_change_total, reward_terms
-from .specs import HighwayEnvBase, lc_command
+from .rewards import reward_terms
+from .specs import HighwayEnvBase, lc_command, write_rewards
 
 #: HighwayEnv's lane width (``StraightLane.DEFAULT_WIDTH``, m) and perception distance (``AbstractEnv``, m)
 HW_LANE_WIDTH = 4.0
@@ -448,13 +448,8 @@ class HighwayEnvAdapter(HighwayEnvBase):
         out = self._output(out_obs, accel, started, collision, outcome, kind, slot)
         speed = out_obs[K.EGO_STATE][:, 1]
         col = torch.as_tensor(collision, dtype=torch.float32)
-        terms = reward_terms(
-            speed, torch.as_tensor(accel, dtype=torch.float32), torch.as_tensor(started, dtype=torch.float32), col, cfg
-        )
-        out.set(K.LC_REWARD, lane_change_total(terms)[:, None].float().to(out.device))
-        out.set(K.CF_REWARD, car_following_total(terms)[:, None].float().to(out.device))
-        for key, value in terms.items():
-            out.set(key, torch.as_tensor(value, dtype=torch.float32).expand_as(speed)[:, None].to(out.device))
+        accel, started = (torch.as_tensor(x, dtype=torch.float32) for x in (accel, started))
+        write_rewards(out, reward_terms(speed, accel, started, col, cfg), speed)
         return out
 
     @staticmethod

@@ -9,6 +9,7 @@ from torchrl.envs import EnvBase
 
 from .. import keys as K
 from .config import HighwayConfig, make_config
+from .rewards import car_following_total, lane_change_total
 
 
 def observation_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
@@ -116,3 +117,12 @@ class HighwayEnvBase(EnvBase):
         super().__init__(device=device, batch_size=torch.Size([num_roads]))
         self.num_roads = num_roads
         set_specs(self, self.config, (num_roads,))
+
+
+def write_rewards(out, terms: dict, like: torch.Tensor) -> None:
+    """Writes into a step's output ``out`` the two rewards (Eqs. 26 and 32) and their named terms
+    (:func:`kddrl_trl.envs.rewards.reward_terms`, tensors or numbers), each float32 ``[B, 1]`` for a batch shaped as
+    ``like`` ``[B]``."""
+    rewards = {K.LC_REWARD: lane_change_total(terms), K.CF_REWARD: car_following_total(terms), **terms}
+    for key, value in rewards.items():
+        out.set(key, torch.as_tensor(value, dtype=torch.float32, device=like.device).expand_as(like)[:, None].clone())

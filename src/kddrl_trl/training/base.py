@@ -49,7 +49,7 @@ from torch import nn
 
 from .. import keys as K
 from ..collectors import PolicySnapshot
-from ..compiling import GraphedUpdate, WarmCompiled, resolved
+from ..compiling import GraphedUpdate, WarmCompiled, resolve_cudagraphs, resolved
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
 STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
@@ -110,11 +110,7 @@ class Learner(nn.Module):
         - with ``cudagraphs`` (CUDA learners only): each of :meth:`update_functions` is ``torch.compile`` d whole and
           wrapped in ``CudaGraphModule``, whose replays skip Python, guards included."""
         self.compiled = resolved("compile", compile)
-        self.cudagraphs = resolved("cudagraphs", cudagraphs)
-        if self.cudagraphs and self.device.type != "cuda":
-            raise ValueError(
-                f"cudagraphs=true needs device=cuda (the learner is on {self.device}); use cudagraphs=auto"
-            )
+        self.cudagraphs = resolve_cudagraphs(resolved("cudagraphs", cudagraphs), self.device)  # refused off CUDA
         if self.compiled and not self.cudagraphs:
             self.__dict__["loss"] = WarmCompiled(torch.compile(self.loss, dynamic=False))
         fns = {}
