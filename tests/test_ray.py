@@ -7,11 +7,11 @@ The sweep needs the optional extra ``.[ray]``: it is marked ``ray`` and skipped 
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import pandas as pd
 import pytest
+from testkit import run_module
 
 #: one run of each kind: a rule-based one and a KDDRL one that trains, checkpoints and validates (in a process of
 #: its own, inside the Ray worker) with a tiny budget
@@ -31,12 +31,6 @@ TINY = [
 ]
 
 
-def _run(cmd, cwd, timeout=900):
-    done = subprocess.run([sys.executable, "-m", *cmd], cwd=cwd, capture_output=True, text=True, timeout=timeout)
-    assert done.returncode == 0, done.stderr[-4000:]
-    return done
-
-
 @pytest.mark.ray
 def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_path):
     """On a local Ray of one CPU, so the second run takes the worker process (and libsumo) the first one left."""
@@ -52,7 +46,7 @@ def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_p
         f"hydra.sweep.dir={sweep}",
         *TINY,
     ]
-    done = _run(cmd, tmp_path)
+    done = run_module(cmd, tmp_path)
     assert "Ray launcher (local Ray; 1 CPUs and 0 GPUs per run) is launching 2 jobs" in done.stdout + done.stderr
     jobs = sorted(p.name for p in sweep.iterdir() if p.is_dir())
     assert jobs == ["braking__idm_mobil__0", "braking__kddrl__0"]
@@ -67,7 +61,7 @@ def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_p
     assert len(pd.read_csv(kddrl / "validation.csv")) >= 1  # the periodic evaluation's process ran in the worker
 
     # the report reads the runs' folders unchanged
-    _run(["kddrl_trl.report", str(sweep), f"out={tmp_path / 'rep'}"], tmp_path)
+    run_module(["kddrl_trl.report", str(sweep), f"out={tmp_path / 'rep'}"], tmp_path)
     rows = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert sorted((r["algo"], r["seeds"], r["episodes"]) for r in rows) == [("idm_mobil", [0], 2), ("kddrl", [0], 2)]
 
@@ -75,7 +69,7 @@ def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_p
     before = (kddrl / "eval_episodes.csv").stat().st_mtime_ns
     # (each job's own log, Hydra's ``train.log`` in its folder: Ray forwards a worker's output to the driver
     # asynchronously, and lines of a worker that ends just before ``ray.shutdown`` may never reach it)
-    _run(cmd + ["resume=true"], tmp_path)
+    run_module(cmd + ["resume=true"], tmp_path)
     for job in jobs:
         log = (sweep / job / "train.log").read_text()
         assert log.count("is finished (summary.json): skipped") == 1, f"{job}: {log[-2000:]}"
@@ -88,7 +82,7 @@ def test_training_collects_on_two_ray_actors(tmp_path):
     the macro-transition writer in the learner process; the run trains, checkpoints and evaluates as any other."""
     pytest.importorskip("ray")
     tiny = [t for t in TINY if not t.startswith(("train.eval_every", "train.eval_episodes"))]
-    _run(
+    run_module(
         [
             "kddrl_trl.train",
             "collector.backend=ray",

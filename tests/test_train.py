@@ -8,7 +8,7 @@ import sys
 
 import pytest
 from hydra import compose, initialize_config_module
-from testkit import SMALL_NETS, compose_job, fake_trainer
+from testkit import SMALL_NETS, TINY, compose_job, fake_trainer
 
 
 def test_scenario_is_appended_not_required():
@@ -40,19 +40,6 @@ def test_rule_based_algo_runs_as_typed_from_any_directory(tmp_path):
     assert summary["episodes"] == 4 and summary["scenario"] == "braking"
     assert (runs[0] / "eval_episodes.csv").read_text().count("\n") == 5
     assert "mean speed (km/h)" in done.stdout
-
-
-#: a tiny, fast KDDRL budget: 2 roads, small networks, no compiling, updates from the first batches
-TINY = [
-    "env.num_roads=2",
-    "progress=false",
-    "train.warmup_frames=50",
-    "train.batch_size_cf=32",
-    "train.batch_size_lc=8",
-    "compile=false",
-    "algo.learner.d3qn.hidden=[32,32]",
-    "algo.learner.td3.hidden=[32,32]",
-]
 
 
 def test_kddrl_trains_end_to_end_as_typed(tmp_path):

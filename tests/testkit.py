@@ -6,6 +6,8 @@ module or ``conftest``.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
@@ -133,3 +135,23 @@ def fake_run(
     ).to_csv(folder / "eval_episodes.csv", index=False)
     (folder / "summary.json").write_text(json.dumps({"algo": algo, "scenario": scenario, "seed": seed, **fields}))
     return folder
+
+
+#: a tiny, fast KDDRL budget: 2 roads, small networks, no compiling, updates from the first batches
+TINY = [
+    "env.num_roads=2",
+    "progress=false",
+    "train.warmup_frames=50",
+    "train.batch_size_cf=32",
+    "train.batch_size_lc=8",
+    "compile=false",
+    "algo.learner.d3qn.hidden=[32,32]",
+    "algo.learner.td3.hidden=[32,32]",
+]
+
+
+def run_module(cmd, cwd, timeout=900):
+    """``python -m <cmd...>`` in ``cwd``; asserts it succeeded (showing the end of its stderr) and returns it."""
+    done = subprocess.run([sys.executable, "-m", *cmd], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    assert done.returncode == 0, done.stderr[-4000:]
+    return done

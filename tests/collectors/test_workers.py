@@ -14,6 +14,7 @@ import pytest
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
+from testkit import TINY as KDDRL_TINY
 
 from kddrl_trl import keys as K
 from kddrl_trl.collectors.workers import WorkerEnv
@@ -290,18 +291,8 @@ def test_overlapped_collection_acts_with_the_learners_state_of_two_batches_befor
     assert any(float(b.frames[PROBE_W][0, 0, 0]) != pytest.approx(s[2], rel=1e-6) for b, s in zip(batches, lagged_one))
 
 
-#: a tiny KDDRL budget on SUMO (as tests/test_train.py's TINY)
-TINY = [
-    "env.num_roads=2",
-    "progress=false",
-    "train.warmup_frames=50",
-    "train.batch_size_cf=32",
-    "train.batch_size_lc=8",
-    "compile=false",
-    "algo.learner.d3qn.hidden=[32,32]",
-    "algo.learner.td3.hidden=[32,32]",
-    "train.eval_every=0",
-]
+#: testkit's tiny KDDRL budget on SUMO, without periodic validation
+TINY = [*KDDRL_TINY, "train.eval_every=0"]
 
 
 @pytest.mark.slow  # two SUMO worker processes + the learner + the final evaluation

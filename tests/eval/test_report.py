@@ -5,12 +5,11 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 
 import numpy as np
 import pandas as pd
 import pytest
-from testkit import fake_run
+from testkit import fake_run, run_module
 
 from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
 from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
@@ -29,12 +28,6 @@ TINY = [
     "train.eval_episodes=2",
     "env.max_steps=120",
 ]
-
-
-def _run(cmd, cwd, timeout=900):
-    done = subprocess.run([sys.executable, "-m", *cmd], cwd=cwd, capture_output=True, text=True, timeout=timeout)
-    assert done.returncode == 0, done.stderr[-4000:]
-    return done
 
 
 # ------------------------------------------------------------------------------------------ protocol
@@ -275,7 +268,7 @@ def sweep(tmp_path_factory):
         "video_episodes=1",
         *TINY,
     ]
-    _run(cmd, root)
+    run_module(cmd, root)
     return root, cmd
 
 
@@ -315,7 +308,7 @@ def test_sweep_runs_every_job_and_resumes_job_by_job(sweep):
     }
     shutil.rmtree(lost)
     before = (kddrl / "eval_episodes.csv").stat().st_mtime_ns
-    done = _run(cmd + ["resume=true"], root)
+    done = run_module(cmd + ["resume=true"], root)
     assert (done.stdout + done.stderr).count("is finished (summary.json): skipped") == 3
     assert (kddrl / "eval_episodes.csv").stat().st_mtime_ns == before
     for name, frame in first.items():
@@ -324,7 +317,7 @@ def test_sweep_runs_every_job_and_resumes_job_by_job(sweep):
 
 def test_report_of_the_sweep_as_typed(sweep, tmp_path):
     root, _ = sweep
-    _run(["kddrl_trl.report", str(root / "sweep"), f"out={tmp_path / 'rep'}"], tmp_path)
+    run_module(["kddrl_trl.report", str(root / "sweep"), f"out={tmp_path / 'rep'}"], tmp_path)
     rows = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert sorted((r["algo"], r["scenario"]) for r in rows) == [("idm_mobil", "braking"), ("kddrl", "braking")]
     for row in rows:
