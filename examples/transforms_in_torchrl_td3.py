@@ -8,12 +8,14 @@ acceleration; the lane is kept (a fixed lane policy), so one continuous agent is
     python examples/transforms_in_torchrl_td3.py --no-transforms   # the control arm: raw observations only
     python examples/transforms_in_torchrl_td3.py --env highwayenv  # on HighwayEnv (the optional extra .[highway])
 
-Prints the greedy policy's mean speed and collision rate on evaluation seeds that training never saw.
+Trains for ``--episodes`` episodes, then prints (and with ``--out``, writes as JSON) the greedy policy's mean speed
+and collision rate over ``--eval-episodes`` episodes on evaluation seeds that training never saw.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
@@ -32,8 +34,8 @@ PREDICTIVE = [("flat", "key_gaps"), ("prior", "p_mobil"), ("prior", "p_lcgan")] 
 
 
 def make_env(name: str, roads: int, seed: int, transforms: bool):
-    """The env (raw keys) -> the KDDRL stack (optional) -> the features flattened and concatenated into
-    ``"observation"``."""
+    """The env (raw keys) -> the KDDRL stack (optional; its GANs trained on the traffic of the env's simulator) ->
+    the features flattened and concatenated into ``"observation"``."""
     if name == "sumo":
         from kddrl_trl.envs import HighwayConfig, SumoHighwayEnv
 
@@ -51,7 +53,7 @@ def make_env(name: str, roads: int, seed: int, transforms: bool):
     if transforms:
         flat.append(FlattenObservation(-2, -1, in_keys=[("pred", "key_gaps")], out_keys=[("flat", "key_gaps")]))
     keys = RAW + (PREDICTIVE if transforms else [])
-    stack = [make_kddrl_transforms(seed=seed)] if transforms else []
+    stack = [make_kddrl_transforms(seed=seed, weights=name)] if transforms else []
     return TransformedEnv(base, Compose(*stack, *flat, CatTensors(keys, "observation", del_keys=False)))
 
 
@@ -73,16 +75,26 @@ def make_agent(obs_dim: int, hidden: int = 256):
     return actor, keep, critic, spec
 
 
-def evaluate(policy, env_name: str, roads: int, seed: int, transforms: bool, frames: int = 2000) -> dict:
+def evaluate(policy, env_name: str, roads: int, seed: int, transforms: bool, episodes: int) -> dict:
+    """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, and the
+    share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates)."""
     env = make_env(env_name, roads, seed, transforms)
+    speed_sum, frames, speeds, collisions = torch.zeros(roads), torch.zeros(roads), [], 0
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        td = env.rollout(frames // roads, policy, break_when_any_done=False)
+        td = env.reset()
+        while len(speeds) < episodes:
+            td, root = env.step_and_maybe_reset(policy(td))
+            speed_sum += td["next", "ego", "state"][..., 1]
+            frames += 1
+            done = td["next", "done"].reshape(roads)
+            speeds += (3.6 * speed_sum[done] / frames[done]).tolist()
+            collisions += int(td["next", "collision"].reshape(roads)[done].sum())
+            speed_sum[done], frames[done], td = 0.0, 0.0, root
     env.close()
-    ends = td["next", "done"].sum().item()
     return {
-        "mean_speed_kmh": 3.6 * td["next", "ego", "state"][..., 1].mean().item(),
-        "collision_rate": td["next", "collision"].sum().item() / max(ends, 1),  # per finished episode
-        "episodes": int(ends),
+        "mean_speed_kmh": sum(speeds) / len(speeds),
+        "collision_rate": collisions / len(speeds),
+        "episodes": len(speeds),
     }
 
 
@@ -90,11 +102,12 @@ def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--env", choices=["sumo", "highwayenv"], default="sumo")
     p.add_argument("--no-transforms", dest="transforms", action="store_false")
-    p.add_argument("--frames", type=int, default=100_000, help="training frames (ego-steps of 0.1 s, all roads)")
+    p.add_argument("--episodes", type=int, default=1000, help="training episodes (all roads together)")
     p.add_argument("--roads", type=int, default=8, help="egos simulated side by side (the env's batch)")
-    p.add_argument("--warmup", type=int, default=2_000)
-    p.add_argument("--eval-frames", type=int, default=20_000)
+    p.add_argument("--warmup", type=int, default=2_000, help="frames collected before the first update")
+    p.add_argument("--eval-episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="also write the result as JSON to this file")
     args = p.parse_args(argv)
     torch.manual_seed(args.seed)
 
@@ -113,9 +126,12 @@ def main(argv=None) -> dict:
     opt_critic = torch.optim.Adam(loss.qvalue_network_params.flatten_keys().values(), lr=3e-4)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(100_000), batch_size=128)
 
-    collector = Collector(env, policy, frames_per_batch=20 * args.roads, total_frames=args.frames)
-    for i, batch in enumerate(collector):
+    collector, episodes, frames = Collector(env, policy, frames_per_batch=20 * args.roads, total_frames=-1), 0, 0
+    for batch in collector:
         buffer.extend(batch.reshape(-1))
+        episodes, frames = episodes + int(batch["next", "done"].sum()), frames + batch.numel()
+        if episodes >= args.episodes:
+            break
         if len(buffer) < args.warmup:
             continue
         for step in range(batch.numel()):  # one update per collected frame, the actor every second one
@@ -133,9 +149,13 @@ def main(argv=None) -> dict:
     env.close()
 
     greedy = TensorDictSequential(keep, actor)
-    result = evaluate(greedy, args.env, args.roads, args.seed + 1_000_000, args.transforms, args.eval_frames)
+    result = evaluate(greedy, args.env, args.roads, args.seed + 1_000_000, args.transforms, args.eval_episodes)
+    result.update(vars(args), train_episodes=episodes, train_frames=frames)
     arm = "with the KDDRL transforms" if args.transforms else "raw observations only"
     print(f"{args.env}, {arm}, seed {args.seed}: {result}")
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(result, f, indent=1)
     return result
 
 

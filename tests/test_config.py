@@ -228,3 +228,23 @@ def test_a_scenario_preset_on_highwayenv_names_its_simulator():
     moved = hw.env.with_scenario("baseline")
     assert (moved.scenario, moved.flow_scale) == ("highwayenv_baseline", 1.0)
     assert sumo.env.with_scenario("baseline").scenario == "baseline"
+
+
+@pytest.mark.parametrize("preset", [[], ["+scenario=congested"]])
+def test_report_names_highwayenv_runs_by_the_options_they_set(preset):
+    """A HighwayEnv run is compared with its own simulator's defaults: with the default GAN weights (``auto``: those
+    of HighwayEnv's traffic) it has no option label, with the SUMO weights it is a row of its own."""
+    from hydra import compose, initialize_config_module
+    from omegaconf import OmegaConf
+
+    from kddrl_trl.eval.records import option_label
+
+    def config(*overrides):
+        with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+            cfg = compose(config_name="config", overrides=["env=highwayenv", *preset, *overrides])
+        return OmegaConf.to_container(cfg, resolve=True)
+
+    scenario = config()["env"]["scenario"]
+    assert option_label(config(), "kddrl", scenario) == ""
+    assert option_label(config("algo.transforms.weights=sumo"), "kddrl", scenario) == "algo.transforms.weights=sumo"
+    assert option_label(config("algo.shield=idm"), "kddrl", scenario) == "algo.shield=idm"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import pytest
@@ -18,7 +19,7 @@ def _example():
 
 
 @pytest.mark.parametrize("transforms", [True, False])
-def test_transforms_in_a_torchrl_td3_loop(transforms):
+def test_transforms_in_a_torchrl_td3_loop(transforms, tmp_path):
     example = _example()
     env = example.make_env("sumo", 2, 0, transforms)
     try:
@@ -26,6 +27,9 @@ def test_transforms_in_a_torchrl_td3_loop(transforms):
     finally:
         env.close()
     assert width == (3 + 24 + 6) + ((6 + 3 + 3) if transforms else 0)  # raw; + key gaps and both priors
-    args = ["--frames", "320", "--warmup", "160", "--roads", "2", "--eval-frames", "100"]
+    out = tmp_path / "result.json"
+    args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--out", str(out)]
     result = example.main(args if transforms else [*args, "--no-transforms"])
     assert 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1.0
+    assert result["episodes"] >= 2 and result["train_episodes"] >= 2 and result["train_frames"] > 0
+    assert json.loads(out.read_text()) == result and result["transforms"] == transforms

@@ -2,10 +2,10 @@
 # Copy the study's finished runs (those with summary.json) into docs/paper/runs/, without checkpoints, TorchRL logs
 # or per-run curve images (the report redraws them), their CSVs and logs xz-compressed (the report reads them as they are),
 # the training records cut to the columns the report and a reader of the learning curves use (docs/compact_records.py):
-#   bash docs/paper/collect.sh <study sweep dir>
+#   bash docs/paper/collect.sh <study sweep dir> [destination, default docs/paper/runs]
 set -euo pipefail
-SRC=${1:?usage: collect.sh <study sweep dir>}
-DST=$(dirname "$0")/runs
+SRC=${1:?usage: collect.sh <study sweep dir> [destination]}
+DST=${2:-$(dirname "$0")/runs}
 mkdir -p "$DST"
 [ -f "$DST/multirun.yaml" ] || cp "$SRC/multirun.yaml" "$DST/" 2>/dev/null || true
 for run in "$SRC"/*/; do

@@ -58,6 +58,7 @@ from .conf.schema import (
     algo_from_node,
 )
 from .envs.config import HighwayConfig
+from .generative import SHIPPED_TRAFFIC
 from .loggers import MultiLogger
 from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
 from .training import (
@@ -147,9 +148,12 @@ def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> Mul
     return MultiLogger(loggers)
 
 
-def make_transforms(algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayConfig, compile: bool = False) -> Compose:
+def make_transforms(
+    algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayConfig, compile: bool = False, simulator: str = "sumo"
+) -> Compose:
     """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
-    ``algo.transforms`` (none with ``enabled: false``) and MOBIL's criteria (``mobil_criteria: true``,
+    ``algo.transforms`` (none with ``enabled: false``; ``weights: auto`` takes the GAN weights trained on the
+    traffic of ``simulator``, :data:`kddrl_trl.generative.SHIPPED_TRAFFIC`) and MOBIL's criteria (``mobil_criteria: true``,
     :class:`~kddrl_trl.transforms.MOBILCriteria`); MOBIL's safety mask where ``algo.mobil_safety_mask``
     (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
     :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
@@ -161,6 +165,8 @@ def make_transforms(algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayCo
     if learning:
         options = asdict(algo.transforms)
         mobil_criteria = options.pop("mobil_criteria")
+        if options["weights"] == "auto":
+            options["weights"] = simulator if simulator in SHIPPED_TRAFFIC else "sumo"
         if options.pop("enabled"):
             stack.append(make_kddrl_transforms(**options, seed=seed, num_lanes=highway.num_lanes, compile=compile))
         if mobil_criteria:
@@ -182,7 +188,7 @@ def make_env(
     ``.[highway]``), with :func:`make_transforms` (built first: no simulator starts before every option is
     checked; a rule-based algo without a shield gets the bare env)."""
     highway = env.highway()
-    transforms = make_transforms(algo, seed, highway, compile)
+    transforms = make_transforms(algo, seed, highway, compile, env.simulator)
     options = {}
     if fake:
         from .envs.fake import FakeHighwayEnv as Env
@@ -482,7 +488,7 @@ def dataset_description(data_dir: Path) -> dict:
 def make_gan_data(
     kind: str,
     data_dir: Path,
-    highway: HighwayConfig,
+    env,
     recordings_dir: Path,
     seed: int,
     device: torch.device,
@@ -490,7 +496,8 @@ def make_gan_data(
 ) -> tuple[dict, str]:
     """The train / val / test splits (on ``device``) that model ``kind`` learns from, and the dataset's hash
     (the input recordings and the extraction parameters). ``data_dir`` without a dataset: the default one is
-    built first from our own recordings of ``highway`` traffic."""
+    built first from our own recordings of the traffic of ``env`` (the ``env`` node: its simulator's traffic,
+    :func:`kddrl_trl.data.synthetic.traffic_recorder`)."""
     import hashlib
     import json
 
@@ -500,7 +507,7 @@ def make_gan_data(
     if (data_dir / "meta.json").is_file():
         meta = json.loads((data_dir / "meta.json").read_text())
     else:
-        meta = synthetic_dataset(highway, data_dir, recordings_dir, seed=seed, progress=progress)
+        meta = synthetic_dataset(env, data_dir, recordings_dir, seed=seed, progress=progress)
     splits = {
         s: load_dataset(data_dir, GAN_DATA_KIND[kind], s).to_tensordict().to(device) for s in ("train", "val", "test")
     }

@@ -41,7 +41,7 @@ def main(cfg: DictConfig) -> dict:
     splits, dataset_hash = make_gan_data(
         kind,
         data_dir,
-        OmegaConf.to_object(cfg.env).highway(),
+        OmegaConf.to_object(cfg.env),
         Path(cfg.recordings_dir),
         int(cfg.seed),
         device,

@@ -881,3 +881,47 @@ def shielded_fake_env(kind: str):
     from kddrl_trl.transforms import SafetyShield
 
     return TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0, ego_start="window"), SafetyShield(kind))
+
+
+def _generator_state(stack, kind: str) -> dict:
+    from kddrl_trl.transforms import LCGANPrior, TrajGANPrediction
+
+    cls = TrajGANPrediction if kind == "trajgan" else LCGANPrior
+    (t,) = [t for t in stack.transforms if isinstance(t, cls)]
+    return {k: v.clone() for k, v in t.predictor.state_dict().items()}
+
+
+@pytest.mark.parametrize("kind", ["trajgan", "lcgan"])
+def test_gan_weights_follow_the_env_simulator_unless_named(kind):
+    """``algo.transforms.weights=auto`` loads the GAN weights trained on the traffic of the env's simulator;
+    ``sumo`` / ``highwayenv`` name them; a checkpoint path wins; an unknown name is refused by the schema."""
+    from testkit import compose_job
+
+    from kddrl_trl.factories import make_transforms
+    from kddrl_trl.generative import default_checkpoint, load_predictor
+
+    def loaded(*overrides):
+        job = compose_job("env=highwayenv", *overrides)
+        (stack,) = [
+            t
+            for t in make_transforms(job.algo, 0, job.env.highway(), simulator="highwayenv").transforms
+            if hasattr(t, "transforms")
+        ]
+        return _generator_state(stack, kind)
+
+    def shipped(traffic):
+        return {k: v.clone() for k, v in load_predictor(kind, traffic=traffic).state_dict().items()}
+
+    def same(a, b):
+        return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+    assert not same(shipped("sumo"), shipped("highwayenv"))
+    assert same(loaded(), shipped("highwayenv"))
+    assert same(loaded("algo.transforms.weights=sumo"), shipped("sumo"))
+    path = default_checkpoint(kind, "sumo")
+    assert same(loaded(f"algo.transforms.{kind}_checkpoint={path}"), shipped("sumo"))
+    job = compose_job("algo.transforms.weights=auto")  # SUMO: the SUMO weights
+    (stack,) = [t for t in make_transforms(job.algo, 0, job.env.highway()).transforms if hasattr(t, "transforms")]
+    assert same(_generator_state(stack, kind), shipped("sumo"))
+    with pytest.raises(Exception, match="weights"):
+        compose_job("algo.transforms.weights=carla")

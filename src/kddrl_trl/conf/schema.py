@@ -37,6 +37,7 @@ from ..envs.config import SCENARIOS, HighwayConfig, switch_scenario
 from ..envs.highwayenv import HighwayEnvOptions, check_config
 from ..eval.periodic import BEST_METRICS
 from ..eval.protocol import MAX_WORKERS, check_disjoint, test_seed
+from ..generative import SHIPPED_TRAFFIC
 from ..modules.state import check_extras
 from ..physics import IDMParams, MOBILParams
 from ..training.learner import CF_AGENTS
@@ -145,12 +146,24 @@ TrainConfig = _node(
         "priority_beta": (float, 0.4),
     },
 )
+#: ``algo.transforms.weights`` values: the traffic the shipped GAN weights were trained on, or ``auto`` (that of
+#: the env's simulator)
+GAN_WEIGHTS = ("auto", *SHIPPED_TRAFFIC)
+
+
+def _check_transforms(t) -> None:
+    if t.weights not in GAN_WEIGHTS:
+        raise ValueError(f"algo.transforms.weights={t.weights!r}: known values are {', '.join(GAN_WEIGHTS)}")
+
+
 TransformsConfig = _node(
     "TransformsConfig",
     "``algo.transforms``: options of "
     ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
-    "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.).",
-    optional={"mobil_criteria": (bool, False)},
+    "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.); ``weights``: the "
+    "shipped GAN weights used without a checkpoint path (``auto``: those trained on the env simulator's traffic).",
+    check=_check_transforms,
+    optional={"mobil_criteria": (bool, False), "weights": (str, "auto")},
     enabled=bool,
     trajgan=bool,
     priors=bool,

@@ -54,7 +54,7 @@ def recordings_directory(cfg: DictConfig) -> Path:
     if cfg.source == "highd":
         return Path(cfg.path)
     return ensure_recordings(
-        OmegaConf.to_object(cfg.env).highway(),
+        OmegaConf.to_object(cfg.env),
         cfg.recordings_dir,
         int(cfg.seed),
         float(cfg.record.duration_s),

@@ -1,6 +1,8 @@
 """Record naturalistic traffic: ``python -m kddrl_trl.data.record [+scenario=congested] [duration_s=900] ...``.
 
-Runs :func:`kddrl_trl.data.sumo_to_highd.record_traffic` on the highway config composed from
+Runs the recorder of the env node's simulator (:func:`kddrl_trl.data.synthetic.traffic_recorder`: our SUMO
+highway's :func:`~kddrl_trl.data.sumo_to_highd.record_traffic`, or with ``env=highwayenv`` HighwayEnv's own traffic,
+:mod:`kddrl_trl.data.highwayenv_to_highd`) on the highway config composed from
 ``conf/record.yaml`` (``env: highway`` + optional ``+scenario=...`` + ``env.*`` overrides), writes one HighD
 recording per road into ``out_dir`` (``XX_tracks.csv``, ``XX_tracksMeta.csv``, ``XX_recordingMeta.csv``
 and ``XX_driverParams.csv``, each atomically) and prints the vehicle count, the share of lane changers and
@@ -18,12 +20,13 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from kddrl_trl.data.sumo_to_highd import record_to_directory
-from kddrl_trl.data.synthetic import print_summary
+from kddrl_trl.data.synthetic import print_summary, traffic_recorder
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="record")
 def main(cfg: DictConfig) -> dict:
-    hw = OmegaConf.to_object(cfg.env).highway()
+    env = OmegaConf.to_object(cfg.env)
+    hw = env.highway()
     s = record_to_directory(
         hw,
         Path(cfg.out_dir),
@@ -31,8 +34,9 @@ def main(cfg: DictConfig) -> dict:
         num_roads=int(cfg.num_roads),
         seed=int(cfg.seed),
         progress=bool(cfg.progress),
+        recorder=traffic_recorder(env),
     )
-    print_summary(s, hw, int(cfg.seed), float(cfg.duration_s), int(cfg.num_roads))
+    print_summary(s, hw, int(cfg.seed), float(cfg.duration_s), int(cfg.num_roads), env.simulator)
     return s
 
 

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -86,6 +87,7 @@ __all__ = [
     "lane_markings",
     "read_driver_params",
     "record_traffic",
+    "recording_steps",
     "write_driver_params",
 ]
 
@@ -271,6 +273,22 @@ class _Sampler:
         self.chunks.append(np.array(rows, np.float64))
 
 
+def recording_steps(duration_s: float, num_roads: int, dt: float) -> tuple[int, int]:
+    """(simulation steps of ``dt`` after the first sample, 25 Hz frames) of a recording of ``duration_s``: enough
+    steps to cover the last frame. Refuses a ``duration_s`` that is not a finite number > 0 and a ``num_roads``
+    that is not an integer >= 1."""
+    duration_s = float(duration_s)
+    if not math.isfinite(duration_s) or duration_s <= 0:
+        raise ValueError(f"duration_s must be a finite number > 0, got {duration_s!r}")
+    if not isinstance(num_roads, (int, np.integer)) or num_roads < 1:
+        raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
+    num_steps = round(duration_s / dt)
+    num_frames = round(duration_s * FRAME_RATE)
+    if num_steps * dt < (num_frames - 1) / FRAME_RATE - 1e-9:
+        num_steps += 1
+    return num_steps, num_frames
+
+
 def record_traffic(
     cfg: HighwayConfig, duration_s: float, num_roads: int = 4, seed: int = 0, progress: bool = True
 ) -> list[RecordedTraffic]:
@@ -285,17 +303,8 @@ def record_traffic(
 
     from ..envs.sim import HighwaySim, _libsumo
 
-    duration_s = float(duration_s)
-    if not math.isfinite(duration_s) or duration_s <= 0:
-        raise ValueError(f"duration_s must be a finite number > 0, got {duration_s!r}")
-    if not isinstance(num_roads, (int, np.integer)) or num_roads < 1:
-        raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
     dt = cfg.step_length
-    num_steps = round(duration_s / dt)
-    num_frames = round(duration_s * FRAME_RATE)
-    if num_steps * dt < (num_frames - 1) / FRAME_RATE - 1e-9:
-        num_steps += 1
-
+    num_steps, num_frames = recording_steps(duration_s, num_roads, dt)
     sim = HighwaySim(cfg, int(num_roads), seed=seed)
     try:
         x_off = cfg.entry_length
@@ -614,12 +623,15 @@ def _build_recording(
     num_frames: int,
     seed: int,
     y_lat_offset: float,
+    lanes_from_position: bool = False,
 ) -> RecordedTraffic:
     """Turn the 0.1 s samples of one road into one HighD recording (see the module docstring), in steps: the
     samples per vehicle (:func:`_samples`), their 25 Hz frames (:func:`_frames`), who is in view and their HighD
     ids (:func:`_view`), each recording row's neighbours and gaps (:func:`_neighbour_gaps`) and image y
     (:func:`_image_y`); then the four tables: tracks, tracksMeta (:func:`_tracks_meta`), the drivers' parameters
-    and recordingMeta (:func:`_recording_meta`)."""
+    and recordingMeta (:func:`_recording_meta`). ``lanes_from_position``: a frame's lane is the lane its
+    interpolated box centre is in (for a simulator whose lane switches fall between samples, HighwayEnv), not
+    the lane of the sample at or before it (SUMO, whose switches fall on samples)."""
     dt, n_lanes = cfg.step_length, cfg.num_lanes
     length_m = float(cfg.vehicle_length)
     upper, lower = lane_markings(cfg)
@@ -633,6 +645,8 @@ def _build_recording(
     sv, sf = fr.veh_of[sel], fr.f[sel]
     nb_ids, dhw, thw, ttc, prec_v = _neighbour_gaps(s, fr, view, neighbours, sel, length_m)
     sim_lane = s.lane[fr.r0[sel]]
+    if lanes_from_position:
+        sim_lane = np.clip(np.floor(fr.lat[sel] / cfg.lane_width), 0, n_lanes - 1).astype(np.int64)
     y = _image_y(lower[-1] - fr.lat[sel], sim_lane, lower, n_lanes, road)
     lane_id = 2 * n_lanes + 2 - sim_lane
     ids = view.rec_id[sv]
@@ -707,15 +721,22 @@ def summarize_recorded(recorded: list[RecordedTraffic]) -> dict:
 
 
 def record_to_directory(
-    cfg: HighwayConfig, out_dir: str | Path, duration_s: float, num_roads: int = 4, seed: int = 0, progress: bool = True
+    cfg: HighwayConfig,
+    out_dir: str | Path,
+    duration_s: float,
+    num_roads: int = 4,
+    seed: int = 0,
+    progress: bool = True,
+    recorder: Callable[..., list[RecordedTraffic]] | None = None,
 ) -> dict:
-    """:func:`record_traffic`, then write every non-empty recording into ``out_dir``; returns
-    :func:`summarize_recorded` plus ``wall_s``, ``wall_record_s``, ``out_dir`` and ``skipped`` (ids of roads
-    where no vehicle entered the view, which HighD's format cannot hold)."""
+    """``recorder`` (default :func:`record_traffic`, our SUMO traffic; HighwayEnv's:
+    :func:`kddrl_trl.data.synthetic.traffic_recorder`), then write every non-empty recording into ``out_dir``;
+    returns :func:`summarize_recorded` plus ``wall_s``, ``wall_record_s``, ``out_dir`` and ``skipped`` (ids of
+    roads where no vehicle entered the view, which HighD's format cannot hold)."""
     import time
 
     t0 = time.perf_counter()
-    recorded = record_traffic(cfg, duration_s, num_roads=num_roads, seed=seed, progress=progress)
+    recorded = (recorder or record_traffic)(cfg, duration_s, num_roads=num_roads, seed=seed, progress=progress)
     wall_record = time.perf_counter() - t0
     skipped = []
     for rec in recorded:

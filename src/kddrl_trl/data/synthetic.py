@@ -1,26 +1,52 @@
 """The default naturalistic dataset (paper §IV.A, with our own SUMO traffic in place of HighD): record traffic
-into a folder if it holds none, then extract the leaders' and lane changes' datasets from it.
+into a folder if it holds none, then extract the leaders' and lane changes' datasets from it. The traffic is that
+of the ``env`` node's simulator (:func:`traffic_recorder`): our SUMO highway, or HighwayEnv's own traffic.
 
 :mod:`kddrl_trl.data.prepare` (the entry point) and :func:`kddrl_trl.factories.make_gan_data` both build it here.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 from kddrl_trl.data.extract import extract_dataset
 from kddrl_trl.data.highd import list_recordings, read_recording
-from kddrl_trl.data.sumo_to_highd import PAPER_LANE_CHANGER_SHARE, PAPER_VEHICLES_PER_HOUR, record_to_directory
-from kddrl_trl.envs.config import HighwayConfig
+from kddrl_trl.data.sumo_to_highd import (
+    PAPER_LANE_CHANGER_SHARE,
+    PAPER_VEHICLES_PER_HOUR,
+    RecordedTraffic,
+    record_to_directory,
+    record_traffic,
+)
+
+Recorder = Callable[..., list[RecordedTraffic]]
 
 
-def print_summary(s: dict, hw, seed: int, duration_s: float, num_roads: int) -> None:
+def traffic_recorder(env) -> Recorder:
+    """The recorder of an ``env`` node's simulator (``conf/schema.py``'s env node, or anything with its
+    ``simulator`` and ``highwayenv`` fields): :func:`~kddrl_trl.data.sumo_to_highd.record_traffic` for ``sumo``,
+    :func:`~kddrl_trl.data.highwayenv_to_highd.record_highwayenv_traffic` with the node's HighwayEnv options for
+    ``highwayenv``. Both take ``(highway config, duration_s, num_roads=, seed=, progress=)``."""
+    simulator = getattr(env, "simulator", "sumo")
+    if simulator == "sumo":
+        return record_traffic
+    if simulator == "highwayenv":
+        from kddrl_trl.data.highwayenv_to_highd import record_highwayenv_traffic
+
+        return partial(record_highwayenv_traffic, options=env.highwayenv)
+    raise ValueError(f"env.simulator={simulator!r}: no traffic recorder (known: sumo, highwayenv)")
+
+
+def print_summary(s: dict, hw, seed: int, duration_s: float, num_roads: int, simulator: str = "sumo") -> None:
     """The recording's vehicle count, lane-changer share and driver types beside the paper's figures."""
     hours = s["simulated_hours"]
     per_hour = s["vehicles"] / hours if hours > 0 else float("nan")
     wall, wall_record = s["wall_s"], s["wall_record_s"]
+    traffic = f"{hw.flow:.0f} veh/h per road" if simulator == "sumo" else f"{simulator}'s own traffic"
     print(
-        f"\nrecorded {hw.scenario} traffic ({hw.flow:.0f} veh/h per road), seed {seed}: "
+        f"\nrecorded {hw.scenario} traffic ({traffic}), seed {seed}: "
         f"{num_roads} recording(s) x {duration_s:g} s = {hours:.3f} h"
     )
     for rid in s["skipped"]:
@@ -41,19 +67,22 @@ def print_summary(s: dict, hw, seed: int, duration_s: float, num_roads: int) -> 
 
 
 def ensure_recordings(
-    hw: HighwayConfig, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int, progress: bool = True
+    env, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int, progress: bool = True
 ) -> Path:
-    """``recordings_dir``, after recording ``num_roads`` x ``duration_s`` of ``hw`` traffic into it if it holds
-    none."""
+    """``recordings_dir``, after recording ``num_roads`` x ``duration_s`` of the traffic of ``env`` (an env node,
+    :func:`traffic_recorder`) into it if it holds none."""
     rec_dir = Path(recordings_dir)
     if not (rec_dir.is_dir() and list_recordings(rec_dir)):
-        s = record_to_directory(hw, rec_dir, duration_s, num_roads=num_roads, seed=seed, progress=progress)
-        print_summary(s, hw, seed, duration_s, num_roads)
+        hw, recorder = env.highway(), traffic_recorder(env)
+        s = record_to_directory(
+            hw, rec_dir, duration_s, num_roads=num_roads, seed=seed, progress=progress, recorder=recorder
+        )
+        print_summary(s, hw, seed, duration_s, num_roads, getattr(env, "simulator", "sumo"))
     return rec_dir
 
 
 def synthetic_dataset(
-    hw: HighwayConfig,
+    env,
     out_dir: str | Path,
     recordings_dir: str | Path,
     seed: int = 0,
@@ -62,9 +91,9 @@ def synthetic_dataset(
     stride: int = 1,
     progress: bool = True,
 ) -> dict:
-    """The default naturalistic dataset from our own recordings of ``hw`` traffic: record into
-    ``recordings_dir`` if it holds none, then extract (a cache hit when ``out_dir`` already holds this dataset).
-    Returns its meta."""
-    rec_dir = ensure_recordings(hw, recordings_dir, seed, duration_s, num_roads, progress)
+    """The default naturalistic dataset from our own recordings of the traffic of ``env`` (an env node,
+    :func:`traffic_recorder`): record into ``recordings_dir`` if it holds none, then extract (a cache hit when
+    ``out_dir`` already holds this dataset). Returns its meta."""
+    rec_dir = ensure_recordings(env, recordings_dir, seed, duration_s, num_roads, progress)
     recordings = [read_recording(rec_dir, i) for i in list_recordings(rec_dir)]
     return extract_dataset(recordings, out_dir, seed=seed, stride=stride, progress=progress)

@@ -86,6 +86,8 @@ from .specs import HighwayEnvBase, lc_command, write_rewards
 #: HighwayEnv's lane width (``StraightLane.DEFAULT_WIDTH``, m) and perception distance (``AbstractEnv``, m)
 HW_LANE_WIDTH = 4.0
 HW_PERCEPTION = 200.0
+#: length of HighwayEnv's straight road (``RoadNetwork.straight_road_network``'s default, m)
+HW_ROAD_LENGTH = 10_000.0
 #: HighwayConfig fields the adapter sets when it builds its own config (a scenario name, not a ready config)
 PRESET = {"lane_width": HW_LANE_WIDTH}
 _FEATURES = ["presence", "x", "y", "vx", "vy"]
@@ -102,6 +104,8 @@ class HighwayEnvOptions:
     observed_vehicles: int = 15  # rows of the Kinematics observation, the ego included
     simulation_frequency: int = 10  # Hz; a multiple of the policy frequency 1/step_length (10 Hz)
     lc_done_offset: float = 0.2  # m from the target lane's centre line at which a lane change is over
+    record_episode_s: float = 60.0  # s: a recording of HighwayEnv traffic (kddrl_trl.data.highwayenv_to_highd) is
+    #                                 a sequence of highway-v0 episodes of this length, each from a fresh reset
 
     def validate(self, cfg: HighwayConfig) -> "HighwayEnvOptions":
         """Range checks, and the :class:`HighwayConfig` values HighwayEnv cannot honour; ``ValueError`` naming the
@@ -115,6 +119,12 @@ class HighwayEnvOptions:
         need("highwayenv.vehicles_density", self.vehicles_density > 0, f"= {self.vehicles_density!r} must be > 0")
         need("highwayenv.observed_vehicles", self.observed_vehicles >= 2, f"= {self.observed_vehicles!r} must be >= 2")
         need("highwayenv.lc_done_offset", self.lc_done_offset > 0, f"= {self.lc_done_offset!r} must be > 0 (m)")
+        need(
+            "highwayenv.record_episode_s",
+            0 < self.record_episode_s * cfg.v_max <= HW_ROAD_LENGTH / 2,
+            f"= {self.record_episode_s!r} s must be > 0 and short enough that traffic at v_max = {cfg.v_max} m/s "
+            f"covers at most half of HighwayEnv's {HW_ROAD_LENGTH:g} m road",
+        )
         hz = 1.0 / cfg.step_length
         need(
             "step_length",
@@ -229,6 +239,39 @@ def _highway_classes():
     return KDDRLHighway
 
 
+def highway_settings(cfg: HighwayConfig, options: HighwayEnvOptions) -> tuple[dict, dict]:
+    """(HighwayEnv's config dict, the ego's action settings) of a ``highway-v0`` road on ``cfg`` with ``options``
+    (validated): what :class:`HighwayEnvAdapter` runs and :mod:`kddrl_trl.data.highwayenv_to_highd` records."""
+    hz, o = round(1.0 / cfg.step_length), options
+    config = {
+        "observation": {
+            "type": "Kinematics",
+            "features": _FEATURES,
+            "vehicles_count": o.observed_vehicles,
+            "absolute": True,
+            "normalize": False,
+            "clip": False,
+            "see_behind": True,
+            "order": "sorted",
+            "include_obstacles": False,
+        },
+        "lanes_count": cfg.num_lanes,
+        "vehicles_count": o.vehicles_count,
+        "vehicles_density": o.vehicles_density * cfg.flow_scale,
+        "initial_lane_id": None if cfg.ego_lane is None else cfg.num_lanes - 1 - cfg.ego_lane,
+        "policy_frequency": hz,
+        "simulation_frequency": o.simulation_frequency,
+        "duration": 10.0 * cfg.max_steps * cfg.step_length,  # never reached: max_steps truncates first
+    }
+    action = {"dt": 1.0 / o.simulation_frequency, "v_max": cfg.v_max, "low": cfg.accel_low, "high": cfg.accel_high}
+    return config, action
+
+
+def make_highway(config: dict, action: dict):
+    """One ``highway-v0`` road with the ego's :class:`LaneAccelAction` (settings from :func:`highway_settings`)."""
+    return _highway_classes()(config, action)
+
+
 class HighwayEnvAdapter(HighwayEnvBase):
     """K HighwayEnv ``highway-v0`` roads as one TorchRL env with the keys, specs and rewards of
     :class:`~kddrl_trl.envs.SumoHighwayEnv` (no ``("leaders","history")``); see the module docstring for every
@@ -258,31 +301,9 @@ class HighwayEnvAdapter(HighwayEnvBase):
         cfg = self.config
         self.options = check_config(cfg, options)
         del self.observation_spec[K.LEADERS_HISTORY]  # kept by the stack's LeaderHistory
-        hz, o = round(1.0 / cfg.step_length), self.options
-        self._hw_config = {
-            "observation": {
-                "type": "Kinematics",
-                "features": _FEATURES,
-                "vehicles_count": o.observed_vehicles,
-                "absolute": True,
-                "normalize": False,
-                "clip": False,
-                "see_behind": True,
-                "order": "sorted",
-                "include_obstacles": False,
-            },
-            "lanes_count": cfg.num_lanes,
-            "vehicles_count": o.vehicles_count,
-            "vehicles_density": o.vehicles_density * cfg.flow_scale,
-            "initial_lane_id": None if cfg.ego_lane is None else cfg.num_lanes - 1 - cfg.ego_lane,
-            "policy_frequency": hz,
-            "simulation_frequency": o.simulation_frequency,
-            "duration": 10.0 * cfg.max_steps * cfg.step_length,  # never reached: max_steps truncates first
-        }
-        action = {"dt": 1.0 / o.simulation_frequency, "v_max": cfg.v_max, "low": cfg.accel_low, "high": cfg.accel_high}
-        env_class = _highway_classes()
-        self.roads = [env_class(self._hw_config, action) for _ in range(num_roads)]
-        b, n = num_roads, o.observed_vehicles
+        self._hw_config, action = highway_settings(cfg, self.options)
+        self.roads = [make_highway(self._hw_config, action) for _ in range(num_roads)]
+        b, n = num_roads, self.options.observed_vehicles
         self._obs = np.zeros((b, n, len(_FEATURES)))
         self._acc = np.zeros((b, n))
         self._vehicles: list[list] = [[] for _ in range(b)]  # observed vehicle objects, rows 1.. of _obs

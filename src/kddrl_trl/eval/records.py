@@ -185,6 +185,7 @@ OPTION_KEYS = (
     "algo.shield",
     "algo.shield_ttc",
     "algo.state_extras",
+    "algo.transforms.weights",
     "algo.learner.d3qn.semi_mdp",
     "algo.learner.d3qn.eps_decisions",
     "algo.learner.td3.exploration_clip",
@@ -206,33 +207,40 @@ def _dotted(cfg: dict, key: str):
 
 
 _MISSING = object()
-_DEFAULTS: dict[tuple[str, str], dict] = {}
+_DEFAULTS: dict[tuple[str, str, str], dict] = {}
 
 
-def default_config(algo: str, scenario: str) -> dict:
+def default_config(algo: str, scenario: str, simulator: str = "sumo") -> dict:
     """The package's composed config of ``algo=<algo> +scenario=<scenario>`` (resolved; cached): what a run of
-    that algo and scenario runs with when no option is set."""
-    if (algo, scenario) not in _DEFAULTS:
+    that algo and scenario runs with when no option is set. On another ``simulator`` (its env node
+    ``env=<simulator>``) the scenario is that simulator's label (:func:`kddrl_trl.envs.config.scenario_label`:
+    ``<simulator>`` or ``<simulator>_<preset>``)."""
+    if (algo, scenario, simulator) not in _DEFAULTS:
         from hydra import compose, initialize_config_module
         from hydra.core.global_hydra import GlobalHydra
         from omegaconf import OmegaConf
 
-        overrides = [f"algo={algo}"] + ([f"+scenario={scenario}"] if scenario != "baseline" else [])
+        from ..envs.config import preset_name
+
+        preset = scenario if simulator == "sumo" else preset_name(scenario) or "baseline"
+        env = [f"env={simulator}"] if simulator != "sumo" else []
+        overrides = [f"algo={algo}", *env] + ([f"+scenario={preset}"] if preset != "baseline" else [])
         if GlobalHydra.instance().is_initialized():  # inside an entry point (kddrl_trl.report): its config module
             cfg = compose(config_name="config", overrides=overrides)
         else:
             with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
                 cfg = compose(config_name="config", overrides=overrides)
-        _DEFAULTS[(algo, scenario)] = OmegaConf.to_container(cfg, resolve=True)
-    return _DEFAULTS[(algo, scenario)]
+        _DEFAULTS[(algo, scenario, simulator)] = OmegaConf.to_container(cfg, resolve=True)
+    return _DEFAULTS[(algo, scenario, simulator)]
 
 
 def option_label(config: dict, algo: str, scenario: str) -> str:
     """``key=value, ...`` of the :data:`OPTION_KEYS` a run's ``config`` sets otherwise than its algo's defaults on
     its training ``scenario`` (keys a run's config lacks, saved before they existed, ran as the paper; keys
     the package no longer has are left out)."""
+    simulator = _dotted(config, "env.simulator")
     try:
-        defaults = default_config(algo, scenario)
+        defaults = default_config(algo, scenario, "sumo" if simulator is _MISSING else str(simulator))
     except Exception:  # an algo or scenario this package does not know: nothing to compare with
         return ""
     diffs = []

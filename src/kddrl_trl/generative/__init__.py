@@ -5,7 +5,9 @@ generic training loop (``pretraining.py``), checkpoints (``checkpoint.py``) and 
 predictors (``predictor.py``). No RL code and no ``kddrl_trl.data`` (pandas) is imported here. Default weights
 ship with the package (:func:`default_checkpoint`), made by
 ``python -m kddrl_trl.pretrain gan=<kind> export=src/kddrl_trl/generative/weights/<kind>.pt``, with their test
-metrics beside them (``weights/<kind>.metrics.json``, :mod:`.shipped`).
+metrics beside them (``weights/<kind>.metrics.json``, :mod:`.shipped`); the weights trained on HighwayEnv's
+traffic lie in ``weights/highwayenv/`` (``python -m kddrl_trl.pretrain gan=<kind> env=highwayenv
+export=src/kddrl_trl/generative/weights/highwayenv/<kind>.pt``).
 """
 
 from __future__ import annotations
@@ -23,16 +25,25 @@ TASKS = {"trajgan": TrajGANTask, "lcgan": LCGANTask}
 PREDICTORS = {"trajgan": TrajGANPredictor, "lcgan": LCGANPredictor}
 
 
-def default_checkpoint(kind: str) -> Path:
-    """Path of the weights shipped with the package for ``kind`` ("trajgan" / "lcgan")."""
+#: the traffic each set of shipped weights was trained on: our SUMO highway (``weights/<kind>.pt``, the default)
+#: and HighwayEnv's own traffic (``weights/highwayenv/<kind>.pt``: 4 m lanes, HighwayEnv's drivers)
+SHIPPED_TRAFFIC = ("sumo", "highwayenv")
+
+
+def default_checkpoint(kind: str, traffic: str = "sumo") -> Path:
+    """Path of the weights shipped with the package for ``kind`` ("trajgan" / "lcgan"), trained on ``traffic``
+    (one of :data:`SHIPPED_TRAFFIC`)."""
     if kind not in TASKS:
         raise ValueError(f"unknown generative model {kind!r}; known: {', '.join(TASKS)}")
-    return Path(str(resources.files("kddrl_trl.generative").joinpath("weights", f"{kind}.pt")))
+    if traffic not in SHIPPED_TRAFFIC:
+        raise ValueError(f"no shipped weights for traffic {traffic!r}; known: {', '.join(SHIPPED_TRAFFIC)}")
+    folder = ("weights",) if traffic == "sumo" else ("weights", traffic)
+    return Path(str(resources.files("kddrl_trl.generative").joinpath(*folder, f"{kind}.pt")))
 
 
-def load_predictor(kind: str, path: str | Path | None = None, **kwargs):
-    """The batched inference module of ``kind`` from ``path`` (default: the shipped weights)."""
-    return PREDICTORS[kind].from_checkpoint(path or default_checkpoint(kind), **kwargs)
+def load_predictor(kind: str, path: str | Path | None = None, traffic: str = "sumo", **kwargs):
+    """The batched inference module of ``kind`` from ``path`` (default: the weights shipped for ``traffic``)."""
+    return PREDICTORS[kind].from_checkpoint(path or default_checkpoint(kind, traffic), **kwargs)
 
 
 __all__ = [
@@ -41,6 +52,7 @@ __all__ = [
     "LCGANPredictor",
     "LCGANTask",
     "PREDICTORS",
+    "SHIPPED_TRAFFIC",
     "TASKS",
     "TrajGANPredictor",
     "TrajGANTask",

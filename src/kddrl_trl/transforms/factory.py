@@ -7,6 +7,7 @@ from pathlib import Path
 
 import torch
 
+from ..generative import default_checkpoint
 from ..physics import IDMParams, MOBILParams
 from .idm_prior import IDMPrior, as_idm_params
 from .key_gaps import KeyGapsFromPrior
@@ -25,6 +26,7 @@ def make_kddrl_transforms(
     *,
     trajgan_checkpoint: str | Path | None = None,
     lcgan_checkpoint: str | Path | None = None,
+    weights: str = "sumo",
     num_samples: int = 1,
     reduce: str = "sample",
     seed: int = 0,
@@ -59,7 +61,11 @@ def make_kddrl_transforms(
     Args:
         trajgan: use trajGAN (``False``: key gaps from the IDM prior, see :class:`KeyGapsFromPrior`).
         priors: add the MOBIL and lcGAN lane-change priors.
-        trajgan_checkpoint, lcgan_checkpoint: checkpoint paths (default: the weights shipped with the package).
+        trajgan_checkpoint, lcgan_checkpoint: checkpoint paths (default: the weights shipped with the package for
+            the traffic ``weights``).
+        weights: the traffic the shipped weights used without a checkpoint path were trained on: ``"sumo"`` (our
+            SUMO highway) or ``"highwayenv"`` (HighwayEnv's own traffic);
+            :data:`kddrl_trl.generative.SHIPPED_TRAFFIC`.
         num_samples, reduce: ``reduce="sample"``: one noise draw; ``"mean"``: mean of ``num_samples`` draws —
             for trajGAN and, as averaged draws, for lcGAN.
         seed: seed of both generators' noise streams.
@@ -85,6 +91,8 @@ def make_kddrl_transforms(
     if int(num_samples) < 1:
         raise ValueError(f"num_samples must be >= 1, got {num_samples!r}")
     idm_p, mobil_p = as_idm_params(idm), as_mobil_params(mobil)
+    trajgan_checkpoint = trajgan_checkpoint or default_checkpoint("trajgan", weights)
+    lcgan_checkpoint = lcgan_checkpoint or default_checkpoint("lcgan", weights)
     seed, num_lanes = int(seed), int(num_lanes)
     stack = [IDMPrior(idm_p)]
     if trajgan:

@@ -1,0 +1,171 @@
+"""The HighwayEnv reuse measurement (docs/reuse/README.md): every arm's greedy mean speed and collision rate with
+95 % intervals over seeds, and the paired differences that answer "do the predictive states help?".
+
+    python docs/reuse/report.py [docs/reuse/runs] [--out docs/reuse]
+
+Reads the runs of ``python -m kddrl_trl.train`` (``summary.json``) and the example's JSON results under the runs
+folder, and writes ``results.json`` and ``results.md``. Per arm: the mean over seeds of each seed's evaluation
+value with its Student-t interval over seeds (``kddrl_trl.eval.verdict.t_interval``), and for the collision rate
+also the exact (Clopper-Pearson) interval over the pooled episodes. Paired differences (the same seed gives every
+arm the same evaluation traffic) with their Student-t interval over the seeds both arms have.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from kddrl_trl.eval.verdict import clopper_pearson, t_interval
+from kddrl_trl.io import write_json_atomic, write_text_atomic
+
+HERE = Path(__file__).resolve().parent
+#: arm -> (its description, how a result is recognised)
+ARMS = {
+    "a": "example TD3 with the transforms (HighwayEnv GANs)",
+    "b": "example TD3 without the transforms",
+    "c": "kddrl, SUMO GANs",
+    "d": "kddrl, HighwayEnv GANs",
+    "e": "d3qn_td3 (no predictive states)",
+    "f": "idm_mobil",
+}
+#: the paired comparisons: (arm, reference arm, what a positive speed difference would mean)
+PAIRS = [
+    ("a", "b", "the transforms, in a plain TorchRL TD3"),
+    ("d", "c", "HighwayEnv GANs instead of SUMO's"),
+    ("d", "e", "KDDRL's predictive states and priors"),
+    ("c", "e", "KDDRL with the SUMO GANs"),
+]
+METRICS = ("mean_speed_kmh", "collision_rate")
+
+
+def arm_of_run(summary: dict, config_text: str) -> str | None:
+    """The arm of a ``kddrl_trl.train`` run (None: not one of this study's)."""
+    if summary["scenario"] != "highwayenv":
+        return None
+    algo = summary["algo"]
+    if algo == "kddrl":
+        return "c" if "weights: sumo" in config_text else "d"
+    return {"d3qn_td3": "e", "idm_mobil": "f"}.get(algo)
+
+
+def read_results(runs: Path) -> dict[str, dict[int, dict]]:
+    """arm -> seed -> {metric: value, "episodes", "collisions", "commit"}."""
+    out: dict[str, dict[int, dict]] = {arm: {} for arm in ARMS}
+    for path in sorted(runs.rglob("summary.json")):
+        if path.parent.name.startswith("eval__"):
+            continue
+        s = json.loads(path.read_text())
+        arm = arm_of_run(s, (path.parent / ".hydra" / "config.yaml").read_text())
+        if arm is not None:
+            out[arm][int(s["seed"])] = {
+                **{m: float(s[m]) for m in METRICS},
+                "episodes": int(s["episodes"]),
+                "collisions": int(s["outcomes"].get("collision", 0)),
+                "commit": s.get("commit"),
+            }
+    for path in sorted(runs.rglob("*.json")):
+        if path.name == "summary.json" or path.parent.name != "example":
+            continue
+        r = json.loads(path.read_text())
+        out["a" if r["transforms"] else "b"][int(r["seed"])] = {
+            **{m: float(r[m]) for m in METRICS},
+            "episodes": int(r["episodes"]),
+            "collisions": round(r["collision_rate"] * r["episodes"]),
+            "commit": r.get("commit"),
+        }
+    return out
+
+
+def interval(values) -> dict:
+    values = np.asarray(values, dtype=float)
+    if values.size < 2:
+        return {"mean": float(values.mean()) if values.size else None, "ci_low": None, "ci_high": None}
+    low, high, p = t_interval(values)
+    return {"mean": float(values.mean()), "ci_low": low, "ci_high": high, "p": p}
+
+
+def summarise(results: dict[str, dict[int, dict]]) -> dict:
+    arms = {}
+    for arm, by_seed in results.items():
+        seeds = sorted(by_seed)
+        row = {"arm": arm, "system": ARMS[arm], "seeds": seeds}
+        for m in METRICS:
+            row[m] = {**interval([by_seed[s][m] for s in seeds]), "per_seed": [by_seed[s][m] for s in seeds]}
+        k, n = sum(by_seed[s]["collisions"] for s in seeds), sum(by_seed[s]["episodes"] for s in seeds)
+        row["collision_rate"]["pooled"] = {"collisions": k, "episodes": n}
+        if n:
+            row["collision_rate"]["pooled"]["clopper_pearson"] = list(clopper_pearson(k, n))
+        row["commits"] = sorted({str(by_seed[s]["commit"]) for s in seeds})
+        arms[arm] = row
+    pairs = []
+    for a, b, what in PAIRS:
+        seeds = sorted(set(results[a]) & set(results[b]))
+        pair = {"arm": a, "reference": b, "what": what, "seeds": seeds}
+        for m in METRICS:
+            pair[m] = interval([results[a][s][m] - results[b][s][m] for s in seeds])
+        pairs.append(pair)
+    return {"arms": arms, "paired_differences": pairs}
+
+
+def _fmt(x: dict, scale: float = 1.0, digits: int = 1) -> str:
+    if x["mean"] is None:
+        return "–"
+    mean = f"{scale * x['mean']:.{digits}f}"
+    if x["ci_low"] is None:
+        return mean
+    return f"{mean} [{scale * x['ci_low']:.{digits}f}, {scale * x['ci_high']:.{digits}f}]"
+
+
+def markdown(report: dict) -> str:
+    lines = [
+        "# HighwayEnv reuse measurement: results",
+        "",
+        "Made by `python docs/reuse/report.py` from `docs/reuse/runs/` (protocol: `docs/reuse/README.md`). Means over"
+        " seeds with 95 % Student-t intervals over seeds; collisions also pooled over episodes (Clopper-Pearson).",
+        "",
+        "| arm | system | seeds | mean speed (km/h) | collision rate (%) | pooled collisions (95 % CI, %) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for arm, row in report["arms"].items():
+        pooled = row["collision_rate"]["pooled"]
+        cp = pooled.get("clopper_pearson")
+        pooled_s = f"{pooled['collisions']} / {pooled['episodes']}" + (
+            f" [{100 * cp[0]:.1f}, {100 * cp[1]:.1f}]" if cp else ""
+        )
+        lines.append(
+            f"| ({arm}) | {row['system']} | {len(row['seeds'])} | {_fmt(row['mean_speed_kmh'])} | "
+            f"{_fmt(row['collision_rate'], 100.0)} | {pooled_s} |"
+        )
+    lines += [
+        "",
+        "Paired differences (same seeds, same evaluation traffic):",
+        "",
+        "| difference | what it measures | seeds | speed (km/h) | collision rate (points) |",
+        "|---|---|---|---|---|",
+    ]
+    for p in report["paired_differences"]:
+        lines.append(
+            f"| ({p['arm']}) − ({p['reference']}) | {p['what']} | {len(p['seeds'])} | {_fmt(p['mean_speed_kmh'])} | "
+            f"{_fmt(p['collision_rate'], 100.0)} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("runs", nargs="?", default=str(HERE / "runs"))
+    p.add_argument("--out", default=str(HERE))
+    args = p.parse_args(argv)
+    report = summarise(read_results(Path(args.runs)))
+    out = Path(args.out)
+    write_json_atomic(out / "results.json", report)
+    write_text_atomic(out / "results.md", markdown(report))
+    print(markdown(report))
+    return report
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,56 @@
+#!/usr/bin/env bash
+# Do the predictive-state transforms help on a simulator that is not ours? Every arm on HighwayEnv (highway-v0,
+# the optional extra .[highway]), seeds 0-2, the same budget for every learning arm: 300 training episodes on 4 roads
+# and no periodic evaluation, then 100 greedy episodes on evaluation seeds (seed + 1,000,000) that training never saw.
+#   (a) examples/transforms_in_torchrl_td3.py, with the transforms (its GANs trained on HighwayEnv's traffic)
+#   (b) the same example without them (raw observations only)
+#   (c) kddrl with the GANs trained on our SUMO traffic          (algo.transforms.weights=sumo)
+#   (d) kddrl with the GANs trained on HighwayEnv's traffic      (the default on env=highwayenv)
+#   (e) d3qn_td3 (the same agents, no predictive states)
+#   (f) idm_mobil (our IDM+MOBIL policy through the adapter's action)
+# Run it from a checkout of one commit (docs/reuse/README.md); it resumes job by job (a finished run is skipped,
+# a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
+#   bash docs/reuse/study.sh [OUT_DIR]
+# Every job runs in a process of its own, JOBS (default 1) at a time, one torch thread each.
+set -euo pipefail
+OUT=${1:-runs/reuse}
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+EPISODES=300
+EVAL=100
+COMMON="env=highwayenv episodes=$EPISODES eval_episodes=$EVAL train.eval_every=0 progress=false"
+
+jobs() {  # seed-major, so that every arm's seed 0 lands first
+  local seed
+  for seed in 0 1 2; do
+    echo "train $OUT/highwayenv_gans seed=$seed algo=kddrl"
+    echo "example $OUT/example seed=$seed transforms"
+    echo "example $OUT/example seed=$seed no-transforms"
+    echo "train $OUT/sumo_gans seed=$seed algo=kddrl algo.transforms.weights=sumo"
+    echo "train $OUT/highwayenv_gans seed=$seed algo=d3qn_td3"
+    echo "train $OUT/highwayenv_gans seed=$seed algo=idm_mobil"
+  done
+}
+
+one() {
+  # shellcheck disable=SC2086
+  set -- $1
+  local kind=$1 dir=$2 seed=${3#seed=}
+  shift 3
+  if [ "$kind" = train ]; then
+    python -m kddrl_trl.train -m resume="$dir" seed="$seed" $COMMON "$@" || echo "study.sh: job failed: $*" >&2
+    return
+  fi
+  local flag="" name="$1"
+  [ "$name" = no-transforms ] && flag=--no-transforms
+  local out="$dir/${name}__$seed.json"
+  [ -f "$out" ] && return
+  mkdir -p "$dir"
+  python examples/transforms_in_torchrl_td3.py --env highwayenv $flag --seed "$seed" --roads 4 \
+    --episodes $EPISODES --eval-episodes $EVAL --out "$out.tmp" > "$dir/${name}__$seed.log" 2>&1 \
+    && python -c 'import json, sys; d = json.load(open(sys.argv[1])); d["commit"] = sys.argv[2]
+json.dump(d, open(sys.argv[1], "w"), indent=1)' "$out.tmp" "$(git rev-parse --short HEAD)" \
+    && mv "$out.tmp" "$out" || echo "study.sh: example failed: $name seed $seed" >&2
+}
+export -f one
+export OUT COMMON EPISODES EVAL
+jobs | xargs -d '\n' -P "${JOBS:-1}" -I{} bash -c 'one "$1"' _ {}
