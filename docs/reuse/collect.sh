@@ -5,7 +5,7 @@
 set -euo pipefail
 SRC=${1:?usage: collect.sh <study output dir>}
 HERE=$(dirname "$0")
-for sweep in highwayenv_gans sumo_gans; do
+for sweep in highwayenv_gans sumo_gans highwayenv_driver; do
   [ -d "$SRC/$sweep" ] && bash "$HERE/../paper/collect.sh" "$SRC/$sweep" "$HERE/runs/$sweep"
 done
 if [ -d "$SRC/example" ]; then

@@ -30,6 +30,7 @@ ARMS = {
     "d": "kddrl, HighwayEnv GANs",
     "e": "d3qn_td3 (no predictive states)",
     "f": "idm_mobil",
+    "g": "HighwayEnv's own IDM/MOBIL as the ego",
 }
 #: the paired comparisons: (arm, reference arm, what a positive speed difference would mean)
 PAIRS = [
@@ -48,6 +49,8 @@ def arm_of_run(summary: dict, config_text: str) -> str | None:
     algo = summary["algo"]
     if algo == "kddrl":
         return "c" if "weights: sumo" in config_text else "d"
+    if algo == "idm_mobil" and "ego_driver: highwayenv" in config_text:
+        return "g"
     return {"d3qn_td3": "e", "idm_mobil": "f"}.get(algo)
 
 

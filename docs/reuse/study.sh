@@ -8,6 +8,7 @@
 #   (d) kddrl with the GANs trained on HighwayEnv's traffic      (the default on env=highwayenv)
 #   (e) d3qn_td3 (the same agents, no predictive states)
 #   (f) idm_mobil (our IDM+MOBIL policy through the adapter's action)
+#   (g) HighwayEnv's own IDM/MOBIL vehicle as the ego                 (env.highwayenv.ego_driver=highwayenv)
 # Run it from a checkout of one commit (docs/reuse/README.md); it resumes job by job (a finished run is skipped,
 # a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
 #   bash docs/reuse/study.sh [OUT_DIR]
@@ -28,6 +29,7 @@ jobs() {  # seed-major, so that every arm's seed 0 lands first
     echo "train $OUT/sumo_gans seed=$seed algo=kddrl algo.transforms.weights=sumo"
     echo "train $OUT/highwayenv_gans seed=$seed algo=d3qn_td3"
     echo "train $OUT/highwayenv_gans seed=$seed algo=idm_mobil"
+    echo "train $OUT/highwayenv_driver seed=$seed algo=idm_mobil env.highwayenv.ego_driver=highwayenv"
   done
 }
 

@@ -183,3 +183,36 @@ def test_same_seed_same_traffic_other_seed_other_traffic():
     first = ego_and_leaders(0)
     assert torch.equal(first, ego_and_leaders(0))
     assert not torch.equal(first, ego_and_leaders(1))
+
+
+def test_highwayenvs_own_driver_can_drive_the_ego():
+    """``ego_driver=highwayenv``: the ego is HighwayEnv's IDM/MOBIL vehicle, whatever the policy commands (two
+    opposite command sequences give the same episode), and its own lane changes are flagged as started."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    from kddrl_trl.envs import make_config
+    from kddrl_trl.envs.highwayenv import check_config
+
+    options = HighwayEnvOptions(vehicles_count=12, observed_vehicles=10, ego_driver="highwayenv")
+
+    def episode(lc: int, accel: float):
+        env = HighwayEnvAdapter(num_roads=1, seed=5, options=options)
+        try:
+            env.reset()
+            assert isinstance(env.roads[0].vehicle, IDMVehicle)
+            frames = []
+            for _ in range(150):
+                td = env.step(command(env, lc, accel))["next"]
+                frames.append(td.select(K.EGO_STATE, K.EGO_LANE, K.LC_STARTED, "done"))
+                if bool(td["done"]):
+                    break
+            return torch.stack(frames)
+        finally:
+            env.close()
+
+    slow, fast = episode(K.LEFT, -5.0), episode(K.RIGHT, 5.0)
+    assert torch.equal(slow[K.EGO_STATE], fast[K.EGO_STATE]) and len(slow) > 20
+    lanes, started = slow[K.EGO_LANE].reshape(-1), slow[K.LC_STARTED].reshape(-1)
+    assert int(started.sum()) >= int((lanes[1:] != lanes[:-1]).sum())
+    with pytest.raises(ValueError, match="ego_driver"):
+        check_config(make_config("baseline", {"lane_width": 4.0}), {"ego_driver": "carla"})

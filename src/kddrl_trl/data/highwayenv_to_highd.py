@@ -33,24 +33,20 @@ from dataclasses import replace
 import numpy as np
 
 from ..envs.config import HighwayConfig
-from ..envs.highwayenv import HW_ROAD_LENGTH, HighwayEnvOptions, check_config, highway_settings, make_highway
+from ..envs.highwayenv import (
+    HW_ROAD_LENGTH,
+    HighwayEnvOptions,
+    check_config,
+    highway_settings,
+    highwayenv_drives_ego,
+    make_highway,
+)
 from ..envs.observe import lane_and_offset
 from .sumo_to_highd import RecordedTraffic, _build_recording, recording_steps
 
 log = logging.getLogger(__name__)
 
 __all__ = ["record_highwayenv_traffic"]
-
-
-def _all_idm(env) -> None:
-    """Replaces the ego of a freshly reset highway-v0 road by one of its ``other_vehicles_type`` vehicles."""
-    from highway_env import utils
-
-    road, ego = env.road, env.vehicle
-    driver = utils.class_from_path(env.config["other_vehicles_type"]).create_from(ego)
-    driver.randomize_behavior()
-    road.vehicles[road.vehicles.index(ego)] = driver
-    env.controlled_vehicles = [driver]
 
 
 def _params(vehicle) -> dict:
@@ -148,7 +144,7 @@ def record_highwayenv_traffic(
                 if k % episode_steps == 0:
                     e = k // episode_steps
                     env.reset(seed=int(np.random.SeedSequence([int(seed), r, e]).generate_state(1)[0]))
-                    _all_idm(env)
+                    highwayenv_drives_ego(env)
                     episodes.start(env, e)
                 else:
                     for _ in range(substeps):

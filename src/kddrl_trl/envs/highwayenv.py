@@ -9,7 +9,9 @@ Actions: HighwayEnv has no "continuous acceleration + left/keep/right" action ty
 speed stays in [0, v_max]) and ``("lc","action")`` moves HighwayEnv's target lane one lane left or right, exactly as
 its ``DiscreteMetaAction`` ``LANE_LEFT`` / ``LANE_RIGHT`` do; the lateral motion is HighwayEnv's own steering
 controller (:class:`highway_env.vehicle.controller.ControlledVehicle`). A command outside ``("lc","action_mask")``
-keeps the lane, as on SUMO.
+keeps the lane, as on SUMO. With ``HighwayEnvOptions.ego_driver="highwayenv"`` the ego is one more of HighwayEnv's
+own IDM/MOBIL vehicles instead (a reference driver): the commands are ignored, and ``lc.started`` is set when that
+driver moves its target lane.
 
 Observation: HighwayEnv's ``Kinematics`` observation (features presence, x, y, vx, vy of the ego and its
 ``observed_vehicles - 1`` nearest vehicles, sorted by longitudinal distance, see-behind) configured with
@@ -88,6 +90,8 @@ HW_LANE_WIDTH = 4.0
 HW_PERCEPTION = 200.0
 #: length of HighwayEnv's straight road (``RoadNetwork.straight_road_network``'s default, m)
 HW_ROAD_LENGTH = 10_000.0
+#: who drives the ego (``HighwayEnvOptions.ego_driver``): the policy, or HighwayEnv's own IDM/MOBIL vehicle
+EGO_DRIVERS = ("agent", "highwayenv")
 #: HighwayConfig fields the adapter sets when it builds its own config (a scenario name, not a ready config)
 PRESET = {"lane_width": HW_LANE_WIDTH}
 _FEATURES = ["presence", "x", "y", "vx", "vy"]
@@ -104,6 +108,8 @@ class HighwayEnvOptions:
     observed_vehicles: int = 15  # rows of the Kinematics observation, the ego included
     simulation_frequency: int = 10  # Hz; a multiple of the policy frequency 1/step_length (10 Hz)
     lc_done_offset: float = 0.2  # m from the target lane's centre line at which a lane change is over
+    ego_driver: str = "agent"  # agent: the policy's commands drive the ego | highwayenv: HighwayEnv's own IDM/MOBIL
+    #                            vehicle drives it (the commands are ignored), a reference driver
     record_episode_s: float = 60.0  # s: a recording of HighwayEnv traffic (kddrl_trl.data.highwayenv_to_highd) is
     #                                 a sequence of highway-v0 episodes of this length, each from a fresh reset
 
@@ -119,6 +125,11 @@ class HighwayEnvOptions:
         need("highwayenv.vehicles_density", self.vehicles_density > 0, f"= {self.vehicles_density!r} must be > 0")
         need("highwayenv.observed_vehicles", self.observed_vehicles >= 2, f"= {self.observed_vehicles!r} must be >= 2")
         need("highwayenv.lc_done_offset", self.lc_done_offset > 0, f"= {self.lc_done_offset!r} must be > 0 (m)")
+        need(
+            "highwayenv.ego_driver",
+            self.ego_driver in EGO_DRIVERS,
+            f"= {self.ego_driver!r}: known drivers are {', '.join(EGO_DRIVERS)}",
+        )
         need(
             "highwayenv.record_episode_s",
             0 < self.record_episode_s * cfg.v_max <= HW_ROAD_LENGTH / 2,
@@ -265,6 +276,18 @@ def highway_settings(cfg: HighwayConfig, options: HighwayEnvOptions) -> tuple[di
     }
     action = {"dt": 1.0 / o.simulation_frequency, "v_max": cfg.v_max, "low": cfg.accel_low, "high": cfg.accel_high}
     return config, action
+
+
+def highwayenv_drives_ego(env) -> None:
+    """Replaces the ego of a freshly reset highway-v0 road ``env`` by one of its ``other_vehicles_type`` vehicles
+    (HighwayEnv's IDM/MOBIL driver), its behaviour randomised as highway-v0 randomises the others'."""
+    from highway_env import utils
+
+    road, ego = env.road, env.vehicle
+    driver = utils.class_from_path(env.config["other_vehicles_type"]).create_from(ego)
+    driver.randomize_behavior()
+    road.vehicles[road.vehicles.index(ego)] = driver
+    env.controlled_vehicles = [driver]
 
 
 def make_highway(config: dict, action: dict):
@@ -424,6 +447,8 @@ class HighwayEnvAdapter(HighwayEnvBase):
         for r in rows:
             seed = int(np.random.SeedSequence([self._seed, r, int(self.episode_count[r])]).generate_state(1)[0])
             self._obs[r] = self.roads[r].reset(seed=seed)[0]
+            if self.options.ego_driver == "highwayenv":  # the same position, heading and speed: the same observation
+                highwayenv_drives_ego(self.roads[r])
             self._x0[r] = self.roads[r].vehicle.position[0]
             self.frame[r] = 0
             self.episode_count[r] += 1
@@ -442,11 +467,14 @@ class HighwayEnvAdapter(HighwayEnvBase):
         slots, vehicles = self._slots.copy(), [list(v) for v in self._vehicles]
         accel, collision = np.zeros(b), np.zeros(b, dtype=bool)
         kind, slot = np.zeros(b, dtype=np.int64), np.full(b, -1)
+        own = self.options.ego_driver == "highwayenv"
         for r, env in enumerate(self.roads):
             ego = env.vehicle
-            before = ego.speed
+            before, target = ego.speed, ego.target_lane_index
             self._obs[r] = env.step((int(cmd[r]), np.array([acc[r]], dtype=np.float32)))[0]
             accel[r] = (ego.speed - before) / cfg.step_length
+            if own:  # HighwayEnv's driver ignored the commands: a lane change starts when it moves its target lane
+                started[r] = ego.target_lane_index != target
             self._read(r)
             if ego.crashed:
                 collision[r] = True

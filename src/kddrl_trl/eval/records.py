@@ -186,6 +186,7 @@ OPTION_KEYS = (
     "algo.shield_ttc",
     "algo.state_extras",
     "algo.transforms.weights",
+    "env.highwayenv.ego_driver",
     "algo.learner.d3qn.semi_mdp",
     "algo.learner.d3qn.eps_decisions",
     "algo.learner.td3.exploration_clip",
