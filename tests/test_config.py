@@ -248,3 +248,24 @@ def test_report_names_highwayenv_runs_by_the_options_they_set(preset):
     assert option_label(config(), "kddrl", scenario) == ""
     assert option_label(config("algo.transforms.weights=sumo"), "kddrl", scenario) == "algo.transforms.weights=sumo"
     assert option_label(config("algo.shield=idm"), "kddrl", scenario) == "algo.shield=idm"
+
+
+def test_matmul_precision_is_checked_and_applied_by_every_job():
+    """``matmul_precision=high`` (TF32 where the hardware has it) is set by ``make_job``, process-wide, and the next
+    job sets its own (the default ``highest``); an unknown value is refused, naming the key."""
+    import torch
+    from hydra import compose, initialize_config_module
+
+    from kddrl_trl.factories import make_job
+
+    before = torch.get_float32_matmul_precision()
+    try:
+        with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+            make_job(compose(config_name="config", overrides=["matmul_precision=high"]))
+            assert torch.get_float32_matmul_precision() == "high"
+            make_job(compose(config_name="config"))
+            assert torch.get_float32_matmul_precision() == "highest"
+            with pytest.raises(Exception, match="matmul_precision"):
+                make_job(compose(config_name="config", overrides=["matmul_precision=low"]))
+    finally:
+        torch.set_float32_matmul_precision(before)

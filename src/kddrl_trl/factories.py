@@ -101,7 +101,8 @@ def make_job(cfg: DictConfig):
     already made for it (:func:`kddrl_trl.runs.no_folder_if_refused`): a bad value leaves no empty run folder.
     A job's top-level knobs are resolved here, once, and the parts receive the results: ``device``
     (:func:`make_device`, so ``device=cuda`` without a GPU stops at once; as ``job.torch_device``), ``compile``
-    and ``cudagraphs`` (bools, :func:`kddrl_trl.compiling.resolve_compile` / ``resolve_cudagraphs``)."""
+    and ``cudagraphs`` (bools, :func:`kddrl_trl.compiling.resolve_compile` / ``resolve_cudagraphs``); and
+    ``matmul_precision`` is applied (``torch.set_float32_matmul_precision``)."""
     with no_folder_if_refused():
         job = OmegaConf.to_object(cfg)
         if hasattr(job, "device"):
@@ -110,6 +111,8 @@ def make_job(cfg: DictConfig):
             job.compile = resolve_compile(job.compile)
         if hasattr(job, "cudagraphs"):
             job.cudagraphs = resolve_cudagraphs(job.cudagraphs, job.torch_device)
+        if hasattr(job, "matmul_precision"):  # process-wide: set by every job, so none inherits another's
+            torch.set_float32_matmul_precision(job.matmul_precision)
         return job
 
 

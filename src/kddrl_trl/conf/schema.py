@@ -418,6 +418,12 @@ def check_device(device: str) -> None:
         raise ValueError(f"device must be auto, cpu, cuda or cuda:N, got {device!r}")
 
 
+#: ``matmul_precision`` values (``torch.set_float32_matmul_precision``): ``highest``, IEEE float32 matmuls (torch's
+#: default); ``high``, TensorFloat-32 where the hardware has it (NVIDIA GPUs since Ampere), faster, with a 10-bit
+#: mantissa in the products; ``medium``, bfloat16 products where supported
+MATMUL_PRECISIONS = ("highest", "high", "medium")
+
+
 @dataclass
 class Job:
     """What every entry point that runs a policy has: seed, evaluation size, the env, logging, compiling."""
@@ -433,9 +439,14 @@ class Job:
     logger: LoggerConfig = MISSING
     device: str = "auto"  # auto | cpu | cuda (cuda:N): the learner's networks, sampled batches and updates
     cudagraphs: Any = "auto"  # true | false | auto (on with a CUDA learner): CudaGraphModule around the updates
+    matmul_precision: str = "highest"  # torch.set_float32_matmul_precision: highest | high (TF32) | medium
 
     def __post_init__(self) -> None:
         _at_least("", self, 1, "eval_episodes", "video_episodes")
+        if self.matmul_precision not in MATMUL_PRECISIONS:
+            raise ValueError(
+                f"matmul_precision={self.matmul_precision!r}: known values are {', '.join(MATMUL_PRECISIONS)}"
+            )
         if self.compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or auto, got {self.compile!r}")
         check_device(self.device)

@@ -196,6 +196,7 @@ OPTION_KEYS = (
     "train.priority_alpha",
     "train.priority_beta",
     "collector.sync",
+    "matmul_precision",
 )
 
 
