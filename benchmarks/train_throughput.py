@@ -98,6 +98,7 @@ def transform_kwargs(compile: bool | str | None = None) -> dict:
     builds the stack), or ``compile`` when given."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)["transforms"]
     cfg.pop("enabled", None)
+    cfg["weights"] = "sumo" if cfg.get("weights", "auto") == "auto" else cfg["weights"]  # the SUMO env's (auto)
     if compile is None:
         compile = OmegaConf.load(CONF.parents[1] / "config.yaml")["compile"]
     return {**cfg, "compile": resolve_compile(compile)}  # as make_job resolves it

@@ -90,6 +90,11 @@ def make_kddrl_transforms(
         raise ValueError(f"reduce must be one of {REDUCTIONS}, got {reduce!r}")
     if int(num_samples) < 1:
         raise ValueError(f"num_samples must be >= 1, got {num_samples!r}")
+    if weights == "auto":
+        raise ValueError(
+            "make_kddrl_transforms(weights='auto'): 'auto' (the env simulator's traffic) is resolved by a training "
+            "config (kddrl_trl.factories.make_transforms); here name the traffic: 'sumo' or 'highwayenv'"
+        )
     idm_p, mobil_p = as_idm_params(idm), as_mobil_params(mobil)
     trajgan_checkpoint = trajgan_checkpoint or default_checkpoint("trajgan", weights)
     lcgan_checkpoint = lcgan_checkpoint or default_checkpoint("lcgan", weights)
