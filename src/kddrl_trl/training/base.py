@@ -105,8 +105,8 @@ class Learner(nn.Module):
           without TorchDynamo's guard evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the update functions
           around it stay eager: ``backward`` (the compiled backward graph), fused Adam and ``_foreach_lerp_`` are
           one call each already, and each of them would be a graph break (with its guarded resume frames) inside a
-          compiled update function (``benchmarks/train_throughput.py``: TorchDynamo's cache lookups were 40 % of a
-          compiled TD3 update; now the update costs what a plain-PyTorch one does);
+          compiled update function, whose TorchDynamo cache lookups would then cost more than they save
+          (``benchmarks/train_throughput.py`` measures both);
         - with ``cudagraphs`` (CUDA learners only): each of :meth:`update_functions` is ``torch.compile`` d whole and
           wrapped in ``CudaGraphModule``, whose replays skip Python, guards included."""
         self.compiled = resolved("compile", compile)
