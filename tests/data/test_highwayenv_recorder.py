@@ -109,3 +109,9 @@ def test_record_episode_length_is_checked():
         record_highwayenv_traffic(
             _config(), 10.0, num_roads=1, progress=False, options=HighwayEnvOptions(record_episode_s=1000.0)
         )
+
+
+def test_a_vehicle_length_other_than_highwayenvs_is_refused():
+    cfg = make_config("baseline", {"lane_width": 4.0, "vehicle_length": 4.5})
+    with pytest.raises(ValueError, match="vehicle_length"):
+        record_highwayenv_traffic(cfg, 10.0, num_roads=1, progress=False, options=OPTIONS)

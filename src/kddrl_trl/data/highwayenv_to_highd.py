@@ -119,16 +119,22 @@ def record_highwayenv_traffic(
     ``cfg`` with ``options`` (:class:`~kddrl_trl.envs.highwayenv.HighwayEnvOptions`), in the HighD format at 25 Hz
     (module docstring). The same arguments as :func:`~kddrl_trl.data.sumo_to_highd.record_traffic`, which records
     our SUMO traffic."""
+    from highway_env.vehicle.kinematics import Vehicle
     from tqdm.auto import tqdm
 
     options = check_config(cfg, options)
+    if cfg.vehicle_length != Vehicle.LENGTH:  # the boxes written are env.vehicle_length long
+        raise ValueError(
+            f"env.vehicle_length={cfg.vehicle_length} m, but HighwayEnv's vehicles are {Vehicle.LENGTH} m long: "
+            f"set env.vehicle_length={Vehicle.LENGTH}"
+        )
     dt = cfg.step_length
     num_steps, num_frames = recording_steps(duration_s, num_roads, dt)
     episode_steps = max(1, round(options.record_episode_s / dt))
     substeps = round(options.simulation_frequency * dt)
     config, action = highway_settings(cfg, options)
     env = make_highway(config, action)
-    # every vehicle is in view; HighwayEnv's vehicles are Vehicle.LENGTH (5 m) long
+    # every vehicle is in view
     view = replace(cfg, section_length=HW_ROAD_LENGTH, entry_length=0.0, exit_length=0.0)
     out, crashed = [], 0
     with tqdm(
@@ -154,12 +160,6 @@ def record_highwayenv_traffic(
                 if k % 10 == 0:
                     bar.update(round(r * num_steps * dt + k * dt - bar.n, 6))
             rows = np.concatenate(episodes.rows)
-            lengths = {float(v.LENGTH) for v in env.road.vehicles} or {view.vehicle_length}
-            if lengths != {view.vehicle_length}:
-                raise ValueError(
-                    f"HighwayEnv vehicles are {sorted(lengths)} m long, env.vehicle_length is "
-                    f"{view.vehicle_length} m: set env.vehicle_length to HighwayEnv's"
-                )
             out.append(
                 _build_recording(
                     view,
