@@ -38,6 +38,7 @@ PAIRS = [
     ("d", "c", "HighwayEnv GANs instead of SUMO's"),
     ("d", "e", "KDDRL's predictive states and priors"),
     ("c", "e", "KDDRL with the SUMO GANs"),
+    ("g", "f", "HighwayEnv's own driver against our IDM+MOBIL policy"),
 ]
 METRICS = ("mean_speed_kmh", "collision_rate")
 

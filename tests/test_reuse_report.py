@@ -1,0 +1,114 @@
+"""The HighwayEnv reuse measurement's results (docs/reuse/report.py): every arm recognised from its records, per-arm
+intervals over seeds, exact pooled collision intervals and paired differences over the seeds both arms have."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("reuse_report", ROOT / "docs" / "reuse" / "report.py")
+report = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(report)
+
+
+def _train_run(folder: Path, algo: str, seed: int, speed: float, collisions: int, config: str = "") -> None:
+    (folder / ".hydra").mkdir(parents=True)
+    (folder / ".hydra" / "config.yaml").write_text(f"algo:\n  name: {algo}\n{config}")
+    summary = {
+        "algo": algo,
+        "scenario": "highwayenv",
+        "seed": seed,
+        "mean_speed_kmh": speed,
+        "collision_rate": collisions / 100,
+        "episodes": 100,
+        "outcomes": {"collision": collisions, "left_section": 100 - collisions},
+        "commit": "abc1234",
+    }
+    (folder / "summary.json").write_text(json.dumps(summary))
+
+
+def _example(folder: Path, transforms: bool, seed: int, speed: float, collisions: int) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    name = "transforms" if transforms else "no-transforms"
+    result = {
+        "transforms": transforms,
+        "seed": seed,
+        "mean_speed_kmh": speed,
+        "collision_rate": collisions / 100,
+        "episodes": 100,
+        "commit": "abc1234",
+    }
+    (folder / f"{name}__{seed}.json").write_text(json.dumps(result))
+
+
+@pytest.fixture
+def runs(tmp_path):
+    for seed in range(3):
+        base = tmp_path / "runs"
+        _train_run(base / "highwayenv_gans" / f"highwayenv__kddrl__{seed}", "kddrl", seed, 100 + seed, seed)
+        _train_run(
+            base / "sumo_gans" / f"highwayenv__kddrl__{seed}",
+            "kddrl",
+            seed,
+            90 + 2 * seed,
+            2,
+            "  transforms:\n    weights: sumo\n",
+        )
+        _train_run(base / "highwayenv_gans" / f"highwayenv__d3qn_td3__{seed}", "d3qn_td3", seed, 95.0, 5)
+        _train_run(base / "highwayenv_gans" / f"highwayenv__idm_mobil__{seed}", "idm_mobil", seed, 80.0, 0)
+        _train_run(
+            base / "highwayenv_driver" / f"highwayenv__idm_mobil__{seed}",
+            "idm_mobil",
+            seed,
+            81.0,
+            0,
+            "env:\n  highwayenv:\n    ego_driver: highwayenv\n",
+        )
+        _example(base / "example", True, seed, 70.0 + seed, 10)
+        if seed < 2:  # one seed missing: the paired difference uses the seeds both arms have
+            _example(base / "example", False, seed, 60.0, 20)
+    _train_run(tmp_path / "runs" / "other" / "baseline__kddrl__0", "kddrl", 0, 130.0, 1)  # not HighwayEnv
+    (tmp_path / "runs" / "other" / "baseline__kddrl__0" / "summary.json").write_text(
+        json.dumps(
+            {
+                **json.loads((tmp_path / "runs/other/baseline__kddrl__0/summary.json").read_text()),
+                "scenario": "baseline",
+            }
+        )
+    )
+    return tmp_path / "runs"
+
+
+def test_every_arm_is_recognised_with_its_seeds(runs):
+    results = report.read_results(runs)
+    assert {arm: sorted(r) for arm, r in results.items()} == {
+        "a": [0, 1, 2],
+        "b": [0, 1],
+        "c": [0, 1, 2],
+        "d": [0, 1, 2],
+        "e": [0, 1, 2],
+        "f": [0, 1, 2],
+        "g": [0, 1, 2],
+    }
+    assert results["c"][1]["mean_speed_kmh"] == 92.0 and results["g"][2]["mean_speed_kmh"] == 81.0
+
+
+def test_intervals_pooled_collisions_and_paired_differences(runs, tmp_path):
+    out = report.main([str(runs), "--out", str(tmp_path / "out")])
+    d = out["arms"]["d"]
+    assert d["mean_speed_kmh"]["mean"] == pytest.approx(101.0)
+    assert d["mean_speed_kmh"]["ci_low"] < 101.0 < d["mean_speed_kmh"]["ci_high"]
+    pooled = out["arms"]["f"]["collision_rate"]["pooled"]
+    assert pooled["collisions"] == 0 and pooled["episodes"] == 300
+    assert pooled["clopper_pearson"][0] == 0.0 and 0.0 < pooled["clopper_pearson"][1] < 0.02
+    pairs = {(p["arm"], p["reference"]): p for p in out["paired_differences"]}
+    ab = pairs[("a", "b")]
+    assert ab["seeds"] == [0, 1] and ab["mean_speed_kmh"]["mean"] == pytest.approx(np.mean([10.0, 11.0]))
+    dc = pairs[("d", "c")]
+    assert dc["mean_speed_kmh"]["mean"] == pytest.approx(np.mean([10.0, 9.0, 8.0]))
+    assert dc["collision_rate"]["mean"] == pytest.approx(np.mean([-0.02, -0.01, 0.0]))
+    assert (tmp_path / "out" / "results.md").read_text().count("| (") == 7 + 5
+    assert json.loads((tmp_path / "out" / "results.json").read_text()) == json.loads(json.dumps(out))
