@@ -150,7 +150,7 @@ def main(argv=None) -> dict:
 
     greedy = TensorDictSequential(keep, actor)
     result = evaluate(greedy, args.env, args.roads, args.seed + 1_000_000, args.transforms, args.eval_episodes)
-    result.update(vars(args), train_episodes=episodes, train_frames=frames)
+    result.update(args=vars(args), train_episodes=episodes, train_frames=frames)  # episodes: evaluated
     arm = "with the KDDRL transforms" if args.transforms else "raw observations only"
     print(f"{args.env}, {arm}, seed {args.seed}: {result}")
     if args.out:

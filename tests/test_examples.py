@@ -31,5 +31,5 @@ def test_transforms_in_a_torchrl_td3_loop(transforms, tmp_path):
     args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--out", str(out)]
     result = example.main(args if transforms else [*args, "--no-transforms"])
     assert 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1.0
-    assert result["episodes"] >= 2 and result["train_episodes"] >= 2 and result["train_frames"] > 0
-    assert json.loads(out.read_text()) == result and result["transforms"] == transforms
+    assert 2 <= result["episodes"] < 2 + 2 and result["train_episodes"] >= 2 and result["train_frames"] > 0
+    assert json.loads(out.read_text()) == result and result["args"]["transforms"] == transforms

@@ -34,8 +34,7 @@ def _example(folder: Path, transforms: bool, seed: int, speed: float, collisions
     folder.mkdir(parents=True, exist_ok=True)
     name = "transforms" if transforms else "no-transforms"
     result = {
-        "transforms": transforms,
-        "seed": seed,
+        "args": {"transforms": transforms, "seed": seed, "episodes": 300},
         "mean_speed_kmh": speed,
         "collision_rate": collisions / 100,
         "episodes": 100,

@@ -74,7 +74,7 @@ def read_results(runs: Path) -> dict[str, dict[int, dict]]:
         if path.name == "summary.json" or path.parent.name != "example":
             continue
         r = json.loads(path.read_text())
-        out["a" if r["transforms"] else "b"][int(r["seed"])] = {
+        out["a" if r["args"]["transforms"] else "b"][int(r["args"]["seed"])] = {
             **{m: float(r[m]) for m in METRICS},
             "episodes": int(r["episodes"]),
             "collisions": round(r["collision_rate"] * r["episodes"]),
