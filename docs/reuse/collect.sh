@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Copy the reuse study's finished results into docs/reuse/runs/ (the training runs as docs/paper/collect.sh copies
-# them: no checkpoints, CSVs and logs xz-compressed; the example's JSON results as they are), then the results:
+# them: no checkpoints, CSVs and logs xz-compressed; the example's JSON results as they are), then write the results
+# of every arm (results.md/json) and the package's report of the training runs (report/: kddrl_trl.report):
 #   bash docs/reuse/collect.sh <study output dir, e.g. ../reuse/runs/reuse>
 set -euo pipefail
 SRC=${1:?usage: collect.sh <study output dir>}
@@ -13,3 +14,6 @@ if [ -d "$SRC/example" ]; then
   for f in "$SRC"/example/*.json; do [ -e "$f" ] && cp "$f" "$HERE/runs/example/"; done
 fi
 python "$HERE/report.py" "$HERE/runs" --out "$HERE"
+# Figs. 16-17 from the metrics of the lcGAN these runs used (HighwayEnv's)
+OMP_NUM_THREADS=1 python -m kddrl_trl.report "$HERE/runs" out="$HERE/report" \
+  lcgan_metrics="$HERE/../../src/kddrl_trl/generative/weights/highwayenv/lcgan.metrics.json"
