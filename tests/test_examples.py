@@ -33,3 +33,28 @@ def test_transforms_in_a_torchrl_td3_loop(transforms, tmp_path):
     assert 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1.0
     assert 2 <= result["episodes"] < 2 + 2 and result["train_episodes"] >= 2 and result["train_frames"] > 0
     assert json.loads(out.read_text()) == result and result["args"]["transforms"] == transforms
+
+
+def test_the_example_runs_on_highwayenv(tmp_path):
+    """``--env highwayenv`` (the optional extra ``.[highway]``): the same loop on HighwayEnv, with the transforms
+    and the GANs trained on HighwayEnv's traffic."""
+    pytest.importorskip("highway_env")
+    out = tmp_path / "result.json"
+    result = _example().main(
+        [
+            "--env",
+            "highwayenv",
+            "--episodes",
+            "2",
+            "--warmup",
+            "160",
+            "--roads",
+            "2",
+            "--eval-episodes",
+            "2",
+            "--out",
+            str(out),
+        ]
+    )
+    assert 0.0 < result["mean_speed_kmh"] < 250.0 and result["episodes"] >= 2
+    assert json.loads(out.read_text())["args"]["env"] == "highwayenv"
