@@ -65,6 +65,7 @@ import pandas as pd
 
 from ..envs.config import HighwayConfig
 from ..envs.network import ROAD_SPACING
+from ..envs.observe import lane_and_offset
 from ..io import write_text_atomic
 from .highd import (
     NEIGHBOUR_ID_COLUMNS,
@@ -646,7 +647,7 @@ def _build_recording(
     nb_ids, dhw, thw, ttc, prec_v = _neighbour_gaps(s, fr, view, neighbours, sel, length_m)
     sim_lane = s.lane[fr.r0[sel]]
     if lanes_from_position:
-        sim_lane = np.clip(np.floor(fr.lat[sel] / cfg.lane_width), 0, n_lanes - 1).astype(np.int64)
+        sim_lane = lane_and_offset(fr.lat[sel], cfg.lane_width, n_lanes)[0]
     y = _image_y(lower[-1] - fr.lat[sel], sim_lane, lower, n_lanes, road)
     lane_id = 2 * n_lanes + 2 - sim_lane
     ids = view.rec_id[sv]
