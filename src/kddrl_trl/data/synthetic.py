@@ -66,18 +66,28 @@ def print_summary(s: dict, hw, seed: int, duration_s: float, num_roads: int, sim
     print(f"recordings in {s['out_dir']}")
 
 
+def record_env_traffic(
+    env, out_dir: str | Path, seed: int, duration_s: float, num_roads: int, progress: bool = True
+) -> dict:
+    """Record ``num_roads`` x ``duration_s`` of the traffic of ``env`` (an env node, :func:`traffic_recorder`) into
+    ``out_dir`` (:func:`~kddrl_trl.data.sumo_to_highd.record_to_directory`), print :func:`print_summary` and return
+    the summary."""
+    hw = env.highway()
+    s = record_to_directory(
+        hw, Path(out_dir), duration_s, num_roads=num_roads, seed=seed, progress=progress, recorder=traffic_recorder(env)
+    )
+    print_summary(s, hw, seed, duration_s, num_roads, getattr(env, "simulator", "sumo"))
+    return s
+
+
 def ensure_recordings(
     env, recordings_dir: str | Path, seed: int, duration_s: float, num_roads: int, progress: bool = True
 ) -> Path:
     """``recordings_dir``, after recording ``num_roads`` x ``duration_s`` of the traffic of ``env`` (an env node,
-    :func:`traffic_recorder`) into it if it holds none."""
+    :func:`traffic_recorder`) into it if it holds none (:func:`record_env_traffic`)."""
     rec_dir = Path(recordings_dir)
     if not (rec_dir.is_dir() and list_recordings(rec_dir)):
-        hw, recorder = env.highway(), traffic_recorder(env)
-        s = record_to_directory(
-            hw, rec_dir, duration_s, num_roads=num_roads, seed=seed, progress=progress, recorder=recorder
-        )
-        print_summary(s, hw, seed, duration_s, num_roads, getattr(env, "simulator", "sumo"))
+        record_env_traffic(env, rec_dir, seed, duration_s, num_roads, progress)
     return rec_dir
 
 
