@@ -72,6 +72,7 @@ from kddrl_trl.devtools.bench_results import keep_previous  # noqa: E402
 from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
 from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
+from kddrl_trl.generative import shipped_traffic  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.transforms import (
     DecisionClock,  # noqa: E402
@@ -98,7 +99,7 @@ def transform_kwargs(compile: bool | str | None = None) -> dict:
     builds the stack), or ``compile`` when given."""
     cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)["transforms"]
     cfg.pop("enabled", None)
-    cfg["weights"] = "sumo" if cfg.get("weights", "auto") == "auto" else cfg["weights"]  # the SUMO env's (auto)
+    cfg["weights"] = shipped_traffic(cfg.get("weights", "auto"), "sumo")  # as make_transforms resolves it on SUMO
     if compile is None:
         compile = OmegaConf.load(CONF.parents[1] / "config.yaml")["compile"]
     return {**cfg, "compile": resolve_compile(compile)}  # as make_job resolves it

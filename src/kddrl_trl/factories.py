@@ -58,7 +58,7 @@ from .conf.schema import (
     algo_from_node,
 )
 from .envs.config import HighwayConfig
-from .generative import SHIPPED_TRAFFIC
+from .generative import shipped_traffic
 from .loggers import MultiLogger
 from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
 from .training import (
@@ -156,7 +156,7 @@ def make_transforms(
 ) -> Compose:
     """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
     ``algo.transforms`` (none with ``enabled: false``; ``weights: auto`` takes the GAN weights trained on the
-    traffic of ``simulator``, :data:`kddrl_trl.generative.SHIPPED_TRAFFIC`) and MOBIL's criteria (``mobil_criteria: true``,
+    traffic of ``simulator``, :func:`kddrl_trl.generative.shipped_traffic`) and MOBIL's criteria (``mobil_criteria: true``,
     :class:`~kddrl_trl.transforms.MOBILCriteria`); MOBIL's safety mask where ``algo.mobil_safety_mask``
     (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
     :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
@@ -168,8 +168,7 @@ def make_transforms(
     if learning:
         options = asdict(algo.transforms)
         mobil_criteria = options.pop("mobil_criteria")
-        if options["weights"] == "auto":
-            options["weights"] = simulator if simulator in SHIPPED_TRAFFIC else "sumo"
+        options["weights"] = shipped_traffic(options["weights"], simulator)
         if options.pop("enabled"):
             stack.append(make_kddrl_transforms(**options, seed=seed, num_lanes=highway.num_lanes, compile=compile))
         if mobil_criteria:

@@ -30,6 +30,14 @@ PREDICTORS = {"trajgan": TrajGANPredictor, "lcgan": LCGANPredictor}
 SHIPPED_TRAFFIC = ("sumo", "highwayenv")
 
 
+def shipped_traffic(weights: str, simulator: str) -> str:
+    """The traffic of the shipped weights a ``weights`` choice names (``algo.transforms.weights``): itself, or for
+    ``auto`` the traffic of ``simulator`` where weights trained on it ship, else our SUMO traffic's."""
+    if weights != "auto":
+        return weights
+    return simulator if simulator in SHIPPED_TRAFFIC else "sumo"
+
+
 def default_checkpoint(kind: str, traffic: str = "sumo") -> Path:
     """Path of the weights shipped with the package for ``kind`` ("trajgan" / "lcgan"), trained on ``traffic``
     (one of :data:`SHIPPED_TRAFFIC`)."""
@@ -62,4 +70,5 @@ __all__ = [
     "load_predictor",
     "read_checkpoint",
     "save_checkpoint",
+    "shipped_traffic",
 ]

@@ -93,7 +93,7 @@ def make_kddrl_transforms(
     if weights == "auto":
         raise ValueError(
             "make_kddrl_transforms(weights='auto'): 'auto' (the env simulator's traffic) is resolved by a training "
-            "config (kddrl_trl.factories.make_transforms); here name the traffic: 'sumo' or 'highwayenv'"
+            "config (kddrl_trl.generative.shipped_traffic); here name the traffic: 'sumo' or 'highwayenv'"
         )
     idm_p, mobil_p = as_idm_params(idm), as_mobil_params(mobil)
     trajgan_checkpoint = trajgan_checkpoint or default_checkpoint("trajgan", weights)
