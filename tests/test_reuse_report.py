@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from omegaconf import OmegaConf
+from testkit import fake_run
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("reuse_report", ROOT / "docs" / "reuse" / "report.py")
@@ -14,20 +16,24 @@ report = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(report)
 
 
-def _train_run(folder: Path, algo: str, seed: int, speed: float, collisions: int, config: str = "") -> None:
-    (folder / ".hydra").mkdir(parents=True)
-    (folder / ".hydra" / "config.yaml").write_text(f"algo:\n  name: {algo}\n{config}")
-    summary = {
-        "algo": algo,
-        "scenario": "highwayenv",
-        "seed": seed,
-        "mean_speed_kmh": speed,
-        "collision_rate": collisions / 100,
-        "episodes": 100,
-        "outcomes": {"collision": collisions, "left_section": 100 - collisions},
-        "commit": "abc1234",
-    }
-    (folder / "summary.json").write_text(json.dumps(summary))
+def _train_run(folder: Path, algo: str, seed: int, speed: float, collisions: int, options: dict | None = None) -> None:
+    """A HighwayEnv run's records as the package's report reads them: evaluation episodes, summary, and a config
+    holding the options that tell the arms apart."""
+    fake_run(
+        folder,
+        algo,
+        seed,
+        speeds=(speed, speed),
+        collisions=(False, False),
+        scenario="highwayenv",
+        mean_speed_kmh=speed,
+        collision_rate=collisions / 100,
+        episodes=100,
+        outcomes={"collision": collisions, "left_section": 100 - collisions},
+        commit="abc1234",
+    )
+    config = OmegaConf.merge({"algo": {"name": algo}, "env": {"simulator": "highwayenv"}}, options or {})
+    OmegaConf.save(config, folder / "config.yaml")
 
 
 def _example(folder: Path, transforms: bool, seed: int, speed: float, collisions: int) -> None:
@@ -54,7 +60,7 @@ def runs(tmp_path):
             seed,
             90 + 2 * seed,
             2,
-            "  transforms:\n    weights: sumo\n",
+            {"algo": {"transforms": {"weights": "sumo"}}},
         )
         _train_run(base / "highwayenv_gans" / f"highwayenv__d3qn_td3__{seed}", "d3qn_td3", seed, 95.0, 5)
         _train_run(base / "highwayenv_gans" / f"highwayenv__idm_mobil__{seed}", "idm_mobil", seed, 80.0, 0)
@@ -64,7 +70,7 @@ def runs(tmp_path):
             seed,
             81.0,
             0,
-            "env:\n  highwayenv:\n    ego_driver: highwayenv\n",
+            {"env": {"highwayenv": {"ego_driver": "highwayenv"}}},
         )
         _example(base / "example", True, seed, 70.0 + seed, 10)
         if seed < 2:  # one seed missing: the paired difference uses the seeds both arms have

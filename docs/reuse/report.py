@@ -18,11 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from kddrl_trl.eval.records import find_runs
 from kddrl_trl.eval.verdict import clopper_pearson, t_interval
 from kddrl_trl.io import write_json_atomic, write_text_atomic
 
 HERE = Path(__file__).resolve().parent
-#: arm -> (its description, how a result is recognised)
+#: arm -> its description
 ARMS = {
     "a": "example TD3 with the transforms (HighwayEnv GANs)",
     "b": "example TD3 without the transforms",
@@ -43,36 +44,33 @@ PAIRS = [
 METRICS = ("mean_speed_kmh", "collision_rate")
 
 
-def arm_of_run(summary: dict, config_text: str) -> str | None:
-    """The arm of a ``kddrl_trl.train`` run (None: not one of this study's)."""
-    if summary["scenario"] != "highwayenv":
-        return None
-    algo = summary["algo"]
-    if algo == "kddrl":
-        return "c" if "weights: sumo" in config_text else "d"
-    if algo == "idm_mobil" and "ego_driver: highwayenv" in config_text:
-        return "g"
-    return {"d3qn_td3": "e", "idm_mobil": "f"}.get(algo)
+#: (scenario, the package's row label of a run, :func:`kddrl_trl.eval.records.algo_label`) -> arm: the options that
+#: tell the arms apart are the report's own (``algo.transforms.weights``, ``env.highwayenv.ego_driver``)
+ARM_OF_ROW = {
+    ("highwayenv", "kddrl [algo.transforms.weights=sumo]"): "c",
+    ("highwayenv", "kddrl"): "d",
+    ("highwayenv", "d3qn_td3"): "e",
+    ("highwayenv", "idm_mobil"): "f",
+    ("highwayenv", "idm_mobil [env.highwayenv.ego_driver=highwayenv]"): "g",
+}
 
 
 def read_results(runs: Path) -> dict[str, dict[int, dict]]:
-    """arm -> seed -> {metric: value, "episodes", "collisions", "commit"}."""
+    """arm -> seed -> {metric: value, "episodes", "collisions", "commit"}: the training runs as the package's report
+    reads them (:func:`kddrl_trl.eval.records.find_runs`), the example's JSON results under ``runs/example``."""
     out: dict[str, dict[int, dict]] = {arm: {} for arm in ARMS}
-    for path in sorted(runs.rglob("summary.json")):
-        if path.parent.name.startswith("eval__"):
-            continue
-        s = json.loads(path.read_text())
-        arm = arm_of_run(s, (path.parent / ".hydra" / "config.yaml").read_text())
+    records = find_runs([runs]) if any(runs.rglob("summary.json")) else []
+    for rec in records:
+        arm = ARM_OF_ROW.get((rec.scenario, rec.algo))
         if arm is not None:
-            out[arm][int(s["seed"])] = {
+            s = rec.summary
+            out[arm][rec.seed] = {
                 **{m: float(s[m]) for m in METRICS},
                 "episodes": int(s["episodes"]),
                 "collisions": int(s["outcomes"].get("collision", 0)),
                 "commit": s.get("commit"),
             }
-    for path in sorted(runs.rglob("*.json")):
-        if path.name == "summary.json" or path.parent.name != "example":
-            continue
+    for path in sorted((runs / "example").glob("*.json")):
         r = json.loads(path.read_text())
         out["a" if r["args"]["transforms"] else "b"][int(r["args"]["seed"])] = {
             **{m: float(r[m]) for m in METRICS},
