@@ -11,19 +11,14 @@ import sys
 
 import pandas as pd
 import pytest
-from testkit import run_module
+from testkit import TINY_BUDGET, run_module
 
 #: one run of each kind: a rule-based one and a KDDRL one that trains, checkpoints and validates (in a process of
 #: its own, inside the Ray worker) with a tiny budget
 TINY = [
     "episodes=3",
     "eval_episodes=2",
-    "env.num_roads=2",
-    "progress=false",
-    "train.warmup_frames=50",
-    "train.batch_size_cf=32",
-    "train.batch_size_lc=8",
-    "compile=false",
+    *TINY_BUDGET,
     "train.eval_every=2",
     "train.eval_episodes=1",
     "train.checkpoint_every=2",

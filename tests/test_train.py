@@ -8,7 +8,7 @@ import sys
 
 import pytest
 from hydra import compose, initialize_config_module
-from testkit import SMALL_NETS, TINY, compose_job, fake_trainer
+from testkit import SMALL_NETS, TINY, TINY_BUDGET, compose_job, fake_trainer
 
 
 def test_scenario_is_appended_not_required():
@@ -97,12 +97,7 @@ def test_the_new_systems_train_and_evaluate_on_sumo_as_typed(algo, small, tmp_pa
         "episodes=3",
         "eval_episodes=2",
         "train.eval_every=0",
-        "env.num_roads=2",
-        "progress=false",
-        "train.warmup_frames=50",
-        "train.batch_size_cf=32",
-        "train.batch_size_lc=8",
-        "compile=false",
+        *TINY_BUDGET,
         small,
     ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)

@@ -137,17 +137,17 @@ def fake_run(
     return folder
 
 
-#: a tiny, fast KDDRL budget: 2 roads, small networks, no compiling, updates from the first batches
-TINY = [
+#: the tiny training budget every algo shares: 2 roads, no progress bars, no compiling, updates from the first batches
+TINY_BUDGET = [
     "env.num_roads=2",
     "progress=false",
     "train.warmup_frames=50",
     "train.batch_size_cf=32",
     "train.batch_size_lc=8",
     "compile=false",
-    "algo.learner.d3qn.hidden=[32,32]",
-    "algo.learner.td3.hidden=[32,32]",
 ]
+#: a tiny, fast KDDRL budget: :data:`TINY_BUDGET` with small networks
+TINY = [*TINY_BUDGET, "algo.learner.d3qn.hidden=[32,32]", "algo.learner.td3.hidden=[32,32]"]
 
 
 def run_module(cmd, cwd, timeout=900):

@@ -9,7 +9,7 @@ import subprocess
 import numpy as np
 import pandas as pd
 import pytest
-from testkit import fake_run, run_module
+from testkit import TINY_BUDGET, fake_run, run_module
 
 from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
 from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
@@ -18,12 +18,7 @@ from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
 TINY = [
     "episodes=4",
     "eval_episodes=4",
-    "env.num_roads=2",
-    "progress=false",
-    "train.warmup_frames=50",
-    "train.batch_size_cf=32",
-    "train.batch_size_lc=8",
-    "compile=false",
+    *TINY_BUDGET,
     "train.eval_every=2",
     "train.eval_episodes=2",
     "env.max_steps=120",
