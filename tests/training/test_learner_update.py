@@ -98,6 +98,39 @@ def test_compiled_update_functions_match_the_eager_ones(samples):
     assert_same_tensors(eager, compiled, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow
+def test_the_cpp_wrapper_of_the_compiled_loss_changes_no_bit(samples, monkeypatch):
+    """On the CPU the learner's loss is compiled with TorchInductor's C++ wrapper
+    (:func:`~kddrl_trl.compiling.inductor_options`): the same kernels, called from C++ instead of Python, so the
+    same parameters, bit for bit, as the Python wrapper after the same D3QN and TD3 updates (the TD3 target noise
+    drawn by eager PyTorch in both arms: ``fallback_random``)."""
+    import torch._inductor.config as inductor_config
+
+    from kddrl_trl.compiling import fresh_compiler, inductor_options
+    from kddrl_trl.training import base
+
+    assert inductor_options("cpu") == {"cpp_wrapper": True} and inductor_options("cuda") == {}
+    frames, macros = samples
+    arms = {}
+    for wrapper in ("python", "cpp"):
+        fresh_compiler()  # the arms must not share a cached graph
+        if wrapper == "python":
+            monkeypatch.setattr(base, "inductor_options", lambda device: {})
+        else:
+            monkeypatch.undo()
+        torch.manual_seed(1)
+        arms[wrapper] = learner = HierarchicalLearner(**SMALL, compile=True)
+        with inductor_config.patch(fallback_random=True):
+            learner_steps(learner, frames[:4], macros)
+    fresh_compiler()
+    python, cpp = (arms[w].state_dict() for w in ("python", "cpp"))
+    torch.manual_seed(1)
+    start = HierarchicalLearner(**SMALL).state_dict()
+    assert any(not torch.equal(python[k], start[k]) for k in start if "target" not in k)  # the updates moved it
+    for name in python:
+        assert torch.equal(python[name], cpp[name]), name
+
+
 @pytest.mark.parametrize("compile", [False, True])
 def test_graphed_update_copies_each_batch_into_the_inputs_it_captured(samples, compile):
     """:class:`~kddrl_trl.compiling.GraphedUpdate` (the CUDA-graph path of an update function; here on the CPU,

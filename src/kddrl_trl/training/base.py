@@ -49,7 +49,7 @@ from torch import nn
 
 from .. import keys as K
 from ..collectors import PolicySnapshot
-from ..compiling import GraphedUpdate, WarmCompiled, resolve_cudagraphs, resolved
+from ..compiling import GraphedUpdate, WarmCompiled, inductor_options, resolve_cudagraphs, resolved
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
 STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
@@ -101,7 +101,8 @@ class Learner(nn.Module):
         """The learner's one compile site (module docstring), when ``compile`` (resolved by
         :func:`kddrl_trl.factories.make_job`), with fixed minibatch shapes (``dynamic=False``):
 
-        - without CUDA graphs (the CPU): the learner's :meth:`loss` is ``torch.compile`` d and, once warm, called
+        - without CUDA graphs (the CPU): the learner's :meth:`loss` is ``torch.compile`` d (on the CPU with
+          TorchInductor's C++ wrapper, :func:`~kddrl_trl.compiling.inductor_options`) and, once warm, called
           without TorchDynamo's guard evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the update functions
           around it stay eager: ``backward`` (the compiled backward graph), fused Adam and ``_foreach_lerp_`` are
           one call each already, and each of them would be a graph break (with its guarded resume frames) inside a
@@ -112,7 +113,8 @@ class Learner(nn.Module):
         self.compiled = resolved("compile", compile)
         self.cudagraphs = resolve_cudagraphs(resolved("cudagraphs", cudagraphs), self.device)  # refused off CUDA
         if self.compiled and not self.cudagraphs:
-            self.__dict__["loss"] = WarmCompiled(torch.compile(self.loss, dynamic=False))
+            options = inductor_options(self.device)
+            self.__dict__["loss"] = WarmCompiled(torch.compile(self.loss, dynamic=False, options=options))
         fns = {}
         for name, fn in self.update_functions().items():
             if self.compiled and self.cudagraphs:
