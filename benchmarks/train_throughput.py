@@ -409,39 +409,93 @@ def measure_acting(k: int, calls: int, seed: int, devices: list[torch.device]) -
     return {"num_roads": k, "calls": calls, "ms_per_call": rows, "fastest": min(rows, key=rows.get)}
 
 
+class _Stopwatch:
+    """Seconds spent in chosen methods of chosen objects, summed per part (:func:`measure_collect`'s breakdown).
+    ``wrap(obj, method, part)`` replaces the bound method on the instance by a timed call of it; ``running``
+    switches the timing on (off: the calls only pass through)."""
+
+    def __init__(self, timer):
+        self.timer, self.seconds, self.running, self.depth = timer, {}, False, 0
+
+    def wrap(self, obj, method: str, part: str) -> None:
+        inner = getattr(obj, method)
+        self.seconds.setdefault(part, 0.0)
+
+        def timed(*args, **kwargs):
+            if not self.running or self.depth:  # a part called inside another counts for the outer one
+                return inner(*args, **kwargs)
+            self.depth += 1
+            t0 = self.timer()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                self.seconds[part] += self.timer() - t0
+                self.depth -= 1
+
+        object.__setattr__(obj, method, timed) if isinstance(obj, torch.nn.Module) else setattr(obj, method, timed)
+
+
 def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile: bool | str | None = None) -> dict:
     """(b) at ``k`` roads; ``clock="cpu"`` times both arms in CPU seconds of this (single-threaded) process, which a
-    shared, saturated machine does not distort as it does wall time."""
+    shared, saturated machine does not distort as it does wall time.
+
+    ``breakdown``: where the collection's time goes, in milliseconds per env step (``k`` ego-frames) and as shares:
+    ``env`` (``SumoHighwayEnv`` 's step and partial resets: SUMO and the observation building), ``transforms``
+    (the transform stack and the decision clock, on every step and reset), ``policy`` (both agents' acting call),
+    ``buffers`` (the macro-transition writer and both buffers' writes) and ``torchrl``: the rest of the wall time,
+    TorchRL's own collector and ``TransformedEnv`` plumbing (the rollout loop, ``step_mdp``, the TensorDict
+    copies). The parts are timed around those calls only, so nothing else is counted twice."""
     timer = CLOCKS[clock]
     sim_fps, _ = measure_sim("baseline", k, seed, frames // k, 20, timer=timer)
     learner = HierarchicalLearner(**learner_kwargs(False)[0])
     env = collect_env(k, compile, seed=seed)
     rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
+    policy = learner.policy()
     mtc = MultiTimescaleCollector.from_env(
         env,
-        learner.policy(),
+        policy,
         frames_per_env=20,
         frame_buffer=rb_cf,
         macro_buffer=rb_lc,
         frame_keys=learner.buffer_keys(),
     )
+    watch = _Stopwatch(timer)
+    for obj, method, part in (
+        (env.base_env, "_step", "env"),
+        (env.base_env, "_reset", "env"),
+        (env.transform, "_step", "transforms"),
+        (env.transform, "_reset", "transforms"),
+        (policy, "forward", "policy"),
+        (mtc, "writer", "buffers"),
+        (rb_cf, "extend", "buffers"),
+        (rb_lc, "extend", "buffers"),
+    ):
+        watch.wrap(obj, method, part)
     try:
         it = iter(mtc)
         for _ in range(3):  # warm-up batches (and the one-off compile of the stack), untimed
             next(it)
+        watch.running = True
         t0, n = timer(), 0
         while n < frames:
             n += next(it).frames.numel()
-        fps = n / (timer() - t0)
+        elapsed = timer() - t0
+        fps = n / elapsed
     finally:
         mtc.shutdown(close_env=False)
         env.close()
+    parts = {**watch.seconds, "torchrl": elapsed - sum(watch.seconds.values())}
+    steps = n / k
     return {
         "num_roads": k,
         "clock": clock,
         "sim_limit_fps": sim_fps,
         "collect_fps": fps,
         "collect_ratio_vs_sim": fps / sim_fps,
+        "breakdown": {
+            "ms_per_env_step": {name: 1e3 * t / steps for name, t in parts.items()},
+            "share": {name: t / elapsed for name, t in parts.items()},
+        },
     }
 
 
@@ -757,6 +811,11 @@ def main(argv=None) -> int:
             f"{'':<38}{c['num_roads']:>3}{c['sim_limit_fps']:>15.0f}{c['collect_fps']:>13.0f}"
             f"{c['collect_ratio_vs_sim']:>8.2f}{gain}"
         )
+    for c in result.get("collect", []):
+        parts = c["breakdown"]["ms_per_env_step"]
+        print(f"\n{'collection, per env step, K = ' + str(c['num_roads']):<38}{'ms':>8}{'share':>8}")
+        for name, ms in parts.items():
+            print(f"{'  ' + name:<38}{ms:>8.2f}{100 * c['breakdown']['share'][name]:>7.1f}%")
     if result.get("collect_workers"):
         print(
             f"\n{'collection with worker processes':<38}{'N':>3}{'K':>4}{'collect fps':>13}{'fps(N) / (N fps(1))':>21}"
