@@ -10,6 +10,8 @@
     action on decision frames in the TD3 target, delayed actor on detached s_e, Polyak updates of every target
     incl. the embedding's; :class:`PlainKDDRL`, proved equal by ``tests/training/test_learner_update.py``).
     ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs nothing extra). Replay sampling is outside the timed part for both.
+    On the CPU also ``compiled_python_wrapper``: the compiled learner with TorchInductor's Python wrapper instead
+    of the C++ one (:func:`python_wrapper`); ``cpp_wrapper_gain`` = its time / the compiled arm's.
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
     ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is
     found) + DecisionClock + both exploring policies through
@@ -176,7 +178,9 @@ def measure_update(
     cf_batches = [rb_cf.sample() for _ in range(updates)]
     lc_batches = [rb_lc.sample() for _ in range(max(updates // 4, 20))]
     arms = {}
-    names = ("plain", "eager", "compiled") + (("compiled_cpu_batches",) if device.type == "cuda" else ())
+    names = ("plain", "eager", "compiled") + (
+        ("compiled_cpu_batches",) if device.type == "cuda" else ("compiled_python_wrapper",)
+    )
     on_device = [b.to(device) for b in cf_batches], [b.to(device) for b in lc_batches]  # as the buffers sample
     for name in names:
         compiled = name.startswith("compiled")
@@ -193,6 +197,9 @@ def measure_update(
             )
         elif name == "compiled_cpu_batches":  # the batches moved by the learner, update by update
             arms[name] = (learner.update_cf, learner.update_lc, cf_batches, lc_batches)
+        elif name == "compiled_python_wrapper":
+            python_wrapper(learner)
+            arms[name] = (learner.update_cf, learner.update_lc, *on_device)
         else:
             arms[name] = (learner.update_cf, learner.update_lc, *on_device)
     runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
@@ -221,6 +228,22 @@ def measure_update(
         "batch_size_lc": int(lc_batches[0].numel()),
         **rows,
     }
+
+
+def python_wrapper(learner: HierarchicalLearner) -> None:
+    """The learner's loss compiled as ``compile=True`` compiles it, but with TorchInductor's default Python wrapper
+    instead of the C++ one of :func:`kddrl_trl.compiling.inductor_options`: the arm ``compiled_python_wrapper``,
+    which tells what the C++ wrapper earns. The loss is compiled from a copy of its code object, so that TorchDynamo
+    keeps its graphs apart from those of the ``compiled`` arm (its cache is per code object) and both arms can take
+    turns in one process."""
+    from types import FunctionType
+
+    from kddrl_trl.compiling import WarmCompiled
+
+    fn = type(learner).loss
+    copy = FunctionType(fn.__code__.replace(co_name="loss_python_wrapper"), fn.__globals__, "loss_python_wrapper")
+    bound = copy.__get__(learner)
+    learner.__dict__["loss"] = WarmCompiled(torch.compile(bound, dynamic=False))
 
 
 def update_flops(seed: int, updates: int = 8) -> dict:
@@ -761,6 +784,10 @@ def main(argv=None) -> int:
     elif update is not None:
         result["update_ratio_vs_plain"] = update["plain"]["per_frame_s"] / update["compiled"]["per_frame_s"]
         result["update_ratio_vs_plain_eager"] = update["plain"]["per_frame_s"] / update["eager"]["per_frame_s"]
+        if "compiled_python_wrapper" in update:  # what the C++ wrapper earns: > 1.0 is a gain
+            result["cpp_wrapper_gain"] = (
+                update["compiled_python_wrapper"]["per_frame_s"] / update["compiled"]["per_frame_s"]
+            )
     if collect:
         result["collect_ratio_vs_sim"] = min(c["collect_ratio_vs_sim"] for c in collect)
     if args.full_run is not None:
@@ -783,7 +810,9 @@ def main(argv=None) -> int:
             f"{'ratio vs plain':>15}"
         )
         print(f"(device {update['device']})")
-        for name in [n for n in ("plain", "eager", "compiled", "compiled_cpu_batches") if n in update]:
+        for name in [
+            n for n in ("plain", "eager", "compiled", "compiled_python_wrapper", "compiled_cpu_batches") if n in update
+        ]:
             r = update[name]
             print(
                 f"{name:<34}{1 / r['td3_update_s']:>10.0f}{1 / r['d3qn_update_s']:>11.0f}"
