@@ -115,5 +115,11 @@ def test_intervals_pooled_collisions_and_paired_differences(runs, tmp_path):
     dc = pairs[("d", "c")]
     assert dc["mean_speed_kmh"]["mean"] == pytest.approx(np.mean([10.0, 9.0, 8.0]))
     assert dc["collision_rate"]["mean"] == pytest.approx(np.mean([-0.02, -0.01, 0.0]))
+    assert dc["collision_rate"]["ci_low"] < 0.0  # a difference of rates may be negative
+    cut = [a for a in out["arms"].values() if a["collision_rate"]["ci_low"] == 0.0]
+    assert cut, "the fixture has an arm whose rate interval over seeds reaches below 0 %"
+    for arm in out["arms"].values():  # an arm's rate interval stays within [0, 1]
+        rate = arm["collision_rate"]
+        assert rate["ci_low"] is None or 0.0 <= rate["ci_low"] <= rate["mean"] <= rate["ci_high"] <= 1.0
     assert (tmp_path / "out" / "results.md").read_text().count("| (") == 7 + 5
     assert json.loads((tmp_path / "out" / "results.json").read_text()) == json.loads(json.dumps(out))

@@ -5,8 +5,8 @@
 
 Reads the runs of ``python -m kddrl_trl.train`` (``summary.json``) and the example's JSON results under the runs
 folder, and writes ``results.json`` and ``results.md``. Per arm: the mean over seeds of each seed's evaluation
-value with its Student-t interval over seeds (``kddrl_trl.eval.verdict.t_interval``), and for the collision rate
-also the exact (Clopper-Pearson) interval over the pooled episodes. Paired differences (the same seed gives every
+value with its Student-t interval over seeds (``kddrl_trl.eval.verdict.t_interval``; a collision rate's cut to
+[0, 1], the range of a rate), and for the collision rate also the exact (Clopper-Pearson) interval over the pooled episodes. Paired differences (the same seed gives every
 arm the same evaluation traffic) with their Student-t interval over the seeds both arms have.
 """
 
@@ -96,6 +96,9 @@ def summarise(results: dict[str, dict[int, dict]]) -> dict:
         row = {"arm": arm, "system": ARMS[arm], "seeds": seeds}
         for m in METRICS:
             row[m] = {**interval([by_seed[s][m] for s in seeds]), "per_seed": [by_seed[s][m] for s in seeds]}
+        rate = row["collision_rate"]
+        if rate["ci_low"] is not None:  # a rate lies in [0, 1]: its interval over seeds is cut to that range
+            rate["ci_low"], rate["ci_high"] = max(rate["ci_low"], 0.0), min(rate["ci_high"], 1.0)
         k, n = sum(by_seed[s]["collisions"] for s in seeds), sum(by_seed[s]["episodes"] for s in seeds)
         row["collision_rate"]["pooled"] = {"collisions": k, "episodes": n}
         if n:
@@ -126,7 +129,8 @@ def markdown(report: dict) -> str:
         "# HighwayEnv reuse measurement: results",
         "",
         "Made by `python docs/reuse/report.py` from `docs/reuse/runs/` (protocol: `docs/reuse/README.md`). Means over"
-        " seeds with 95 % Student-t intervals over seeds; collisions also pooled over episodes (Clopper-Pearson).",
+        " seeds with 95 % Student-t intervals over seeds (a collision rate's cut to [0, 100] %); collisions also pooled"
+        " over episodes (Clopper-Pearson).",
         "",
         "| arm | system | seeds | mean speed (km/h) | collision rate (%) | pooled collisions (95 % CI, %) |",
         "|---|---|---|---|---|---|",
