@@ -1,4 +1,4 @@
-"""Issue 15: the learners' update functions (one per gradient step, compiled at the one compile site, CUDA-graphed
+"""The learners' update functions (one per gradient step, compiled at the one compile site, CUDA-graphed
 on a GPU) against the TorchRL reference loop they replace, and the ``device`` / ``cudagraphs`` options."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ def samples():
 
 
 def reference_steps(learner: HierarchicalLearner, frames, macros) -> None:
-    """The update loop before issue 15, step by step: the learner's losses, its optimisers, TorchRL's
+    """The update loop the update functions replace, step by step: the learner's losses, its optimisers, TorchRL's
     ``SoftUpdate.step()`` (tensor by tensor) and the target embedding lerped parameter by parameter."""
 
     def soft_embedding():
