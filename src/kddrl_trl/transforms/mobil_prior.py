@@ -82,7 +82,41 @@ def mobil_safe_from_obs(
     return mobil_criteria_from_obs(ego, lane, kin, mask, num_lanes, idm, mobil)[1]
 
 
-class MOBILPrior(PredictiveTransform):
+class _MOBILOnObs(PredictiveTransform):
+    """What the MOBIL transforms share: MOBIL and IDM parameters (default Table A.1; the dataclasses or mappings of
+    their fields), the road's ``num_lanes``, the raw observation keys MOBIL reads (``EGO_STATE``, ``EGO_LANE``,
+    ``NEIGHBORS_KIN``, ``NEIGHBORS_MASK``, then ``extra_in_keys``) and :meth:`on_obs`, one of the ``*_from_obs``
+    functions above applied to a frame's values with those parameters."""
+
+    def __init__(
+        self,
+        mobil: MOBILParams | Mapping | None,
+        idm: IDMParams | Mapping | None,
+        num_lanes: int,
+        *,
+        out_keys: list,
+        extra_in_keys: tuple = (),
+    ):
+        self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
+        in_keys = [K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, *extra_in_keys]
+        super().__init__(in_keys=in_keys, out_keys=out_keys)
+
+    def on_obs(self, fn, values):
+        return fn(
+            values[K.EGO_STATE],
+            values[K.EGO_LANE],
+            values[K.NEIGHBORS_KIN],
+            values[K.NEIGHBORS_MASK],
+            num_lanes=self.num_lanes,
+            idm=self.idm,
+            mobil=self.mobil,
+        )
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(num_lanes={self.num_lanes}, mobil={self.mobil}, idm={self.idm})"
+
+
+class MOBILPrior(_MOBILOnObs):
     """``P_MOBIL`` over (left, keep, right) -> ``keys.PRIOR_P_MOBIL`` ``[*B, 3]`` (paper Eq. 20-22).
 
     Safety check (Eq. 20, plus ``a_TF_new > -b_safe`` of Eq. 21), utilities ``U_d`` (Eq. 21) and their
@@ -102,31 +136,17 @@ class MOBILPrior(PredictiveTransform):
     def __init__(
         self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None, num_lanes: int = 3
     ):
-        self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
-        super().__init__(
-            in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK], out_keys=[K.PRIOR_P_MOBIL]
-        )
+        super().__init__(mobil, idm, num_lanes, out_keys=[K.PRIOR_P_MOBIL])
 
     def frame(self, values, noise=None) -> dict:
-        p = mobil_prior_from_obs(
-            values[K.EGO_STATE],
-            values[K.EGO_LANE],
-            values[K.NEIGHBORS_KIN],
-            values[K.NEIGHBORS_MASK],
-            num_lanes=self.num_lanes,
-            idm=self.idm,
-            mobil=self.mobil,
-        )
+        p = self.on_obs(mobil_prior_from_obs, values)
         return {K.PRIOR_P_MOBIL: p}
 
     def out_specs(self, batch, device) -> dict:
         return {K.PRIOR_P_MOBIL: probability_spec(batch, (3,), device)}
 
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}(num_lanes={self.num_lanes}, mobil={self.mobil}, idm={self.idm})"
 
-
-class MOBILSafetyMask(PredictiveTransform):
+class MOBILSafetyMask(_MOBILOnObs):
     """MOBIL's safety check as a hard constraint: ``keys.LC_ACTION_MASK`` AND the safety flags of Eq. 20-21.
 
     §III.C.2: "The built-in safety checking mechanism of the MOBIL enforces hard safety distance constraints to
@@ -153,29 +173,14 @@ class MOBILSafetyMask(PredictiveTransform):
     def __init__(
         self, mobil: MOBILParams | Mapping | None = None, idm: IDMParams | Mapping | None = None, num_lanes: int = 3
     ):
-        self.mobil, self.idm, self.num_lanes = as_mobil_params(mobil), as_idm_params(idm), int(num_lanes)
-        super().__init__(
-            in_keys=[K.EGO_STATE, K.EGO_LANE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LC_ACTION_MASK],
-            out_keys=[K.LC_ACTION_MASK],
-        )
+        super().__init__(mobil, idm, num_lanes, out_keys=[K.LC_ACTION_MASK], extra_in_keys=[K.LC_ACTION_MASK])
 
     def frame(self, values, noise=None) -> dict:
-        safe = mobil_safe_from_obs(
-            values[K.EGO_STATE],
-            values[K.EGO_LANE],
-            values[K.NEIGHBORS_KIN],
-            values[K.NEIGHBORS_MASK],
-            num_lanes=self.num_lanes,
-            idm=self.idm,
-            mobil=self.mobil,
-        )
+        safe = self.on_obs(mobil_safe_from_obs, values)
         return {K.LC_ACTION_MASK: values[K.LC_ACTION_MASK].bool() & safe}
 
     def out_specs(self, batch, device) -> dict:
         return {K.LC_ACTION_MASK: Categorical(2, shape=(*batch, 3), dtype=torch.bool, device=device)}
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}(num_lanes={self.num_lanes}, mobil={self.mobil}, idm={self.idm})"
 
 
 class MOBILCriteria(MOBILPrior):
@@ -197,15 +202,7 @@ class MOBILCriteria(MOBILPrior):
         self.out_keys = [K.MOBIL_INCENTIVE, K.MOBIL_SAFE]
 
     def frame(self, values, noise=None) -> dict:
-        u, safe = mobil_criteria_from_obs(
-            values[K.EGO_STATE],
-            values[K.EGO_LANE],
-            values[K.NEIGHBORS_KIN],
-            values[K.NEIGHBORS_MASK],
-            num_lanes=self.num_lanes,
-            idm=self.idm,
-            mobil=self.mobil,
-        )
+        u, safe = self.on_obs(mobil_criteria_from_obs, values)
         return {K.MOBIL_INCENTIVE: u, K.MOBIL_SAFE: safe}
 
     def out_specs(self, batch, device) -> dict:
