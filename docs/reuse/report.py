@@ -6,8 +6,9 @@
 Reads the runs of ``python -m kddrl_trl.train`` (``summary.json``) and the example's JSON results under the runs
 folder, and writes ``results.json`` and ``results.md``. Per arm: the mean over seeds of each seed's evaluation
 value with its Student-t interval over seeds (``kddrl_trl.eval.verdict.t_interval``; a collision rate's cut to
-[0, 1], the range of a rate), and for the collision rate also the exact (Clopper-Pearson) interval over the pooled episodes. Paired differences (the same seed gives every
-arm the same evaluation traffic) with their Student-t interval over the seeds both arms have.
+[0, 1], the range of a rate), and for the collision rate also the exact (Clopper-Pearson) interval over the pooled
+episodes. Paired differences (the same seed gives every arm the same evaluation traffic) with their Student-t
+interval over the seeds both arms have.
 """
 
 from __future__ import annotations
