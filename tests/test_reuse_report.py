@@ -123,3 +123,23 @@ def test_intervals_pooled_collisions_and_paired_differences(runs, tmp_path):
         assert rate["ci_low"] is None or 0.0 <= rate["ci_low"] <= rate["mean"] <= rate["ci_high"] <= 1.0
     assert (tmp_path / "out" / "results.md").read_text().count("| (") == 7 + 5
     assert json.loads((tmp_path / "out" / "results.json").read_text()) == json.loads(json.dumps(out))
+
+
+def test_a_difference_of_collision_rates_is_cut_to_the_range_it_can_take():
+    """Two seeds whose differences of rates disagree give a Student-t interval far beyond ±1; it is cut to [-1, 1],
+    while a speed difference, which has no such range, keeps its whole interval."""
+    results = {arm: {} for arm in report.ARMS}
+    for seed, (rate_a, rate_b, speed_a) in enumerate([(0.9, 0.0, 90.0), (0.1, 0.95, 70.0)]):
+        for arm, rate, speed in (("a", rate_a, speed_a), ("b", rate_b, 80.0)):
+            results[arm][seed] = {
+                "mean_speed_kmh": speed,
+                "collision_rate": rate,
+                "episodes": 100,
+                "collisions": round(100 * rate),
+                "commit": "abc1234",
+            }
+    ab = report.summarise(results)["paired_differences"][0]
+    assert (ab["arm"], ab["reference"]) == ("a", "b")
+    assert ab["collision_rate"]["mean"] == pytest.approx(0.025)
+    assert (ab["collision_rate"]["ci_low"], ab["collision_rate"]["ci_high"]) == (-1.0, 1.0)
+    assert ab["mean_speed_kmh"]["ci_low"] < -100.0 and ab["mean_speed_kmh"]["ci_high"] > 100.0

@@ -8,7 +8,7 @@ folder, and writes ``results.json`` and ``results.md``. Per arm: the mean over s
 value with its Student-t interval over seeds (``kddrl_trl.eval.verdict.t_interval``; a collision rate's cut to
 [0, 1], the range of a rate), and for the collision rate also the exact (Clopper-Pearson) interval over the pooled
 episodes. Paired differences (the same seed gives every arm the same evaluation traffic) with their Student-t
-interval over the seeds both arms have.
+interval over the seeds both arms have (a difference of collision rates cut to [-1, 1], the range it can take).
 """
 
 from __future__ import annotations
@@ -82,11 +82,19 @@ def read_results(runs: Path) -> dict[str, dict[int, dict]]:
     return out
 
 
-def interval(values) -> dict:
+#: the range a metric, and a difference of it between two arms, can take: an interval over seeds is cut to it
+RANGE = {"collision_rate": (0.0, 1.0)}
+DIFFERENCE_RANGE = {"collision_rate": (-1.0, 1.0)}
+
+
+def interval(values, within: tuple[float, float] | None = None) -> dict:
+    """Mean over seeds with its Student-t interval, cut to ``within`` (the values' possible range) when given."""
     values = np.asarray(values, dtype=float)
     if values.size < 2:
         return {"mean": float(values.mean()) if values.size else None, "ci_low": None, "ci_high": None}
     low, high, p = t_interval(values)
+    if within is not None:
+        low, high = max(low, within[0]), min(high, within[1])
     return {"mean": float(values.mean()), "ci_low": low, "ci_high": high, "p": p}
 
 
@@ -96,10 +104,8 @@ def summarise(results: dict[str, dict[int, dict]]) -> dict:
         seeds = sorted(by_seed)
         row = {"arm": arm, "system": ARMS[arm], "seeds": seeds}
         for m in METRICS:
-            row[m] = {**interval([by_seed[s][m] for s in seeds]), "per_seed": [by_seed[s][m] for s in seeds]}
-        rate = row["collision_rate"]
-        if rate["ci_low"] is not None:  # a rate lies in [0, 1]: its interval over seeds is cut to that range
-            rate["ci_low"], rate["ci_high"] = max(rate["ci_low"], 0.0), min(rate["ci_high"], 1.0)
+            values = [by_seed[s][m] for s in seeds]
+            row[m] = {**interval(values, RANGE.get(m)), "per_seed": values}
         k, n = sum(by_seed[s]["collisions"] for s in seeds), sum(by_seed[s]["episodes"] for s in seeds)
         row["collision_rate"]["pooled"] = {"collisions": k, "episodes": n}
         if n:
@@ -111,7 +117,7 @@ def summarise(results: dict[str, dict[int, dict]]) -> dict:
         seeds = sorted(set(results[a]) & set(results[b]))
         pair = {"arm": a, "reference": b, "what": what, "seeds": seeds}
         for m in METRICS:
-            pair[m] = interval([results[a][s][m] - results[b][s][m] for s in seeds])
+            pair[m] = interval([results[a][s][m] - results[b][s][m] for s in seeds], DIFFERENCE_RANGE.get(m))
         pairs.append(pair)
     return {"arms": arms, "paired_differences": pairs}
 
@@ -130,7 +136,8 @@ def markdown(report: dict) -> str:
         "# HighwayEnv reuse measurement: results",
         "",
         "Made by `python docs/reuse/report.py` from `docs/reuse/runs/` (protocol: `docs/reuse/README.md`). Means over"
-        " seeds with 95 % Student-t intervals over seeds (a collision rate's cut to [0, 100] %); collisions also pooled"
+        " seeds with 95 % Student-t intervals over seeds (a collision rate's cut to [0, 100] %, a difference of two to"
+        " [-100, 100] points); collisions also pooled"
         " over episodes (Clopper-Pearson).",
         "",
         "| arm | system | seeds | mean speed (km/h) | collision rate (%) | pooled collisions (95 % CI, %) |",
