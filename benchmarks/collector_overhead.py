@@ -156,7 +156,7 @@ def main(argv=None) -> int:
         "machine": machine_info(),
         "num_roads": k,
         "trivial": trivial,
-        "ours": {"collect_fps": ours["collect_fps"], "breakdown": ours["breakdown"]},
+        "ours": {key: ours[key] for key in ("collect_fps", "sim_limit_fps", "collect_ratio_vs_sim", "breakdown")},
         "torchrl_ms_per_env_step": {
             "minimal": trivial["minimal"]["ms_per_env_step"]["torchrl"],
             "kddrl_keys": trivial["kddrl_keys"]["ms_per_env_step"]["torchrl"],

@@ -285,10 +285,43 @@ def gemm_rate(threads: int, size: int = 128, batch: int = 2, seconds: float = 1.
         torch.set_num_threads(before)
 
 
+#: the matrix products of an update (what the floor counts), as the profiler names them
+GEMM_OPS = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
+
+
+def gemm_in_update(seed: int, updates: int = 100) -> dict:
+    """Seconds per TD3 / D3QN update spent in the update's own matrix products, as they run inside our compiled
+    update: the self time of its GEMM calls (:data:`GEMM_OPS`) under ``torch.profiler`` over ``updates`` updates.
+    The loss is compiled with TorchInductor's Python wrapper (:func:`python_wrapper`: the same kernels, and its
+    GEMMs are ATen calls the profiler sees; the C++ wrapper calls them past the profiler). Against the floor this
+    says how much of the gap is the products themselves (between other work, their operands are no longer in the
+    cache that the floor's back-to-back GEMM loop keeps them in) and how much is everything else."""
+    from torch.profiler import ProfilerActivity, profile
+
+    torch.manual_seed(seed)
+    learner = HierarchicalLearner(**learner_kwargs(True)[0])
+    python_wrapper(learner)
+    rb_cf, rb_lc = sample_batches(4000, seed, learner.buffer_keys())
+    out = {}
+    for agent, update, rb in (("td3", learner.update_cf, rb_cf), ("d3qn", learner.update_lc, rb_lc)):
+        batches = [rb.sample() for _ in range(updates)]
+        for b in batches[:10]:
+            update(b)
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            for b in batches:
+                update(b)
+        gemm_us = sum(e.self_cpu_time_total for e in prof.key_averages() if e.key in GEMM_OPS)
+        out[f"{agent}_gemm_in_update_s"] = 1e-6 * gemm_us / updates
+    return out
+
+
 def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
     """The compute floor of one update: its FLOPs over the GEMM rate at its shapes, per thread count; and our
     compiled update's and the plain reference's time per TD3 / D3QN update (``update``, measured at
-    ``update["torch_threads"]``) over the floor at that thread count."""
+    ``update["torch_threads"]``) over the floor at that thread count. Also the time of the update's own GEMMs as
+    they run inside it (:func:`gemm_in_update`) over the floor (``*_gemm_in_update_over_floor``) and as a share of
+    the update (``*_gemm_share_of_update``, of the ``compiled_python_wrapper`` arm's time, whose kernels it
+    profiles)."""
     flops = update_flops(seed)
     rates = {str(t): gemm_rate(t) for t in threads}
     out = {**flops, "gemm_flop_per_s": rates, "threads_of_update": update["torch_threads"]}
@@ -298,6 +331,13 @@ def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
         out[f"{agent}_floor_s"] = floor
         for arm in ("compiled", "plain"):
             out[f"{agent}_{arm}_over_floor"] = update[arm][f"{agent}_update_s"] / floor
+    out.update(gemm_in_update(seed))
+    for agent in ("td3", "d3qn"):
+        out[f"{agent}_gemm_in_update_over_floor"] = out[f"{agent}_gemm_in_update_s"] / out[f"{agent}_floor_s"]
+        if "compiled_python_wrapper" in update:
+            out[f"{agent}_gemm_share_of_update"] = (
+                out[f"{agent}_gemm_in_update_s"] / update["compiled_python_wrapper"][f"{agent}_update_s"]
+            )
     return out
 
 
@@ -828,6 +868,15 @@ def main(argv=None) -> int:
                 f"{agent:<34}{floor[f'{agent}_flops_per_update'] / 1e6:>8.1f}{1e3 * floor[f'{agent}_floor_s']:>10.3f}"
                 f"{floor[f'{agent}_compiled_over_floor']:>12.2f}{floor[f'{agent}_plain_over_floor']:>13.2f}"
             )
+        if "td3_gemm_in_update_s" in floor:
+            print(f"\n{'GEMMs inside our update':<34}{'ms':>8}{'÷ floor':>10}{'share of update':>17}")
+            for agent in ("td3", "d3qn"):
+                share = floor.get(f"{agent}_gemm_share_of_update")
+                print(
+                    f"{agent:<34}{1e3 * floor[f'{agent}_gemm_in_update_s']:>8.3f}"
+                    f"{floor[f'{agent}_gemm_in_update_over_floor']:>10.2f}"
+                    + (f"{100 * share:>16.0f}%" if share is not None else "")
+                )
     if result.get("collect"):
         print(
             f"\n{'collection (SUMO + stack + policies)':<38}{'K':>3}{'sim limit fps':>15}{'collect fps':>13}"
