@@ -36,9 +36,7 @@ from torchrl.envs import EnvBase
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, write_json  # noqa: E402
-from train_throughput import _Stopwatch, collect_env, measure_collect  # noqa: E402
-
-FRAMES_PER_ENV = 20  # frames per env row per collected batch, as measure_collect and training collect
+from train_throughput import FRAMES_PER_ENV, _Stopwatch, collect_env, measure_collect  # noqa: E402
 
 
 class TrivialEnv(EnvBase):
@@ -52,9 +50,8 @@ class TrivialEnv(EnvBase):
         super().__init__(batch_size=batch_size)
         for name in self.SPECS:
             setattr(self, name, specs[name].clone())
-        obs = self.full_observation_spec.zero()
-        self._reset_out = obs.update(self.full_done_spec.zero())
-        self._step_out = obs.clone().update(self.full_reward_spec.zero()).update(self.full_done_spec.zero())
+        self._reset_out = self.full_observation_spec.zero().update(self.full_done_spec.zero())
+        self._step_out = self._reset_out.clone().update(self.full_reward_spec.zero())
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         return self._reset_out.copy()

@@ -82,6 +82,7 @@ from kddrl_trl.transforms import (
 )
 
 CONF = Path(__file__).resolve().parents[1] / "src" / "kddrl_trl" / "conf" / "algo" / "kddrl.yaml"
+FRAMES_PER_ENV = 20  # frames per env row per collected batch in (b) and (w)
 
 
 def learner_kwargs(compile: bool | str) -> tuple[dict, int]:
@@ -245,17 +246,15 @@ def python_wrapper(learner: HierarchicalLearner) -> None:
     learner.__dict__["loss"] = WarmCompiled(torch.compile(bound, dynamic=False))
 
 
-def update_flops(seed: int, updates: int = 8) -> dict:
+def update_flops(seed: int, buffers: tuple, updates: int = 8) -> dict:
     """FLOPs of one TD3 and one D3QN update of the plain reference (the arithmetic every arm does), counted by
     ``torch.utils.flop_counter.FlopCounterMode`` over ``updates`` consecutive updates (the TD3 actor steps every
-    second update) and averaged."""
+    second update) on samples of ``buffers`` (:func:`sample_batches`' two) and averaged."""
     from torch.utils.flop_counter import FlopCounterMode
 
     torch.manual_seed(seed)
-    kw, _ = learner_kwargs(False)
-    learner = HierarchicalLearner(**kw)
-    rb_cf, rb_lc = sample_batches(4000, seed, learner.buffer_keys())
-    ref = PlainKDDRL(learner)
+    rb_cf, rb_lc = buffers
+    ref = PlainKDDRL(HierarchicalLearner(**learner_kwargs(False)[0]))
     out = {}
     for name, update, rb in (("td3", ref.update_cf, rb_cf), ("d3qn", ref.update_lc, rb_lc)):
         batches = [tensors(rb.sample()) for _ in range(updates)]
@@ -289,19 +288,20 @@ def gemm_rate(threads: int, size: int = 128, batch: int = 2, seconds: float = 1.
 GEMM_OPS = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
 
 
-def gemm_in_update(seed: int, updates: int = 100) -> dict:
+def gemm_in_update(seed: int, buffers: tuple, updates: int = 100) -> dict:
     """Seconds per TD3 / D3QN update spent in the update's own matrix products, as they run inside our compiled
     update: the self time of its GEMM calls (:data:`GEMM_OPS`) under ``torch.profiler`` over ``updates`` updates.
     The loss is compiled with TorchInductor's Python wrapper (:func:`python_wrapper`: the same kernels, and its
-    GEMMs are ATen calls the profiler sees; the C++ wrapper calls them past the profiler). Against the floor this
-    says how much of the gap is the products themselves (between other work, their operands are no longer in the
-    cache that the floor's back-to-back GEMM loop keeps them in) and how much is everything else."""
+    GEMMs are ATen calls the profiler sees; the C++ wrapper calls them past the profiler), on samples of
+    ``buffers`` (:func:`sample_batches`' two). Against the floor this says how much of the gap is the products
+    themselves (the floor's loop runs one product back to back; inside the update each follows other work) and how
+    much is everything else."""
     from torch.profiler import ProfilerActivity, profile
 
     torch.manual_seed(seed)
     learner = HierarchicalLearner(**learner_kwargs(True)[0])
     python_wrapper(learner)
-    rb_cf, rb_lc = sample_batches(4000, seed, learner.buffer_keys())
+    rb_cf, rb_lc = buffers
     out = {}
     for agent, update, rb in (("td3", learner.update_cf, rb_cf), ("d3qn", learner.update_lc, rb_lc)):
         batches = [rb.sample() for _ in range(updates)]
@@ -322,7 +322,8 @@ def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
     they run inside it (:func:`gemm_in_update`) over the floor (``*_gemm_in_update_over_floor``) and as a share of
     the update (``*_gemm_share_of_update``, of the ``compiled_python_wrapper`` arm's time, whose kernels it
     profiles)."""
-    flops = update_flops(seed)
+    buffers = sample_batches(4000, seed, HierarchicalLearner(**learner_kwargs(False)[0]).buffer_keys())
+    flops = update_flops(seed, buffers)
     rates = {str(t): gemm_rate(t) for t in threads}
     out = {**flops, "gemm_flop_per_s": rates, "threads_of_update": update["torch_threads"]}
     rate = rates.get(str(update["torch_threads"])) or gemm_rate(update["torch_threads"])
@@ -331,7 +332,7 @@ def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
         out[f"{agent}_floor_s"] = floor
         for arm in ("compiled", "plain"):
             out[f"{agent}_{arm}_over_floor"] = update[arm][f"{agent}_update_s"] / floor
-    out.update(gemm_in_update(seed))
+    out.update(gemm_in_update(seed, buffers))
     for agent in ("td3", "d3qn"):
         out[f"{agent}_gemm_in_update_over_floor"] = out[f"{agent}_gemm_in_update_s"] / out[f"{agent}_floor_s"]
         if "compiled_python_wrapper" in update:
@@ -516,7 +517,7 @@ def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile
     mtc = MultiTimescaleCollector.from_env(
         env,
         policy,
-        frames_per_env=20,
+        frames_per_env=FRAMES_PER_ENV,
         frame_buffer=rb_cf,
         macro_buffer=rb_lc,
         frame_keys=learner.buffer_keys(),
@@ -580,7 +581,7 @@ def measure_collect_workers(
         mtc = MultiTimescaleCollector.from_env(
             envs,
             learner.policy(),
-            frames_per_env=20,
+            frames_per_env=FRAMES_PER_ENV,
             rows=k,
             frame_buffer=rb_cf,
             macro_buffer=rb_lc,

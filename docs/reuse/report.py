@@ -82,9 +82,17 @@ def read_results(runs: Path) -> dict[str, dict[int, dict]]:
     return out
 
 
-#: the range a metric, and a difference of it between two arms, can take: an interval over seeds is cut to it
+#: the range a metric can take (a difference of it between two arms: [low - high, high - low]); an interval over
+#: seeds is cut to it
 RANGE = {"collision_rate": (0.0, 1.0)}
-DIFFERENCE_RANGE = {"collision_rate": (-1.0, 1.0)}
+
+
+def difference_range(metric: str) -> tuple[float, float] | None:
+    """The range a difference of ``metric`` between two arms can take (None: unbounded)."""
+    if metric not in RANGE:
+        return None
+    low, high = RANGE[metric]
+    return low - high, high - low
 
 
 def interval(values, within: tuple[float, float] | None = None) -> dict:
@@ -117,7 +125,7 @@ def summarise(results: dict[str, dict[int, dict]]) -> dict:
         seeds = sorted(set(results[a]) & set(results[b]))
         pair = {"arm": a, "reference": b, "what": what, "seeds": seeds}
         for m in METRICS:
-            pair[m] = interval([results[a][s][m] - results[b][s][m] for s in seeds], DIFFERENCE_RANGE.get(m))
+            pair[m] = interval([results[a][s][m] - results[b][s][m] for s in seeds], difference_range(m))
         pairs.append(pair)
     return {"arms": arms, "paired_differences": pairs}
 
@@ -137,8 +145,7 @@ def markdown(report: dict) -> str:
         "",
         "Made by `python docs/reuse/report.py` from `docs/reuse/runs/` (protocol: `docs/reuse/README.md`). Means over"
         " seeds with 95 % Student-t intervals over seeds (a collision rate's cut to [0, 100] %, a difference of two to"
-        " [-100, 100] points); collisions also pooled"
-        " over episodes (Clopper-Pearson).",
+        " [-100, 100] points); collisions also pooled over episodes (Clopper-Pearson).",
         "",
         "| arm | system | seeds | mean speed (km/h) | collision rate (%) | pooled collisions (95 % CI, %) |",
         "|---|---|---|---|---|---|",
