@@ -20,7 +20,12 @@ far apart the two arms' weights are after 1, 10 and 200 of the same updates from
 (the graph orders the arithmetic its own way), which Adam's normalised steps then let drift apart. The floor is the update's FLOPs (``torch.utils.flop_counter``) over the GEMM rate
 at its shapes (:func:`train_throughput.gemm_rate`), as ``train_throughput.py --floor`` computes it for the learner.
 
-    python benchmarks/whole_step_update.py [--updates 400] [--repeats 5] [--threads 2]
+(L) The same structure on the learner itself: the learner's critic step (the TD3 critics and the shared embedding,
+Eq. 6-7 and 23-24, TorchRL's ``TD3Loss`` inside) as the learner runs it, against one compiled graph of it
+(:func:`learner_whole_step`), taking turns on the same buffer-L samples of the fake env; with the largest difference
+between that graph's gradients and ``backward`` 's on one batch. ``--skip-learner`` leaves it out.
+
+    python benchmarks/whole_step_update.py [--updates 400] [--repeats 5] [--threads 2] [--skip-learner]
 
 Prints a table and writes ``benchmarks/results/whole_step_update.json``.
 """
@@ -35,15 +40,16 @@ from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
-from torch.func import grad_and_value
+from torch.func import functional_call, grad_and_value
 from torch.utils.flop_counter import FlopCounterMode
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, write_json  # noqa: E402
-from train_throughput import CONF, gemm_rate  # noqa: E402
+from train_throughput import CONF, gemm_rate, learner_kwargs, sample_batches  # noqa: E402
 
 from kddrl_trl.compiling import inductor_options  # noqa: E402
 from kddrl_trl.modules import cf_obs_dim  # noqa: E402
+from kddrl_trl.training import HierarchicalLearner  # noqa: E402
 
 BOUND = 5.0  # m/s², the acceleration bound of the TD3 actor (TanhModule's low / high)
 
@@ -208,12 +214,106 @@ def flops_per_update(cfg: dict, w: dict, b: tuple) -> float:
     return critic_flops + fc.get_total_flops() / cfg["policy_delay"]
 
 
+class _CriticLoss(torch.nn.Module):
+    """The learner's TD3 critic loss (Eq. 6-7, s_e inside) as a module call, what ``functional_call`` needs."""
+
+    def __init__(self, learner: HierarchicalLearner):
+        super().__init__()
+        self.learner = learner
+
+    def forward(self, batch):
+        return self.learner.loss("cf_value", batch)[0]
+
+
+def learner_whole_step(learner: HierarchicalLearner):
+    """The learner's critic step (``update_functions()["cf_value"]``: the critics and the shared embedding, each
+    with its own Adam) as one compiled graph: ``grad_and_value`` of the learner's own loss (TorchRL's ``TD3Loss``
+    inside), with the critics' parameters handed to the loss as a plain TensorDict in place of its
+    ``qvalue_network_params`` for the call, and the embedding's by ``functional_call``. Returns the compiled step
+    and the uncompiled gradient function (for the check against ``backward``)."""
+    loss_module, wrapper = learner.cf_loss, _CriticLoss(learner)
+    critics = loss_module.qvalue_network_params
+    keys = list(critics.keys(True, True))
+    critic_live = [critics.get(k) for k in keys]
+    named = dict(wrapper.named_parameters())
+    names = [n for n in named if n.startswith("learner.embedding.") and named[n].requires_grad]
+    embed_live = [named[n] for n in names]
+
+    def value(critic_params, embed_params, batch):
+        loss_module.__dict__["qvalue_network_params"] = critic_params
+        try:
+            return functional_call(wrapper, embed_params, (batch,), strict=False)
+        finally:
+            del loss_module.__dict__["qvalue_network_params"]
+
+    def grads(batch):
+        critic_params = critics.empty()
+        for k, q in zip(keys, critic_live, strict=True):
+            critic_params.set(k, q.detach())
+        embed_params = {n: q.detach() for n, q in zip(names, embed_live, strict=True)}
+        (gc, ge), loss = grad_and_value(value, argnums=(0, 1))(critic_params, embed_params, batch)
+        return [gc.get(k) for k in keys], [ge[n] for n in names], loss
+
+    state_c = ([torch.zeros_like(p) for p in critic_live], [torch.zeros_like(p) for p in critic_live], torch.zeros(()))
+    state_e = ([torch.zeros_like(p) for p in embed_live], [torch.zeros_like(p) for p in embed_live], torch.zeros(()))
+
+    def step(batch):
+        gc, ge, loss = grads(batch)
+        with torch.no_grad():
+            adam_(critic_live, gc, *state_c, lr=learner.lr_critic)
+            adam_(embed_live, ge, *state_e, lr=learner.opt_embed.param_groups[0]["lr"])
+        return loss
+
+    return torch.compile(step, dynamic=False, options=inductor_options("cpu")), grads, critic_live + embed_live
+
+
+def measure_learner(seed: int, updates: int, repeats: int) -> dict:
+    """(L) The learner's critic step as the learner runs it (compiled loss; eager backward, fused Adam) against
+    :func:`learner_whole_step` on another learner of the same weights, on the same buffer-L samples of the fake
+    env, taking turns; and the largest difference between the whole step's gradients and ``backward`` 's on one
+    batch (same seed, so the same target-smoothing noise)."""
+    torch.manual_seed(seed)
+    ours = HierarchicalLearner(**learner_kwargs(True)[0])
+    other = HierarchicalLearner(**learner_kwargs(False)[0])
+    other.load_state_dict(ours.state_dict())
+    rb_cf, _ = sample_batches(2000, seed, ours.buffer_keys())
+    data = [rb_cf.sample() for _ in range(64)]
+    step, grads, live = learner_whole_step(other)
+    torch.manual_seed(seed)
+    g_critic, g_embed, _ = grads(data[0])
+    for q in other.parameters():
+        q.grad = None
+    torch.manual_seed(seed)
+    other.loss("cf_value", data[0])[0].backward()
+    gap = max(float((g - q.grad).abs().max()) for g, q in zip(g_critic + g_embed, live, strict=True))
+    # the learner's update function itself (``_run`` would also write each batch's |δ| into it, a new key)
+    arms = {"learner": ours.update_functions()["cf_value"], "learner_whole_step": step}
+    for fn in arms.values():
+        for b in data[:10]:
+            fn(b)
+    times = {n: [] for n in arms}
+    for _ in range(repeats):
+        for name, fn in arms.items():
+            t0 = time.perf_counter()
+            for k in range(updates):
+                fn(data[k % len(data)])
+            times[name].append((time.perf_counter() - t0) / updates)
+    median = {n: statistics.median(t) for n, t in times.items()}
+    return {
+        "critic_step_s": median,
+        "critic_step_s_per_repeat": times,
+        "whole_step_over_learner": median["learner_whole_step"] / median["learner"],
+        "gradient_max_abs_difference_vs_backward": gap,
+    }
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--updates", type=int, default=400, help="updates timed per repeat and arm")
     p.add_argument("--repeats", type=int, default=5, help="turns of the two arms (medians over them)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--skip-learner", action="store_true", help="leave (L), the learner's own critic step, out")
     p.add_argument("--note", default="")
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "whole_step_update.json")
     args = p.parse_args(argv)
@@ -251,6 +351,7 @@ def main(argv=None) -> int:
         "over_floor": {n: t / floor for n, t in median.items()},
         "whole_step_over_split": median["whole_step"] / median["split"],
         "equivalence": {"max_abs_weight_difference_after_updates": equivalence, "max_abs_weight": scale},
+        "learner": None if args.skip_learner else measure_learner(args.seed, args.updates, args.repeats),
         **({"note": args.note} if args.note else {}),
     }
     print(f"\nTD3 update, {args.threads} threads, floor {floor * 1e3:.3f} ms ({flops / 1e6:.1f} MFLOP)")
@@ -259,6 +360,13 @@ def main(argv=None) -> int:
         print(f"{n:<12}{t * 1e3:>13.3f}{t / floor:>9.2f}{t / median['split']:>9.2f}")
     drift = ", ".join(f"{d:.1e} after {n}" for n, d in equivalence.items())
     print(f"max |weight difference| from the same start: {drift} updates (max |weight| {scale:.2f})")
+    if result["learner"]:
+        lr = result["learner"]
+        print(f"\n(L) the learner's critic step (TD3 critics + shared embedding), {args.threads} threads")
+        print(f"{'arm':<20}{'ms / step':>11}{'÷ learner':>11}")
+        for n, t in lr["critic_step_s"].items():
+            print(f"{n:<20}{t * 1e3:>11.3f}{t / lr['critic_step_s']['learner']:>11.2f}")
+        print(f"gradients against backward: max |difference| {lr['gradient_max_abs_difference_vs_backward']:.1e}")
     write_json(args.out, result)
     print(f"written {args.out}")
     return 0
