@@ -171,13 +171,17 @@ def adam_(ps, grads, m, v, t, lr, b1=0.9, b2=0.999, eps=1e-8):
     torch._foreach_addcdiv_(ps, torch._foreach_div(m, (1 - b1**t) / -lr), denom)
 
 
+def adam_state(params) -> tuple[list, list, torch.Tensor]:
+    """Fresh state of :func:`adam_` for ``params``: the first and second moments (zeros) and the step count."""
+    return [torch.zeros_like(p) for p in params], [torch.zeros_like(p) for p in params], torch.zeros(())
+
+
 def whole_step_arm(cfg: dict, w: dict):
     """One compiled graph per kind of step: gradients by ``torch.func.grad_and_value``, Adam and Polyak inside."""
     value_loss, actor_loss = make_losses(cfg)
     cp, ap = [p.clone() for p in w["critic"]], [p.clone() for p in w["actor"]]
     ctp, atp = [p.clone() for p in w["critic_t"]], [p.clone() for p in w["actor_t"]]
-    state_c = ([torch.zeros_like(p) for p in cp], [torch.zeros_like(p) for p in cp], torch.zeros(()))
-    state_a = ([torch.zeros_like(p) for p in ap], [torch.zeros_like(p) for p in ap], torch.zeros(()))
+    state_c, state_a = adam_state(cp), adam_state(ap)
 
     def critic_step(b):
         grads, loss = grad_and_value(value_loss)(cp, ctp, atp, *b)
@@ -214,6 +218,19 @@ def flops_per_update(cfg: dict, w: dict, b: tuple) -> float:
     return critic_flops + fc.get_total_flops() / cfg["policy_delay"]
 
 
+def time_arms(arms: dict, data: list, updates: int, repeats: int) -> tuple[dict, dict]:
+    """Seconds per call of each arm ``step(k, batch)`` over ``updates`` calls on ``data`` (cycled), the arms taking
+    turns ``repeats`` times (a shared machine's drifts hit all alike): (per repeat, median over repeats)."""
+    times = {n: [] for n in arms}
+    for _ in range(repeats):
+        for name, step in arms.items():
+            t0 = time.perf_counter()
+            for k in range(updates):
+                step(k, data[k % len(data)])
+            times[name].append((time.perf_counter() - t0) / updates)
+    return times, {n: statistics.median(t) for n, t in times.items()}
+
+
 class _CriticLoss(torch.nn.Module):
     """The learner's TD3 critic loss (Eq. 6-7, s_e inside) as a module call, what ``functional_call`` needs."""
 
@@ -229,8 +246,9 @@ def learner_whole_step(learner: HierarchicalLearner):
     """The learner's critic step (``update_functions()["cf_value"]``: the critics and the shared embedding, each
     with its own Adam) as one compiled graph: ``grad_and_value`` of the learner's own loss (TorchRL's ``TD3Loss``
     inside), with the critics' parameters handed to the loss as a plain TensorDict in place of its
-    ``qvalue_network_params`` for the call, and the embedding's by ``functional_call``. Returns the compiled step
-    and the uncompiled gradient function (for the check against ``backward``)."""
+    ``qvalue_network_params`` for the call, and the embedding's by ``functional_call``. Returns the compiled step,
+    the uncompiled gradient function ``batch -> (critic gradients, embedding gradients, loss)`` (for the check
+    against ``backward``) and the parameters it trains, in the order of those gradients."""
     loss_module, wrapper = learner.cf_loss, _CriticLoss(learner)
     critics = loss_module.qvalue_network_params
     keys = list(critics.keys(True, True))
@@ -254,8 +272,7 @@ def learner_whole_step(learner: HierarchicalLearner):
         (gc, ge), loss = grad_and_value(value, argnums=(0, 1))(critic_params, embed_params, batch)
         return [gc.get(k) for k in keys], [ge[n] for n in names], loss
 
-    state_c = ([torch.zeros_like(p) for p in critic_live], [torch.zeros_like(p) for p in critic_live], torch.zeros(()))
-    state_e = ([torch.zeros_like(p) for p in embed_live], [torch.zeros_like(p) for p in embed_live], torch.zeros(()))
+    state_c, state_e = adam_state(critic_live), adam_state(embed_live)
 
     def step(batch):
         gc, ge, loss = grads(batch)
@@ -287,18 +304,12 @@ def measure_learner(seed: int, updates: int, repeats: int) -> dict:
     other.loss("cf_value", data[0])[0].backward()
     gap = max(float((g - q.grad).abs().max()) for g, q in zip(g_critic + g_embed, live, strict=True))
     # the learner's update function itself (``_run`` would also write each batch's |δ| into it, a new key)
-    arms = {"learner": ours.update_functions()["cf_value"], "learner_whole_step": step}
+    update = ours.update_functions()["cf_value"]
+    arms = {"learner": lambda k, b: update(b), "learner_whole_step": lambda k, b: step(b)}
     for fn in arms.values():
-        for b in data[:10]:
-            fn(b)
-    times = {n: [] for n in arms}
-    for _ in range(repeats):
-        for name, fn in arms.items():
-            t0 = time.perf_counter()
-            for k in range(updates):
-                fn(data[k % len(data)])
-            times[name].append((time.perf_counter() - t0) / updates)
-    median = {n: statistics.median(t) for n, t in times.items()}
+        for k, b in enumerate(data[:10]):
+            fn(k, b)
+    times, median = time_arms(arms, data, updates, repeats)
     return {
         "critic_step_s": median,
         "critic_step_s_per_repeat": times,
@@ -318,7 +329,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "whole_step_update.json")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    cfg, w = shapes(), init(shapes(), args.seed)
+    cfg = shapes()
+    w = init(cfg, args.seed)
     data = batches(cfg, 64, args.seed)
     arms = {"split": split_arm(cfg, w), "whole_step": whole_step_arm(cfg, w)}
     equivalence, done = {}, 0  # the same updates from the same start (the first ones compile)
@@ -330,16 +342,9 @@ def main(argv=None) -> int:
         a, b = (arms[n][1]() for n in ("split", "whole_step"))
         equivalence[str(upto)] = max(float((x - y).abs().max()) for x, y in zip(a, b, strict=True))
     scale = max(float(x.abs().max()) for x in a)
-    times = {n: [] for n in arms}
-    for _ in range(args.repeats):
-        for name, (step, _) in arms.items():
-            t0 = time.perf_counter()
-            for k in range(args.updates):
-                step(k, data[k % len(data)])
-            times[name].append((time.perf_counter() - t0) / args.updates)
+    times, median = time_arms({n: step for n, (step, _) in arms.items()}, data, args.updates, args.repeats)
     flops = flops_per_update(cfg, w, data[0])
     floor = flops / gemm_rate(args.threads)
-    median = {n: statistics.median(t) for n, t in times.items()}
     result = {
         "args": {k: str(v) for k, v in vars(args).items()},
         "machine": machine_info(),

@@ -34,7 +34,7 @@ def test_the_in_graph_adam_steps_as_torch_adam(bench):
     ours = [torch.randn(4, 3, generator=g), torch.randn(3, generator=g)]
     ref = [p.clone().requires_grad_() for p in ours]
     opt = torch.optim.Adam(ref, lr=3e-3, foreach=False)
-    m, v, t = [torch.zeros_like(p) for p in ours], [torch.zeros_like(p) for p in ours], torch.zeros(())
+    m, v, t = bench.adam_state(ours)
     for _ in range(5):
         grads = [torch.randn(p.shape, generator=g) for p in ours]
         for p, gr in zip(ref, grads, strict=True):
