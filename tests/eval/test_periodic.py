@@ -39,3 +39,31 @@ def test_validation_keeps_threads_a_collector_lowered_after_the_evaluator_was_bu
     finally:
         evaluator.close()
         torch.set_num_threads(before)
+
+
+def test_a_worker_that_dies_while_starting_is_named_with_its_likely_cause(tmp_path):
+    """A script that validates at import time, with no ``__main__`` guard: the spawned worker imports it again and
+    dies while starting. The training process must say what happened, not raise TorchRL's bare ``EOFError``."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        textwrap.dedent(
+            """
+            from functools import partial
+            import torch
+            from kddrl_trl.baselines.random_policy import RandomDrivingPolicy
+            from kddrl_trl.envs import FakeHighwayEnv
+            from kddrl_trl.eval.periodic import PeriodicEvaluator
+
+            evaluator = PeriodicEvaluator(partial(FakeHighwayEnv, num_roads=1, seed=0), episodes=1, seed=5)
+            evaluator(RandomDrivingPolicy(generator=torch.Generator().manual_seed(0)))
+            """
+        )
+    )
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0
+    assert "the validation env's worker process ended before it answered" in done.stderr
+    assert "__main__" in done.stderr

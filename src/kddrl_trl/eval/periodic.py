@@ -61,6 +61,14 @@ class PeriodicEvaluator:
         try:
             with set_exploration_type(ExplorationType.DETERMINISTIC):
                 episodes = evaluate_policy(self.env, policy, self.episodes, self.seed, progress=False)
+        except EOFError as err:  # TorchRL reads the worker's pipe: a dead worker surfaces as a bare EOFError
+            raise RuntimeError(
+                "PeriodicEvaluator: the validation env's worker process ended before it answered (its own error, "
+                "if any, is printed above). The worker is spawned: it imports the __main__ module again. A script "
+                "that starts the training at import time (kddrl_trl.train.main() or a PeriodicEvaluator outside "
+                'an `if __name__ == "__main__":` block) runs again in the worker and kills it; put that code '
+                "under the guard, or run `python -m kddrl_trl.train`"
+            ) from err
         finally:
             # the worker's start (first call) sets this process's threads to the count read at construction; by
             # then a collector may have lowered them (TorchRL's multi-process collectors leave a core per worker:
