@@ -66,4 +66,4 @@ def test_a_worker_that_dies_while_starting_is_named_with_its_likely_cause(tmp_pa
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert done.returncode != 0
     assert "the validation env's worker process ended before it answered" in done.stderr
-    assert "__main__" in done.stderr
+    assert "put that code under the guard" in done.stderr

@@ -58,10 +58,13 @@ class PeriodicEvaluator:
         if self.env is None:
             raise RuntimeError("PeriodicEvaluator: closed")
         threads = torch.get_num_threads()
+        starting = self.env.is_closed  # TorchRL starts the worker on its first use: this call
         try:
             with set_exploration_type(ExplorationType.DETERMINISTIC):
                 episodes = evaluate_policy(self.env, policy, self.episodes, self.seed, progress=False)
         except EOFError as err:  # TorchRL reads the worker's pipe: a dead worker surfaces as a bare EOFError
+            if not starting:  # it ran before: its own error above says why it ended
+                raise
             raise RuntimeError(
                 "PeriodicEvaluator: the validation env's worker process ended before it answered (its own error, "
                 "if any, is printed above). The worker is spawned: it imports the __main__ module again. A script "
