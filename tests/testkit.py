@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import textwrap
 
 import numpy as np
 import pandas as pd
@@ -155,3 +156,11 @@ def run_module(cmd, cwd, timeout=900):
     done = subprocess.run([sys.executable, "-m", *cmd], cwd=cwd, capture_output=True, text=True, timeout=timeout)
     assert done.returncode == 0, done.stderr[-4000:]
     return done
+
+
+def run_script(folder, body: str, timeout: int = 300) -> subprocess.CompletedProcess:
+    """``body`` (dedented) written to ``folder/script.py`` and run as a script (``python script.py``): what a user's
+    own script does, ``__main__`` included; returns the finished process (not checked)."""
+    script = folder / "script.py"
+    script.write_text(textwrap.dedent(body))
+    return subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=timeout)

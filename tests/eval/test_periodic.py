@@ -6,6 +6,7 @@ from __future__ import annotations
 from functools import partial
 
 import torch
+from testkit import run_script
 
 from kddrl_trl.baselines.random_policy import RandomDrivingPolicy
 from kddrl_trl.envs import FakeHighwayEnv
@@ -41,29 +42,44 @@ def test_validation_keeps_threads_a_collector_lowered_after_the_evaluator_was_bu
         torch.set_num_threads(before)
 
 
-def test_a_worker_that_dies_while_starting_is_named_with_its_likely_cause(tmp_path):
-    """A script that validates at import time, with no ``__main__`` guard: the spawned worker imports it again and
-    dies while starting. The training process must say what happened, not raise TorchRL's bare ``EOFError``."""
-    import subprocess
-    import sys
-    import textwrap
+def test_an_unguarded_script_is_refused_before_the_worker_starts(tmp_path):
+    """A script that validates at import time, with no ``__main__`` guard: the spawned worker would import it again
+    and die while starting. The evaluator names the script's line before it starts the worker."""
+    done = run_script(
+        tmp_path,
+        """
+        from functools import partial
+        from kddrl_trl.envs import FakeHighwayEnv
+        from kddrl_trl.eval.periodic import PeriodicEvaluator
 
-    script = tmp_path / "unguarded.py"
-    script.write_text(
-        textwrap.dedent(
-            """
-            from functools import partial
-            import torch
-            from kddrl_trl.baselines.random_policy import RandomDrivingPolicy
-            from kddrl_trl.envs import FakeHighwayEnv
-            from kddrl_trl.eval.periodic import PeriodicEvaluator
-
-            evaluator = PeriodicEvaluator(partial(FakeHighwayEnv, num_roads=1, seed=0), episodes=1, seed=5)
-            evaluator(RandomDrivingPolicy(generator=torch.Generator().manual_seed(0)))
-            """
-        )
+        evaluator = PeriodicEvaluator(partial(FakeHighwayEnv, num_roads=1, seed=0), episodes=1, seed=5)
+        """,
     )
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert done.returncode != 0
-    assert "the validation env's worker process ended before it answered" in done.stderr
-    assert "put that code under the guard" in done.stderr
+    assert "script.py, line 6: periodic validation (train.eval_every) spawns worker processes" in done.stderr
+
+
+def test_a_worker_that_dies_while_starting_is_named(tmp_path):
+    """A worker whose env cannot be built dies before it answers: the training process says so (the worker's own
+    error is printed above it) instead of raising TorchRL's bare ``EOFError``."""
+    done = run_script(
+        tmp_path,
+        """
+        import multiprocessing
+        import torch
+        from kddrl_trl.baselines.random_policy import RandomDrivingPolicy
+        from kddrl_trl.envs import FakeHighwayEnv
+        from kddrl_trl.eval.periodic import PeriodicEvaluator
+
+        def make_env():
+            if multiprocessing.parent_process() is not None:  # in the worker only (specs are read here)
+                raise SystemExit("no env in the worker")
+            return FakeHighwayEnv(num_roads=1, seed=0)
+
+        if __name__ == "__main__":
+            evaluator = PeriodicEvaluator(make_env, episodes=1, seed=5)
+            evaluator(RandomDrivingPolicy(generator=torch.Generator().manual_seed(0)))
+        """,
+    )
+    assert done.returncode != 0
+    assert "the validation env's worker process ended before it answered" in done.stderr, done.stderr[-3000:]

@@ -12,6 +12,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import ReplayBuffer
 from torchrl.envs import EnvBase
 
+from ..spawning import require_main_guard
 from .macro import MacroTransitionWriter
 from .overlap import OverlappedCollector
 from .snapshot import PolicySnapshot
@@ -128,6 +129,8 @@ class MultiTimescaleCollector:
             if rows is None or int(rows) < 1:
                 raise ValueError(f"rows (the batch size of each factory's env) must be >= 1, got {rows!r}")
         n = len(factories)
+        if owns and backend == "process" and (n > 1 or not sync):  # worker processes, spawned
+            require_main_guard(f"collector.workers={n}" if sync else "collector.sync=false")
         inner = {"auto_register_policy_transforms": False}  # the policy is ours: no transform registration
         if not sync:  # (the factory count: OverlappedCollector checks it)
             if backend != "process" or not owns:

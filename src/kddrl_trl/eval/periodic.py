@@ -16,6 +16,7 @@ import torch
 from torchrl.envs import EnvBase, ParallelEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from ..spawning import require_main_guard
 from .metrics import summarize
 from .rollout import evaluate_policy
 
@@ -46,6 +47,7 @@ class PeriodicEvaluator:
             raise ValueError(f"train.best_metric={best_metric!r}: known metrics are {', '.join(BEST_METRICS)}")
         self.make_env, self.episodes, self.seed = make_env, int(episodes), int(seed)
         self.score = BEST_METRICS[best_metric]
+        require_main_guard("periodic validation (train.eval_every)")
         _spawnable_start_method()
         # worker starts on use; ``num_threads``: this process keeps its torch threads. Left to TorchRL, starting the
         # worker sets them to (threads - 1) here, mid-run: the learner would lose a thread at the first validation,
@@ -66,11 +68,8 @@ class PeriodicEvaluator:
             if not starting:  # it ran before: its own error above says why it ended
                 raise
             raise RuntimeError(
-                "PeriodicEvaluator: the validation env's worker process ended before it answered (its own error, "
-                "if any, is printed above). The worker is spawned: it imports the __main__ module again. A script "
-                "that starts the training at import time (kddrl_trl.train.main() or a PeriodicEvaluator outside "
-                'an `if __name__ == "__main__":` block) runs again in the worker and kills it; put that code '
-                "under the guard, or run `python -m kddrl_trl.train`"
+                "PeriodicEvaluator: the validation env's worker process ended before it answered; its own error "
+                "is printed above"
             ) from err
         finally:
             # the worker's start (first call) sets this process's threads to the count read at construction; by
