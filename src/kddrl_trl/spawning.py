@@ -48,7 +48,11 @@ def unguarded_main_call() -> tuple[str, int] | None:
     if main is None or not path or not Path(path).is_file():
         return None
     frame = sys._getframe(1)
-    while frame is not None and not (frame.f_code.co_name == "<module>" and frame.f_globals is vars(main)):
+    while frame is not None and not (
+        frame.f_code.co_name == "<module>"
+        and frame.f_globals is vars(main)
+        and Path(frame.f_code.co_filename).resolve() == Path(path).resolve()  # the script's own code, not a shell's
+    ):
         frame = frame.f_back
     if frame is None:
         return None
