@@ -1,5 +1,5 @@
-"""The README's and the guide's code stays true: the two set-up commands are CI's, the transform-reuse example of
-docs/reuse.md runs as written, and the README stays a front door."""
+"""The README's and the guide's code stays true: the two set-up commands are CI's, the verdict table is the
+report's, the transform-reuse example of docs/reuse.md runs as written, and the README stays a front door."""
 
 from __future__ import annotations
 
@@ -67,3 +67,14 @@ def test_conf_at_the_root_is_the_package_conf():
 def test_citation_names_the_paper():
     text = (ROOT / "CITATION.cff").read_text()
     assert "cff-version" in text and "Knowledge-Data-Dual-Driven Reinforcement Learning" in text
+
+
+def test_the_readme_verdict_table_is_the_reports():
+    """The README's short verdict table is ``docs/paper/readme_table.py`` 's output on the committed
+    ``docs/paper/report.json``: a regenerated report that changes a claim fails here until the README follows."""
+    import json
+    import runpy
+
+    table = runpy.run_path(str(ROOT / "docs" / "paper" / "readme_table.py"))["table"]
+    report = json.loads((ROOT / "docs" / "paper" / "report.json").read_text())
+    assert table(report) in README.read_text()
