@@ -35,7 +35,8 @@ def test_unguarded_main_call_finds_the_script_line_outside_the_guard(tmp_path):
 
 
 def test_a_call_that_is_not_from_a_script_passes():
-    """Under pytest (its own guarded entry point) and from a function called later, nothing is refused."""
+    """Under pytest (a guarded entry point, or an xdist worker, whose ``__main__`` has no script), nothing is
+    refused."""
     from kddrl_trl.spawning import require_main_guard, unguarded_main_call
 
     assert unguarded_main_call() is None

@@ -45,13 +45,14 @@ def unguarded_main_call() -> tuple[str, int] | None:
     ``__main__`` has no source file (``python -c``, a notebook: a spawned process then imports nothing again)."""
     main = sys.modules.get("__main__")
     path = getattr(main, "__file__", None)
-    if main is None or not path or not Path(path).is_file():
+    if not path or not Path(path).is_file():
         return None
+    script = Path(path).resolve()
     frame = sys._getframe(1)
     while frame is not None and not (
         frame.f_code.co_name == "<module>"
         and frame.f_globals is vars(main)
-        and Path(frame.f_code.co_filename).resolve() == Path(path).resolve()  # the script's own code, not a shell's
+        and Path(frame.f_code.co_filename).resolve() == script  # the script's own code, not a shell's
     ):
         frame = frame.f_back
     if frame is None:
