@@ -23,9 +23,11 @@ jobs() {  # one line of Hydra overrides per job, seed-major, so every system's s
   # Tables III (congested) and IV (braking)
   for seed in 0 1 2 3 4; do for sc in congested braking; do for algo in kddrl ni peng idm_mobil; do
     echo "seed=$seed +scenario=$sc algo=$algo"; done; done; done
-  # The preset's confirmation on fresh seeds (never used to choose it), for KDDRL and D3QN+TD3
+  # The preset's confirmation on fresh seeds (never used to choose it), for KDDRL and D3QN+TD3, and IDM+MOBIL on the
+  # same seeds (the preset's goals are relative to it)
   for seed in 5 6 7 8 9; do for sc in baseline braking; do for algo in kddrl d3qn_td3; do
     echo "seed=$seed +scenario=$sc +preset=plus algo=$algo"; done; done; done
+  for seed in 5 6 7 8 9; do for sc in baseline braking; do echo "seed=$seed +scenario=$sc algo=idm_mobil"; done; done
 }
 
 if [ -n "${LAUNCHER:-}" ]; then
@@ -34,6 +36,7 @@ if [ -n "${LAUNCHER:-}" ]; then
       algo=ni,pasac_unified,kddrl,peng,d3qn_unified,d3qn_td3,d3qn_td3_lg,kddrl_same_clock,idm_mobil
   run seed=0,1,2,3,4 +scenario=congested,braking algo=kddrl,ni,peng,idm_mobil
   run seed=5,6,7,8,9 +scenario=baseline,braking +preset=plus algo=kddrl,d3qn_td3
+  run seed=5,6,7,8,9 +scenario=baseline,braking algo=idm_mobil
   exit
 fi
 
