@@ -39,6 +39,10 @@ def test_rule_based_algo_runs_as_typed_from_any_directory(tmp_path):
     summary = json.loads((runs[0] / "summary.json").read_text())
     assert summary["episodes"] == 4 and summary["scenario"] == "braking"
     assert (runs[0] / "eval_episodes.csv").read_text().count("\n") == 5
+    # wall_s is the run's whole time, its evaluation included: at least from config.yaml (written after the
+    # start) to eval_episodes.csv (written after the evaluation)
+    span = (runs[0] / "eval_episodes.csv").stat().st_mtime - (runs[0] / "config.yaml").stat().st_mtime
+    assert summary["wall_s"] >= span - 0.01 and span > 0.1
     assert "mean speed (km/h)" in done.stdout
 
 

@@ -32,6 +32,7 @@ its compiled updates on CUDA; the env, SUMO, the transforms and acting stay on t
 from __future__ import annotations
 
 import random
+import time
 from dataclasses import asdict
 from pathlib import Path
 
@@ -448,9 +449,17 @@ def evaluate_and_report(
     )
 
 
-def report(out_dir: Path, episodes: list[dict], title: str, reference: dict | None = None, **fields) -> dict:
+def report(
+    out_dir: Path,
+    episodes: list[dict],
+    title: str,
+    reference: dict | None = None,
+    started: float | None = None,
+    **fields,
+) -> dict:
     """Summary of the evaluation ``episodes`` plus ``fields``: written to ``summary.json`` (the episodes to
-    ``eval_episodes.csv``) in ``out_dir`` and printed under ``title``."""
+    ``eval_episodes.csv``) in ``out_dir`` and printed under ``title``. ``started`` (a run's start,
+    ``time.perf_counter()``) adds ``wall_s``, the run's whole time, its evaluation included."""
     import pandas as pd
 
     from .eval.metrics import format_summary, summarize
@@ -459,6 +468,8 @@ def report(out_dir: Path, episodes: list[dict], title: str, reference: dict | No
 
     summary = {**summarize(episodes), **fields, **provenance()}
     write_text_atomic(out_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
+    if started is not None:
+        summary["wall_s"] = time.perf_counter() - started
     write_json_atomic(out_dir / "summary.json", summary)
     print(f"\n{title}")
     print(format_summary(summary, reference))

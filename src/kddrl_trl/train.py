@@ -138,7 +138,7 @@ def main(cfg: DictConfig) -> dict:
             seed=job.seed,
             protocol=seeds,
             run_dir=str(run_dir),
-            wall_s=time.perf_counter() - started,
+            started=started,
             **extra,
         )
     # one final evaluation per scenario (a run trained on +scenario=mixed, evaluated on baseline and on braking)
