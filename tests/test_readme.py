@@ -78,3 +78,13 @@ def test_the_readme_verdict_table_is_the_reports():
     table = runpy.run_path(str(ROOT / "docs" / "paper" / "readme_table.py"))["table"]
     report = json.loads((ROOT / "docs" / "paper" / "report.json").read_text())
     assert table(report) in README.read_text()
+
+
+def test_the_preset_confirmation_tables_are_the_runs():
+    """The README's safety table and docs/paper/README.md's confirmation table are ``docs/paper/confirmation.py``'s
+    output on the committed run records: a run that lands and changes a row fails here until the prose follows."""
+    import runpy
+
+    confirmation = runpy.run_path(str(ROOT / "docs" / "paper" / "confirmation.py"))
+    assert confirmation["safety_table"]() in README.read_text()
+    assert confirmation["table"]() in (ROOT / "docs" / "paper" / "README.md").read_text()

@@ -1,0 +1,143 @@
+"""The preset's confirmation beside its selection: ``+preset=plus`` (``algo.shield=idm``) for KDDRL and D3QN+TD3.
+
+The selection rows are the runs the preset was chosen on (``docs/ablation/runs``: ``plus`` and ``shield_idm``, the
+same configuration, for KDDRL; ``d3qn_plus`` for D3QN+TD3), measured against the IDM+MOBIL runs that study used
+(``docs/reproduction/runs``). The confirmation rows are this study's runs on fresh seeds 5-9 (``docs/paper/runs``,
+its pinned commit), measured against IDM+MOBIL on the same seeds. Both phases use the ablation study's measures
+(:mod:`kddrl_trl.eval.stats`: the ratio of the across-seed mean speeds and the difference of the across-seed mean
+collision rates, percentile bootstrap over seeds) and its three goals for the preset:
+
+- mean speed >= 1.05 x IDM+MOBIL's, in both scenarios;
+- braking: collisions <= 2 %;
+- baseline: collisions <= IDM+MOBIL's + 0.5 percentage points.
+
+A goal reads ``met`` when the whole 95 % interval is inside its bound, ``mean only`` when the mean is and the
+interval crosses it, ``missed`` when the mean is outside. Collisions are also given pooled over the episodes, with an
+exact (Clopper-Pearson) interval.
+
+    python docs/paper/confirmation.py  ->  the Markdown table on standard output
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+from kddrl_trl.eval.records import find_runs
+from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
+from kddrl_trl.eval.verdict import clopper_pearson
+
+DOCS = Path(__file__).resolve().parents[1]
+SYSTEMS = {  # the report's row name -> the selection study's folders
+    "kddrl [algo.shield=idm]": ("plus", "shield_idm"),
+    "d3qn_td3 [algo.shield=idm]": ("d3qn_plus",),
+}
+CONFIRMATION_SEEDS = range(5, 10)
+SPEED_RATIO, BRAKING_COLLISIONS, BASELINE_MARGIN = 1.05, 0.02, 0.005
+
+
+@cache
+def _found(folders: tuple[Path, ...]) -> list:
+    return find_runs(folders)
+
+
+def _runs(folders, algo: str, scenario: str, seeds=None) -> list:
+    runs = [r for r in _found(tuple(folders)) if r.algo == algo and r.scenario == scenario]
+    return [r for r in runs if seeds is None or r.seed in seeds]
+
+
+def _goal(value: dict, bound: float, at_least: bool) -> str:
+    inside = (lambda v: v >= bound) if at_least else (lambda v: v <= bound)
+    if not inside(value["mean"]):
+        return "missed"
+    edge = value["ci_low"] if at_least else value["ci_high"]
+    return "met" if edge is not None and inside(edge) else "mean only"
+
+
+def _ci(value: dict, scale: float = 1.0, fmt: str = ".3f") -> str:
+    """``mean [low, high]``; ``mean [—]`` where one seed gives no interval."""
+    if value["ci_low"] is None:
+        return f"{scale * value['mean']:{fmt}} [—]"
+    return f"{scale * value['mean']:{fmt}} [{scale * value['ci_low']:{fmt}}, {scale * value['ci_high']:{fmt}}]"
+
+
+def _pooled(runs: list) -> str:
+    """Collisions pooled over the runs' episodes: ``k / n = rate [exact 95 % CI]``."""
+    k = int(round(sum(r.summary["collision_rate"] * r.summary["episodes"] for r in runs)))
+    n = int(sum(r.summary["episodes"] for r in runs))
+    lo, hi = clopper_pearson(k, n)
+    return f"{k} / {n} = {100 * k / n:.2f} % [{100 * lo:.2f}, {100 * hi:.2f}]"
+
+
+def row(system: str, scenario: str, phase: str, runs: list, reference: list) -> str:
+    if not runs or not reference:
+        raise ValueError(f"{system}, {scenario}, {phase}: {len(runs)} runs, {len(reference)} IDM+MOBIL runs")
+    speed = [r.summary["mean_speed_kmh"] for r in runs]
+    ref_speed = [r.summary["mean_speed_kmh"] for r in reference]
+    rate = [r.summary["collision_rate"] for r in runs]
+    ref_rate = [r.summary["collision_rate"] for r in reference]
+    ratio, extra = ratio_ci(speed, ref_speed), difference_ci(rate, ref_rate)
+    goals = [f"speed {_goal(ratio, SPEED_RATIO, True)}"]
+    if scenario == "braking":
+        goals.append(f"collisions {_goal(mean_ci(rate), BRAKING_COLLISIONS, False)}")
+    else:
+        goals.append(f"collisions {_goal(extra, BASELINE_MARGIN, False)}")
+    seeds = ",".join(str(r.seed) for r in runs)
+    commits = ", ".join(sorted({r.commit for r in runs}))
+    shield = float(np.mean([r.summary.get("shield_rate", 0.0) for r in runs]))
+    return (
+        f"| {system} | {scenario} | {phase} | {seeds} | {commits} | {_ci(ratio)} | {_pooled(runs)} "
+        f"| {_ci(extra, 100, '+.2f')} | {100 * shield:.0f} % | {'; '.join(goals)} |"
+    )
+
+
+def table(docs: Path = DOCS) -> str:
+    lines = [
+        "| system | scenario | phase | seeds | commits | speed ÷ IDM+MOBIL's [95 % CI] | collisions, pooled "
+        "[exact 95 % CI] | − IDM+MOBIL's (points) [95 % CI] | shield rate | goals |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for system, folders in SYSTEMS.items():
+        for scenario in ("baseline", "braking"):
+            selection = _runs([docs / "ablation" / "runs" / f for f in folders], system, scenario)
+            old_rules = _runs([docs / "reproduction" / "runs"], "idm_mobil", scenario)
+            lines.append(row(system, scenario, "selection", selection, old_rules))
+            study = [docs / "paper" / "runs"]
+            fresh = _runs(study, system, scenario, CONFIRMATION_SEEDS)
+            rules = _runs(study, "idm_mobil", scenario, {r.seed for r in fresh})
+            lines.append(row(system, scenario, "confirmation", fresh, rules))
+    return "\n".join(lines)
+
+
+#: the README's safety rows: (label, the report's row name, seeds); the shielded rows and IDM+MOBIL share seeds
+SAFETY_ROWS = (
+    ("KDDRL, the paper's method (`kddrl`)", "kddrl", range(0, 5)),
+    ("KDDRL + the IDM shield (`+preset=plus`)", "kddrl [algo.shield=idm]", CONFIRMATION_SEEDS),
+    ("IDM+MOBIL (`algo=idm_mobil`)", "idm_mobil", CONFIRMATION_SEEDS),
+)
+
+
+def safety_table(docs: Path = DOCS) -> str:
+    """The README's short safety table, from the study's runs alone (one commit): each row's mean speed over seeds
+    [95 % bootstrap CI] and its collisions pooled over the episodes [exact 95 % CI]. A row short of 5 seeds is
+    refused: the table stands for the finished confirmation."""
+    lines = [
+        "| scenario | system | seeds | mean speed (km/h) | collisions, pooled [exact 95 % CI] |",
+        "|---|---|---|---|---|",
+    ]
+    for scenario in ("baseline", "braking"):
+        for label, algo, seeds in SAFETY_ROWS:
+            runs = _runs([docs / "paper" / "runs"], algo, scenario, seeds)
+            if len(runs) < 5:
+                raise ValueError(f"{algo}, {scenario}: {len(runs)} of seeds {list(seeds)}, the table needs 5")
+            speed = _ci(mean_ci([r.summary["mean_speed_kmh"] for r in runs]), fmt=".1f")
+            lines.append(f"| {scenario} | {label} | {min(seeds)}-{max(seeds)} | {speed} | {_pooled(runs)} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(table())
+    print()
+    print(safety_table())
