@@ -64,9 +64,21 @@ def code_commit() -> str:
     return _LOADED["commit"]
 
 
+def cpu_model() -> str:
+    """The processor's model name (``/proc/cpuinfo`` on Linux, else :func:`platform.processor`): the same code,
+    seed and packages give other float arithmetic on another CPU model, so a run records which one it ran on."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "CPU model unknown"
+
+
 def machine() -> str:
-    """One line: platform, Python and CPU count."""
-    return f"{platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPUs"
+    """One line: platform, CPU model, Python and CPU count."""
+    return f"{platform.platform()}, {cpu_model()}, Python {platform.python_version()}, {os.cpu_count()} CPUs"
 
 
 def provenance() -> dict:

@@ -220,7 +220,7 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
 
 
 def test_provenance_names_the_commit_and_a_changed_tree(tmp_path):
-    from kddrl_trl.provenance import commit, provenance
+    from kddrl_trl.provenance import commit, cpu_model, provenance
 
     assert commit(tmp_path) == "unknown"  # not a checkout
     git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path)]
@@ -234,6 +234,7 @@ def test_provenance_names_the_commit_and_a_changed_tree(tmp_path):
     assert commit(tmp_path) == head + "+dirty"
     p = provenance()
     assert set(p) == {"commit", "machine", "packages"} and "CPUs" in p["machine"]
+    assert cpu_model() in p["machine"] and cpu_model()  # the CPU model: other models give other float arithmetic
 
 
 def test_a_run_records_the_commit_its_code_was_loaded_from(monkeypatch):
