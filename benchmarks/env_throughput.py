@@ -69,6 +69,7 @@ from tqdm import tqdm  # noqa: E402
 from kddrl_trl.baselines import IDMMobilPolicy, RandomDrivingPolicy  # noqa: E402
 from kddrl_trl.envs import SumoHighwayEnv, make_config  # noqa: E402
 from kddrl_trl.envs.sim import HighwaySim  # noqa: E402
+from kddrl_trl.provenance import cpu_model  # noqa: E402
 
 GOAL_RATIO = 0.5
 GOAL_MIN_K = 8
@@ -180,6 +181,7 @@ def machine_info() -> dict:
     return {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
+        "cpu_model": cpu_model(),  # timings and float arithmetic differ between CPU models
         "python": sys.version.split()[0],
         "torch": torch.__version__,
         "torchrl": _version("torchrl"),
