@@ -27,7 +27,7 @@ import numpy as np
 
 from kddrl_trl.eval.records import find_runs
 from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
-from kddrl_trl.eval.verdict import clopper_pearson
+from kddrl_trl.eval.verdict import exact_collisions
 
 DOCS = Path(__file__).resolve().parents[1]
 SYSTEMS = {  # the report's row name -> the selection study's folders
@@ -64,10 +64,10 @@ def _ci(value: dict, scale: float = 1.0, fmt: str = ".3f") -> str:
 
 
 def _pooled(runs: list) -> str:
-    """Collisions pooled over the runs' episodes: ``k / n = rate [exact 95 % CI]``."""
-    k = int(round(sum(r.summary["collision_rate"] * r.summary["episodes"] for r in runs)))
-    n = int(sum(r.summary["episodes"] for r in runs))
-    lo, hi = clopper_pearson(k, n)
+    """Collisions pooled over the runs' episodes (one row's runs: :func:`~kddrl_trl.eval.verdict.exact_collisions`):
+    ``k / n = rate [exact 95 % CI]``."""
+    (pooled,) = exact_collisions(runs).values()
+    k, n, (lo, hi) = pooled["collisions"], pooled["episodes"], pooled["ci"]
     return f"{k} / {n} = {100 * k / n:.2f} % [{100 * lo:.2f}, {100 * hi:.2f}]"
 
 
