@@ -50,7 +50,7 @@ class PlainKDDRL:
       updates of the target Q (D3QN tau) and the target embedding (every step).
 
     The networks are deep copies of the learner's, the learning rates and taus the learner's, the optimisers the
-    learner's kind (:func:`kddrl_trl.training.base.adam`, fused)."""
+    learner's kind (:func:`kddrl_trl.training.base.adam`, fused), but ``torch.optim.Adam`` itself (``lean=False``)."""
 
     def __init__(self, learner: HierarchicalLearner):
         L = learner
@@ -100,10 +100,12 @@ class PlainKDDRL:
         self.tau_lc = 1.0 - float(L.d3qn.target_updater.eps)
         self.tau_embed = L.embed_tau
         emb_params = [*self.fusion.parameters(), *self.embed.parameters()]
-        self.opt_embed = adam(emb_params, L.opt_embed.param_groups[0]["lr"], device)  # the learner's optimisers
-        self.opt_q = adam(self.q.parameters(), L.lr_lc, device)
-        self.opt_actor = adam(self.actor.parameters(), L.lr_actor, device)
-        self.opt_critic = adam([p for c in self.critics for p in c.parameters()], L.lr_critic, device)
+        self.opt_embed = adam(
+            emb_params, L.opt_embed.param_groups[0]["lr"], device, lean=False
+        )  # the learner's optimisers
+        self.opt_q = adam(self.q.parameters(), L.lr_lc, device, lean=False)
+        self.opt_actor = adam(self.actor.parameters(), L.lr_actor, device, lean=False)
+        self.opt_critic = adam([p for c in self.critics for p in c.parameters()], L.lr_critic, device, lean=False)
         emb_pairs = [(self.t_fusion, self.fusion), (self.t_embed, self.embed)]
         self.soft_cf = [
             (self.tau_cf, [(self.actor_t, self.actor), *zip(self.critics_t, self.critics)]),

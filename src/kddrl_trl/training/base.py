@@ -50,18 +50,23 @@ from torch import nn
 from .. import keys as K
 from ..collectors import PolicySnapshot
 from ..compiling import GraphedUpdate, WarmCompiled, inductor_options, resolve_cudagraphs, resolved
+from .adam import FusedAdam
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
 STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
 DONE_KEYS = ("done", "terminated", "truncated")
 
 
-def adam(params, lr: float, device: torch.device | str | None = None) -> torch.optim.Adam:
+def adam(params, lr: float, device: torch.device | str | None = None, lean: bool = True) -> torch.optim.Adam:
     """Adam with the fused kernel (one call per step for all tensors; on a CPU PyTorch's default is a
-    per-tensor loop); on CUDA also ``capturable`` (its step counters stay on the GPU, so that a CUDA graph can
-    capture the step)."""
+    per-tensor loop). On CUDA it is ``torch.optim.Adam(capturable=True)`` (its step counters stay on the GPU, so
+    that a CUDA graph can capture the step, which ``torch.compile`` traces); elsewhere, with ``lean``, a
+    :class:`~.adam.FusedAdam` (the same arithmetic without ``Optimizer.step`` 's bookkeeping), without it
+    ``torch.optim.Adam`` itself."""
     params = [p for p in params if p.requires_grad]
     capturable = device is not None and torch.device(device).type == "cuda"
+    if lean and not capturable:
+        return FusedAdam(params, lr=lr)
     return torch.optim.Adam(params, lr=lr, fused=True, capturable=capturable)
 
 
