@@ -342,24 +342,33 @@ def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
     return out
 
 
-def measure_torchrl_td3(updates: int, repeats: int, device: torch.device, batch_size: int = 256) -> dict:
+def measure_torchrl_td3(
+    updates: int,
+    repeats: int,
+    device: torch.device,
+    batch_size: int = 256,
+    obs: int = 17,
+    act: int = 6,
+    hidden: tuple[int, ...] = (256, 256),
+) -> dict:
     """(r): the reference the issue's GPU goal names, TorchRL's own TD3 as its ``sota-implementations`` run it:
-    ``TD3Loss`` (twin critics) on a MuJoCo-sized task (17-dim observations, 6 actions, 2 x 256 MLPs), batch
-    ``batch_size``, each update ``torch.compile`` d and (on CUDA) wrapped in ``CudaGraphModule`` with capturable
-    Adam; the critic step and, every second update (``policy_delay`` 2), the critic + actor + ``SoftUpdate`` step,
-    as two functions. Updates per second on random batches already on ``device``, median over ``repeats``."""
+    ``TD3Loss`` (twin critics) on a MuJoCo-sized task (by default 17-dim observations, 6 actions, 2 x 256 MLPs),
+    batch ``batch_size``, each update ``torch.compile`` d and (on CUDA) wrapped in ``CudaGraphModule`` with
+    capturable Adam; the critic step and, every second update (``policy_delay`` 2), the critic + actor +
+    ``SoftUpdate`` step, as two functions. Updates per second on random batches already on ``device``, median over
+    ``repeats``."""
     from tensordict import TensorDict
     from tensordict.nn import CudaGraphModule, TensorDictModule
     from torchrl.data import Bounded
     from torchrl.modules import MLP, ValueOperator
     from torchrl.objectives import SoftUpdate, TD3Loss
 
-    obs, act, b = 17, 6, batch_size
+    b, cells = batch_size, list(hidden)
     torch.manual_seed(0)
     actor = TensorDictModule(
-        torch.nn.Sequential(MLP(obs, act, num_cells=[256, 256]), torch.nn.Tanh()), ["observation"], ["action"]
+        torch.nn.Sequential(MLP(obs, act, num_cells=cells), torch.nn.Tanh()), ["observation"], ["action"]
     ).to(device)
-    critic = ValueOperator(MLP(obs + act, 1, num_cells=[256, 256]), in_keys=["observation", "action"]).to(device)
+    critic = ValueOperator(MLP(obs + act, 1, num_cells=cells), in_keys=["observation", "action"]).to(device)
     loss = TD3Loss(
         actor,
         critic,
@@ -422,7 +431,7 @@ def measure_torchrl_td3(updates: int, repeats: int, device: torch.device, batch_
         _sync(device)
         runs.append((time.perf_counter() - t0) / len(batches))
     per_update = statistics.median(runs)
-    print(f"  TorchRL's own TD3 (batch {b}): {1 / per_update:.0f} updates/s", flush=True)
+    print(f"  TorchRL's own TD3 (batch {b}, {obs}-dim obs, {act} actions, {cells}): {1 / per_update:.0f} updates/s")
     return {"batch_size": b, "td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update}
 
 

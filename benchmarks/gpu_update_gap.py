@@ -1,0 +1,140 @@
+"""What separates our CUDA-graphed TD3 update from TorchRL's own on a GPU, measured in one run.
+
+The GPU goal compares the learner's TD3 update (``train_throughput.py`` (a): compiled update functions replayed
+as CUDA graphs) with TorchRL's own compiled, CUDA-graphed ``TD3Loss`` on a MuJoCo-sized task at the same
+minibatch (``train_throughput.py`` (r)). The two do different work. Ours is TD3 (Eq. 6-10) on the car-following
+state (Eq. 30) with 2 x 128 networks, plus the shared embedding, online and target (Eq. 23-24), and the D3QN's
+greedy next lane-change action in the TD3 target; TorchRL's is TD3 alone on 17 features with 2 x 256 networks.
+The arms, at each minibatch of ``--batches``, tell the parts apart:
+
+- ``ours``: the KDDRL learner's TD3 update (``conf/algo/kddrl.yaml``);
+- ``ours_no_embedding``: the same learner without the shared embedding (``priors`` and ``key_gaps`` off, the
+  learner of ``d3qn_td3``);
+- ``torchrl_mujoco``: (r), the reference the goal names;
+- ``torchrl_our_shapes``: TorchRL's TD3 with our networks' sizes (the car-following state without s_e, one
+  action, 2 x 128): the same TD3 without KDDRL's other parts.
+
+TD3 updates per second (the critic step every update, the actor and target step every second one), median of
+``--repeats`` timed passes over ``--updates`` batches already on the GPU. ``--mode`` is ``torch.compile`` 's
+mode for every arm (``default``; ``max-autotune-no-cudagraphs`` lets TorchInductor pick Triton GEMMs with the
+bias and activation fused into them). The JSON is written after every arm, so a run cut short keeps what it
+measured.
+
+    python benchmarks/gpu_update_gap.py [--batches 128 256] [--updates 300] [--repeats 3]
+                                        [--mode default] [--arms ours ...] [--out PATH]
+
+Prints a table and writes ``benchmarks/results/gpu_update_gap.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from env_throughput import machine_info, write_json  # noqa: E402
+from train_throughput import _sync, learner_kwargs, measure_torchrl_td3, sample_batches  # noqa: E402
+
+from kddrl_trl.modules import cf_obs_dim  # noqa: E402
+from kddrl_trl.training import HierarchicalLearner  # noqa: E402
+
+ARMS = ("ours", "ours_no_embedding", "torchrl_mujoco", "torchrl_our_shapes")
+
+
+def measure_ours(batches: list, updates: int, repeats: int, device: torch.device, **overrides) -> dict:
+    """TD3 updates per second of the compiled learner (``learner_kwargs`` with ``overrides``), CUDA-graphed on a
+    GPU."""
+    kw, _ = learner_kwargs(True)
+    learner = HierarchicalLearner(**{**kw, **overrides}, device=device, cudagraphs=device.type == "cuda")
+    t0 = time.perf_counter()
+    for b in batches[:12]:
+        learner.update_cf(b)
+    _sync(device)
+    compile_s = time.perf_counter() - t0
+    for b in batches[:updates]:  # one untimed pass: each batch now holds the |δ| an update writes (one more key)
+        learner.update_cf(b)
+    runs = []
+    for _ in range(repeats):
+        _sync(device)
+        t0 = time.perf_counter()
+        for b in batches[:updates]:
+            learner.update_cf(b)
+        _sync(device)
+        runs.append((time.perf_counter() - t0) / updates)
+    per_update = statistics.median(runs)
+    return {"td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update, "compile_s": compile_s}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--batches", type=int, nargs="+", default=[128, 256])
+    p.add_argument("--updates", type=int, default=300)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--mode", default="default", help="torch.compile's mode for every arm")
+    p.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS))
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cuda", help="cuda; cpu only to try the script (nothing is graphed there)")
+    p.add_argument("--note", default=None)
+    p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "gpu_update_gap.json")
+    args = p.parse_args(argv)
+    device = torch.device(args.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise SystemExit(f"--device {args.device}: no CUDA device is available here")
+    if args.mode != "default":
+        torch.compile = functools.partial(torch.compile, mode=args.mode)  # every arm's compile site
+    kw, _ = learner_kwargs(True)
+    keys = HierarchicalLearner(**{**kw, "compile": False}).buffer_keys()  # KDDRL's: a superset of the others'
+    state = cf_obs_dim(0)
+    result = {
+        "args": {k: str(v) for k, v in vars(args).items()},
+        "machine": {
+            **machine_info(),
+            "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
+        },
+        "by_batch": {},
+    }
+    for b in args.batches:
+        rb_cf, _ = sample_batches(max(4000, 4 * b), args.seed, keys, b)
+        batches = [rb_cf.sample().to(device) for _ in range(args.updates)]
+        row = result["by_batch"].setdefault(str(b), {})
+        for arm in args.arms:
+            if arm == "ours":
+                row[arm] = measure_ours(batches, args.updates, args.repeats, device)
+            elif arm == "ours_no_embedding":
+                row[arm] = measure_ours(batches, args.updates, args.repeats, device, priors=False, key_gaps=False)
+            elif arm == "torchrl_mujoco":
+                row[arm] = measure_torchrl_td3(args.updates, args.repeats, device, batch_size=b)
+            else:
+                hidden = tuple(kw["td3"]["hidden"])
+                row[arm] = measure_torchrl_td3(
+                    args.updates, args.repeats, device, batch_size=b, obs=state, act=1, hidden=hidden
+                )
+            print(f"batch {b:4d}  {arm:20s} {row[arm]['td3_updates_per_s']:8.0f} TD3 updates/s", flush=True)
+            ratios = {
+                "ours_vs_torchrl_mujoco": ("ours", "torchrl_mujoco"),
+                "ours_vs_torchrl_our_shapes": ("ours", "torchrl_our_shapes"),
+                "ours_no_embedding_vs_torchrl_our_shapes": ("ours_no_embedding", "torchrl_our_shapes"),
+                "ours_vs_ours_no_embedding": ("ours", "ours_no_embedding"),
+            }
+            row["ratios"] = {
+                name: row[a]["td3_updates_per_s"] / row[r]["td3_updates_per_s"]
+                for name, (a, r) in ratios.items()
+                if a in row and r in row
+            }
+            write_json(args.out, result)
+    print(f"\n{'batch':>5}  " + "  ".join(f"{a:>20s}" for a in args.arms) + "   (TD3 updates/s)")
+    for b, row in result["by_batch"].items():
+        print(f"{b:>5}  " + "  ".join(f"{row[a]['td3_updates_per_s']:20.0f}" for a in args.arms if a in row))
+        for name, value in row.get("ratios", {}).items():
+            print(f"       {name}: {value:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
