@@ -19,3 +19,7 @@ T0=$(date +%s)
 timeout ${T2:-190} python3 benchmarks/gpu_update_gap.py --mode max-autotune-no-cudagraphs --batches 128 \
   --arms ours torchrl_mujoco --out $OUT/gap_max_autotune.json 2>&1 | quiet
 echo "max-autotune-no-cudagraphs: rc=${PIPESTATUS[0]} $(( $(date +%s) - T0 )) s"
+# Results: gap_default.json (the first python call above; the max-autotune call timed out while autotuning, no JSON).
+# gap_reversed.json: the second device call, right after, on the same warm machine, the arms and batches reversed:
+#   python3 benchmarks/gpu_update_gap.py --batches 256 128 --arms torchrl_our_shapes torchrl_mujoco \
+#     ours_no_embedding ours --repeats 5 --out $OUT/gap_reversed.json
