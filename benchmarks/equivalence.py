@@ -1,0 +1,135 @@
+"""The equivalence check of a change that alters only the float arithmetic: paired differences, after − before.
+
+A speed change that keeps the algorithm (the same losses, the same update counts) but orders or fuses its float
+arithmetic otherwise cannot keep the training records byte-identical. It lands on evidence that the results did
+not move: the same runs (algo, scenario, seed) trained with the code before and after it, and, per algo and
+scenario and pooled, the paired differences after − before of the final evaluation's mean speed and collision
+rate with their Student-t 95 % intervals over the pairs (:func:`kddrl_trl.eval.verdict.t_interval`), beside how
+many pairs kept byte-identical training records, the update counts of each pair (they must be equal: the
+algorithm did not change) and the ratio of their training times.
+
+Running the two sides (each from a worktree pinned at its commit, with Hydra's multirun; the issue's check is
+3 seeds on baseline and braking):
+
+    git worktree add ../before <commit before>  &&  git worktree add ../after <commit after>
+    (cd ../before && python -m kddrl_trl.train -m seed=0,1,2 +scenario=baseline,braking hydra.sweep.dir=runs/eq)
+    (cd ../after && python -m kddrl_trl.train -m seed=0,1,2 +scenario=baseline,braking hydra.sweep.dir=runs/eq)
+    python benchmarks/equivalence.py ../before/runs/eq ../after/runs/eq [--out PATH]
+
+Every run must have its partner, with the same ``config.yaml`` (else the error names the run and the keys that
+differ). Prints a table and writes ``benchmarks/results/equivalence.json`` (or ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import sys
+from pathlib import Path
+
+import numpy as np
+from omegaconf import OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from env_throughput import write_json  # noqa: E402
+
+from kddrl_trl.eval.records import find_runs, record_file  # noqa: E402
+from kddrl_trl.eval.verdict import t_interval  # noqa: E402
+from kddrl_trl.runs import config_differences  # noqa: E402
+
+#: the measures compared, from each run's final evaluation: (name, summary key, scale to the unit, unit)
+MEASURES = (("mean speed", "mean_speed_kmh", 1.0, "km/h"), ("collision rate", "collision_rate", 100.0, "points"))
+#: update counts that must match pair by pair (the algorithm did not change)
+COUNTS = ("cf_updates", "lc_updates", "frames", "episodes")
+
+
+def _digest(folder: Path, name: str) -> str | None:
+    try:
+        return hashlib.sha256(record_file(folder, name).read_bytes()).hexdigest()[:16]
+    except FileNotFoundError:
+        return None
+
+
+def pairs(before, after) -> list[dict]:
+    """The runs of ``before`` and ``after`` matched by (algo, scenario, seed); raises on a run without a partner
+    or a pair whose configs differ."""
+    a = {(r.algo, r.scenario, r.seed): r for r in find_runs([before])}
+    b = {(r.algo, r.scenario, r.seed): r for r in find_runs([after])}
+    lone = sorted(set(a) ^ set(b))
+    if lone:
+        where = ", ".join(f"{k} only in {before if k in a else after}" for k in lone[:6])
+        raise ValueError(f"runs without a partner: {where}")
+    out = []
+    for key in sorted(a):
+        ra, rb = a[key], b[key]
+        ca, cb = (OmegaConf.to_container(OmegaConf.load(r.trained / "config.yaml")) for r in (ra, rb))
+        different = config_differences(ca, cb)
+        if different:
+            raise ValueError(f"{ra.trained} and {rb.trained} ran other configs: {'; '.join(different[:5])}")
+        ta, tb = ra.trained_summary.get("training", {}), rb.trained_summary.get("training", {})
+        ma, mb = ra.metrics(), rb.metrics()  # from the evaluation episodes, as the report computes them
+        out.append(
+            {
+                "algo": key[0],
+                "scenario": key[1],
+                "seed": key[2],
+                "before": {"run": str(ra.path), "commit": ra.commit, **{m[1]: ma[m[1]] for m in MEASURES}},
+                "after": {"run": str(rb.path), "commit": rb.commit, **{m[1]: mb[m[1]] for m in MEASURES}},
+                "counts_equal": all(ta.get(c) == tb.get(c) for c in COUNTS),
+                "training_identical": _digest(ra.trained, "train_episodes.csv")
+                == _digest(rb.trained, "train_episodes.csv"),
+                "training_time_ratio": (tb["elapsed_s"] / ta["elapsed_s"])
+                if ta.get("elapsed_s") and tb.get("elapsed_s")
+                else None,
+            }
+        )
+    return out
+
+
+def differences(rows: list[dict]) -> dict:
+    """Per measure: the paired difference after − before, its 95 % interval and two-sided p (n >= 2)."""
+    out = {}
+    for name, key, scale, unit in MEASURES:
+        d = np.array([scale * (r["after"][key] - r["before"][key]) for r in rows])
+        low, high, p = t_interval(d) if d.size >= 2 else (None, None, None)
+        out[name] = {"unit": unit, "pairs": int(d.size), "difference": float(d.mean()), "ci": [low, high], "p": p}
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("before", type=Path, help="sweep (or run) folder of the code before the change")
+    p.add_argument("after", type=Path, help="the same runs of the code after it")
+    p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "equivalence.json")
+    p.add_argument("--note", default=None, help="free text stored in the JSON (where and how the runs ran)")
+    args = p.parse_args(argv)
+    rows = pairs(args.before, args.after)
+    groups = {"pooled": rows}
+    for r in rows:
+        groups.setdefault(f"{r['algo']} on {r['scenario']}", []).append(r)
+    result = {
+        "before": sorted({r["before"]["commit"] for r in rows}),
+        "after": sorted({r["after"]["commit"] for r in rows}),
+        "pairs": rows,
+        "by_group": {g: differences(rs) for g, rs in groups.items()},
+        "counts_equal": all(r["counts_equal"] for r in rows),
+        "training_identical": sum(r["training_identical"] for r in rows),
+        "training_time_ratio": [r["training_time_ratio"] for r in rows],
+        **({"note": args.note} if args.note else {}),
+    }
+    print(f"{'group':32s} {'measure':16s} {'pairs':>5s}  after − before [95 % CI]        p")
+    for g, ms in result["by_group"].items():
+        for name, m in ms.items():
+            ci = "" if m["ci"][0] is None else f"[{m['ci'][0]:+.2f}, {m['ci'][1]:+.2f}]"
+            pv = "" if m["p"] is None else f"{m['p']:.2f}"
+            print(f"{g:32s} {name:16s} {m['pairs']:5d}  {m['difference']:+.2f} {m['unit']} {ci:18s} {pv}")
+    print(
+        f"update counts equal in every pair: {result['counts_equal']}; training records byte-identical in "
+        f"{result['training_identical']} of {len(rows)} pairs"
+    )
+    write_json(args.out, result)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
