@@ -2,34 +2,22 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import lzma
 import shutil
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
-import torch
+from testkit import load_benchmark
 
 ROOT = Path(__file__).resolve().parents[1]
-BENCH = ROOT / "benchmarks" / "equivalence.py"
 RUNS = [ROOT / "docs" / "paper" / "runs" / f"baseline__kddrl__{s}" for s in (0, 1, 2)]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    threads = torch.get_num_threads()  # the benchmarks' shared module sets one torch thread when imported
-    spec = importlib.util.spec_from_file_location("equivalence", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(BENCH.parent))
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(BENCH.parent))
-        torch.set_num_threads(threads)
-    return module
+    return load_benchmark("equivalence")
 
 
 def copy_runs(root: Path) -> Path:

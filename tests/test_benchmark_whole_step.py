@@ -3,28 +3,14 @@ the benchmark's two arms time the same algorithm."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 import torch
-
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "whole_step_update.py"
+from testkit import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def bench():
-    threads = torch.get_num_threads()  # the benchmarks' shared module sets one torch thread when imported
-    spec = importlib.util.spec_from_file_location("whole_step_update", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(BENCH.parent))
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(BENCH.parent))
-        torch.set_num_threads(threads)
-    return module
+    return load_benchmark("whole_step_update")
 
 
 def test_the_in_graph_adam_steps_as_torch_adam(bench):

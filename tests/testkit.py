@@ -164,3 +164,22 @@ def run_script(folder, body: str, timeout: int = 300) -> subprocess.CompletedPro
     script = folder / "script.py"
     script.write_text(textwrap.dedent(body))
     return subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=timeout)
+
+
+def load_benchmark(name: str):
+    """The module of ``benchmarks/<name>.py`` (its folder on ``sys.path`` while it imports its siblings); the torch
+    thread count is kept (the benchmarks' shared module sets one thread when imported)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    threads = torch.get_num_threads()
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(path.parent))
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(path.parent))
+        torch.set_num_threads(threads)
+    return module
