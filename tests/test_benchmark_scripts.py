@@ -1,4 +1,5 @@
-"""``benchmarks/equivalence.py``: the paired differences of a float-only change, on copies of committed runs."""
+"""``benchmarks/equivalence.py`` (the paired differences of a float-only change, on copies of committed runs) and
+``benchmarks/gpu_update_gap.py`` (its arms, in its CPU trial mode)."""
 
 from __future__ import annotations
 
@@ -61,3 +62,21 @@ def test_equivalence_refuses_a_run_without_partner_and_other_configs(bench, tmp_
     config.write_text(config.read_text().replace("episodes: 1000", "episodes: 999", 1))
     with pytest.raises(ValueError, match="other configs.*episodes"):
         bench.pairs(before, after)
+
+
+@pytest.mark.slow
+def test_gpu_update_gap_script_runs_its_arms_and_writes_the_ratios(tmp_path):
+    """``benchmarks/gpu_update_gap.py`` on the CPU (its ``--device cpu`` trial mode): every arm gives a rate and
+    the JSON holds the ratios between them."""
+    gap = load_benchmark("gpu_update_gap")
+    out = tmp_path / "gap.json"
+    args = ["--device", "cpu", "--batches", "16", "--updates", "4", "--repeats", "1", "--out", str(out)]
+    assert gap.main(args) == 0
+    row = json.loads(out.read_text())["by_batch"]["16"]
+    assert all(row[a]["td3_updates_per_s"] > 0 for a in gap.ARMS)
+    assert set(row["ratios"]) == {
+        "ours_vs_torchrl_mujoco",
+        "ours_vs_torchrl_our_shapes",
+        "ours_no_embedding_vs_torchrl_our_shapes",
+        "ours_vs_ours_no_embedding",
+    }
