@@ -69,7 +69,7 @@ BASE_DIM = 3 + 6 * 4 + 6
 class StateScale:
     """Fixed input scales of the agent states (SI units per unit of feature).
 
-    Longitudinal values use the issue's scales (positions 100 m, speeds 50 m/s, accelerations 5 m/s² =
+    Longitudinal values use fixed round scales (positions 100 m, speeds 50 m/s, accelerations 5 m/s² =
     the action bound of Eq. 31). Lateral values are small on a 3-lane road (offsets within ±2 lanes of
     3.2 m, lateral speeds ~1.6 m/s during a 2 s lane change), so they get their own scales — 10 m and
     5 m/s — instead of being squashed to ~0.03 by the longitudinal ones.

@@ -49,7 +49,8 @@ share, even with ``"inv"``) reached a validation balanced accuracy of 0.68 again
 ~3 lane changes per mini-batch of 512 the rare-class gradient is too noisy, whatever its weight.
 
 With ``adversarial=False`` the same generator network is trained as a plain classifier with the focal loss
-only (the comparison baseline of the issue); the checkpoint then holds no discriminator.
+only (the baseline ``benchmarks/lcgan_ablation.py`` compares the GAN with); the checkpoint then holds no
+discriminator.
 
 Model selection: :meth:`LCGANTask.validation_loss` is ``1 - balanced accuracy`` (mean per-class recall of
 ``argmax P``), so early stopping looks at the rare classes, not at the 99 % of lane keeping. Epochs are
