@@ -45,6 +45,13 @@ from kddrl_trl.modules import cf_obs_dim  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402
 
 ARMS = ("ours", "ours_no_embedding", "torchrl_mujoco", "torchrl_our_shapes")
+#: the ratios written per minibatch: name -> (arm, reference arm), rate over rate (above 1: the arm is faster)
+RATIOS = {
+    "ours_vs_torchrl_mujoco": ("ours", "torchrl_mujoco"),
+    "ours_vs_torchrl_our_shapes": ("ours", "torchrl_our_shapes"),
+    "ours_no_embedding_vs_torchrl_our_shapes": ("ours_no_embedding", "torchrl_our_shapes"),
+    "ours_vs_ours_no_embedding": ("ours", "ours_no_embedding"),
+}
 
 
 def measure_ours(batches: list, updates: int, repeats: int, device: torch.device, **overrides) -> dict:
@@ -116,15 +123,9 @@ def main(argv=None) -> int:
                     args.updates, args.repeats, device, batch_size=b, obs=state, act=1, hidden=hidden
                 )
             print(f"batch {b:4d}  {arm:20s} {row[arm]['td3_updates_per_s']:8.0f} TD3 updates/s", flush=True)
-            ratios = {
-                "ours_vs_torchrl_mujoco": ("ours", "torchrl_mujoco"),
-                "ours_vs_torchrl_our_shapes": ("ours", "torchrl_our_shapes"),
-                "ours_no_embedding_vs_torchrl_our_shapes": ("ours_no_embedding", "torchrl_our_shapes"),
-                "ours_vs_ours_no_embedding": ("ours", "ours_no_embedding"),
-            }
             row["ratios"] = {
                 name: row[a]["td3_updates_per_s"] / row[r]["td3_updates_per_s"]
-                for name, (a, r) in ratios.items()
+                for name, (a, r) in RATIOS.items()
                 if a in row and r in row
             }
             write_json(args.out, result)

@@ -431,7 +431,10 @@ def measure_torchrl_td3(
         _sync(device)
         runs.append((time.perf_counter() - t0) / len(batches))
     per_update = statistics.median(runs)
-    print(f"  TorchRL's own TD3 (batch {b}, {obs}-dim obs, {act} actions, {cells}): {1 / per_update:.0f} updates/s")
+    print(
+        f"  TorchRL's own TD3 (batch {b}, {obs}-dim obs, {act} actions, {cells}): {1 / per_update:.0f} updates/s",
+        flush=True,
+    )
     return {"batch_size": b, "td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update}
 
 

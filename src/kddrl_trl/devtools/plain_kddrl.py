@@ -100,9 +100,8 @@ class PlainKDDRL:
         self.tau_lc = 1.0 - float(L.d3qn.target_updater.eps)
         self.tau_embed = L.embed_tau
         emb_params = [*self.fusion.parameters(), *self.embed.parameters()]
-        self.opt_embed = adam(
-            emb_params, L.opt_embed.param_groups[0]["lr"], device, lean=False
-        )  # the learner's optimisers
+        # the learner's optimisers, as torch.optim.Adam itself
+        self.opt_embed = adam(emb_params, L.opt_embed.param_groups[0]["lr"], device, lean=False)
         self.opt_q = adam(self.q.parameters(), L.lr_lc, device, lean=False)
         self.opt_actor = adam(self.actor.parameters(), L.lr_actor, device, lean=False)
         self.opt_critic = adam([p for c in self.critics for p in c.parameters()], L.lr_critic, device, lean=False)
