@@ -17,12 +17,12 @@ class MultiLogger:
             logger.log_scalar(name, float(value), step=step)
 
 
-def trim_logs(run_dir: Path, last_step: int, exp_name: str = "logs") -> None:
+def trim_logs(run_dir: Path, last_step: int, eval_last_step: int, exp_name: str = "logs") -> None:
     """Before a resumed run logs again: drop the ``train/`` and ``time/`` rows after ``last_step`` (episodes
-    logged after the checkpoint, which the resumed run replays), the periodic ``eval/`` rows after the
-    checkpoint (logged at the number of episodes trained, ``last_step + 1`` for the checkpoint's own) and any
-    ``test/`` file (the final evaluation restarts). TorchRL's CSV logger appends, so without this those rows
-    would appear twice."""
+    logged after the checkpoint, which the resumed run replays), the periodic ``eval/`` rows after
+    ``eval_last_step`` (logged at the number of episodes trained; the last evaluation the checkpoint records: one
+    that finished after it is run again) and any ``test/`` file (the final evaluation restarts). TorchRL's CSV
+    logger appends, so without this those rows would appear twice."""
     folder = Path(run_dir) / exp_name / "scalars"
     if not folder.is_dir():
         return
@@ -33,6 +33,6 @@ def trim_logs(run_dir: Path, last_step: int, exp_name: str = "logs") -> None:
         if rel.startswith("test"):
             path.unlink()
             continue
-        last = last_step + 1 if rel.startswith("eval") else last_step
+        last = eval_last_step if rel.startswith("eval") else last_step
         rows = [line for line in path.read_text().splitlines() if line and int(float(line.split(",")[0])) <= last]
         write_text_atomic(path, "".join(r + "\n" for r in rows))

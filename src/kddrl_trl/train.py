@@ -74,7 +74,7 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     done = trainer.load(run_dir) if resuming else 0
     if done:
         log.info("resuming %s", run_dir)
-        trim_logs(run_dir, last_step=done - 1)
+        trim_logs(run_dir, last_step=done - 1, eval_last_step=trainer.validated_through())
     # a resumed run meets new traffic: the envs (one per collection worker) start from seed + episodes already done
     envs = make_env_factories(job, seed=job.seed + done)
     history = trainer.run(

@@ -146,3 +146,22 @@ def test_evaluate_policy_on_sumo_matches_the_frames():
         assert_match([by_start[e["start"]] for e in same], same, ignore=("index",))
     finally:
         env.close()
+
+
+def test_the_same_seed_gives_the_same_episodes_again_on_an_env_with_generative_noise():
+    """The KDDRL transform stack draws trajGAN / lcGAN noise from streams of its own: evaluating twice on one env
+    (as every periodic validation does) must restart them with the env's seed, or the second evaluation meets other
+    predictions, and so other episodes, than the first."""
+    import pandas as pd
+    from testkit import compose_job
+
+    from kddrl_trl.factories import make_env, make_learner
+
+    job = compose_job("env.num_roads=2", "compile=false")
+    env = make_env(job.env, job.algo, seed=0, compile=False, fake=True)
+    policy = make_learner(job.algo, compile=False).policy(explore=False)
+    try:
+        first, again = (pd.DataFrame(evaluate_policy(env, policy, 3, seed=4, progress=False)) for _ in range(2))
+    finally:
+        env.close()
+    assert first.equals(again)

@@ -1,8 +1,10 @@
 """``PeriodicEvaluator``: validation episodes in a worker process, without touching the training process's torch
-threads (a thread-count change mid-run re-traces every compiled graph: TorchDynamo guards it)."""
+threads (a thread-count change mid-run re-traces every compiled graph: TorchDynamo guards it). That a validation is
+of the policy as it was when it started, beside the training: ``tests/training/test_validation.py``."""
 
 from __future__ import annotations
 
+import os
 from functools import partial
 
 import torch
@@ -72,7 +74,7 @@ def test_a_worker_that_dies_while_starting_is_named(tmp_path):
         from kddrl_trl.eval.periodic import PeriodicEvaluator
 
         def make_env():
-            if multiprocessing.parent_process() is not None:  # in the worker only (specs are read here)
+            if multiprocessing.parent_process() is not None:  # in the worker
                 raise SystemExit("no env in the worker")
             return FakeHighwayEnv(num_roads=1, seed=0)
 
@@ -83,3 +85,13 @@ def test_a_worker_that_dies_while_starting_is_named(tmp_path):
     )
     assert done.returncode != 0
     assert "the validation env's worker process ended before it answered" in done.stderr, done.stderr[-3000:]
+
+
+def test_the_worker_runs_at_the_lowest_priority():
+    """The validation runs beside the training: its worker yields the cores to the training's threads."""
+    evaluator = PeriodicEvaluator(partial(FakeHighwayEnv, num_roads=1, seed=0), episodes=1, seed=5)
+    try:
+        evaluator(RandomDrivingPolicy(generator=torch.Generator().manual_seed(0)))
+        assert evaluator.pool.submit(os.nice, 0).result(timeout=60) == 19
+    finally:
+        evaluator.close()

@@ -1,21 +1,32 @@
-"""``PeriodicEvaluator``: greedy episodes of the policy being trained, on fixed validation traffic.
+"""``PeriodicEvaluator``: greedy episodes of the policy being trained, on fixed validation traffic, run beside the
+training.
 
-libsumo runs one simulation per process and the training env holds this process's, so the validation env
-lives in a worker process: a TorchRL ``ParallelEnv`` of one worker (spawned, never forked from a process
-that already runs SUMO). ``ParallelEnv`` reads the env's specs from a transient instance made in this process,
-so the evaluator is built before the training env starts (:func:`kddrl_trl.factories.make_evaluator`). The policy acts here, on the learner's current weights: nothing is copied. Every call
-reseeds the env with the same seed (:func:`kddrl_trl.eval.protocol.validation_seed`), so successive
-evaluations meet the same traffic and compare.
+libsumo runs one simulation per process and the training env holds this process's, so the validation runs in a
+worker process of its own (spawned, never forked from a process that already runs SUMO), env and policy both. Each
+validation takes a copy of the policy as it is when :meth:`PeriodicEvaluator.submit` is called (pickled there:
+the learner may go on changing its weights at once), and returns a ``Future``, so that the training goes on while
+the worker drives the episodes (:class:`~kddrl_trl.training.Trainer` collects the result later). Every validation
+reseeds the env with the same seed (:func:`kddrl_trl.eval.protocol.validation_seed`), so successive validations meet
+the same traffic and compare, and it counts episodes in start order (:func:`~kddrl_trl.eval.rollout.evaluate_policy`).
+TorchRL's own ``Evaluator`` (process backend) returns the first trajectories to *finish*, which with several roads
+favours the short ones: hence this worker around :func:`~kddrl_trl.eval.rollout.evaluate_policy`.
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+import pickle
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from typing import Callable
 
 import torch
-from torchrl.envs import EnvBase, ParallelEnv
+from torchrl.data.utils import CloudpickleWrapper
+from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from ..collectors import PolicySnapshot
 from ..spawning import require_main_guard
 from .metrics import summarize
 from .rollout import evaluate_policy
@@ -27,20 +38,44 @@ BEST_METRICS = {
     "collision_rate": lambda s: -s["collision_rate"],
 }
 
+#: the worker process's validation env (:func:`_start_worker`)
+_ENV: EnvBase | None = None
+
+
+def _start_worker(make_env: Callable[[], EnvBase]) -> None:
+    """In the worker: the lowest priority and one torch thread (the policy acts on a few rows; the training keeps
+    the cores), and the env, built once for all validations."""
+    global _ENV
+    os.nice(19)
+    torch.set_num_threads(1)
+    _ENV = make_env()
+
+
+def _validate(policy: bytes, episodes: int, seed: int) -> list[dict]:
+    """In the worker: the greedy episodes of the pickled ``policy`` (:func:`evaluate_policy`)."""
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        return evaluate_policy(_ENV, pickle.loads(policy), episodes, seed, progress=False)
+
 
 def _spawnable_start_method() -> None:
     """A spawned child re-applies its parent's default start method; inside a joblib (loky) worker that is
     ``"loky"``, which the child's ``multiprocessing`` does not know: make it ``"spawn"`` there."""
-    import multiprocessing
-
     if multiprocessing.get_start_method(allow_none=True) not in (None, "spawn", "fork", "forkserver"):
         multiprocessing.set_start_method("spawn", force=True)
 
 
 class PeriodicEvaluator:
-    """``episodes`` greedy episodes per call on env seed ``seed``; the env (``make_env()``, run in a worker
-    process) is set up here, before any other simulation of this process starts. Each call returns the per-episode records (:class:`~kddrl_trl.eval.EpisodeTracker`)
-    and their :func:`~kddrl_trl.eval.summarize` summary with the ``best_metric`` score as ``"score"``."""
+    """``episodes`` greedy episodes per validation on env seed ``seed``, in a worker process (started at the first
+    validation) that builds its env with ``make_env()``. :meth:`submit` starts a validation and returns its
+    ``Future``; :meth:`result` turns it into the per-episode records (:class:`~kddrl_trl.eval.EpisodeTracker`) and
+    their :func:`~kddrl_trl.eval.summarize` summary with the ``best_metric`` score as ``"score"``; calling the
+    evaluator does both, blocking.
+
+    The worker runs beside the training at the lowest scheduling priority (``nice`` 19): on a machine whose cores
+    the training fills, the validation takes what the training leaves idle, and the learner's threads do not wait
+    for a core the worker holds (measured in ``benchmarks/results/async_validation_2026-11-27``). The training
+    process's torch threads are left as they are (TorchDynamo guards the thread count: a change mid-run would
+    trace every compiled loss again)."""
 
     def __init__(self, make_env: Callable[[], EnvBase], episodes: int, seed: int, best_metric: str = "return"):
         if best_metric not in BEST_METRICS:
@@ -49,38 +84,43 @@ class PeriodicEvaluator:
         self.score = BEST_METRICS[best_metric]
         require_main_guard("periodic validation (train.eval_every)")
         _spawnable_start_method()
-        # worker starts on use; ``num_threads``: this process keeps its torch threads. Left to TorchRL, starting the
-        # worker sets them to (threads - 1) here, mid-run: the learner would lose a thread at the first validation,
-        # and every compiled loss would be traced again (TorchDynamo guards the thread count)
-        self.env: ParallelEnv | None = ParallelEnv(
-            1, make_env, mp_start_method="spawn", num_threads=torch.get_num_threads()
-        )
+        self.pool: ProcessPoolExecutor | None = None
+        self.closed = False
 
-    def __call__(self, policy) -> tuple[list[dict], dict]:
-        if self.env is None:
+    def submit(self, policy) -> Future:
+        """Starts a validation of ``policy`` as it is now (a copy; a :class:`~kddrl_trl.collectors.PolicySnapshot`
+        goes without its source, the learner's own policy); validations run one after the other, in order."""
+        if self.closed:
             raise RuntimeError("PeriodicEvaluator: closed")
-        threads = torch.get_num_threads()
-        starting = self.env.is_closed  # TorchRL starts the worker on its first use: this call
+        if isinstance(policy, PolicySnapshot):
+            policy = policy.policy
+        payload = pickle.dumps(policy)
+        if self.pool is None:
+            context = multiprocessing.get_context("spawn")
+            # the env factory travels by cloudpickle (a job's typed configs are classes made at run time)
+            self.pool = ProcessPoolExecutor(
+                1, mp_context=context, initializer=_start_worker, initargs=(CloudpickleWrapper(self.make_env),)
+            )
+        return self.pool.submit(_validate, payload, self.episodes, self.seed)
+
+    def result(self, future: Future) -> tuple[list[dict], dict]:
+        """(episodes, summary) of a validation :meth:`submit` started; waits for it."""
         try:
-            with set_exploration_type(ExplorationType.DETERMINISTIC):
-                episodes = evaluate_policy(self.env, policy, self.episodes, self.seed, progress=False)
-        except EOFError as err:  # TorchRL reads the worker's pipe: a dead worker surfaces as a bare EOFError
-            if not starting:  # it ran before: its own error above says why it ended
-                raise
+            episodes = future.result()
+        except BrokenProcessPool as err:
             raise RuntimeError(
                 "PeriodicEvaluator: the validation env's worker process ended before it answered; its own error "
                 "is printed above"
             ) from err
-        finally:
-            # the worker's start (first call) sets this process's threads to the count read at construction; by
-            # then a collector may have lowered them (TorchRL's multi-process collectors leave a core per worker:
-            # collector.workers > 1, collector.sync=false), and the learner would compete with its workers
-            torch.set_num_threads(threads)
         summary = summarize(episodes)
         summary["score"] = float(self.score(summary))
         return episodes, summary
 
+    def __call__(self, policy) -> tuple[list[dict], dict]:
+        return self.result(self.submit(policy))
+
     def close(self) -> None:
-        if self.env is not None and not self.env.is_closed:
-            self.env.close()
-        self.env = None
+        """Stops the worker; a validation still pending is cancelled."""
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+        self.pool, self.closed = None, True

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Callable
 
 import torch
+from torchrl.envs.transforms import Compose
 from tqdm.auto import tqdm
 
 from ..envs.episode_metrics import IN_KEYS, OPTIONAL_KEYS, EpisodeTracker
@@ -17,6 +18,25 @@ def unwrap_env(env):
     return env
 
 
+def restart_noise(env) -> None:
+    """Restarts the noise streams of ``env`` 's transforms (each member with a ``reseed``: the generative
+    predictors', :class:`~kddrl_trl.transforms._frozen.FrozenPredictorTransform`) from their own seeds. TorchRL's
+    ``TransformedEnv.set_seed`` seeds only the base env, and those streams run on over resets."""
+
+    def members(transform):
+        if isinstance(transform, Compose):
+            for t in transform.transforms:
+                yield from members(t)
+        else:
+            yield transform
+
+    while hasattr(env, "base_env"):
+        for t in members(env.transform):
+            if hasattr(t, "reseed"):
+                t.reseed()
+        env = env.base_env
+
+
 @torch.no_grad()
 def evaluate_policy(
     env,
@@ -27,8 +47,9 @@ def evaluate_policy(
     on_episode: Callable[[dict], None] | None = None,
     trace: Callable | None = None,
 ) -> list[dict]:
-    """Seed ``env`` with ``seed``, reset it and step it with ``policy`` until the first ``episodes`` episodes *to
-    start* have all finished; return their :class:`~kddrl_trl.eval.EpisodeTracker` metrics in start order
+    """Seed ``env`` with ``seed`` (its transforms' noise restarted too, :func:`restart_noise`: the same seed gives
+    the same episodes on every call, as every periodic validation needs), reset it and step it with ``policy``
+    until the first ``episodes`` episodes *to start* have all finished; return their :class:`~kddrl_trl.eval.EpisodeTracker` metrics in start order
     (``ep["start"]`` = 0, 1, ...). ``on_episode`` is called with each of them as it finishes.
 
     ``env``: any env writing the raw keys and episode events of ``kddrl_trl.keys`` (``SumoHighwayEnv``,
@@ -40,6 +61,7 @@ def evaluate_policy(
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"evaluate_policy: episodes must be an integer >= 1, got {episodes!r}")
     env.set_seed(int(seed))
+    restart_noise(env)
     td = env.reset()
     tracker = EpisodeTracker()
     wanted: dict[int, dict] = {}

@@ -17,12 +17,16 @@ Per collection batch of ``frames_per_env`` frames from each of the B environment
 3. finished episodes are logged (``train/`` and ``time/``), the progress bar moves, and every
    ``checkpoint_every`` episodes a checkpoint is written (:mod:`kddrl_trl.training.checkpoint`);
 4. every ``eval_every`` episodes (0: never) the greedy policy drives ``eval_episodes`` validation episodes
-   (:class:`~kddrl_trl.eval.periodic.PeriodicEvaluator`, fixed seeds disjoint from training), logged under
-   ``eval/``; the best score so far is kept as ``checkpoints/best.pt`` beside ``latest``.
+   (:class:`~kddrl_trl.eval.periodic.PeriodicEvaluator`, fixed seeds disjoint from training) in a worker process,
+   on a copy of its weights, while the training goes on; each is logged under ``eval/`` at the episode it started
+   at, and the best score so far keeps the learner as it was then as ``checkpoints/best.pt`` beside ``latest``.
+   A checkpoint waits for the validations started before its episode; one started at its own episode, on its
+   weights, may still run, and a run resumed from it starts that validation again.
 """
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import time
@@ -170,6 +174,9 @@ class Trainer:
             "update_s": 0.0,
         }
         self.collector: MultiTimescaleCollector | None = None
+        #: periodic evaluations under way: (episodes trained, future, the learner's state then), in start order
+        self.pending: deque = deque()
+        self.unfinished: list[int] = []  # a loaded checkpoint's evaluations under way when it was written
 
     # ------------------------------------------------------------------------------ checkpoints
     def state(self) -> dict:
@@ -179,6 +186,8 @@ class Trainer:
             "counters": dict(self.counters),
             "history": list(self.history),
             "validations": list(self.validations),
+            # the evaluation started at this episode and not finished yet (a resumed run starts it again)
+            "validating": [step for step, _, _ in self.pending],
         }
         if self.cfg.keep_buffers:
             state["buffer_cf"] = self.buffer_cf.state_dict()
@@ -193,6 +202,7 @@ class Trainer:
         self.counters.update(payload["counters"])
         self.history = list(payload["history"])
         self.validations = list(payload.get("validations", []))
+        self.unfinished = [int(s) for s in payload.get("validating", [])]
         if "buffer_cf" in payload:
             load_buffer(self.buffer_cf, payload["buffer_cf"])
             load_buffer(self.buffer_lc, payload["buffer_lc"])
@@ -207,34 +217,55 @@ class Trainer:
         )
         return len(self.history)
 
-    def checkpoint(self) -> Path:
+    def checkpoint(self, final: bool = False) -> Path:
+        """Writes a checkpoint once the periodic evaluations started before this episode are recorded (``final``:
+        all of them). Only the evaluation started at this very episode may still run: its weights are this
+        checkpoint's, so a run resumed from it evaluates them again (:meth:`run`)."""
+        self.record_validations(before=math.inf if final else len(self.history))
         return save_training_checkpoint(self.run_dir, len(self.history), self.state())
 
     def _next_multiple(self, every: int) -> int:
         """Episode count at which the next multiple of ``every`` is reached (``every`` 0: never)."""
         return (len(self.history) // every + 1) * every if every > 0 else math.inf
 
-    def validate(self) -> dict:
-        """One periodic evaluation of the greedy policy: logged under ``eval/`` at the number of episodes
-        trained; a new best score writes ``checkpoints/best.pt``."""
-        episodes, summary = self.evaluator(self.learner.policy(explore=False))
-        step = len(self.history)
-        for key in (
-            "score",
-            "mean_speed_kmh",
-            "mean_accel",
-            "lane_changes",
-            "return_lc",
-            "return_cf",
-            "collision_rate",
-        ):
-            self.logger.log_scalar(f"eval/{key}", float(summary[key]), step=step)
-        best = max((v["score"] for v in self.validations), default=-math.inf)
-        record = {"episodes_trained": step, **{k: v for k, v in summary.items() if not isinstance(v, dict)}}
-        self.validations.append(record)
-        if summary["score"] > best:
-            save_best_checkpoint(self.run_dir, {"learner": self.learner.full_state_dict(), "validation": record})
-        return record
+    def validate(self) -> None:
+        """Starts one periodic evaluation of the greedy policy as it is now, at the number of episodes trained: the
+        evaluator's worker drives it while the training goes on (:meth:`record_validations` takes its result), and
+        the learner's state is kept beside it for ``checkpoints/best.pt``."""
+        future = self.evaluator.submit(self.learner.policy(explore=False))
+        self.pending.append((len(self.history), future, copy.deepcopy(self.learner.full_state_dict())))
+
+    def record_validations(self, before: float = 0) -> None:
+        """Records the periodic evaluations that have finished, in the order they started, and waits for those
+        started before ``before`` episodes (``math.inf``: all): each is logged under ``eval/`` at the number of
+        episodes it was started at, and a new best score writes ``checkpoints/best.pt`` with the learner as it was
+        then."""
+        while self.pending:
+            step, future, state = self.pending[0]
+            if not (future.done() or step < before):
+                return
+            self.pending.popleft()
+            _, summary = self.evaluator.result(future)
+            for key in (
+                "score",
+                "mean_speed_kmh",
+                "mean_accel",
+                "lane_changes",
+                "return_lc",
+                "return_cf",
+                "collision_rate",
+            ):
+                self.logger.log_scalar(f"eval/{key}", float(summary[key]), step=step)
+            best = max((v["score"] for v in self.validations), default=-math.inf)
+            record = {"episodes_trained": step, **{k: v for k, v in summary.items() if not isinstance(v, dict)}}
+            self.validations.append(record)
+            if summary["score"] > best:
+                save_best_checkpoint(self.run_dir, {"learner": state, "validation": record})
+
+    def validated_through(self) -> int:
+        """The number of episodes of the last recorded periodic evaluation (-1: none): a resumed run keeps the
+        ``eval/`` log rows up to it (:func:`kddrl_trl.loggers.trim_logs`)."""
+        return max((v["episodes_trained"] for v in self.validations), default=-1)
 
     # ------------------------------------------------------------------------------------ loop
     def _record(self, outs: list[dict[str, torch.Tensor]], losses: dict[str, list[float]], counter: str) -> None:
@@ -321,6 +352,14 @@ class Trainer:
         )
         started = time.perf_counter()
         losses: dict[str, list[float]] = {"loss_qvalue": [], "loss_actor": [], "loss_lc": []}
+        if self.unfinished and self.evaluator is not None:
+            if self.unfinished != [len(self.history)]:  # checkpoint() waits for every earlier one
+                raise RuntimeError(
+                    f"checkpoint of {len(self.history)} episodes in {self.run_dir}: it lists periodic evaluations "
+                    f"under way at episodes {self.unfinished}; only its own episode's can be started again"
+                )
+            self.validate()  # the checkpoint's weights are the ones that evaluation was given
+            self.unfinished = []
         try:
             for batch in self.collector:
                 frames = batch.frames.numel()
@@ -353,7 +392,7 @@ class Trainer:
                 if len(self.history) >= next_ckpt or len(self.history) >= target:
                     self.counters["elapsed_s"] += time.perf_counter() - started
                     started = time.perf_counter()
-                    self.checkpoint()
+                    self.checkpoint(final=len(self.history) >= target)
                     next_ckpt = self._next_multiple(self.cfg.checkpoint_every)
                 if len(self.history) >= target:
                     break

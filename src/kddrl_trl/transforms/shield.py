@@ -18,9 +18,9 @@ hook (TorchRL's ``_post_step_mdp_hooks``, run by ``step_and_maybe_reset``: colle
 :func:`~kddrl_trl.eval.evaluate_policy`, ``rollout``) writes the executed action into the recorded frame, so buffer
 L stores ``(s, a_exec, r, s')``: the transition that really happened. TorchRL runs no hook on a bare ``env.step``
 (nor on the last frame of ``env.rollout(..., break_when_any_done=False)``): there the frame keeps the agent's
-command, and ``("next", "cf", "shield")`` still says the shield acted. Inside a ``ParallelEnv`` worker (the periodic
-evaluation's; its TensorDicts are locked shared buffers) the executed action is written in place, and the outer env
-is sure to receive the flag (its frame may keep the agent's command). Each frame carries
+command, and ``("next", "cf", "shield")`` still says the shield acted. Inside a ``ParallelEnv`` worker (its
+TensorDicts are locked shared buffers) the executed action is written in place, and the outer env is sure to
+receive the flag (its frame may keep the agent's command). Each frame carries
 ``("next", "cf", "shield")`` (``keys.CF_SHIELD``): True when the shield lowered the command, which the episode
 tracker counts (``shield_interventions``, ``shield_rate``).
 """

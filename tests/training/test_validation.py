@@ -1,0 +1,146 @@
+"""Periodic validation beside the training: each validation is of the learner as it was when it started, the
+training goes on while it runs, a checkpoint waits only for those started before its episode, and a resumed run
+starts again the one its checkpoint lists as under way."""
+
+from __future__ import annotations
+
+import copy
+from concurrent.futures import Future
+from functools import partial
+
+import pandas as pd
+import pytest
+import torch
+from testkit import compose_job, fake_trainer
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from kddrl_trl.eval.periodic import PeriodicEvaluator
+from kddrl_trl.eval.rollout import evaluate_policy
+from kddrl_trl.factories import make_env, make_learner
+from kddrl_trl.runs import checkpoint_candidates
+from kddrl_trl.training import load_training_checkpoint
+
+SMALL = ("env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]")
+TRAIN = dict(warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10, checkpoint_every=1, eval_every=1)
+
+
+def _weight_sum(state: dict) -> float:
+    return float(sum(v.double().sum() for v in state.values() if v.is_floating_point()))
+
+
+class LaggingEvaluator:
+    """An in-process stand-in for :class:`PeriodicEvaluator` whose validations finish only when the trainer asks for
+    their result: every one is still running at the next batch, so the trainer must wait at its checkpoints. A
+    validation's ``mean_speed_kmh`` is a function of the learner's weights when it started (kept here too, to
+    compare); its score falls with each validation, so the first one is the best."""
+
+    def __init__(self, learner):
+        self.learner, self.started = learner, []
+
+    def submit(self, policy) -> Future:
+        future = Future()
+        future.state, future.order = copy.deepcopy(self.learner.state_dict()), len(self.started)
+        self.started.append(future.state)
+        return future
+
+    def result(self, future: Future):
+        future.set_result(None)
+        keys = ("mean_accel", "lane_changes", "return_lc", "return_cf", "collision_rate")
+        summary = {"score": -float(future.order), "mean_speed_kmh": _weight_sum(future.state)}
+        return [], {**summary, **{k: 0.0 for k in keys}}
+
+    def close(self) -> None:
+        pass
+
+
+def _trained(tmp_path):
+    """(learner, trainer) of a 3-episode run on the fake env, validated and checkpointed after every batch."""
+    env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+    trainer.evaluator = LaggingEvaluator(learner)
+    try:
+        trainer.run(collector)
+    finally:
+        env.close()
+    return learner, trainer
+
+
+def test_validations_are_recorded_at_their_episodes_with_the_weights_they_started_with(tmp_path):
+    learner, trainer = _trained(tmp_path)
+    started = trainer.evaluator.started
+    steps = [v["episodes_trained"] for v in trainer.validations]
+    assert len(steps) == len(started) >= 2 and steps == sorted(set(steps)) and steps[-1] == 3
+    # each record is of the weights at its start, and the training went on between them
+    assert [v["mean_speed_kmh"] for v in trainer.validations] == [_weight_sum(s) for s in started]
+    assert len({v["mean_speed_kmh"] for v in trainer.validations}) == len(steps)
+    # best.pt holds the learner as it was when the best (the first) validation started, not as it is now
+    saved = torch.load(tmp_path / "checkpoints" / "best.pt", weights_only=False)
+    assert saved["validation"]["episodes_trained"] == steps[0]
+    for name, value in started[0].items():
+        torch.testing.assert_close(saved["learner"]["modules"][name], value, rtol=0, atol=0, msg=name)
+    assert _weight_sum(saved["learner"]["modules"]) != _weight_sum(learner.state_dict())
+    # eval/ rows logged once each, at the validations' episodes
+    rows = (tmp_path / "logs" / "scalars" / "eval" / "score.csv").read_text().split()
+    assert [int(float(r.split(",")[0])) for r in rows] == steps
+    # a checkpoint lists at most its own episode's validation as under way; the last lists none
+    for path in checkpoint_candidates(tmp_path):
+        payload = load_training_checkpoint(path)
+        done = len(payload["history"])
+        assert payload["validating"] in ([], [done])
+        assert all(v["episodes_trained"] < done for v in payload["validations"] if v["episodes_trained"] != done)
+    assert load_training_checkpoint(checkpoint_candidates(tmp_path)[0])["validating"] == []
+
+
+def test_a_resumed_run_validates_again_what_its_checkpoint_left_under_way(tmp_path):
+    _, trainer = _trained(tmp_path)
+    previous = checkpoint_candidates(tmp_path)[1]  # the newest but one: written while its validation ran
+    payload = load_training_checkpoint(previous)
+    done = len(payload["history"])
+    assert payload["validating"] == [done]
+    (tmp_path / "checkpoints" / checkpoint_candidates(tmp_path)[0].name).unlink()  # resume from `previous`
+    (tmp_path / "checkpoints" / "latest").unlink()
+    env, learner, again, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+    again.evaluator = LaggingEvaluator(learner)
+    try:
+        assert again.load(tmp_path) == done and again.unfinished == [done]
+        again.run(collector)
+    finally:
+        env.close()
+    ours = {v["episodes_trained"]: v["mean_speed_kmh"] for v in trainer.validations}
+    theirs = {v["episodes_trained"]: v["mean_speed_kmh"] for v in again.validations}
+    assert done in theirs and theirs[done] == ours[done]  # the same weights validated again
+    assert sorted(theirs) == [v["episodes_trained"] for v in again.validations]
+
+
+def test_a_checkpoint_listing_an_earlier_validation_under_way_is_refused(tmp_path):
+    env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+    env.close()
+    trainer.evaluator = LaggingEvaluator(learner)
+    trainer.history, trainer.unfinished = [{}] * 2, [1]
+    with pytest.raises(RuntimeError, match=r"under way at episodes \[1\]"):
+        trainer.run(collector)
+
+
+def test_a_validation_is_of_the_policy_as_it_was_when_it_started(tmp_path):
+    """The real worker: the learner's weights change right after the start, the validation does not see it."""
+    job = compose_job(*SMALL)
+    learner = make_learner(job.algo, compile=False)
+    factory = partial(make_env, job.env, job.algo, seed=7, compile=False, fake=True)
+    evaluator = PeriodicEvaluator(factory, episodes=2, seed=7)
+    try:
+        before = copy.deepcopy(learner.policy(explore=False))
+        future = evaluator.submit(learner.policy(explore=False))
+        with torch.no_grad():
+            for p in learner.parameters():
+                p.add_(1.0)
+        episodes, summary = evaluator.result(future)
+    finally:
+        evaluator.close()
+    env = factory()
+    try:
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            expected = evaluate_policy(env, before, 2, 7, progress=False)
+            moved = evaluate_policy(env, learner.policy(explore=False), 2, 7, progress=False)
+    finally:
+        env.close()
+    assert pd.DataFrame(episodes).equals(pd.DataFrame(expected)) and "score" in summary
+    assert not pd.DataFrame(moved).equals(pd.DataFrame(expected))  # the change would have shown
