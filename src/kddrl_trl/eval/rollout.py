@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Callable
 
 import torch
-from torchrl.envs.transforms import Compose
+from torchrl.envs.transforms import Compose, TransformedEnv
 from tqdm.auto import tqdm
 
 from ..envs.episode_metrics import IN_KEYS, OPTIONAL_KEYS, EpisodeTracker
@@ -20,7 +20,8 @@ def unwrap_env(env):
 
 def restart_noise(env) -> None:
     """Restarts the noise streams of ``env`` 's transforms (each member with a ``reseed``: the generative
-    predictors', :class:`~kddrl_trl.transforms._frozen.FrozenPredictorTransform`) from their own seeds. TorchRL's
+    predictors', :class:`~kddrl_trl.transforms._frozen.FrozenPredictorTransform`) from their own seeds, through the
+    ``TransformedEnv`` layers of this process (a ``ParallelEnv`` 's workers keep theirs). TorchRL's
     ``TransformedEnv.set_seed`` seeds only the base env, and those streams run on over resets."""
 
     def members(transform):
@@ -30,9 +31,9 @@ def restart_noise(env) -> None:
         else:
             yield transform
 
-    while hasattr(env, "base_env"):
+    while isinstance(env, TransformedEnv):  # not into a batched env's workers: it forwards unknown names there
         for t in members(env.transform):
-            if hasattr(t, "reseed"):
+            if callable(getattr(type(t), "reseed", None)):  # on the class: a module forwards unknown names
                 t.reseed()
         env = env.base_env
 
