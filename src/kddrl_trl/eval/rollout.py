@@ -50,8 +50,9 @@ def evaluate_policy(
 ) -> list[dict]:
     """Seed ``env`` with ``seed`` (its transforms' noise restarted too, :func:`restart_noise`: the same seed gives
     the same episodes on every call, as every periodic validation needs), reset it and step it with ``policy``
-    until the first ``episodes`` episodes *to start* have all finished; return their :class:`~kddrl_trl.eval.EpisodeTracker` metrics in start order
-    (``ep["start"]`` = 0, 1, ...). ``on_episode`` is called with each of them as it finishes.
+    until the first ``episodes`` episodes *to start* have all finished; return their
+    :class:`~kddrl_trl.eval.EpisodeTracker` metrics in start order (``ep["start"]`` = 0, 1, ...). ``on_episode``
+    is called with each of them as it finishes.
 
     ``env``: any env writing the raw keys and episode events of ``kddrl_trl.keys`` (``SumoHighwayEnv``,
     ``FakeHighwayEnv``, bare or inside a ``TransformedEnv``, of any batch size); done rows are reset as TorchRL's

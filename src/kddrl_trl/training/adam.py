@@ -5,11 +5,12 @@ The learners step up to three optimisers per gradient step on minibatches of a h
 grouping the tensors by device and dtype) costs about half as much again as the fused kernel it wraps. Once every
 parameter has its state (after the first step), :meth:`FusedAdam.step` calls what ``torch.optim.adam._fused_adam``
 calls for a single device and dtype, on the same tensors in the same order: ``torch._foreach_add_`` on the step
-counters, then ``torch._fused_adam_``. The arithmetic, the state and ``state_dict()`` are ``torch.optim.Adam`` 's; only the Python
-around them is gone. Anything outside that one case (a ``capturable`` group, as CUDA graphs need, which
-:func:`~kddrl_trl.training.base.adam` leaves to ``torch.optim.Adam``; several parameter groups, devices or dtypes; a parameter without a gradient; ``amsgrad``; a closure; a step traced by
-``torch.compile``) takes ``torch.optim.Adam.step`` itself. Step hooks run once either way (``torch.optim``
-wraps every optimiser class's ``step`` in the function that calls them).
+counters, then ``torch._fused_adam_``. The arithmetic, the state and ``state_dict()`` are ``torch.optim.Adam`` 's;
+only the Python around them is gone. Anything outside that one case (a ``capturable`` group, as CUDA graphs need,
+which :func:`~kddrl_trl.training.base.adam` leaves to ``torch.optim.Adam``; several parameter groups, devices or
+dtypes; a parameter without a gradient; ``amsgrad``; a closure; a step traced by ``torch.compile``) takes
+``torch.optim.Adam.step`` itself. Step hooks run once either way (``torch.optim`` wraps every optimiser class's
+``step`` in the function that calls them).
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ import torch
 
 
 class FusedAdam(torch.optim.Adam):
-    """``torch.optim.Adam(params, lr, fused=True)`` with a lean CPU step (module docstring). ``zero_grad`` sets the gradients to None, as ``torch.optim.Optimizer.zero_grad()`` does by
-    default."""
+    """``torch.optim.Adam(params, lr, fused=True)`` with a lean CPU step (module docstring). ``zero_grad`` sets the
+    gradients to None, as ``torch.optim.Optimizer.zero_grad()`` does by default."""
 
     def __init__(self, params, lr: float):
         super().__init__(params, lr=lr, fused=True)
