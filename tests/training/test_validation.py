@@ -90,6 +90,34 @@ def test_validations_are_recorded_at_their_episodes_with_the_weights_they_starte
     assert load_training_checkpoint(checkpoint_candidates(tmp_path)[0])["validating"] == []
 
 
+class PromptEvaluator(LaggingEvaluator):
+    """Its validations are done as soon as they are started."""
+
+    def submit(self, policy) -> Future:
+        future = super().submit(policy)
+        future.set_result(None)
+        return future
+
+    def result(self, future: Future):
+        keys = ("mean_accel", "lane_changes", "return_lc", "return_cf", "collision_rate")
+        summary = {"score": -float(future.order), "mean_speed_kmh": _weight_sum(future.state)}
+        return [], {**summary, **{k: 0.0 for k in keys}}
+
+
+def test_a_finished_validation_is_logged_after_the_next_batch_not_at_the_next_checkpoint(tmp_path):
+    env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **{**TRAIN, "checkpoint_every": 100})
+    trainer.evaluator, trainer.episodes, logged = PromptEvaluator(learner), 4, []
+    log_scalar = trainer.logger.log_scalar
+    trainer.logger.log_scalar = lambda name, value, step: (logged.append((name, step)), log_scalar(name, value, step))
+    try:
+        trainer.run(collector)
+    finally:
+        env.close()
+    first = next(i for i, (name, _) in enumerate(logged) if name == "eval/score")
+    assert any(name.startswith("train/") for name, _ in logged[first:])  # before the final checkpoint
+    assert [s for name, s in logged if name == "eval/score"] == [v["episodes_trained"] for v in trainer.validations]
+
+
 def test_a_resumed_run_validates_again_what_its_checkpoint_left_under_way(tmp_path):
     _, trainer = _trained(tmp_path)
     previous = checkpoint_candidates(tmp_path)[1]  # the newest but one: written while its validation ran

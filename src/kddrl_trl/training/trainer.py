@@ -386,6 +386,7 @@ class Trainer:
                         kmh=f"{np.mean([e['mean_speed_kmh'] for e in recent]):.1f}",
                         coll=f"{100 * np.mean([e['collision'] for e in recent]):.0f}%",
                     )
+                self.record_validations()  # those finished during this batch, logged as soon as they are
                 if len(self.history) >= next_eval:
                     self.validate()
                     next_eval = self._next_multiple(self.cfg.eval_every)
