@@ -36,6 +36,7 @@ import time
 from pathlib import Path
 
 import torch
+import torch._inductor.config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, write_json  # noqa: E402
@@ -54,9 +55,68 @@ RATIOS = {
 }
 
 
-def measure_ours(batches: list, updates: int, repeats: int, device: torch.device, **overrides) -> dict:
+def breakdown(call, graphs: list, n: int, device: torch.device) -> dict:
+    """Where an update's time goes, for ``call(i)`` (the ``i``-th update as timed) and ``graphs`` (the CUDA graphs
+    the updates replay, in turn):
+
+    - ``replay_s``: the graphs replayed back to back, nothing else: the GPU's time for an update's kernels, with
+      the launch of one graph each;
+    - ``no_sync_s``: the update as timed, without the ``torch.cuda.synchronize`` that ``CudaGraphModule`` runs
+      before every replay (the graphs replay on the stream their inputs were copied on, so their order holds);
+    - ``host_s``: the update as timed with the replays and that synchronisation made no-ops: the CPU's time;
+    - ``kernels_per_update`` and ``gpu_busy_s``: CUDA kernels (and copies) per update in the profiler's trace of
+      the replays, and the sum of their durations."""
+    if device.type != "cuda" or not graphs:
+        return {}
+    try:
+        return _breakdown(call, graphs, n, device)
+    except Exception as e:  # a diagnosis: its failure must not lose the arm's timing
+        return {"breakdown_error": repr(e)}
+
+
+def _breakdown(call, graphs: list, n: int, device: torch.device) -> dict:
+    stream = torch.cuda.current_stream(device)
+
+    def per_update(fn) -> float:
+        stream.synchronize()
+        t0 = time.perf_counter()
+        for i in range(n):
+            fn(i)
+        stream.synchronize()
+        return (time.perf_counter() - t0) / n
+
+    out = {"replay_s": per_update(lambda i: graphs[i % len(graphs)].replay())}
+    sync = torch.cuda.synchronize
+    torch.cuda.synchronize = lambda *a, **k: None
+    try:
+        out["no_sync_s"] = per_update(call)
+        for g in graphs:
+            g.replay = lambda: None
+        out["host_s"] = per_update(call)
+    finally:
+        torch.cuda.synchronize = sync
+        for g in graphs:
+            g.__dict__.pop("replay", None)
+    try:
+        from torch.autograd import DeviceType
+        from torch.profiler import ProfilerActivity, profile
+
+        k = 2 * len(graphs) * 10
+        with profile(activities=[ProfilerActivity.CUDA]) as prof:
+            for i in range(k):
+                graphs[i % len(graphs)].replay()
+            stream.synchronize()
+        ev = [e for e in prof.events() if e.device_type == DeviceType.CUDA]
+        out["kernels_per_update"] = len(ev) / k
+        out["gpu_busy_s"] = sum(e.time_range.elapsed_us() for e in ev) / 1e6 / k
+    except Exception as e:  # the profiler is a diagnosis: its failure must not lose the timings
+        out["profiler_error"] = repr(e)
+    return out
+
+
+def measure_ours(batches: list, updates: int, repeats: int, device: torch.device, probe=None, **overrides) -> dict:
     """TD3 updates per second of the compiled learner (``learner_kwargs`` with ``overrides``), CUDA-graphed on a
-    GPU."""
+    GPU; ``probe`` as :func:`train_throughput.measure_torchrl_td3` 's."""
     kw, _ = learner_kwargs(True)
     learner = HierarchicalLearner(**{**kw, **overrides}, device=device, cudagraphs=device.type == "cuda")
     t0 = time.perf_counter()
@@ -75,7 +135,12 @@ def measure_ours(batches: list, updates: int, repeats: int, device: torch.device
         _sync(device)
         runs.append((time.perf_counter() - t0) / updates)
     per_update = statistics.median(runs)
-    return {"td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update, "compile_s": compile_s}
+    out = {"td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update, "compile_s": compile_s}
+    if probe is not None and learner.cudagraphs:
+        fns = learner._update_fns  # the TD3 steps in the order update_cf runs them (policy delay 2)
+        graphs = [fns["cf_value"].graph.graph, fns["cf_full"].graph.graph]
+        out.update(probe(lambda i: learner.update_cf(batches[i % updates]), graphs))
+    return out
 
 
 def main(argv=None) -> int:
@@ -87,6 +152,8 @@ def main(argv=None) -> int:
     p.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cuda", help="cuda; cpu only to try the script (nothing is graphed there)")
+    p.add_argument("--breakdown", action="store_true", help="also time the parts of each update (breakdown())")
+    p.add_argument("--inductor", nargs="*", default=[], metavar="KEY=VALUE", help="TorchInductor config for every arm")
     p.add_argument("--note", default=None)
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "gpu_update_gap.json")
     args = p.parse_args(argv)
@@ -95,6 +162,10 @@ def main(argv=None) -> int:
         raise SystemExit(f"--device {args.device}: no CUDA device is available here")
     if args.mode != "default":
         torch.compile = functools.partial(torch.compile, mode=args.mode)  # every arm's compile site
+    for item in args.inductor:
+        key, _, value = item.partition("=")
+        setattr(torch._inductor.config, key, {"True": True, "False": False}.get(value, value))
+    probe = functools.partial(breakdown, n=args.updates, device=device) if args.breakdown else None
     kw, _ = learner_kwargs(True)
     keys = HierarchicalLearner(**{**kw, "compile": False}).buffer_keys()  # KDDRL's: a superset of the others'
     state = cf_obs_dim(0)
@@ -112,17 +183,24 @@ def main(argv=None) -> int:
         row = result["by_batch"].setdefault(str(b), {})
         for arm in args.arms:
             if arm == "ours":
-                row[arm] = measure_ours(batches, args.updates, args.repeats, device)
+                row[arm] = measure_ours(batches, args.updates, args.repeats, device, probe)
             elif arm == "ours_no_embedding":
-                row[arm] = measure_ours(batches, args.updates, args.repeats, device, priors=False, key_gaps=False)
+                row[arm] = measure_ours(
+                    batches, args.updates, args.repeats, device, probe, priors=False, key_gaps=False
+                )
             elif arm == "torchrl_mujoco":
-                row[arm] = measure_torchrl_td3(args.updates, args.repeats, device, batch_size=b)
+                row[arm] = measure_torchrl_td3(args.updates, args.repeats, device, batch_size=b, probe=probe)
             else:
                 hidden = tuple(kw["td3"]["hidden"])
                 row[arm] = measure_torchrl_td3(
-                    args.updates, args.repeats, device, batch_size=b, obs=state, act=1, hidden=hidden
+                    args.updates, args.repeats, device, batch_size=b, obs=state, act=1, hidden=hidden, probe=probe
                 )
-            print(f"batch {b:4d}  {arm:20s} {row[arm]['td3_updates_per_s']:8.0f} TD3 updates/s", flush=True)
+            parts = "  ".join(
+                f"{k}={row[arm][k] * 1e6:.0f}us" if k.endswith("_s") else f"{k}={row[arm][k]:.1f}"
+                for k in ("replay_s", "no_sync_s", "host_s", "gpu_busy_s", "kernels_per_update")
+                if k in row[arm]
+            )
+            print(f"batch {b:4d}  {arm:20s} {row[arm]['td3_updates_per_s']:8.0f} TD3 updates/s  {parts}", flush=True)
             row["ratios"] = {
                 name: row[a]["td3_updates_per_s"] / row[r]["td3_updates_per_s"]
                 for name, (a, r) in RATIOS.items()

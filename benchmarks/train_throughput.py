@@ -350,13 +350,15 @@ def measure_torchrl_td3(
     obs: int = 17,
     act: int = 6,
     hidden: tuple[int, ...] = (256, 256),
+    probe=None,
 ) -> dict:
     """(r): the reference the issue's GPU goal names, TorchRL's own TD3 as its ``sota-implementations`` run it:
     ``TD3Loss`` (twin critics) on a MuJoCo-sized task (by default 17-dim observations, 6 actions, 2 x 256 MLPs),
     batch ``batch_size``, each update ``torch.compile`` d and (on CUDA) wrapped in ``CudaGraphModule`` with
     capturable Adam; the critic step and, every second update (``policy_delay`` 2), the critic + actor +
     ``SoftUpdate`` step, as two functions. Updates per second on random batches already on ``device``, median over
-    ``repeats``."""
+    ``repeats``. ``probe(call, graphs)``, if given, is called after the timing with ``call(i)`` (the ``i``-th update
+    as timed) and, on CUDA, the two CUDA graphs in the order the updates replay them; what it returns is added."""
     from tensordict import TensorDict
     from tensordict.nn import CudaGraphModule, TensorDictModule
     from torchrl.data import Bounded
@@ -435,7 +437,10 @@ def measure_torchrl_td3(
         f"  TorchRL's own TD3 (batch {b}, {obs}-dim obs, {act} actions, {cells}): {1 / per_update:.0f} updates/s",
         flush=True,
     )
-    return {"batch_size": b, "td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update}
+    out = {"batch_size": b, "td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update}
+    if probe is not None:
+        out.update(probe(lambda i: steps[i % 2](batches[i % len(batches)]), [s.graph for s in steps] if graphs else []))
+    return out
 
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
