@@ -32,7 +32,7 @@ from omegaconf import OmegaConf
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import write_json  # noqa: E402
 
-from kddrl_trl.eval.records import find_runs, record_file  # noqa: E402
+from kddrl_trl.eval.records import find_runs, record_bytes  # noqa: E402
 from kddrl_trl.eval.verdict import t_interval  # noqa: E402
 from kddrl_trl.runs import config_differences  # noqa: E402
 
@@ -43,10 +43,10 @@ COUNTS = ("cf_updates", "lc_updates", "frames", "episodes")
 
 
 def _same_training(a: Path, b: Path) -> bool | None:
-    """Whether two runs' ``train_episodes.csv`` are byte for byte the same; None where either has none (a
-    rule-based algo trains nothing)."""
+    """Whether two runs' ``train_episodes.csv`` are byte for byte the same, each decompressed where it is kept
+    compressed; None where either has none (a rule-based algo trains nothing)."""
     try:
-        return record_file(a, "train_episodes.csv").read_bytes() == record_file(b, "train_episodes.csv").read_bytes()
+        return record_bytes(a, "train_episodes.csv") == record_bytes(b, "train_episodes.csv")
     except FileNotFoundError:
         return None
 

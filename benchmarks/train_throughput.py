@@ -74,6 +74,7 @@ from kddrl_trl.devtools.bench_results import keep_previous  # noqa: E402
 from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
 from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
+from kddrl_trl.eval.records import record_bytes  # noqa: E402
 from kddrl_trl.generative import shipped_traffic  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.transforms import (
@@ -635,7 +636,7 @@ def compare_runs(run: Path, baseline: Path) -> dict:
     a, b = (json.loads((d / "summary.json").read_text())["training"]["elapsed_s"] for d in (run, baseline))
 
     def same(name: str) -> bool:
-        return (run / name).read_bytes() == (baseline / name).read_bytes()
+        return record_bytes(run, name) == record_bytes(baseline, name)
 
     evals = [json.loads((d / "summary.json").read_text()).get("episodes") for d in (run, baseline)]
     return {

@@ -110,6 +110,10 @@ def test_compressed_records_read_as_plain_ones(tmp_path, suffix):
     pd.testing.assert_frame_equal(a.episodes, b.episodes)
     pd.testing.assert_frame_equal(a.training, b.training)
     assert a.metrics() == b.metrics() and b.metrics()["collision_rate"] == pytest.approx(1 / 3)
+    from kddrl_trl.eval.records import record_bytes
+
+    assert record_bytes(packed, "train_episodes.csv") == record_bytes(plain, "train_episodes.csv")
+    assert record_bytes(packed, "train_episodes.csv") != record_bytes(packed, "eval_episodes.csv")
 
 
 def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):

@@ -14,7 +14,9 @@ Bad or missing files raise, naming the file and column.
 
 from __future__ import annotations
 
+import gzip
 import json
+import lzma
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,6 +87,18 @@ def record_file(folder: Path, name: str) -> Path:
     plain = folder / name
     packed = [folder / f"{name}{suffix}" for suffix in COMPRESSED if (folder / f"{name}{suffix}").is_file()]
     return packed[0] if not plain.is_file() and packed else plain
+
+
+def record_bytes(folder: Path, name: str) -> bytes:
+    """The content of the record ``name`` in ``folder`` (:func:`record_file`), decompressed: a plain record and its
+    compressed form compare equal."""
+    path = record_file(folder, name)
+    raw = path.read_bytes()
+    if path.suffix == ".xz":
+        return lzma.decompress(raw)
+    if path.suffix == ".gz":
+        return gzip.decompress(raw)
+    return raw
 
 
 def _csv(path: Path, required: tuple = ()) -> pd.DataFrame:
