@@ -1,5 +1,6 @@
-"""``benchmarks/equivalence.py`` (the paired differences of a float-only change, on copies of committed runs) and
-``benchmarks/gpu_update_gap.py`` (its arms, in its CPU trial mode)."""
+"""``benchmarks/equivalence.py`` (the paired differences of a float-only change, on copies of committed runs),
+``benchmarks/gpu_update_gap.py`` (its arms, in its CPU trial mode) and ``benchmarks/gpu_determinism.py`` (its hashes
+and their comparison, on the CPU)."""
 
 from __future__ import annotations
 
@@ -43,6 +44,11 @@ def test_equivalence_pairs_runs_and_measures_the_difference(bench, tmp_path):
     speed = same["by_group"]["pooled"]["mean speed"]
     assert speed["pairs"] == 3 and speed["difference"] == 0 and speed["ci"] == [0, 0]
     assert same["training_identical"] == 3 and same["counts_equal"]
+    packed = after / RUNS[0].name / "train_episodes.csv.xz"  # one record kept plain: the same content
+    packed.with_suffix("").write_bytes(lzma.decompress(packed.read_bytes()))
+    packed.unlink()
+    assert bench.main([str(before), str(after), "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["training_identical"] == 3
     for run, kmh in zip(sorted(after.iterdir()), (1.0, 2.0, 3.0)):
         shift_speed(run, kmh)
     assert bench.main([str(before), str(after), "--out", str(out)]) == 0
@@ -80,3 +86,37 @@ def test_gpu_update_gap_script_runs_its_arms_and_writes_the_ratios(tmp_path):
         "ours_no_embedding_vs_torchrl_our_shapes",
         "ours_vs_ours_no_embedding",
     }
+
+
+def test_gpu_determinism_hashes_tell_tensors_apart():
+    """``tensor_hashes`` hashes every tensor of a nested state (dtype, shape and bytes: a changed bit, a changed
+    dtype or a changed shape changes the hash) and ``compare`` names the tensors that differ."""
+    import torch
+
+    det = load_benchmark("gpu_determinism")
+    state = {"modules": {"w": torch.ones(2, 3), "flag": torch.tensor(True)}, "optimizers": {"s": [torch.zeros(())]}}
+    a = det.tensor_hashes(state)
+    assert set(a) == {"modules.w", "modules.flag", "optimizers.s.0"}
+    assert det.tensor_hashes(state) == a
+    bit = torch.ones(2, 3)
+    bit.view(torch.int32)[0, 0] ^= 1  # one bit of one float
+    for other in (bit, torch.ones(3, 2), torch.ones(2, 3, dtype=torch.float64)):
+        b = det.tensor_hashes({**state, "modules": {**state["modules"], "w": other}})
+        assert b["modules.w"] != a["modules.w"] and b["modules.flag"] == a["modules.flag"]
+    run = {"tensors": a, "losses_sha256": "x"}
+    assert det.compare(run, run)["identical"]
+    changed = det.compare(run, {"tensors": {**a, "modules.w": "y"}, "losses_sha256": "x"})
+    assert not changed["identical"] and changed["tensors_differing"] == ["modules.w"]
+
+
+@pytest.mark.slow
+def test_gpu_determinism_script_repeats_itself_on_the_cpu(tmp_path):
+    """Two runs of ``benchmarks/gpu_determinism.py`` with one seed write the same hashes (the CPU learner
+    repeats itself bit for bit); another seed's differ."""
+    det = load_benchmark("gpu_determinism")
+    outs = [tmp_path / f"{name}.json" for name in ("a", "b", "c")]
+    for out, seed in zip(outs, ("0", "0", "1")):
+        assert det.main(["--device", "cpu", "--updates", "6", "--seed", seed, "--out", str(out)]) == 0
+    a, b, c = (json.loads(o.read_text()) for o in outs)
+    assert det.compare(a, b)["identical"] and len(a["tensors"]) > 100
+    assert not det.compare(a, c)["identical"] and not det.compare(a, c)["losses_identical"]
