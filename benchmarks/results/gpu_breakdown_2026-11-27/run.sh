@@ -3,17 +3,11 @@
 # the update without CudaGraphModule's synchronize, the host's time alone, kernels per update from the profiler;
 # then the same with TorchInductor's combo kernels (horizontal fusion) at minibatch 256.
 # No TorchRL on the device machine: its wheels (cp312) travel in the carry (.gpu/c2/whl); SUMO is not needed.
-set -u
-export PYTHONUNBUFFERED=1
-S=/root/g/site
-mkdir -p $S
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target $S .gpu/c2/whl/*.whl || exit 3
-export PYTHONPATH=$PWD/src:$S
-nvidia-smi -L; nproc
+. benchmarks/device_setup.sh  # the wheels installed, PYTHONPATH set (these lines were inline when it ran)
+nproc
 python3 -c "import torch, torchrl, tensordict; print(torch.__version__, torchrl.__version__, tensordict.__version__, \
 torch.cuda.get_device_name())" 2>&1 | tail -1 || exit 5
 quiet() { grep -v -iE "warn|inline_inbuilt|LazyTensorStorage|^\s*$|record_function"; }
-D=benchmarks/results/gpu_breakdown_2026-11-27
 T0=$(date +%s)
 timeout ${T1:-300} python3 benchmarks/gpu_update_gap.py --breakdown --out $OUT/breakdown_default.json 2>&1 | quiet
 echo "default: rc=${PIPESTATUS[0]} $(( $(date +%s) - T0 )) s"

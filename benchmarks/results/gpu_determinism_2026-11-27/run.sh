@@ -2,15 +2,8 @@
 # Device check: do the learner's CUDA-graphed updates repeat bit for bit? (benchmarks/gpu_determinism.py)
 # Four processes at once on one GPU: two with float32 matmuls (the default), two with TF32 (matmul_precision=high);
 # then each pair compared. No TorchRL on the device machine: its wheels travel in the carry (.gpu/c2/whl).
-set -u
-export PYTHONUNBUFFERED=1
-S=/root/g/site
-mkdir -p $S
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target $S .gpu/c2/whl/*.whl || exit 3
-export PYTHONPATH=$PWD/src:$S
-nvidia-smi -L
+. benchmarks/device_setup.sh  # the wheels installed, PYTHONPATH set (these lines were inline when it ran)
 B=benchmarks/gpu_determinism.py
-quiet() { grep -v -iE "warn|inline_inbuilt|LazyTensorStorage|^\s*$"; }
 for p in highest high; do
   for r in a b; do
     timeout ${T:-240} python3 $B --matmul-precision $p --out $OUT/${p}_$r.json > $OUT/${p}_$r.log 2>&1 &
