@@ -11,7 +11,9 @@
     incl. the embedding's; :class:`PlainKDDRL`, proved equal by ``tests/training/test_learner_update.py``).
     ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs nothing extra). Replay sampling is outside the timed part for both.
     On the CPU also ``compiled_python_wrapper``: the compiled learner with TorchInductor's Python wrapper instead
-    of the C++ one (:func:`python_wrapper`); ``cpp_wrapper_gain`` = its time / the compiled arm's.
+    of the C++ one (:func:`python_wrapper`); ``cpp_wrapper_gain`` = its time / the compiled arm's; and
+    ``compiled_size_asserts``: the C++ wrapper with TorchInductor's size asserts, which
+    :func:`kddrl_trl.compiling.inductor_options` drops; ``size_asserts_gain`` = its time / the compiled arm's.
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
     ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is
     found) + DecisionClock + both exploring policies through
@@ -181,7 +183,7 @@ def measure_update(
     lc_batches = [rb_lc.sample() for _ in range(max(updates // 4, 20))]
     arms = {}
     names = ("plain", "eager", "compiled") + (
-        ("compiled_cpu_batches",) if device.type == "cuda" else ("compiled_python_wrapper",)
+        ("compiled_cpu_batches",) if device.type == "cuda" else ("compiled_python_wrapper", "compiled_size_asserts")
     )
     on_device = [b.to(device) for b in cf_batches], [b.to(device) for b in lc_batches]  # as the buffers sample
     for name in names:
@@ -202,6 +204,8 @@ def measure_update(
         else:
             if name == "compiled_python_wrapper":
                 python_wrapper(learner)
+            if name == "compiled_size_asserts":
+                recompiled_loss(learner, "loss_size_asserts", {"cpp_wrapper": True})
             arms[name] = (learner.update_cf, learner.update_lc, *on_device)
     runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
     for _ in range(repeats):
@@ -231,20 +235,25 @@ def measure_update(
     }
 
 
-def python_wrapper(learner: HierarchicalLearner) -> None:
-    """The learner's loss compiled as ``compile=True`` compiles it, but with TorchInductor's default Python wrapper
-    instead of the C++ one of :func:`kddrl_trl.compiling.inductor_options`: the arm ``compiled_python_wrapper``,
-    which tells what the C++ wrapper earns. The loss is compiled from a copy of its code object, so that TorchDynamo
-    keeps its graphs apart from those of the ``compiled`` arm (its cache is per code object) and both arms can take
-    turns in one process."""
+def recompiled_loss(learner: HierarchicalLearner, name: str, options: dict) -> None:
+    """The learner's loss compiled as ``compile=True`` compiles it, but with the TorchInductor ``options`` given
+    instead of those of :func:`kddrl_trl.compiling.inductor_options`. The loss is compiled from a copy of its code
+    object named ``name``, so that TorchDynamo keeps its graphs apart from those of the ``compiled`` arm (its cache
+    is per code object) and the arms can take turns in one process."""
     from types import FunctionType
 
     from kddrl_trl.compiling import WarmCompiled
 
     fn = type(learner).loss
-    copy = FunctionType(fn.__code__.replace(co_name="loss_python_wrapper"), fn.__globals__, "loss_python_wrapper")
+    copy = FunctionType(fn.__code__.replace(co_name=name), fn.__globals__, name)
     bound = copy.__get__(learner)
-    learner.__dict__["loss"] = WarmCompiled(torch.compile(bound, dynamic=False))
+    learner.__dict__["loss"] = WarmCompiled(torch.compile(bound, dynamic=False, options=options))
+
+
+def python_wrapper(learner: HierarchicalLearner) -> None:
+    """:func:`recompiled_loss` with TorchInductor's default Python wrapper instead of the C++ one: the arm
+    ``compiled_python_wrapper``, which tells what the C++ wrapper earns."""
+    recompiled_loss(learner, "loss_python_wrapper", {})
 
 
 def update_flops(seed: int, buffers: tuple, updates: int = 8) -> dict:
@@ -846,6 +855,10 @@ def main(argv=None) -> int:
             result["cpp_wrapper_gain"] = (
                 update["compiled_python_wrapper"]["per_frame_s"] / update["compiled"]["per_frame_s"]
             )
+        if "compiled_size_asserts" in update:  # what dropping the size asserts earns: > 1.0 is a gain
+            result["size_asserts_gain"] = (
+                update["compiled_size_asserts"]["per_frame_s"] / update["compiled"]["per_frame_s"]
+            )
     if collect:
         result["collect_ratio_vs_sim"] = min(c["collect_ratio_vs_sim"] for c in collect)
     if args.full_run is not None:
@@ -869,7 +882,16 @@ def main(argv=None) -> int:
         )
         print(f"(device {update['device']})")
         for name in [
-            n for n in ("plain", "eager", "compiled", "compiled_python_wrapper", "compiled_cpu_batches") if n in update
+            n
+            for n in (
+                "plain",
+                "eager",
+                "compiled",
+                "compiled_python_wrapper",
+                "compiled_size_asserts",
+                "compiled_cpu_batches",
+            )
+            if n in update
         ]:
             r = update[name]
             print(

@@ -1,10 +1,11 @@
-"""A job run after many others in one process (a launcher's reused worker) still gets compiled graphs."""
+"""A job run after many others in one process (a launcher's reused worker) still gets compiled graphs; a warm
+compiled loss given an input of other strides compiles a graph for it instead of running the old one."""
 
 import logging
 
 import torch
 
-from kddrl_trl.compiling import WarmCompiled, fresh_compiler
+from kddrl_trl.compiling import WarmCompiled, fresh_compiler, inductor_options
 
 
 def _jobs(n: int, fresh: bool) -> None:
@@ -30,3 +31,22 @@ def test_each_job_compiles_afresh_in_a_reused_process(caplog):
     with caplog.at_level(logging.INFO, logger="kddrl_trl.compiling"):
         _jobs(limit + 2, fresh=True)
     assert not [r for r in caplog.records if "needs a new graph" in r.getMessage()]
+
+
+def test_a_warm_loss_compiled_without_size_asserts_still_refuses_other_strides(caplog):
+    """``inductor_options`` drops TorchInductor's size asserts on the CPU because TorchDynamo's guards check the
+    inputs' strides before a graph runs, also under :class:`WarmCompiled`'s guard skipping: an input of the same
+    shape and other strides (a transposed view) gets a graph of its own and the right result, not the old graph's
+    reading of its memory."""
+    fresh_compiler()
+    w = torch.randn(4, 4)
+    fn = torch.compile(lambda name, x: (x @ w).relu() + x.sum(), dynamic=False, options=inductor_options("cpu"))
+    loss = WarmCompiled(fn)
+    for _ in range(3):
+        loss("critic", torch.randn(4, 4))
+    x = torch.randn(4, 4).t()
+    assert not x.is_contiguous()
+    with caplog.at_level(logging.INFO, logger="kddrl_trl.compiling"):
+        out = loss("critic", x)
+    assert any("needs a new graph" in r.getMessage() for r in caplog.records)
+    torch.testing.assert_close(out, (x @ w).relu() + x.sum())

@@ -81,11 +81,21 @@ def resolved(name: str, value) -> bool:
 
 
 def inductor_options(device: torch.device | str) -> dict:
-    """TorchInductor options of a compile site whose kernels run on ``device``: on the CPU, a C++ wrapper
-    (``cpp_wrapper``) calls the generated kernels instead of Python code, one Python-level call per compiled
-    graph instead of one per kernel. The kernels are the same, so are the results (bit for bit: tested). On
-    CUDA, the defaults (a CUDA-graphed update's replay skips the wrapper anyway)."""
-    return {"cpp_wrapper": True} if torch.device(device).type == "cpu" else {}
+    """TorchInductor options of a compile site whose kernels run on ``device``. On the CPU:
+
+    - a C++ wrapper (``cpp_wrapper``) calls the generated kernels instead of Python code, one Python-level call per
+      compiled graph instead of one per kernel;
+    - without the wrapper's size asserts (``size_asserts``): by default the wrapper checks each input's sizes and
+      strides on every call, and each check builds a ``std::stringstream`` for a message it never prints. A
+      learner's loss graph takes every parameter it reads as an input (over a hundred), so the checks add up. What
+      they check is checked before the graph runs: TorchDynamo's guards compare each input tensor's sizes and
+      strides with the graph's (also under :class:`WarmCompiled`'s ``skip_guard_eval_unsafe``), and a mismatch
+      compiles a new graph rather than running this one.
+
+    The kernels are the same either way, so are the results (bit for bit: tested); what each option earns is
+    measured by ``benchmarks/train_throughput.py`` (``cpp_wrapper_gain``, ``size_asserts_gain``). On CUDA, the
+    defaults (a CUDA-graphed update's replay skips the wrapper anyway)."""
+    return {"cpp_wrapper": True, "size_asserts": False} if torch.device(device).type == "cpu" else {}
 
 
 #: comparisons of a tensor with a number: the ops whose ``bool`` results :func:`recompute_bool_masks` recomputes

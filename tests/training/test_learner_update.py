@@ -99,36 +99,38 @@ def test_compiled_update_functions_match_the_eager_ones(samples):
 
 
 @pytest.mark.slow
-def test_the_cpp_wrapper_of_the_compiled_loss_changes_no_bit(samples, monkeypatch):
-    """On the CPU the learner's loss is compiled with TorchInductor's C++ wrapper
-    (:func:`~kddrl_trl.compiling.inductor_options`): the same kernels, called from C++ instead of Python, so the
-    same parameters, bit for bit, as the Python wrapper after the same D3QN and TD3 updates (the TD3 target noise
-    drawn by eager PyTorch in both arms: ``fallback_random``)."""
+def test_the_inductor_options_of_the_compiled_loss_change_no_bit(samples, monkeypatch):
+    """On the CPU the learner's loss is compiled with TorchInductor's C++ wrapper and without its size asserts
+    (:func:`~kddrl_trl.compiling.inductor_options`): the same kernels, called from C++ instead of Python, with fewer
+    checks around them, so the same parameters, bit for bit, as with TorchInductor's defaults and as with the C++
+    wrapper alone, after the same D3QN and TD3 updates (the TD3 target noise drawn by eager PyTorch in every arm:
+    ``fallback_random``)."""
     import torch._inductor.config as inductor_config
 
     from kddrl_trl.compiling import fresh_compiler, inductor_options
     from kddrl_trl.training import base
 
-    assert inductor_options("cpu") == {"cpp_wrapper": True} and inductor_options("cuda") == {}
+    assert inductor_options("cpu") == {"cpp_wrapper": True, "size_asserts": False} and inductor_options("cuda") == {}
     frames, macros = samples
     arms = {}
-    for wrapper in ("python", "cpp"):
+    for name, options in (("defaults", {}), ("cpp_wrapper", {"cpp_wrapper": True}), ("ours", None)):
         fresh_compiler()  # the arms must not share a cached graph
-        if wrapper == "python":
-            monkeypatch.setattr(base, "inductor_options", lambda device: {})
-        else:
-            monkeypatch.undo()
+        monkeypatch.undo()
+        if options is not None:
+            monkeypatch.setattr(base, "inductor_options", lambda device, options=options: options)
         torch.manual_seed(1)
-        arms[wrapper] = learner = HierarchicalLearner(**SMALL, compile=True)
+        arms[name] = learner = HierarchicalLearner(**SMALL, compile=True)
         with inductor_config.patch(fallback_random=True):
             learner_steps(learner, frames[:4], macros)
+    monkeypatch.undo()
     fresh_compiler()
-    python, cpp = (arms[w].state_dict() for w in ("python", "cpp"))
+    states = {name: learner.state_dict() for name, learner in arms.items()}
     torch.manual_seed(1)
     start = HierarchicalLearner(**SMALL).state_dict()
-    assert any(not torch.equal(python[k], start[k]) for k in start if "target" not in k)  # the updates moved it
-    for name in python:
-        assert torch.equal(python[name], cpp[name]), name
+    assert any(not torch.equal(states["ours"][k], start[k]) for k in start if "target" not in k)  # the updates moved it
+    for other in ("defaults", "cpp_wrapper"):
+        for name in start:
+            assert torch.equal(states[other][name], states["ours"][name]), (other, name)
 
 
 @pytest.mark.parametrize("compile", [False, True])
