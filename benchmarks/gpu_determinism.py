@@ -32,7 +32,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, write_json  # noqa: E402
-from train_throughput import batch_sizes, learner_kwargs, sample_batches  # noqa: E402
+from train_throughput import batch_sizes, buffer_keys, learner_kwargs, sample_batches  # noqa: E402
 
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402
 
@@ -59,9 +59,8 @@ def run(args) -> dict:
     device = torch.device(args.device)
     torch.set_float32_matmul_precision(args.matmul_precision)
     kw, lc_period = learner_kwargs(True)
-    keys = HierarchicalLearner(**{**kw, "compile": False}).buffer_keys()
     torch.manual_seed(args.seed)  # the collecting policy's weights and exploration
-    rb_cf, rb_lc = sample_batches(max(2000, 4 * batch_sizes()[0]), args.seed, keys)
+    rb_cf, rb_lc = sample_batches(max(2000, 4 * batch_sizes()[0]), args.seed, buffer_keys())
     torch.manual_seed(args.seed)
     cf = [rb_cf.sample().to(device) for _ in range(args.updates)]
     lc = [rb_lc.sample().to(device) for _ in range(args.updates // lc_period + 1)]

@@ -40,7 +40,7 @@ import torch._inductor.config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, write_json  # noqa: E402
-from train_throughput import _sync, learner_kwargs, measure_torchrl_td3, sample_batches  # noqa: E402
+from train_throughput import _sync, buffer_keys, learner_kwargs, measure_torchrl_td3, sample_batches  # noqa: E402
 
 from kddrl_trl.modules import cf_obs_dim  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402
@@ -167,7 +167,7 @@ def main(argv=None) -> int:
         setattr(torch._inductor.config, key, {"True": True, "False": False}.get(value, value))
     probe = functools.partial(breakdown, n=args.updates, device=device) if args.breakdown else None
     kw, _ = learner_kwargs(True)
-    keys = HierarchicalLearner(**{**kw, "compile": False}).buffer_keys()  # KDDRL's: a superset of the others'
+    keys = buffer_keys()
     state = cf_obs_dim(0)
     result = {
         "args": {k: str(v) for k, v in vars(args).items()},

@@ -94,6 +94,12 @@ def learner_kwargs(compile: bool | str) -> tuple[dict, int]:
     return {**cfg["learner"], "compile": compile}, int(cfg["lc_period"])
 
 
+def buffer_keys() -> list:
+    """The keys a buffer entry keeps for the KDDRL learner of ``conf/algo/kddrl.yaml`` (a superset of the other
+    learners' keys): what :func:`sample_batches` is asked for."""
+    return HierarchicalLearner(**learner_kwargs(False)[0]).buffer_keys()
+
+
 def batch_sizes() -> tuple[int, int]:
     """The minibatch sizes of training (``train.batch_size_cf`` / ``train.batch_size_lc`` of conf/config.yaml)."""
     train = OmegaConf.load(CONF.parents[1] / "config.yaml")["train"]
@@ -332,7 +338,7 @@ def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
     they run inside it (:func:`gemm_in_update`) over the floor (``*_gemm_in_update_over_floor``) and as a share of
     the update (``*_gemm_share_of_update``, of the ``compiled_python_wrapper`` arm's time, whose kernels it
     profiles)."""
-    buffers = sample_batches(4000, seed, HierarchicalLearner(**learner_kwargs(False)[0]).buffer_keys())
+    buffers = sample_batches(4000, seed, buffer_keys())
     flops = update_flops(seed, buffers)
     rates = {str(t): gemm_rate(t) for t in threads}
     out = {**flops, "gemm_flop_per_s": rates, "threads_of_update": update["torch_threads"]}

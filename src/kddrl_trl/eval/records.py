@@ -77,8 +77,8 @@ class RunRecord:
         return out
 
 
-#: compressed forms of a record file, by suffix (pandas reads each by its suffix)
-COMPRESSED = (".xz", ".gz")
+#: compressed forms of a record file: suffix -> how its bytes decompress (pandas reads each by its suffix)
+COMPRESSED = {".xz": lzma.decompress, ".gz": gzip.decompress}
 
 
 def record_file(folder: Path, name: str) -> Path:
@@ -94,11 +94,7 @@ def record_bytes(folder: Path, name: str) -> bytes:
     compressed form compare equal."""
     path = record_file(folder, name)
     raw = path.read_bytes()
-    if path.suffix == ".xz":
-        return lzma.decompress(raw)
-    if path.suffix == ".gz":
-        return gzip.decompress(raw)
-    return raw
+    return COMPRESSED[path.suffix](raw) if path.suffix in COMPRESSED else raw
 
 
 def _csv(path: Path, required: tuple = ()) -> pd.DataFrame:
