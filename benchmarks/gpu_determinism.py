@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, write_json  # noqa: E402
 from train_throughput import batch_sizes, buffer_keys, learner_kwargs, sample_batches  # noqa: E402
 
+from kddrl_trl.compiling import fresh_compiler  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402
 
 
@@ -57,6 +58,7 @@ def tensor_hashes(state, prefix: str = "") -> dict[str, str]:
 
 def run(args) -> dict:
     device = torch.device(args.device)
+    fresh_compiler()  # as every job of an entry point: graphs cached by earlier runs in this process do not count
     torch.set_float32_matmul_precision(args.matmul_precision)
     kw, lc_period = learner_kwargs(True)
     torch.manual_seed(args.seed)  # the collecting policy's weights and exploration
