@@ -1,7 +1,7 @@
 """When to ``torch.compile``: one rule for the two compile sites (the fused transform stack and the learner).
 
 The sites themselves are :func:`kddrl_trl.transforms.stack.compiled_frames` (the fused predictive-state stack)
-and the learner's ``loss`` (:meth:`kddrl_trl.training.Learner._compile`, for every learner, called through
+and the learner's gradient function (:meth:`kddrl_trl.training.Learner._compile`, for every learner, called through
 :class:`WarmCompiled`; its measured gain is stated on :class:`kddrl_trl.training.HierarchicalLearner`).
 """
 
@@ -47,7 +47,7 @@ def fresh_compiler() -> None:
     A launcher may run many jobs in one worker process (Hydra's joblib launcher reuses loky workers, Ray reuses its
     workers), and TorchDynamo keeps every graph compiled so far, each guarded on the objects of the job that made
     it. A code object holds at most ``torch._dynamo.config.recompile_limit`` graphs (8); past that a new job's
-    calls of the same code (the learner's loss, the transform stack) run eagerly, and under
+    calls of the same code (the learner's gradient function, the transform stack) run eagerly, and under
     :class:`WarmCompiled` each call first fails its guard-skipping attempt: the same numbers, several times slower.
     The graphs' kernels stay in TorchInductor's on-disk cache, so a job recompiles no faster or slower than the
     first job of a fresh process."""
@@ -87,7 +87,7 @@ def inductor_options(device: torch.device | str) -> dict:
       compiled graph instead of one per kernel;
     - without the wrapper's size asserts (``size_asserts``): by default the wrapper checks each input's sizes and
       strides on every call, and each check builds a ``std::stringstream`` for a message it never prints. A
-      learner's loss graph takes every parameter it reads as an input (over a hundred), so the checks add up. What
+      learner's gradient graph takes every parameter it reads as an input (over a hundred), so the checks add up. What
       they check is checked before the graph runs: TorchDynamo's guards compare each input tensor's sizes and
       strides with the graph's (also under :class:`WarmCompiled`'s ``skip_guard_eval_unsafe``), and a mismatch
       compiles a new graph rather than running this one.
@@ -98,59 +98,14 @@ def inductor_options(device: torch.device | str) -> dict:
     return {"cpp_wrapper": True, "size_asserts": False} if torch.device(device).type == "cpu" else {}
 
 
-#: comparisons of a tensor with a number: the ops whose ``bool`` results :func:`recompute_bool_masks` recomputes
-_MASK_OPS = frozenset(getattr(torch.ops.aten, op).Scalar for op in ("le", "lt", "ge", "gt", "eq", "ne"))
-
-
-def recompute_bool_masks(graph_module, joint_inputs):
-    """A joint-graph pass (``torch._functorch.config.joint_custom_pass``): each ``bool`` mask a comparison of a
-    tensor with a number makes (a ReLU's ``x <= 0``: what its backward, ``threshold_backward``, decomposes to) is
-    marked must-recompute, so that the partitioner saves the float tensor it compares and the backward recomputes
-    the mask, instead of the forward storing the mask.
-
-    Why: the CPU code TorchInductor (torch 2.13) generates for a ``bool`` store is far slower than eager ``x <= 0``.
-    The TD3 actor loss (Eq. 8) runs the critics with detached weights, so its backward needs no ReLU output for a
-    weight gradient and, left alone, the partitioner saves the critics' two ReLU masks (1 byte each instead of 4),
-    whose stores then dominate its compiled forward. Recomputing them in the backward gives the same masks from the
-    same saved floats: the results are bit for bit those of the unmarked graph. ``benchmarks/train_throughput.py``
-    (``update.compiled``) measures the gain."""
-    from torch.utils.checkpoint import CheckpointPolicy
-
-    for node in graph_module.graph.nodes:
-        val = node.meta.get("val")
-        if (
-            node.op == "call_function"
-            and node.target in _MASK_OPS
-            and isinstance(val, torch.Tensor)
-            and val.dtype == torch.bool
-        ):
-            node.meta["recompute"] = CheckpointPolicy.MUST_RECOMPUTE
-    return graph_module
-
-
-def partitioning():
-    """The context in which the learner's losses are compiled: ``torch.compile`` s AOTAutograd partitioner may
-    recompute views in the backward (``torch._functorch.config.recompute_views``) and recomputes the ``bool``
-    masks of comparisons (:func:`recompute_bool_masks`); the results are the same, only what the forward saves
-    changes.
-
-    Views: where a ReLU's output reaches the next layer through a view (the twin critics of TorchRL's ``TD3Loss``
-    run as one batched ``bmm`` over ``[2, batch, hidden]``), the forward would save the view *and* the ReLU's mask
-    as a ``bool`` tensor, and the CPU code TorchInductor (torch 2.13) generates for a ``bool`` store is over 10x
-    slower than eager ``x <= 0``. With the views recomputed, the forward saves the ReLU output once and the
-    backward kernel derives the mask: the TD3 critic update stores no mask (``update.compiled`` of
-    ``benchmarks/results/train_throughput.json`` measures the compiled update).
-    Masks: the actor's graph has no weight gradient to save the ReLU outputs for, so the mask was the smallest
-    thing to save; :func:`recompute_bool_masks` makes it save the float instead.
-
-    AOTAutograd's cache is off inside: its key leaves the joint pass out, so it would hand back a graph that code
-    without the pass partitioned (correct, but with the slow mask stores). The partitioned graphs' kernels are still
-    cached by TorchInductor; tracing and partitioning run again once per process."""
-    from torch._functorch import config as functorch_config
-
-    return functorch_config.patch(
-        recompute_views=True, joint_custom_pass=recompute_bool_masks, enable_autograd_cache=False
-    )
+def tracing_gradients():
+    """The context in which a learner's gradient function (:meth:`kddrl_trl.training.Learner._gradients`) is
+    compiled: TorchDynamo traces ``torch.autograd.grad`` (``torch._dynamo.config.trace_autograd_ops``; left off,
+    the call is a graph break), so that a step's loss and its gradients are one graph with the gradients as
+    outputs. AOTAutograd then compiles no backward: no saved tensors, no autograd wrapper around the graph, no
+    ``AccumulateGrad``, and TorchInductor fuses the forward's and the backward's kernels together. The setting is
+    read when tracing; the graph's gradients are those of ``backward`` (tested)."""
+    return dynamo_config.patch(trace_autograd_ops=True)
 
 
 def specializing_floats():
@@ -168,11 +123,12 @@ _RECOMPILE_UNDER_SKIP = "Recompilation triggered with skip_guard_eval_unsafe sta
 
 
 class WarmCompiled:
-    """A ``torch.compile`` d learner loss ``fn(name, batch)`` called without most of its guards once warm.
+    """A ``torch.compile`` d learner gradient function ``fn(name, batch)`` called without most of its guards once
+    warm.
 
-    TorchDynamo checks a compiled frame's guards on every call before it runs the graph. On a learner's loss they
+    TorchDynamo checks a compiled frame's guards on every call before it runs the graph. On a learner's gradient function they
     cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines for the KDDRL
-    learner's TD3 critic loss; their evaluation cost about as much as the loss's whole compiled forward on a CPU).
+    learner's TD3 critic loss; their evaluation cost about as much as its whole compiled forward on a CPU).
     Each loss ``name`` first runs ``warmup`` calls with every guard (they compile its graph: the
     losses have fixed shapes); later calls run under ``torch.compiler.set_stance(skip_guard_eval_unsafe=True)``,
     which still checks the guards that told the cached graphs apart (the ``name``) and every tensor's shape, dtype
@@ -180,8 +136,8 @@ class WarmCompiled:
     then run once more with every guard (compiling it), so nothing is lost. What is not checked any more is what a
     learner never changes between calls: which modules and parameters the loss reads, the grad mode.
 
-    Its compiling calls (the warm-up ones and a recompilation) run with AOTAutograd's partitioner allowed to
-    recompute views and ``bool`` masks in the backward (:func:`partitioning`)."""
+    Its compiling calls (the warm-up ones and a recompilation) trace ``torch.autograd.grad``
+    (:func:`tracing_gradients`)."""
 
     def __init__(self, fn: Callable, warmup: int = 2):
         self.fn, self.warmup, self.calls = fn, int(warmup), {}
@@ -190,7 +146,7 @@ class WarmCompiled:
         calls = self.calls.get(name, 0)
         if calls < self.warmup:
             self.calls[name] = calls + 1
-            with partitioning():
+            with tracing_gradients():
                 return self.fn(name, *args, **kwargs)
         try:
             with torch.compiler.set_stance(skip_guard_eval_unsafe=True):
@@ -198,8 +154,8 @@ class WarmCompiled:
         except RuntimeError as e:
             if _RECOMPILE_UNDER_SKIP not in str(e):
                 raise
-            log.info("the warm compiled loss %r needs a new graph: compiling it with every guard", name)
-            with partitioning():
+            log.info("the warm compiled step %r needs a new graph: compiling it with every guard", name)
+            with tracing_gradients():
                 return self.fn(name, *args, **kwargs)
 
 

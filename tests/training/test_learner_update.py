@@ -3,7 +3,6 @@ on a GPU) against the TorchRL reference loop they replace, and the ``device`` / 
 
 from __future__ import annotations
 
-import contextlib
 import io
 
 import pytest
@@ -23,23 +22,30 @@ def samples():
 
 
 def reference_steps(learner: HierarchicalLearner, frames, macros) -> None:
-    """The update loop the update functions replace, step by step: the learner's losses, its optimisers, TorchRL's
-    ``SoftUpdate.step()`` (tensor by tensor) and the target embedding lerped parameter by parameter."""
+    """The update loop the update functions replace, step by step: the learner's losses, ``backward``, its optimisers,
+    TorchRL's ``SoftUpdate.step()`` (tensor by tensor) and the target embedding lerped parameter by parameter."""
 
     def soft_embedding():
         with torch.no_grad():
             for t, s in zip(learner.target_embedding.parameters(), learner.embedding.parameters()):
                 t.lerp_(s, learner.embed_tau)
 
+    def descend(loss, *optimizers):
+        for o in optimizers:
+            o.zero_grad()
+        loss.backward()
+        for o in optimizers:
+            o.step()
+
     for i, (f, m) in enumerate(zip(frames, macros * 2)):
         torch.manual_seed(100 + i)
-        learner._descend(learner.loss("cf_value", f)[0], learner.opt_critic, learner.opt_embed)
+        descend(learner.loss("cf_value", f)[0], learner.opt_critic, learner.opt_embed)
         if (i + 1) % learner.td3.policy_delay == 0:
-            learner._descend(learner.loss("cf_actor", f)[0], learner.opt_actor)
+            descend(learner.loss("cf_actor", f)[0], learner.opt_actor)
             learner.td3.target_updater.step()
             soft_embedding()
         if i % 2 == 0:
-            learner._descend(learner.loss("lc", m)[0], learner.opt_lc, learner.opt_embed)
+            descend(learner.loss("lc", m)[0], learner.opt_lc, learner.opt_embed)
             learner.d3qn.target_updater.step()
             soft_embedding()
 
@@ -60,8 +66,9 @@ def assert_same_tensors(a: torch.nn.Module, b: torch.nn.Module, **tol) -> None:
 
 
 def test_update_functions_give_the_parameters_of_the_torchrl_reference_loop(samples):
-    """Eager update functions (one ``_foreach_lerp_`` per target group) vs TorchRL's ``SoftUpdate`` loop: the same
-    networks, targets and target embedding after 6 TD3 and 3 D3QN updates (and the updates moved them)."""
+    """Eager update functions (gradients by ``torch.autograd.grad``, one ``_foreach_lerp_`` per target group) vs
+    ``backward`` and TorchRL's ``SoftUpdate`` loop: the same networks, targets and target embedding, bit for bit,
+    after 6 TD3 and 3 D3QN updates (and the updates moved them)."""
     frames, macros = samples
     torch.manual_seed(1)
     ours = HierarchicalLearner(**SMALL)
@@ -71,7 +78,7 @@ def test_update_functions_give_the_parameters_of_the_torchrl_reference_loop(samp
     start = {k: v.clone() for k, v in ours.state_dict().items()}
     learner_steps(ours, frames, macros)
     reference_steps(ref, frames, macros)
-    assert_same_tensors(ours, ref)
+    assert_same_tensors(ours, ref, rtol=0, atol=0)  # autograd.grad's gradients are backward's, bit for bit
     moved = [n for n, t in ours.state_dict().items() if t.is_floating_point() and not torch.equal(t, start[n])]
     assert any("target_embedding" in n for n in moved) and any("cf_loss.target_" in n for n in moved)
     assert any("lc_loss.target_" in n for n in moved)
@@ -343,73 +350,60 @@ def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_rec
     assert torch.equal(fn("double", y), y * 2.0)
 
 
-def test_warm_compiled_compiles_with_views_recomputed_and_leaves_the_setting_as_it_was():
-    """Every graph ``WarmCompiled`` compiles (warm-up and recompilation) is partitioned with
-    ``torch._functorch.config.recompute_views`` on and the mask pass set (``compiling.partitioning``: no slow
-    ``bool`` mask stores in the CPU kernels of the TD3 updates); outside its calls the settings are the user's own."""
-    from torch._functorch import config as functorch_config
+def test_warm_compiled_traces_autograd_grad_and_leaves_the_setting_as_it_was():
+    """Every graph ``WarmCompiled`` compiles (warm-up and recompilation) is traced with
+    ``torch._dynamo.config.trace_autograd_ops`` on (``compiling.tracing_gradients``: a step's loss and gradients in
+    one graph); outside its calls the setting is the user's own."""
+    from torch._dynamo import config as dynamo_config
 
-    from kddrl_trl.compiling import WarmCompiled, recompute_bool_masks
+    from kddrl_trl.compiling import WarmCompiled
 
     seen = []
 
     def backend(gm, example_inputs):  # called exactly when a graph is compiled
-        seen.append((functorch_config.recompute_views, functorch_config.joint_custom_pass is recompute_bool_masks))
+        seen.append(dynamo_config.trace_autograd_ops)
         return gm.forward
 
     fn = WarmCompiled(torch.compile(lambda name, x: x * 3.0, dynamic=False, backend=backend), warmup=1)
-    before = functorch_config.recompute_views, functorch_config.joint_custom_pass
+    before = dynamo_config.trace_autograd_ops
     fn("a", torch.ones(3))
     fn("a", torch.ones(3))  # warm: no compile
     fn("a", torch.ones(2, 2))  # a new shape: recompiled with every guard
-    assert seen == [(True, True), (True, True)]
-    assert (functorch_config.recompute_views, functorch_config.joint_custom_pass) == before
+    assert seen == [True, True]
+    assert dynamo_config.trace_autograd_ops == before
 
 
-def test_partitioning_saves_floats_not_relu_masks_and_keeps_the_gradient():
-    """Under ``compiling.partitioning`` the forward graph of a loss through ReLUs whose weights need no gradient (the
-    TD3 actor loss through the detached critics, Eq. 8) saves no ``bool`` tensor for its backward (TorchInductor's CPU
-    stores of ``bool`` are slow): the masks are recomputed from saved floats. Without it the same graph saves masks
-    (so the test can fail); the input gradient is the eager one either way."""
-    from torch._dynamo.backends.common import aot_autograd
-    from torch._functorch.partitioners import min_cut_rematerialization_partition
-    from torch._inductor.decomposition import select_decomp_table
-
-    from kddrl_trl.compiling import partitioning
+def test_a_compiled_step_traces_its_gradients_into_one_graph_and_matches_backward():
+    """Under ``compiling.tracing_gradients`` a function returning a loss and ``torch.autograd.grad`` of it compiles
+    to one graph with no graph break (without it, ``autograd.grad`` breaks the graph: the test can fail), and the
+    gradients are ``backward`` 's, in the parameters' layout once through ``base._param_layout`` (a weight's
+    gradient from ``mm`` comes back transposed)."""
+    from kddrl_trl.compiling import tracing_gradients
+    from kddrl_trl.training.base import _param_layout
 
     torch.manual_seed(0)
-    w1, w2, w3 = torch.randn(2, 6, 16), torch.randn(2, 16, 16), torch.randn(2, 16, 1)
+    net = torch.nn.Sequential(torch.nn.Linear(6, 16), torch.nn.ReLU(), torch.nn.Linear(16, 1))
+    params = tuple(net.parameters())
+    x = torch.randn(32, 6)
 
-    def loss(x):  # twin critics as TorchRL's TD3Loss runs them (one bmm), weights detached, the first critic's value
-        h = torch.relu(torch.bmm(x, w1))
-        return -torch.bmm(torch.relu(torch.bmm(h, w2)), w3)[0].mean()
+    def step(x):
+        loss = net(x).pow(2).mean()
+        grads = torch.autograd.grad(loss, params)
+        return loss.detach(), tuple(map(_param_layout, grads, params))
 
-    def saved_dtypes(context):
-        saved = []
-
-        def forward(gm, inputs):  # the forward graph's outputs past the loss: what it saves for the backward
-            outputs = next(n for n in gm.graph.nodes if n.op == "output").args[0]
-            saved.extend(o.meta["val"].dtype for o in outputs[1:] if isinstance(o.meta.get("val"), torch.Tensor))
-            return gm
-
-        backend = aot_autograd(
-            fw_compiler=forward,
-            bw_compiler=lambda gm, inputs: gm,  # partitioned as Inductor does
-            partition_fn=min_cut_rematerialization_partition,
-            decompositions=select_decomp_table(),
-        )
+    torch._dynamo.reset()
+    assert torch._dynamo.explain(step)(x).graph_break_count == 1  # the default: autograd.grad is a graph break
+    torch._dynamo.reset()
+    with tracing_gradients():
+        explained = torch._dynamo.explain(step)(x)
+        assert explained.graph_count == 1 and explained.graph_break_count == 0
         torch._dynamo.reset()
-        x = torch.randn(2, 8, 6, requires_grad=True)
-        with context:
-            torch.compile(loss, backend=backend, dynamic=False)(x).backward()
-        return saved, x
-
-    with_pass, x = saved_dtypes(partitioning())
-    without, _ = saved_dtypes(contextlib.nullcontext())
-    assert torch.bool in without and torch.bool not in with_pass, (without, with_pass)
-    x_eager = x.detach().clone().requires_grad_()
-    loss(x_eager).backward()
-    torch.testing.assert_close(x.grad, x_eager.grad)
+        loss, grads = torch.compile(step, dynamic=False, backend="aot_eager")(x)
+    net(x).pow(2).mean().backward()
+    for p, g in zip(params, grads, strict=True):
+        assert g.stride() == p.stride() == p.grad.stride()
+        torch.testing.assert_close(g, p.grad, rtol=0, atol=0)
+    torch._dynamo.reset()
 
 
 @pytest.mark.parametrize(

@@ -26,14 +26,14 @@ CPU, and so does the acting policy: a non-CPU learner acts through a CPU copy of
 transfers there and back (measured).
 
 Each learner names its gradient steps as update functions (:meth:`Learner.update_functions`), as TorchRL's
-``sota-implementations`` (td3, dqn) write ``update(batch)``: loss, backward, optimiser steps and soft target
+``sota-implementations`` (td3, dqn) write ``update(batch)``: loss, gradients, optimiser steps and soft target
 updates (:class:`~kddrl_trl.objectives.PolyakUpdate`, one ``torch._foreach_lerp_`` per group of targets) in one
 function of a sampled batch that returns its detached losses. :meth:`Learner._compile` is the learner's one compile
-site: with ``compile``, the learner's :meth:`Learner.loss` is ``torch.compile`` d and called without guard evaluation
-once warm (the CPU); on CUDA with ``cudagraphs``, each update function is ``torch.compile`` d whole and wrapped in
-``tensordict.nn.CudaGraphModule`` (:class:`~kddrl_trl.compiling.GraphedUpdate`: a batch's leaves copied in by one
-``_foreach_copy_`` per dtype; optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the
-update path waits for the GPU: the losses come back as device tensors, read once per collection batch by the
+site: with ``compile``, a step's loss and its gradients (:meth:`Learner._gradients`) are ``torch.compile`` d as one
+graph and called without guard evaluation once warm (the CPU); on CUDA with ``cudagraphs``, each update function
+is ``torch.compile`` d whole and wrapped in ``tensordict.nn.CudaGraphModule``
+(:class:`~kddrl_trl.compiling.GraphedUpdate`: a batch's leaves copied in by one ``_foreach_copy_`` per dtype;
+optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the update path waits for the GPU: the losses come back as device tensors, read once per collection batch by the
 trainer, and the update counters (the TD3 policy delay reads one every update) stay on the CPU.
 """
 
@@ -68,6 +68,15 @@ def adam(params, lr: float, device: torch.device | str | None = None, lean: bool
     if lean and not capturable:
         return FusedAdam(params, lr=lr)
     return torch.optim.Adam(params, lr=lr, fused=True, capturable=capturable)
+
+
+def _param_layout(grad: torch.Tensor | None, param: torch.Tensor) -> torch.Tensor | None:
+    """``grad`` with ``param`` 's strides, as ``backward`` stores a ``.grad`` (``AccumulateGrad`` 's layout
+    contract): ``torch.autograd.grad`` returns what the backward ops made (a weight's gradient from ``mm``
+    transposed), and the fused Adam kernel reads a gradient element by element in its parameter's layout."""
+    if grad is None or grad.stride() == param.stride():
+        return grad
+    return grad.new_empty_strided(param.size(), param.stride()).copy_(grad)
 
 
 def transition_keys(obs: Sequence[NestedKey], actions: Sequence[NestedKey]) -> list:
@@ -106,20 +115,22 @@ class Learner(nn.Module):
         """The learner's one compile site (module docstring), when ``compile`` (resolved by
         :func:`kddrl_trl.factories.make_job`), with fixed minibatch shapes (``dynamic=False``):
 
-        - without CUDA graphs (the CPU): the learner's :meth:`loss` is ``torch.compile`` d (on the CPU with
-          TorchInductor's C++ wrapper, :func:`~kddrl_trl.compiling.inductor_options`) and, once warm, called
-          without TorchDynamo's guard evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the update functions
-          around it stay eager: ``backward`` (the compiled backward graph), fused Adam and ``_foreach_lerp_`` are
-          one call each already, and each of them would be a graph break (with its guarded resume frames) inside a
-          compiled update function, whose TorchDynamo cache lookups would then cost more than they save
-          (``benchmarks/train_throughput.py`` measures both);
+        - without CUDA graphs (the CPU): the learner's :meth:`_gradients` (a step's loss and ``torch.autograd.grad``
+          of it, forward and backward in one graph: :func:`~kddrl_trl.compiling.tracing_gradients`) is
+          ``torch.compile`` d (on the CPU with TorchInductor's C++ wrapper,
+          :func:`~kddrl_trl.compiling.inductor_options`) and, once warm, called without TorchDynamo's guard
+          evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the rest of the update functions stays eager:
+          the fused Adam steps and ``_foreach_lerp_`` are one call each already, and each of them would be a graph
+          break (with its guarded resume frames) inside a compiled update function, whose TorchDynamo cache lookups
+          would then cost more than they save (``benchmarks/train_throughput.py`` measures both);
         - with ``cudagraphs`` (CUDA learners only): each of :meth:`update_functions` is ``torch.compile`` d whole and
           wrapped in ``CudaGraphModule``, whose replays skip Python, guards included."""
+        self._trained = {}  # loss name -> the parameters its step trains (:meth:`_descend`)
         self.compiled = resolved("compile", compile)
         self.cudagraphs = resolve_cudagraphs(resolved("cudagraphs", cudagraphs), self.device)  # refused off CUDA
         if self.compiled and not self.cudagraphs:
             options = inductor_options(self.device)
-            self.__dict__["loss"] = WarmCompiled(torch.compile(self.loss, dynamic=False, options=options))
+            self.__dict__["_gradients"] = WarmCompiled(torch.compile(self._gradients, dynamic=False, options=options))
         fns = {}
         for name, fn in self.update_functions().items():
             if self.compiled and self.cudagraphs:
@@ -187,14 +198,35 @@ class Learner(nn.Module):
         raise NotImplementedError
 
     # -------------------------------------------------------------------------------- shared parts
-    def _descend(self, loss: torch.Tensor, *optimizers: torch.optim.Optimizer | None) -> None:
-        """Zero the optimisers' gradients, back-propagate ``loss``, step them (None entries skipped)."""
+    def _objective(self, name: str, losses: torch.Tensor) -> torch.Tensor:
+        """The scalar that the step of the loss ``name`` descends, from what :meth:`loss` returned: the loss itself
+        (a learner whose loss returns several entries, some of them diagnostics, says which to sum)."""
+        return losses
+
+    def _gradients(self, name: str, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor | None, tuple]:
+        """(the detached loss ``name`` of ``batch``, its transitions' ``|δ|`` or None, the gradients of its
+        :meth:`_objective` with respect to the parameters its step trains, in :meth:`_descend` 's order; None for a
+        parameter it does not reach). ``torch.autograd.grad`` computes the same gradients as ``backward``; what
+        ``compile`` compiles, forward and backward in one graph (:meth:`_compile`)."""
+        losses, priority = self.loss(name, batch)
+        params = self._trained[name]
+        grads = torch.autograd.grad(self._objective(name, losses), params, allow_unused=True)
+        return losses.detach(), priority, tuple(map(_param_layout, grads, params))
+
+    def _descend(self, name: str, batch: TensorDictBase, *optimizers: torch.optim.Optimizer | None):
+        """One gradient step on the loss ``name`` of ``batch``: the gradients of :meth:`_gradients` become the
+        parameters' ``grad`` (what ``zero_grad`` then ``backward`` would leave), then each optimiser steps (None
+        entries skipped). The parameters a step trains are its optimisers' own, in their order. Returns the detached
+        loss and the ``|δ|`` (or None)."""
         opts = [o for o in optimizers if o is not None]
-        for o in opts:
-            o.zero_grad(set_to_none=True)
-        loss.backward()
+        if name not in self._trained:
+            self._trained[name] = tuple(p for o in opts for g in o.param_groups for p in g["params"])
+        losses, priority, grads = self._gradients(name, batch)
+        for p, g in zip(self._trained[name], grads, strict=True):
+            p.grad = g
         for o in opts:
             o.step()
+        return losses, priority
 
     def full_state_dict(self) -> dict:
         """Networks, targets, exploration schedules, counters and optimiser states."""

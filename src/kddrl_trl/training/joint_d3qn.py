@@ -122,10 +122,9 @@ class JointD3QNLearner(Learner):
 
     def _step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """The double-DQN step (Eq. 4), then the soft target update (Eq. 5)."""
-        loss, priority = self.loss("joint", batch)
-        self._descend(loss, self.opt)
+        loss, priority = self._descend("joint", batch, self.opt)
         self._soft()
-        return loss.detach().reshape(1), priority
+        return loss.reshape(1), priority
 
     def update_frame(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         loss = self._run("joint", batch)[0]

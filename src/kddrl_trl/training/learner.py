@@ -212,25 +212,22 @@ class HierarchicalLearner(Learner):
 
     def _step_cf_value(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """TD3 critic step (Eq. 6-7): the critics and the embedding (its own optimiser, ``modules/sharing.py``)."""
-        value_loss, priority = self.loss("cf_value", batch)
-        self._descend(value_loss, self.opt_critic, self.opt_embed)
-        return value_loss.detach().reshape(1), priority
+        value_loss, priority = self._descend("cf_value", batch, self.opt_critic, self.opt_embed)
+        return value_loss.reshape(1), priority
 
     def _step_cf_full(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """The critic step, then the delayed actor step (Eq. 8, on detached s_e, after the critic moved) and the
         soft target updates of the actor, the critics and the embedding (Eq. 9-10)."""
         value_loss, priority = self._step_cf_value(batch)
-        actor_loss, _ = self.loss("cf_actor", batch)
-        self._descend(actor_loss, self.opt_actor)
+        actor_loss, _ = self._descend("cf_actor", batch, self.opt_actor)
         self._soft_cf()
-        return torch.cat([value_loss, actor_loss.detach().reshape(1)]), priority
+        return torch.cat([value_loss, actor_loss.reshape(1)]), priority
 
     def _step_lc(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """D3QN step (Eq. 4, the embedding trained too), then the soft target updates (Eq. 5 and the embedding)."""
-        loss, priority = self.loss("lc", batch)
-        self._descend(loss, self.opt_lc, self.opt_embed)
+        loss, priority = self._descend("lc", batch, self.opt_lc, self.opt_embed)
         self._soft_lc()
-        return loss.detach().reshape(1), priority
+        return loss.reshape(1), priority
 
     def update_cf(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """One TD3 step on a buffer-L sample (Algorithm 1 lines 38-43)."""

@@ -95,15 +95,18 @@ class PASACLearner(Learner):
         priority = td_priority(out[self.sac_loss.tensor_keys.priority], batch.numel())
         return torch.stack([out[k] for k in LOSS_ENTRIES]), priority
 
+    def _objective(self, name: str, losses: torch.Tensor) -> torch.Tensor:
+        """The sum of the four losses (the critics', both policy heads', both temperatures'), not the diagnostics."""
+        return losses[:4].sum()
+
     def update_functions(self) -> dict:
         return {"pasac": self._step}
 
     def _step(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """One SAC step: critics, both policy heads and both temperatures, then the critics' soft target update."""
-        out, priority = self.loss("pasac", batch)
-        self._descend(out[:4].sum(), self.opt_critic, self.opt_actor, self.opt_alpha)
+        out, priority = self._descend("pasac", batch, self.opt_critic, self.opt_actor, self.opt_alpha)
         self._soft()
-        return out[:4].detach(), priority
+        return out[:4], priority
 
     def update_frame(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         out = self._run("pasac", batch)
