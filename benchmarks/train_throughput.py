@@ -242,18 +242,19 @@ def measure_update(
 
 
 def recompiled_loss(learner: HierarchicalLearner, name: str, options: dict) -> None:
-    """The learner's loss compiled as ``compile=True`` compiles it, but with the TorchInductor ``options`` given
-    instead of those of :func:`kddrl_trl.compiling.inductor_options`. The loss is compiled from a copy of its code
-    object named ``name``, so that TorchDynamo keeps its graphs apart from those of the ``compiled`` arm (its cache
-    is per code object) and the arms can take turns in one process."""
+    """The learner's compiled step (its loss and gradients, :meth:`~kddrl_trl.training.Learner._gradients`) compiled
+    as ``compile=True`` compiles it, but with the TorchInductor ``options`` given instead of those of
+    :func:`kddrl_trl.compiling.inductor_options`. It is compiled from a copy of its code object named ``name``, so
+    that TorchDynamo keeps its graphs apart from those of the ``compiled`` arm (its cache is per code object) and the
+    arms can take turns in one process."""
     from types import FunctionType
 
     from kddrl_trl.compiling import WarmCompiled
 
-    fn = type(learner).loss
+    fn = type(learner)._gradients
     copy = FunctionType(fn.__code__.replace(co_name=name), fn.__globals__, name)
     bound = copy.__get__(learner)
-    learner.__dict__["loss"] = WarmCompiled(torch.compile(bound, dynamic=False, options=options))
+    learner.__dict__["_gradients"] = WarmCompiled(torch.compile(bound, dynamic=False, options=options))
 
 
 def python_wrapper(learner: HierarchicalLearner) -> None:

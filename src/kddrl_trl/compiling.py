@@ -126,9 +126,9 @@ class WarmCompiled:
     """A ``torch.compile`` d learner gradient function ``fn(name, batch)`` called without most of its guards once
     warm.
 
-    TorchDynamo checks a compiled frame's guards on every call before it runs the graph. On a learner's gradient function they
-    cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines for the KDDRL
-    learner's TD3 critic loss; their evaluation cost about as much as its whole compiled forward on a CPU).
+    TorchDynamo checks a compiled frame's guards on every call before it runs the graph. On a learner's gradient
+    function they cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines for
+    the KDDRL learner's TD3 critic loss; their evaluation cost about as much as its whole compiled forward on a CPU).
     Each loss ``name`` first runs ``warmup`` calls with every guard (they compile its graph: the
     losses have fixed shapes); later calls run under ``torch.compiler.set_stance(skip_guard_eval_unsafe=True)``,
     which still checks the guards that told the cached graphs apart (the ``name``) and every tensor's shape, dtype

@@ -33,8 +33,9 @@ site: with ``compile``, a step's loss and its gradients (:meth:`Learner._gradien
 graph and called without guard evaluation once warm (the CPU); on CUDA with ``cudagraphs``, each update function
 is ``torch.compile`` d whole and wrapped in ``tensordict.nn.CudaGraphModule``
 (:class:`~kddrl_trl.compiling.GraphedUpdate`: a batch's leaves copied in by one ``_foreach_copy_`` per dtype;
-optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the update path waits for the GPU: the losses come back as device tensors, read once per collection batch by the
-trainer, and the update counters (the TD3 policy delay reads one every update) stay on the CPU.
+optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the update path waits for the GPU:
+the losses come back as device tensors, read once per collection batch by the trainer, and the update counters (the
+TD3 policy delay reads one every update) stay on the CPU.
 """
 
 from __future__ import annotations
@@ -72,8 +73,9 @@ def adam(params, lr: float, device: torch.device | str | None = None, lean: bool
 
 def _param_layout(grad: torch.Tensor | None, param: torch.Tensor) -> torch.Tensor | None:
     """``grad`` with ``param`` 's strides, as ``backward`` stores a ``.grad`` (``AccumulateGrad`` 's layout
-    contract): ``torch.autograd.grad`` returns what the backward ops made (a weight's gradient from ``mm``
-    transposed), and the fused Adam kernel reads a gradient element by element in its parameter's layout."""
+    contract). ``torch.autograd.grad`` returns what the backward ops made (a weight's gradient from ``mm``
+    transposed), and torch's fused CPU Adam kernel (2.13) reads a gradient in its parameter's layout without
+    checking its strides: given a transposed one, it steps each weight with another weight's gradient, silently."""
     if grad is None or grad.stride() == param.stride():
         return grad
     return grad.new_empty_strided(param.size(), param.stride()).copy_(grad)
