@@ -406,6 +406,25 @@ def test_a_compiled_step_traces_its_gradients_into_one_graph_and_matches_backwar
     torch._dynamo.reset()
 
 
+def test_each_step_of_the_learner_traces_into_one_graph(samples):
+    """The KDDRL learner's three steps (TD3 critic, TD3 actor, D3QN) each trace, loss and gradients, into one graph
+    without a graph break under ``compiling.tracing_gradients`` (what ``compile=True`` compiles): a break would
+    split a step and bring back the autograd wrappers the one graph avoids."""
+    from kddrl_trl.compiling import tracing_gradients
+
+    frames, macros = samples
+    learner = HierarchicalLearner(**SMALL)
+    learner.update_cf(frames[0])  # the steps' parameter lists (_descend) and the optimiser states exist
+    learner.update_cf(frames[1])
+    learner.update_lc(macros[0])
+    for name, batch in (("cf_value", frames[2]), ("cf_actor", frames[2]), ("lc", macros[1])):
+        torch._dynamo.reset()
+        with tracing_gradients():
+            explained = torch._dynamo.explain(learner._gradients)(name, batch)
+        assert (explained.graph_count, explained.graph_break_count) == (1, 0), (name, explained.break_reasons)
+    torch._dynamo.reset()
+
+
 @pytest.mark.parametrize(
     "device",
     ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU"))],
