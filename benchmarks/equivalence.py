@@ -5,8 +5,10 @@ arithmetic otherwise cannot keep the training records byte-identical. It lands o
 not move: the same runs (algo, scenario, seed) trained with the code before and after it, and, per algo and
 scenario and pooled, the paired differences after − before of the final evaluation's mean speed and collision
 rate with their Student-t 95 % intervals over the pairs (:func:`kddrl_trl.eval.verdict.t_interval`), beside how
-many pairs kept byte-identical training records, the update counts of each pair (they must be equal: the
-algorithm did not change) and the ratio of their training times.
+many pairs kept byte-identical training records, the update counts of each pair (equal where the records are;
+where the arithmetic changed, episodes end at other frames, so the counts part, but the update rule must hold in
+both: frames and decisions less updates, the warm-up's, equal pair by pair) and the ratio of their training
+times.
 
 Running the two sides (each from a worktree pinned at its commit, with Hydra's multirun; the issue's check is
 3 seeds on baseline and braking):
@@ -38,8 +40,20 @@ from kddrl_trl.runs import config_differences  # noqa: E402
 
 #: the measures compared, from each run's final evaluation: (name, summary key, scale to the unit, unit)
 MEASURES = (("mean speed", "mean_speed_kmh", 1.0, "km/h"), ("collision rate", "collision_rate", 100.0, "points"))
-#: update counts that must match pair by pair (the algorithm did not change)
+#: update counts that match pair by pair where the arithmetic did not change (a byte-identical change)
 COUNTS = ("cf_updates", "lc_updates", "frames", "episodes")
+#: (count, updates): where the arithmetic changed, episodes end at other frames and the counts part, but the
+#: update rule must not: one TD3 update per frame and one D3QN update per decision once the warm-up is over, so
+#: ``count - updates`` (the frames and decisions of the warm-up, which no update has touched yet) match pair by pair
+RULES = (("frames", "cf_updates"), ("decisions", "lc_updates"))
+
+
+def _rule_offsets(training: dict) -> tuple:
+    """``count - updates`` for each of :data:`RULES` (None where the summary lacks either)."""
+    return tuple(
+        training[c] - training[u] if training.get(c) is not None and training.get(u) is not None else None
+        for c, u in RULES
+    )
 
 
 def _same_training(a: Path, b: Path) -> bool | None:
@@ -77,6 +91,8 @@ def pairs(before, after) -> list[dict]:
                 "before": {"run": str(ra.path), "commit": ra.commit, **{m[1]: ma[m[1]] for m in MEASURES}},
                 "after": {"run": str(rb.path), "commit": rb.commit, **{m[1]: mb[m[1]] for m in MEASURES}},
                 "counts_equal": all(ta.get(c) == tb.get(c) for c in COUNTS),
+                "warmup_offsets": [_rule_offsets(ta), _rule_offsets(tb)],
+                "update_rule_equal": None not in _rule_offsets(ta) and _rule_offsets(ta) == _rule_offsets(tb),
                 "training_identical": _same_training(ra.trained, rb.trained),
                 "training_time_ratio": (tb["elapsed_s"] / ta["elapsed_s"])
                 if ta.get("elapsed_s") and tb.get("elapsed_s")
@@ -113,6 +129,7 @@ def main(argv=None) -> int:
         "pairs": rows,
         "by_group": {g: differences(rs) for g, rs in groups.items()},
         "counts_equal": all(r["counts_equal"] for r in rows),
+        "update_rule_equal": all(r["update_rule_equal"] for r in rows),
         "training_identical": sum(r["training_identical"] is True for r in rows),
         "training_time_ratio": [r["training_time_ratio"] for r in rows],
         **({"note": args.note} if args.note else {}),
@@ -124,7 +141,8 @@ def main(argv=None) -> int:
             pv = "" if m["p"] is None else f"{m['p']:.2f}"
             print(f"{g:32s} {name:16s} {m['pairs']:5d}  {m['difference']:+.2f} {m['unit']} {ci:18s} {pv}")
     print(
-        f"update counts equal in every pair: {result['counts_equal']}; training records byte-identical in "
+        f"update counts equal in every pair: {result['counts_equal']}; update rule (frames and decisions less "
+        f"updates) equal in every pair: {result['update_rule_equal']}; training records byte-identical in "
         f"{result['training_identical']} of {len(rows)} pairs"
     )
     write_json(args.out, result)

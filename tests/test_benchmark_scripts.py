@@ -58,6 +58,32 @@ def test_equivalence_pairs_runs_and_measures_the_difference(bench, tmp_path):
     assert collisions["difference"] == 0
 
 
+def set_training(run: Path, **delta: int) -> None:
+    """Adds ``delta`` to the counts of ``run`` 's training summary."""
+    path = run / "summary.json"
+    summary = json.loads(path.read_text())
+    for key, d in delta.items():
+        summary["training"][key] += d
+    path.write_text(json.dumps(summary))
+
+
+def test_equivalence_checks_the_update_rule_where_the_counts_part(bench, tmp_path):
+    """Runs whose episodes ended at other frames (a float change) part in their counts but keep the update rule
+    (frames and decisions less updates: the warm-up's); an update more per frame breaks the rule."""
+    before, after = copy_runs(tmp_path / "before"), copy_runs(tmp_path / "after")
+    out = tmp_path / "eq.json"
+    assert bench.main([str(before), str(after), "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["update_rule_equal"]
+    run = after / RUNS[0].name
+    set_training(run, frames=960, cf_updates=960, decisions=48, lc_updates=48)
+    assert bench.main([str(before), str(after), "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert not result["counts_equal"] and result["update_rule_equal"]
+    set_training(run, cf_updates=1)
+    assert bench.main([str(before), str(after), "--out", str(out)]) == 0
+    assert not json.loads(out.read_text())["update_rule_equal"]
+
+
 def test_equivalence_refuses_a_run_without_partner_and_other_configs(bench, tmp_path):
     before, after = copy_runs(tmp_path / "before"), copy_runs(tmp_path / "after")
     shutil.rmtree(after / RUNS[2].name)
