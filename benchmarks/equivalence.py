@@ -82,6 +82,7 @@ def pairs(before, after) -> list[dict]:
         if different:
             raise ValueError(f"{ra.trained} and {rb.trained} ran other configs: {'; '.join(different[:5])}")
         ta, tb = ra.trained_summary.get("training", {}), rb.trained_summary.get("training", {})
+        oa, ob = _rule_offsets(ta), _rule_offsets(tb)
         ma, mb = ra.metrics(), rb.metrics()  # from the evaluation episodes, as the report computes them
         out.append(
             {
@@ -91,8 +92,8 @@ def pairs(before, after) -> list[dict]:
                 "before": {"run": str(ra.path), "commit": ra.commit, **{m[1]: ma[m[1]] for m in MEASURES}},
                 "after": {"run": str(rb.path), "commit": rb.commit, **{m[1]: mb[m[1]] for m in MEASURES}},
                 "counts_equal": all(ta.get(c) == tb.get(c) for c in COUNTS),
-                "warmup_offsets": [_rule_offsets(ta), _rule_offsets(tb)],
-                "update_rule_equal": None not in _rule_offsets(ta) and _rule_offsets(ta) == _rule_offsets(tb),
+                "warmup_offsets": [oa, ob],
+                "update_rule_equal": None not in oa and oa == ob,
                 "training_identical": _same_training(ra.trained, rb.trained),
                 "training_time_ratio": (tb["elapsed_s"] / ta["elapsed_s"])
                 if ta.get("elapsed_s") and tb.get("elapsed_s")

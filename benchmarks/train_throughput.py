@@ -211,7 +211,7 @@ def measure_update(
             if name == "compiled_python_wrapper":
                 python_wrapper(learner)
             if name == "compiled_size_asserts":
-                recompiled_loss(learner, "loss_size_asserts", {"cpp_wrapper": True})
+                recompiled_step(learner, "step_size_asserts", {"cpp_wrapper": True})
             arms[name] = (learner.update_cf, learner.update_lc, *on_device)
     runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
     for _ in range(repeats):
@@ -241,7 +241,7 @@ def measure_update(
     }
 
 
-def recompiled_loss(learner: HierarchicalLearner, name: str, options: dict) -> None:
+def recompiled_step(learner: HierarchicalLearner, name: str, options: dict) -> None:
     """The learner's compiled step (its loss and gradients, :meth:`~kddrl_trl.training.Learner._gradients`) compiled
     as ``compile=True`` compiles it, but with the TorchInductor ``options`` given instead of those of
     :func:`kddrl_trl.compiling.inductor_options`. It is compiled from a copy of its code object named ``name``, so
@@ -258,9 +258,9 @@ def recompiled_loss(learner: HierarchicalLearner, name: str, options: dict) -> N
 
 
 def python_wrapper(learner: HierarchicalLearner) -> None:
-    """:func:`recompiled_loss` with TorchInductor's default Python wrapper instead of the C++ one: the arm
+    """:func:`recompiled_step` with TorchInductor's default Python wrapper instead of the C++ one: the arm
     ``compiled_python_wrapper``, which tells what the C++ wrapper earns."""
-    recompiled_loss(learner, "loss_python_wrapper", {})
+    recompiled_step(learner, "step_python_wrapper", {})
 
 
 def update_flops(seed: int, buffers: tuple, updates: int = 8) -> dict:

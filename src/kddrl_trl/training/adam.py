@@ -19,8 +19,7 @@ import torch
 
 
 class FusedAdam(torch.optim.Adam):
-    """``torch.optim.Adam(params, lr, fused=True)`` with a lean CPU step (module docstring). ``zero_grad`` sets the
-    gradients to None, as ``torch.optim.Optimizer.zero_grad()`` does by default."""
+    """``torch.optim.Adam(params, lr, fused=True)`` with a lean CPU step (module docstring)."""
 
     def __init__(self, params, lr: float):
         super().__init__(params, lr=lr, fused=True)
@@ -72,12 +71,6 @@ class FusedAdam(torch.optim.Adam):
                 found_inf=None,
             )
         return None
-
-    def zero_grad(self, set_to_none: bool = True) -> None:
-        if not set_to_none or self._tensors is None:
-            return super().zero_grad(set_to_none)
-        for p in self._tensors[0]:
-            p.grad = None
 
     def load_state_dict(self, state_dict) -> None:
         super().load_state_dict(state_dict)
