@@ -14,6 +14,7 @@ from collections.abc import Callable
 from functools import lru_cache
 
 import torch
+from tensordict import TensorDict, TensorDictBase
 from torch._dynamo import config as dynamo_config
 
 log = logging.getLogger(__name__)
@@ -118,45 +119,116 @@ def specializing_floats():
     return dynamo_config.patch(specialize_float=True)
 
 
-#: the message of the error ``torch.compile`` raises when a call under ``skip_guard_eval_unsafe`` would need a new graph
-_RECOMPILE_UNDER_SKIP = "Recompilation triggered with skip_guard_eval_unsafe stance"
+def _signature(value) -> object:
+    """What a compiled graph assumes of one argument of its function: a tensor's type, shape, strides, dtype, device
+    and ``requires_grad``; a TensorDict's type, batch size, device and each leaf's key, shape, strides and dtype
+    (and device, where the TensorDict has none); any other argument itself (a loss name). Hashable, or
+    ``TypeError`` (an argument that cannot be told apart cheaply)."""
+    if isinstance(value, torch.Tensor):
+        return (type(value), value.shape, value.stride(), value.dtype, value.device, value.requires_grad)
+    if isinstance(value, TensorDictBase):
+        leaves: list = []
+        if type(value) is TensorDict:
+            _leaves(value, leaves, value.device is None)
+        else:
+            leaves.extend((k, _signature(v)) for k, v in value.items(True, True))
+        return (type(value), value.batch_size, value.device, tuple(leaves))
+    hash(value)
+    return value
+
+
+def _leaves(td: TensorDict, out: list, devices: bool) -> None:
+    """Appends the key, shape, strides and dtype (and device, with ``devices``) of every leaf of ``td`` to ``out``,
+    depth first, a nested TensorDict's key before its leaves and None after them: :func:`_signature` 's walk of a
+    plain ``TensorDict`` (its own dict of entries: several times faster than ``items(True, True)``)."""
+    for k, v in td._tensordict.items():
+        if isinstance(v, torch.Tensor):
+            out.append((k, v.shape, v.stride(), v.dtype, v.device) if devices else (k, v.shape, v.stride(), v.dtype))
+        elif type(v) is TensorDict:
+            out.append(k)
+            _leaves(v, out, devices)
+            out.append(None)
+        else:
+            out.append((k, _signature(v)))
 
 
 class WarmCompiled:
-    """A ``torch.compile`` d learner gradient function ``fn(name, batch)`` called without most of its guards once
-    warm.
+    """A ``torch.compile`` d learner gradient function ``fn(name, batch)`` whose warm graphs are called directly,
+    without TorchDynamo's frame evaluation.
 
     TorchDynamo checks a compiled frame's guards on every call before it runs the graph. On a learner's gradient
-    function they cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines for
-    the KDDRL learner's TD3 critic loss; their evaluation cost about as much as its whole compiled forward on a CPU).
-    Each loss ``name`` first runs ``warmup`` calls with every guard (they compile its graph: the
-    losses have fixed shapes); later calls run under ``torch.compiler.set_stance(skip_guard_eval_unsafe=True)``,
-    which still checks the guards that told the cached graphs apart (the ``name``) and every tensor's shape, dtype
-    and device, not the rest. A call that would need a new graph raises in that stance before the graph runs; it is
-    then run once more with every guard (compiling it), so nothing is lost. What is not checked any more is what a
-    learner never changes between calls: which modules and parameters the loss reads, the grad mode.
+    function they cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines
+    for the KDDRL learner's TD3 critic loss), and even with most of them skipped
+    (``torch.compiler.set_stance(skip_guard_eval_unsafe=True)``) the cache lookup and the frame evaluation around
+    a graph cost a fifth of a compiled TD3 update on a CPU (``benchmarks/train_throughput.py``).
 
-    Its compiling calls (the warm-up ones and a recompilation) trace ``torch.autograd.grad``
-    (:func:`tracing_gradients`)."""
+    Calls are told apart by the signature of their arguments (the loss name; every tensor's shape, strides, dtype
+    and device, a TensorDict's keys: :func:`_signature`). A signature's first ``warmup`` calls run with every guard
+    (they compile its graph). The next call looks up, among TorchDynamo's cache entries of ``fn`` 's code, the one
+    whose guards all pass on its arguments, as TorchDynamo would, and keeps its transformed bytecode as a plain
+    function (the entry's own code, reading its graph from ``fn`` 's globals, where TorchDynamo installed it): that
+    and every later call of the signature run it directly, so the graph and its results are TorchDynamo's own, bit
+    for bit. A signature without such an entry, or whose entry would resume after a graph break (a resumed frame
+    is compiled only under TorchDynamo), keeps calling ``fn`` with every guard, compiling what it needs. What is not
+    checked any more is what a learner never changes between calls: which modules and parameters the loss reads,
+    their shapes, the grad mode; a graph dropped by ``torch._dynamo.reset`` is compiled again on the next call.
+
+    Its compiling calls trace ``torch.autograd.grad`` (:func:`tracing_gradients`)."""
 
     def __init__(self, fn: Callable, warmup: int = 2):
-        self.fn, self.warmup, self.calls = fn, int(warmup), {}
+        self.fn, self.warmup = fn, int(warmup)
+        inner = torch._dynamo.eval_frame.innermost_fn(fn)
+        self._func = getattr(inner, "__func__", inner)  # the Python function TorchDynamo compiles frames of
+        self._self = getattr(inner, "__self__", None)  # the object a compiled bound method is called on
+        self.calls: dict = {}  # signature -> calls made with every guard
+        self.direct: dict = {}  # signature -> the warm graph's function, called without TorchDynamo, or None
 
-    def __call__(self, name: str, *args, **kwargs):
-        calls = self.calls.get(name, 0)
-        if calls < self.warmup:
-            self.calls[name] = calls + 1
-            with tracing_gradients():
-                return self.fn(name, *args, **kwargs)
+    def __call__(self, name: str, *args):
         try:
-            with torch.compiler.set_stance(skip_guard_eval_unsafe=True):
-                return self.fn(name, *args, **kwargs)
-        except RuntimeError as e:
-            if _RECOMPILE_UNDER_SKIP not in str(e):
-                raise
-            log.info("the warm compiled step %r needs a new graph: compiling it with every guard", name)
-            with tracing_gradients():
-                return self.fn(name, *args, **kwargs)
+            key = _signature((name, *(_signature(a) for a in args)))
+        except TypeError:  # an argument without a cheap signature: TorchDynamo's guards decide every call
+            key = None
+        direct = self.direct.get(key)
+        if key is not None and key not in self.direct and self.calls.get(key, 0) >= self.warmup:
+            direct = self.direct[key] = self._warm_function(name, *args)
+            if direct is None:
+                log.info(
+                    "the warm compiled step %r has no graph to call directly (a graph break, or TorchDynamo's "
+                    "recompile limit reached): its calls stay under TorchDynamo",
+                    name,
+                )
+        if direct is not None:
+            try:
+                return direct(name, *args)
+            except NameError:  # torch._dynamo.reset() dropped the graph this bytecode calls: compile it again
+                self.direct.clear()
+                self.calls.clear()
+        if key is not None:
+            self.calls[key] = self.calls.get(key, 0) + 1
+        with tracing_gradients():
+            return self.fn(name, *args)
+
+    def _warm_function(self, *args) -> Callable | None:
+        """The transformed bytecode of the cache entry whose guards pass on ``args``, as a function of ``args``
+        (None: no such entry, or one that would resume after a graph break)."""
+        import inspect
+        import types
+
+        from torch._dynamo.eval_frame import _debug_get_cache_entry_list
+
+        func = self._func
+        bound = (self._self, *args) if self._self is not None else args
+        frame_locals = dict(zip(func.__code__.co_freevars, (c.cell_contents for c in func.__closure__ or ())))
+        frame_locals.update(inspect.signature(func).bind(*bound).arguments)  # the frame's locals, as guards read them
+        for entry in _debug_get_cache_entry_list(func.__code__):
+            if not entry.guard_manager.check(frame_locals):
+                continue
+            code = entry.code
+            if any(n.startswith("__resume_at") for n in code.co_names) or code.co_freevars != func.__code__.co_freevars:
+                return None
+            direct = types.FunctionType(code, func.__globals__, func.__name__, func.__defaults__, func.__closure__)
+            return types.MethodType(direct, self._self) if self._self is not None else direct
+        return None
 
 
 class GraphedUpdate:

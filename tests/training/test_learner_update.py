@@ -331,10 +331,10 @@ def test_benchmark_results_keep_what_a_run_did_not_measure_and_say_which_run_did
     }
 
 
-def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_recompiles_on_a_new_shape():
-    """``WarmCompiled`` (the compiled loss of a CPU learner): every name first compiles with its guards; then the
-    names still pick their own graphs without the full guards, and an input of a new shape (a graph that does not
-    exist) is compiled and run with every guard instead of failing or reusing a wrong graph."""
+def test_warm_compiled_loss_calls_each_names_graph_directly_once_warm_and_compiles_a_new_shape():
+    """``WarmCompiled`` (the compiled loss of a CPU learner): every name first compiles with its guards; then each
+    name runs its own graph directly, and an input of a new shape (a graph that does not exist) is compiled and run
+    with every guard instead of failing or reusing a wrong graph, then called directly in turn."""
     from kddrl_trl.compiling import WarmCompiled
 
     def loss(name, x):
@@ -343,11 +343,14 @@ def test_warm_compiled_loss_skips_guards_only_once_each_name_is_compiled_and_rec
     fn = WarmCompiled(torch.compile(loss, dynamic=False, backend="eager"), warmup=1)
     x = torch.arange(4.0)
     assert torch.equal(fn("double", x), x * 2.0) and torch.equal(fn("inc", x), x + 1.0)
-    assert fn.calls == {"double": 1, "inc": 1}
-    for _ in range(2):  # warm: guards skipped, each name still runs its own graph
+    assert sorted(k[0] for k in fn.calls) == ["double", "inc"] and not fn.direct
+    for _ in range(2):  # warm: each name runs its own graph directly
         assert torch.equal(fn("inc", x), x + 1.0) and torch.equal(fn("double", x), x * 2.0)
+    assert sorted(k[0] for k, f in fn.direct.items() if f is not None) == ["double", "inc"]
     y = torch.arange(6.0).reshape(2, 3)
-    assert torch.equal(fn("double", y), y * 2.0)
+    for _ in range(2):
+        assert torch.equal(fn("double", y), y * 2.0)
+    assert len([f for f in fn.direct.values() if f is not None]) == 3
 
 
 def test_warm_compiled_traces_autograd_grad_and_leaves_the_setting_as_it_was():

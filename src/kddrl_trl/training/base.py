@@ -30,8 +30,8 @@ Each learner names its gradient steps as update functions (:meth:`Learner.update
 updates (:class:`~kddrl_trl.objectives.PolyakUpdate`, one ``torch._foreach_lerp_`` per group of targets) in one
 function of a sampled batch that returns its detached losses. :meth:`Learner._compile` is the learner's one compile
 site: with ``compile``, a step's loss and its gradients (:meth:`Learner._gradients`) are ``torch.compile`` d as one
-graph and called without guard evaluation once warm (the CPU); on CUDA with ``cudagraphs``, each update function
-is ``torch.compile`` d whole and wrapped in ``tensordict.nn.CudaGraphModule``
+graph and, once warm, called without TorchDynamo's frame evaluation (the CPU); on CUDA with ``cudagraphs``, each
+update function is ``torch.compile`` d whole and wrapped in ``tensordict.nn.CudaGraphModule``
 (:class:`~kddrl_trl.compiling.GraphedUpdate`: a batch's leaves copied in by one ``_foreach_copy_`` per dtype;
 optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the update path waits for the GPU:
 the losses come back as device tensors, read once per collection batch by the trainer, and the update counters (the
@@ -120,8 +120,9 @@ class Learner(nn.Module):
         - without CUDA graphs (the CPU): the learner's :meth:`_gradients` (a step's loss and ``torch.autograd.grad``
           of it, forward and backward in one graph: :func:`~kddrl_trl.compiling.tracing_gradients`) is
           ``torch.compile`` d (on the CPU with TorchInductor's C++ wrapper,
-          :func:`~kddrl_trl.compiling.inductor_options`) and, once warm, called without TorchDynamo's guard
-          evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the rest of the update functions stays eager:
+          :func:`~kddrl_trl.compiling.inductor_options`) and, once warm, its graph is called directly, without
+          TorchDynamo's frame evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the rest of the update
+          functions stays eager:
           the fused Adam steps and ``_foreach_lerp_`` are one call each already, and each of them would be a graph
           break (with its guarded resume frames) inside a compiled update function, whose TorchDynamo cache lookups
           would then cost more than they save (``benchmarks/train_throughput.py`` measures both);
