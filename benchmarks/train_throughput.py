@@ -13,7 +13,10 @@
     On the CPU also ``compiled_python_wrapper``: the compiled learner with TorchInductor's Python wrapper instead
     of the C++ one (:func:`python_wrapper`); ``cpp_wrapper_gain`` = its time / the compiled arm's; and
     ``compiled_size_asserts``: the C++ wrapper with TorchInductor's size asserts, which
-    :func:`kddrl_trl.compiling.inductor_options` drops; ``size_asserts_gain`` = its time / the compiled arm's.
+    :func:`kddrl_trl.compiling.inductor_options` drops; ``size_asserts_gain`` = its time / the compiled arm's; and
+    ``compiled_dynamo_frames``: the same graphs called through TorchDynamo's frame evaluation with most guards
+    skipped (:class:`DynamoFrames`) instead of directly (:class:`kddrl_trl.compiling.WarmCompiled`);
+    ``direct_call_gain`` = its time / the compiled arm's.
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
     ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is
     found) + DecisionClock + both exploring policies through
@@ -71,7 +74,7 @@ from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 
 from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
-from kddrl_trl.compiling import resolve_compile  # noqa: E402
+from kddrl_trl.compiling import inductor_options, resolve_compile  # noqa: E402
 from kddrl_trl.devtools.bench_results import keep_previous  # noqa: E402
 from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
@@ -189,7 +192,9 @@ def measure_update(
     lc_batches = [rb_lc.sample() for _ in range(max(updates // 4, 20))]
     arms = {}
     names = ("plain", "eager", "compiled") + (
-        ("compiled_cpu_batches",) if device.type == "cuda" else ("compiled_python_wrapper", "compiled_size_asserts")
+        ("compiled_cpu_batches",)
+        if device.type == "cuda"
+        else ("compiled_python_wrapper", "compiled_size_asserts", "compiled_dynamo_frames")
     )
     on_device = [b.to(device) for b in cf_batches], [b.to(device) for b in lc_batches]  # as the buffers sample
     for name in names:
@@ -212,6 +217,8 @@ def measure_update(
                 python_wrapper(learner)
             if name == "compiled_size_asserts":
                 recompiled_step(learner, "step_size_asserts", {"cpp_wrapper": True})
+            if name == "compiled_dynamo_frames":
+                recompiled_step(learner, "step_dynamo_frames", inductor_options("cpu"), caller=DynamoFrames)
             arms[name] = (learner.update_cf, learner.update_lc, *on_device)
     runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
     for _ in range(repeats):
@@ -241,12 +248,33 @@ def measure_update(
     }
 
 
-def recompiled_step(learner: HierarchicalLearner, name: str, options: dict) -> None:
+class DynamoFrames:
+    """A compiled gradient function called as :class:`kddrl_trl.compiling.WarmCompiled` called it before it ran warm
+    graphs directly: through TorchDynamo's frame evaluation, each name's first ``warmup`` calls with every guard,
+    later ones under ``torch.compiler.set_stance(skip_guard_eval_unsafe=True)`` (which still looks the graph up and
+    checks every input tensor's shape). The arm ``compiled_dynamo_frames``: what the direct call earns."""
+
+    def __init__(self, fn, warmup: int = 2):
+        self.fn, self.warmup, self.calls = fn, warmup, {}
+
+    def __call__(self, name: str, *args):
+        from kddrl_trl.compiling import tracing_gradients
+
+        self.calls[name] = self.calls.get(name, 0) + 1
+        if self.calls[name] <= self.warmup:
+            with tracing_gradients():
+                return self.fn(name, *args)
+        with torch.compiler.set_stance(skip_guard_eval_unsafe=True):
+            return self.fn(name, *args)
+
+
+def recompiled_step(learner: HierarchicalLearner, name: str, options: dict, caller=None) -> None:
     """The learner's compiled step (its loss and gradients, :meth:`~kddrl_trl.training.Learner._gradients`) compiled
     as ``compile=True`` compiles it, but with the TorchInductor ``options`` given instead of those of
-    :func:`kddrl_trl.compiling.inductor_options`. It is compiled from a copy of its code object named ``name``, so
-    that TorchDynamo keeps its graphs apart from those of the ``compiled`` arm (its cache is per code object) and the
-    arms can take turns in one process."""
+    :func:`kddrl_trl.compiling.inductor_options`, and called through ``caller`` (None:
+    :class:`~kddrl_trl.compiling.WarmCompiled`, as training calls it). It is compiled from a copy of its code object
+    named ``name``, so that TorchDynamo keeps its graphs apart from those of the ``compiled`` arm (its cache is per
+    code object) and the arms can take turns in one process."""
     from types import FunctionType
 
     from kddrl_trl.compiling import WarmCompiled
@@ -254,7 +282,7 @@ def recompiled_step(learner: HierarchicalLearner, name: str, options: dict) -> N
     fn = type(learner)._gradients
     copy = FunctionType(fn.__code__.replace(co_name=name), fn.__globals__, name)
     bound = copy.__get__(learner)
-    learner.__dict__["_gradients"] = WarmCompiled(torch.compile(bound, dynamic=False, options=options))
+    learner.__dict__["_gradients"] = (caller or WarmCompiled)(torch.compile(bound, dynamic=False, options=options))
 
 
 def python_wrapper(learner: HierarchicalLearner) -> None:
@@ -865,6 +893,10 @@ def main(argv=None) -> int:
         if "compiled_size_asserts" in update:  # what dropping the size asserts earns: > 1.0 is a gain
             result["size_asserts_gain"] = (
                 update["compiled_size_asserts"]["per_frame_s"] / update["compiled"]["per_frame_s"]
+            )
+        if "compiled_dynamo_frames" in update:  # what calling warm graphs directly earns: > 1.0 is a gain
+            result["direct_call_gain"] = (
+                update["compiled_dynamo_frames"]["per_frame_s"] / update["compiled"]["per_frame_s"]
             )
     if collect:
         result["collect_ratio_vs_sim"] = min(c["collect_ratio_vs_sim"] for c in collect)
