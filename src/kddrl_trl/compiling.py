@@ -160,7 +160,8 @@ class WarmCompiled:
     function they cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines
     for the KDDRL learner's TD3 critic loss), and even with most of them skipped
     (``torch.compiler.set_stance(skip_guard_eval_unsafe=True)``) the cache lookup and the frame evaluation around
-    a graph cost a fifth of a compiled TD3 update on a CPU (``benchmarks/train_throughput.py``).
+    a graph are a sizeable share of a compiled update on a CPU (``benchmarks/train_throughput.py`` measures it: arm
+    ``compiled_dynamo_frames``).
 
     Calls are told apart by the signature of their arguments (the loss name; every tensor's shape, strides, dtype
     and device, a TensorDict's keys: :func:`_signature`). A signature's first ``warmup`` calls run with every guard
