@@ -7,9 +7,11 @@ and the learner's gradient function (:meth:`kddrl_trl.training.Learner._compile`
 
 from __future__ import annotations
 
+import inspect
 import itertools
 import logging
 import shutil
+import types
 from collections.abc import Callable
 from functools import lru_cache
 
@@ -152,6 +154,10 @@ def _leaves(td: TensorDict, out: list, devices: bool) -> None:
             out.append((k, _signature(v)))
 
 
+#: :attr:`WarmCompiled.direct` 's answer for a signature it has not looked up yet
+_UNSEEN = object()
+
+
 class WarmCompiled:
     """A ``torch.compile`` d learner gradient function ``fn(name, batch)`` whose warm graphs are called directly,
     without TorchDynamo's frame evaluation.
@@ -186,18 +192,21 @@ class WarmCompiled:
 
     def __call__(self, name: str, *args):
         try:
-            key = _signature((name, *(_signature(a) for a in args)))
+            key = (name, *map(_signature, args))
+            hash(key)
         except TypeError:  # an argument without a cheap signature: TorchDynamo's guards decide every call
             key = None
-        direct = self.direct.get(key)
-        if key is not None and key not in self.direct and self.calls.get(key, 0) >= self.warmup:
-            direct = self.direct[key] = self._warm_function(name, *args)
-            if direct is None:
-                log.info(
-                    "the warm compiled step %r has no graph to call directly (a graph break, or TorchDynamo's "
-                    "recompile limit reached): its calls stay under TorchDynamo",
-                    name,
-                )
+        direct = self.direct.get(key, _UNSEEN) if key is not None else None
+        if direct is _UNSEEN:  # not looked up yet: once the signature is warm, look its graph up
+            direct = None
+            if self.calls.get(key, 0) >= self.warmup:
+                direct = self.direct[key] = self._warm_function(name, *args)
+                if direct is None:
+                    log.info(
+                        "the warm compiled step %r has no graph to call directly (a graph break, or TorchDynamo's "
+                        "recompile limit reached): its calls stay under TorchDynamo",
+                        name,
+                    )
         if direct is not None:
             try:
                 return direct(name, *args)
@@ -212,9 +221,6 @@ class WarmCompiled:
     def _warm_function(self, *args) -> Callable | None:
         """The transformed bytecode of the cache entry whose guards pass on ``args``, as a function of ``args``
         (None: no such entry, or one that would resume after a graph break)."""
-        import inspect
-        import types
-
         from torch._dynamo.eval_frame import _debug_get_cache_entry_list
 
         func = self._func
