@@ -1,8 +1,8 @@
 """When to ``torch.compile``: one rule for the two compile sites (the fused transform stack and the learner).
 
 The sites themselves are :func:`kddrl_trl.transforms.stack.compiled_frames` (the fused predictive-state stack)
-and the learner's gradient function (:meth:`kddrl_trl.training.Learner._compile`, for every learner, called through
-:class:`WarmCompiled`; its measured gain is stated on :class:`kddrl_trl.training.HierarchicalLearner`).
+and the learner's gradient function (:meth:`kddrl_trl.training.Learner._compile`, for every learner; its measured
+gain is stated on :class:`kddrl_trl.training.HierarchicalLearner`), both called through :class:`WarmCompiled`.
 """
 
 from __future__ import annotations
@@ -124,10 +124,15 @@ def specializing_floats():
 def _signature(value) -> object:
     """What a compiled graph assumes of one argument of its function: a tensor's type, shape, strides, dtype, device
     and ``requires_grad``; a TensorDict's type, batch size, device and each leaf's key, shape, strides and dtype
-    (and device, where the TensorDict has none); any other argument itself (a loss name). Hashable, or
+    (and device, where the TensorDict has none); a tuple's or list's type and its items' signatures, a dict's keys
+    and its values' signatures, in order; any other argument itself (None, a loss name). Hashable, or
     ``TypeError`` (an argument that cannot be told apart cheaply)."""
     if isinstance(value, torch.Tensor):
         return (type(value), value.shape, value.stride(), value.dtype, value.device, value.requires_grad)
+    if isinstance(value, (list, tuple)):
+        return (type(value), *map(_signature, value))
+    if isinstance(value, dict):
+        return (dict, *((k, _signature(v)) for k, v in value.items()))
     if isinstance(value, TensorDictBase):
         leaves: list = []
         if type(value) is TensorDict:
@@ -159,8 +164,9 @@ _UNSEEN = object()
 
 
 class WarmCompiled:
-    """A ``torch.compile`` d learner gradient function ``fn(name, batch)`` whose warm graphs are called directly,
-    without TorchDynamo's frame evaluation.
+    """A ``torch.compile`` d function ``fn(name, *args)`` whose warm graphs are called directly, without TorchDynamo's
+    frame evaluation: a learner's gradient function ``fn(name, batch)``, or the fused transform stack's
+    ``fn(members, values, noises)`` (:func:`kddrl_trl.transforms.stack.warm_frames`).
 
     TorchDynamo checks a compiled frame's guards on every call before it runs the graph. On a learner's gradient
     function they cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines
@@ -169,21 +175,23 @@ class WarmCompiled:
     a graph are a sizeable share of a compiled update on a CPU (``benchmarks/train_throughput.py`` measures it: arm
     ``compiled_dynamo_frames``).
 
-    Calls are told apart by the signature of their arguments (the loss name; every tensor's shape, strides, dtype
-    and device, a TensorDict's keys: :func:`_signature`). A signature's first ``warmup`` calls run with every guard
+    Calls are told apart by ``name`` (hashable: a loss name, a tuple of modules) and the signature of the other
+    arguments (every tensor's shape, strides, dtype and device, a TensorDict's keys, the items of a tuple, list or
+    dict: :func:`_signature`). A signature's first ``warmup`` calls run with every guard
     (they compile its graph). The next call looks up, among TorchDynamo's cache entries of ``fn`` 's code, the one
     whose guards all pass on its arguments, as TorchDynamo would, and keeps its transformed bytecode as a plain
     function (the entry's own code, reading its graph from ``fn`` 's globals, where TorchDynamo installed it): that
     and every later call of the signature run it directly, so the graph and its results are TorchDynamo's own, bit
     for bit. A signature without such an entry, or whose entry would resume after a graph break (a resumed frame
     is compiled only under TorchDynamo), keeps calling ``fn`` with every guard, compiling what it needs. What is not
-    checked any more is what a learner never changes between calls: which modules and parameters the loss reads,
+    checked any more is what a caller never changes between calls: which modules and parameters the function reads,
     their shapes, the grad mode; a graph dropped by ``torch._dynamo.reset`` is compiled again on the next call.
 
-    Its compiling calls trace ``torch.autograd.grad`` (:func:`tracing_gradients`)."""
+    Its compiling calls run in ``context()``: by default :func:`tracing_gradients` (they trace
+    ``torch.autograd.grad``)."""
 
-    def __init__(self, fn: Callable, warmup: int = 2):
-        self.fn, self.warmup = fn, int(warmup)
+    def __init__(self, fn: Callable, warmup: int = 2, context: Callable = tracing_gradients):
+        self.fn, self.warmup, self.context = fn, int(warmup), context
         inner = torch._dynamo.eval_frame.innermost_fn(fn)
         self._func = getattr(inner, "__func__", inner)  # the Python function TorchDynamo compiles frames of
         self._self = getattr(inner, "__self__", None)  # the object a compiled bound method is called on
@@ -215,7 +223,7 @@ class WarmCompiled:
                 self.calls.clear()
         if key is not None:
             self.calls[key] = self.calls.get(key, 0) + 1
-        with tracing_gradients():
+        with self.context():
             return self.fn(name, *args)
 
     def _warm_function(self, *args) -> Callable | None:

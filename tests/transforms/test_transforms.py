@@ -665,6 +665,35 @@ def test_compiled_stack_matches_eager_stack():
     torch.testing.assert_close(one[K.PRED_TRAJ], eager[K.PRED_TRAJ], rtol=1e-4, atol=1e-3)
 
 
+
+def test_compiled_stack_calls_its_warm_graph_directly_with_the_same_bits():
+    """Once warm, a compiled stack runs its graph without TorchDynamo (``warm_frames``), and gives what the same
+    graph gives under TorchDynamo's guards, bit for bit, call after call; what it keeps goes with the stack."""
+    import gc
+    import shutil
+
+    from kddrl_trl.envs import FakeHighwayEnv
+    from kddrl_trl.transforms import make_kddrl_transforms
+    from kddrl_trl.transforms.stack import _WARM, warm_frames
+
+    if not any(shutil.which(c) for c in ("c++", "g++", "clang++")):
+        pytest.skip("torch.compile needs a C++ compiler on a CPU machine")
+    frames = FakeHighwayEnv(num_roads=3, seed=7).rollout(6, break_when_any_done=False)["next"]
+    direct, guarded = make_kddrl_transforms(seed=5, compile=True), make_kddrl_transforms(seed=5, compile=True)
+    warm_frames(guarded).warmup = 10**9  # never warm: every call under TorchDynamo's guards
+    for t in range(frames.shape[1]):  # the noise streams advance alike in both
+        a, b = direct(frames[:, t].clone()), guarded(frames[:, t].clone())
+        for key in DERIVED:
+            assert torch.equal(a[key], b[key]), (t, key)
+    warm = warm_frames(direct)
+    graphs = [f for f in warm.direct.values() if f is not None]
+    assert len(graphs) == 1 and sum(warm.calls.values()) == 2  # two guarded calls, then the direct graph
+    assert not any(f is not None for f in warm_frames(guarded).direct.values())
+    n = len(_WARM)
+    del direct, warm, graphs
+    gc.collect()
+    assert len(_WARM) == n - 1  # the dropped stack's calls are dropped with it
+
 # ------------------------------------------------------------------------------ the fused stack
 @pytest.mark.parametrize("trajgan,priors", [(True, True), (False, True), (True, False), (False, False)])
 def test_fused_stack_equals_members_one_by_one(trajgan, priors):

@@ -8,8 +8,8 @@ keeps its maths in a pure :meth:`~PredictiveTransform.frame` function, so this `
 once, draws each member's noise from that member's own generator (the same draws, in the same order, as the
 members called one by one), runs all members' ``frame`` in one function (:func:`run_frames`) and writes the
 outputs once. With ``compile``, that function goes through ``torch.compile`` (:func:`compiled_frames`, the
-transforms' only compile site). The results equal those of the members applied in sequence (tested: exactly in
-eager mode, to float rounding when compiled).
+transforms' only compile site), its warm graphs called directly (:func:`warm_frames`). The results equal those of
+the members applied in sequence (tested: exactly in eager mode, to float rounding when compiled).
 
 It is still a ``Compose``: indexing, ``reseed`` of a member, the specs and ``TransformedEnv`` behave as for
 the members chained; a stack holding any transform that is not a :class:`PredictiveTransform` (e.g. one
@@ -19,13 +19,14 @@ appended by a user) runs them one by one, as ``Compose`` does.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from functools import lru_cache, wraps
+import weakref
+from functools import lru_cache
 
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs.transforms import Compose, Transform
 
-from ..compiling import resolved, specializing_floats
+from ..compiling import WarmCompiled, resolved, specializing_floats
 from ._base import PredictiveTransform, call_on_root_and_next
 from .leader_history import LeaderHistory
 
@@ -45,21 +46,28 @@ def run_frames(members: Sequence[PredictiveTransform], values: dict, noises: lis
 def compiled_frames():
     """:func:`run_frames` through ``torch.compile`` (dynamic shapes: any batch shape without recompiling):
     the one compile site of the transforms, built once per process on first use (nothing compiled is stored
-    on a stack, so stacks pickle as they are).
+    on a stack, so stacks pickle as they are). Stacks call it through :func:`warm_frames`.
 
     Its gain (collection ego-frames/s with the full KDDRL stack, compiled vs eager) is measured by
-    ``python benchmarks/transform_overhead.py`` (``benchmarks/results/transform_overhead.json``).
+    ``python benchmarks/transform_overhead.py`` (``benchmarks/results/transform_overhead.json``)."""
+    return torch.compile(run_frames, dynamic=True)
 
-    Each call runs under :func:`~kddrl_trl.compiling.specializing_floats` (the members' float constants traced
-    as constants: one trace, not two)."""
-    compiled = torch.compile(run_frames, dynamic=True)
 
-    @wraps(run_frames)
-    def frames(members: Sequence[PredictiveTransform], values: dict, noises: list) -> dict:
-        with specializing_floats():
-            return compiled(members, values, noises)
+#: each stack's :func:`warm_frames`, dropped with the stack
+_WARM: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
-    return frames
+
+def warm_frames(stack: Compose) -> WarmCompiled:
+    """``stack`` 's caller of :func:`compiled_frames`, ``(tuple(members), values, noises) -> dict``: a
+    :class:`~kddrl_trl.compiling.WarmCompiled`, so that once a call signature is warm its graph runs without
+    TorchDynamo's guard evaluation, bit for bit the graph TorchDynamo would run. The members are part of the
+    signature (by identity, and kept alive by it): the graph holds their float constants, traced as constants under
+    :func:`~kddrl_trl.compiling.specializing_floats` (one trace, not two), which its compiling calls enter. One per
+    stack, so that what it keeps goes with the stack."""
+    warm = _WARM.get(stack)
+    if warm is None:
+        warm = _WARM[stack] = WarmCompiled(compiled_frames(), context=specializing_floats)
+    return warm
 
 
 class PredictiveStack(Compose):
@@ -118,9 +126,11 @@ class PredictiveStack(Compose):
         if any(v is None for v in values.values()):  # let the members name what is missing (or tolerate it)
             return super()._call(next_tensordict)
         noises = [t.noise(next_tensordict.batch_size) for t in members]
-        frames = compiled_frames() if self.compiled and all(t.pure for t in members) else run_frames
         with torch.no_grad():
-            out = frames(members, values, noises)
+            if self.compiled and all(t.pure for t in members):
+                out = warm_frames(self)(tuple(members), values, noises)
+            else:
+                out = run_frames(members, values, noises)
         for key, value in out.items():
             next_tensordict.set(key, value)
         return next_tensordict
