@@ -665,7 +665,6 @@ def test_compiled_stack_matches_eager_stack():
     torch.testing.assert_close(one[K.PRED_TRAJ], eager[K.PRED_TRAJ], rtol=1e-4, atol=1e-3)
 
 
-
 def test_compiled_stack_calls_its_warm_graph_directly_with_the_same_bits():
     """Once warm, a compiled stack runs its graph without TorchDynamo (``warm_frames``), and gives what the same
     graph gives under TorchDynamo's guards, bit for bit, call after call; what it keeps goes with the stack."""
@@ -693,6 +692,7 @@ def test_compiled_stack_calls_its_warm_graph_directly_with_the_same_bits():
     del direct, warm, graphs
     gc.collect()
     assert len(_WARM) == n - 1  # the dropped stack's calls are dropped with it
+
 
 # ------------------------------------------------------------------------------ the fused stack
 @pytest.mark.parametrize("trajgan,priors", [(True, True), (False, True), (True, False), (False, False)])

@@ -18,8 +18,8 @@ appended by a user) runs them one by one, as ``Compose`` does.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 import weakref
+from collections.abc import Sequence
 from functools import lru_cache
 
 import torch
