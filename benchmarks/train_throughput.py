@@ -68,11 +68,12 @@ from pathlib import Path
 import torch
 from omegaconf import OmegaConf
 from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 
-from kddrl_trl.collectors import MultiTimescaleCollector
+from kddrl_trl.collectors import MultiTimescaleCollector, capture
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
 from kddrl_trl.compiling import inductor_options, resolve_compile  # noqa: E402
 from kddrl_trl.devtools.bench_results import keep_previous  # noqa: E402
@@ -510,28 +511,41 @@ def measure_acting(k: int, calls: int, seed: int, devices: list[torch.device]) -
     TensorDict of the env (fake env + KDDRL transform stack + decision clock, on the CPU as in training), with the
     learner on each of ``devices``: the policy run on that device, its inputs moved there and its actions back
     (for a CUDA learner what TorchRL's ``policy_device`` does). Tells where acting is fastest: training acts on the
-    CPU (:class:`~kddrl_trl.collectors.PolicySnapshot`) because the CPU measured faster."""
+    CPU (:class:`~kddrl_trl.collectors.PolicySnapshot`) because the CPU measured faster. On the CPU also
+    ``cpu_captured``: the policy through :func:`kddrl_trl.collectors.capture`, as a compiling learner acts, and
+    ``captured_gain`` = the plain policy's time / the captured one's."""
     env = TransformedEnv(
         FakeHighwayEnv(num_roads=k, seed=seed),
         Compose(make_kddrl_transforms(seed=seed), DecisionClock(learner_kwargs(False)[1])),
     )
     td = env.reset()
-    rows = {}
+    arms = {}
     for device in devices:
         learner = HierarchicalLearner(**learner_kwargs(False)[0], device=device)
-        policy = learner._policy() if device.type == "cpu" else _OnDevice(learner._policy(), device)
-        with torch.no_grad():
+        if device.type == "cpu":
+            arms["cpu"], arms["cpu_captured"] = learner._policy(), capture(learner._policy())
+        else:
+            arms[str(device)] = _OnDevice(learner._policy(), device)
+    rows = {}
+    for name, policy in arms.items():
+        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):  # exploring, as a collector acts
             for _ in range(20):
                 policy(td.clone())
-            _sync(device)
+            _sync(torch.device(name.split("_")[0]))
             t0 = time.perf_counter()
             for _ in range(calls):
                 policy(td.clone())
-            _sync(device)
-        rows[str(device)] = 1e3 * (time.perf_counter() - t0) / calls
-        print(f"  acting policy, learner on {device}, K={k}: {rows[str(device)]:.2f} ms per call", flush=True)
+            _sync(torch.device(name.split("_")[0]))
+        rows[name] = 1e3 * (time.perf_counter() - t0) / calls
+        print(f"  acting policy, {name}, K={k}: {rows[name]:.2f} ms per call", flush=True)
     env.close()
-    return {"num_roads": k, "calls": calls, "ms_per_call": rows, "fastest": min(rows, key=rows.get)}
+    return {
+        "num_roads": k,
+        "calls": calls,
+        "ms_per_call": rows,
+        "fastest": min(rows, key=rows.get),
+        **({"captured_gain": rows["cpu"] / rows["cpu_captured"]} if "cpu" in rows else {}),
+    }
 
 
 class _Stopwatch:
@@ -572,7 +586,7 @@ def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile
     copies). The parts are timed around those calls only, so nothing else is counted twice."""
     timer = CLOCKS[clock]
     sim_fps, _ = measure_sim("baseline", k, seed, frames // k, 20, timer=timer)
-    learner = HierarchicalLearner(**learner_kwargs(False)[0])
+    learner = HierarchicalLearner(**learner_kwargs(transform_kwargs(compile)["compile"])[0])  # acts as in training
     env = collect_env(k, compile, seed=seed)
     rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
     policy = learner.policy()
