@@ -26,7 +26,10 @@
     libsumo queries), so making that cheaper raises both numbers and *lowers* the ratio: compare ``collect_fps``
     too, measured back to back on the same machine. With (a), per K: ``learner_compile_gain`` = the share of the
     training wall time (collection + updates per ego-frame, eager learner) that compiling the learner saves
-    (a compile site is kept only where it earns >= 5 %).
+    (a compile site is kept only where it earns >= 5 %). With ``--collect-direct-gain N``: the same collection
+    without the direct calls (the compiled stack's every call under TorchDynamo's guards, the policy's own TensorDict
+    modules acting instead of :class:`~kddrl_trl.collectors.CapturedPolicy`), N turns each, and
+    ``collect_direct_gain``, the median over the turns of fps(direct) / fps(not direct).
 (w) ``collect_scaling`` (``--workers 1,2``): the collection of (b) at K = ``--workers-roads`` (8) with N env
     processes (``collector.workers=N``: :meth:`MultiTimescaleCollector.from_env` over N
     :class:`~kddrl_trl.collectors.workers.WorkerEnv` factories; N = 1 is the single-process path), the learner's
@@ -73,7 +76,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 
-from kddrl_trl.collectors import MultiTimescaleCollector, capture
+from kddrl_trl.collectors import CapturedPolicy, MultiTimescaleCollector, capture
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
 from kddrl_trl.compiling import inductor_options, resolve_compile  # noqa: E402
 from kddrl_trl.devtools.bench_results import keep_previous  # noqa: E402
@@ -85,8 +88,10 @@ from kddrl_trl.generative import shipped_traffic  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.transforms import (
     DecisionClock,  # noqa: E402
+    PredictiveStack,  # noqa: E402
     make_kddrl_transforms,  # noqa: E402
 )
+from kddrl_trl.transforms.stack import warm_frames  # noqa: E402
 
 CONF = Path(__file__).resolve().parents[1] / "src" / "kddrl_trl" / "conf" / "algo" / "kddrl.yaml"
 FRAMES_PER_ENV = 20  # frames per env row per collected batch in (b) and (w)
@@ -523,7 +528,7 @@ def measure_acting(k: int, calls: int, seed: int, devices: list[torch.device]) -
     for device in devices:
         learner = HierarchicalLearner(**learner_kwargs(False)[0], device=device)
         if device.type == "cpu":
-            arms["cpu"], arms["cpu_captured"] = learner._policy(), capture(learner._policy())
+            arms["cpu"], arms["cpu_captured"] = learner._policy(), capture(learner._policy(), eager_calls=0)
         else:
             arms[str(device)] = _OnDevice(learner._policy(), device)
     rows = {}
@@ -574,9 +579,13 @@ class _Stopwatch:
         object.__setattr__(obj, method, timed)  # on the instance, past nn.Module's own __setattr__
 
 
-def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile: bool | str | None = None) -> dict:
+def measure_collect(
+    k: int, frames: int, seed: int, clock: str = "wall", compile: bool | str | None = None, direct: bool = True
+) -> dict:
     """(b) at ``k`` roads; ``clock="cpu"`` times both arms in CPU seconds of this (single-threaded) process, which a
-    shared, saturated machine does not distort as it does wall time.
+    shared, saturated machine does not distort as it does wall time. ``direct=False``: the compiled stack's every
+    call under TorchDynamo's guards and the policy's own TensorDict modules acting (no
+    :class:`~kddrl_trl.collectors.CapturedPolicy`), as before warm graphs were called directly there.
 
     ``breakdown``: where the collection's time goes, in milliseconds per env step (``k`` ego-frames) and as shares:
     ``env`` (``SumoHighwayEnv`` 's step and partial resets: SUMO and the observation building), ``transforms``
@@ -589,7 +598,14 @@ def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile
     learner = HierarchicalLearner(**learner_kwargs(transform_kwargs(compile)["compile"])[0])  # acts as in training
     env = collect_env(k, compile, seed=seed)
     rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
-    policy = learner.policy()
+    policy = learner.policy() if direct else learner._policy()
+    for part in policy.modules():  # captured from the first call: the steady state of a long run
+        if isinstance(part, CapturedPolicy):
+            part.eager_calls = 0
+    if not direct:
+        for t in env.transform.modules():
+            if isinstance(t, PredictiveStack):
+                warm_frames(t).warmup = 10**9  # every call under TorchDynamo's guards
     mtc = MultiTimescaleCollector.from_env(
         env,
         policy,
@@ -628,6 +644,7 @@ def measure_collect(k: int, frames: int, seed: int, clock: str = "wall", compile
     return {
         "num_roads": k,
         "clock": clock,
+        **({} if direct else {"direct": False}),
         "sim_limit_fps": sim_fps,
         "collect_fps": fps,
         "collect_ratio_vs_sim": fps / sim_fps,
@@ -762,6 +779,14 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "train_throughput.json")
     p.add_argument("--device", default="cpu", help="where (a) runs: cpu | cuda (cuda adds the 'gpu' entry)")
     p.add_argument("--skip-collect", action="store_true", help="leave (b) out")
+    p.add_argument(
+        "--collect-direct-gain",
+        type=int,
+        default=0,
+        metavar="N",
+        help="(b) also without the direct calls (stack graph under TorchDynamo's guards, policy uncaptured), N turns "
+        "each: collect_direct_gain, the median of the turns' fps ratios",
+    )
     p.add_argument("--batch-size-cf", type=int, default=None, help="(a): TD3 minibatch (default: training's 128)")
     p.add_argument(
         "--acting-calls",
@@ -848,6 +873,20 @@ def main(argv=None) -> int:
         if args.skip_collect
         else [measure_collect(k, args.frames, args.seed, args.clock, compile) for k in args.roads]
     )
+    if args.collect_direct_gain and not args.skip_collect:  # the same collection without the direct calls, in turns
+        for c in collect:
+            turns = [
+                (c["collect_fps"], measure_collect(c["num_roads"], args.frames, args.seed, args.clock, compile, False))
+            ]
+            for _ in range(args.collect_direct_gain - 1):
+                on = measure_collect(c["num_roads"], args.frames, args.seed, args.clock, compile)["collect_fps"]
+                off = measure_collect(c["num_roads"], args.frames, args.seed, args.clock, compile, False)
+                turns.append((on, off))
+            c["collect_fps_not_direct"] = [off["collect_fps"] for _, off in turns]
+            c["collect_fps_direct"] = [on for on, _ in turns]
+            c["breakdown_not_direct"] = turns[-1][1]["breakdown"]
+            c["collect_direct_gain"] = statistics.median(on / off["collect_fps"] for on, off in turns)
+            print(f"  K={c['num_roads']}: direct calls earn x{c['collect_direct_gain']:.3f} collection fps", flush=True)
     for c in collect:
         if update is not None:
             c["learner_compile_gain"] = learner_compile_gain(update, c["collect_fps"])

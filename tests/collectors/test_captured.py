@@ -55,7 +55,7 @@ def test_captured_policy_acts_bit_for_bit_as_the_policy_and_calls_warm_graphs_di
     σ: the captured policy's actions are the eager policy's, bit for bit; its parts then run their graphs directly."""
     learner = _learner()
     eager = learner.policy()
-    captured = capture(learner.policy())
+    captured = capture(learner.policy(), eager_calls=3)
     assert isinstance(captured, MultiRatePolicy) and isinstance(captured.cf_policy, CapturedPolicy)
     frames = _frames()
     with torch.no_grad():
@@ -76,13 +76,17 @@ def test_captured_policy_acts_bit_for_bit_as_the_policy_and_calls_warm_graphs_di
 def test_captured_policy_copies_and_pickles_without_its_graphs_and_acts_the_same():
     """A copy (a :class:`PolicySnapshot`'s, a spawned evaluator's pickle) traces again and acts the same."""
     learner = _learner()
-    policy = capture(learner.policy(explore=False))
+    policy = capture(learner.policy(explore=False), eager_calls=0)
     frames = _frames(k=3, n=6)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         _assert_same_actions(learner.policy(explore=False), policy, frames, seed=0)
         for clone in (pickle.loads(pickle.dumps(policy)), copy.deepcopy(policy)):
-            assert clone.cf_policy._warm is None
+            assert clone.cf_policy._warm is None and clone.cf_policy._calls == 0
             _assert_same_actions(policy, clone, frames, seed=0)
+    lazy = capture(learner.policy(explore=False))  # the default: a policy that acts a few times is never traced
+    with torch.no_grad():
+        _assert_same_actions(learner.policy(explore=False), lazy, frames, seed=0)
+    assert lazy.cf_policy._warm is None and lazy.cf_policy._calls == len(frames)
 
 
 def test_a_learner_acts_through_its_captured_policy_when_compiled():

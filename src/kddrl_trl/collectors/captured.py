@@ -38,13 +38,18 @@ class CapturedPolicy(TensorDictModuleBase):
     updates (the optimiser's, the exploration schedules', :meth:`~kddrl_trl.collectors.PolicySnapshot.sync`) act
     at once; what must not change between calls is the module's structure and its Python attributes. Each instance
     traces its own copy of the traced function, so that TorchDynamo keeps its graphs apart from other instances'
-    (its recompile limit counts per function). Nothing compiled is pickled or copied: a copy traces again."""
+    (its recompile limit counts per function). Nothing compiled is pickled or copied: a copy traces again.
 
-    def __init__(self, module: TensorDictModuleBase):
+    The first ``eager_calls`` calls run ``module`` itself (the same actions): tracing costs more than it earns on a
+    policy that acts only a few hundred times, as a validation's copy does, and is paid only by one that goes on
+    acting, as a collector's does."""
+
+    def __init__(self, module: TensorDictModuleBase, eager_calls: int = 2000):
         super().__init__()
         self.module = module
         self.in_keys, self.out_keys = list(module.in_keys), list(module.out_keys)
-        self.__dict__["_warm"] = None
+        self.eager_calls = int(eager_calls)
+        self.__dict__["_warm"], self.__dict__["_calls"] = None, 0
 
     def _caller(self) -> WarmCompiled:
         fn = types.FunctionType(_call.__code__.replace(), _call.__globals__, _call.__name__)  # a code of its own
@@ -53,16 +58,21 @@ class CapturedPolicy(TensorDictModuleBase):
         return self._warm
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        warm = self._warm if self._warm is not None else self._caller()
-        return warm(exploration_type(), self.module, tensordict)
+        if self._warm is None:
+            if self._calls < self.eager_calls:
+                self.__dict__["_calls"] += 1
+                return self.module(tensordict)
+            self._caller()
+        return self._warm(exploration_type(), self.module, tensordict)
 
     def __getstate__(self) -> dict:
-        return {**super().__getstate__(), "_warm": None}
+        return {**super().__getstate__(), "_warm": None, "_calls": 0}
 
 
-def capture(policy: TensorDictModuleBase) -> TensorDictModuleBase:
-    """``policy`` acting through :class:`CapturedPolicy`: a :class:`MultiRatePolicy` 's parts each (its choice of
-    the deciding rows stays in Python), any other policy whole."""
+def capture(policy: TensorDictModuleBase, eager_calls: int = 2000) -> TensorDictModuleBase:
+    """``policy`` acting through :class:`CapturedPolicy` (after ``eager_calls`` calls of its own): a
+    :class:`MultiRatePolicy` 's parts each (its choice of the deciding rows stays in Python), any other policy
+    whole."""
     if isinstance(policy, MultiRatePolicy):
-        return policy.with_parts(CapturedPolicy)
-    return CapturedPolicy(policy)
+        return policy.with_parts(lambda part: CapturedPolicy(part, eager_calls))
+    return CapturedPolicy(policy, eager_calls)
