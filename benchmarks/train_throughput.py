@@ -27,9 +27,8 @@
     too, measured back to back on the same machine. With (a), per K: ``learner_compile_gain`` = the share of the
     training wall time (collection + updates per ego-frame, eager learner) that compiling the learner saves
     (a compile site is kept only where it earns >= 5 %). With ``--collect-direct-gain N``: the same collection
-    without the direct calls (the compiled stack's every call under TorchDynamo's guards, the policy's own TensorDict
-    modules acting instead of :class:`~kddrl_trl.collectors.CapturedPolicy`), N turns each, and
-    ``collect_direct_gain``, the median over the turns of fps(direct) / fps(not direct).
+    with the compiled stack's every call under TorchDynamo's guards instead of its warm graph called directly, N
+    turns each, and ``collect_direct_gain``, the median over the turns of fps(direct) / fps(guarded).
 (w) ``collect_scaling`` (``--workers 1,2``): the collection of (b) at K = ``--workers-roads`` (8) with N env
     processes (``collector.workers=N``: :meth:`MultiTimescaleCollector.from_env` over N
     :class:`~kddrl_trl.collectors.workers.WorkerEnv` factories; N = 1 is the single-process path), the learner's
@@ -76,7 +75,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 
-from kddrl_trl.collectors import CapturedPolicy, MultiTimescaleCollector, capture
+from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
 from kddrl_trl.compiling import inductor_options, resolve_compile  # noqa: E402
 from kddrl_trl.devtools.bench_results import keep_previous  # noqa: E402
@@ -516,41 +515,28 @@ def measure_acting(k: int, calls: int, seed: int, devices: list[torch.device]) -
     TensorDict of the env (fake env + KDDRL transform stack + decision clock, on the CPU as in training), with the
     learner on each of ``devices``: the policy run on that device, its inputs moved there and its actions back
     (for a CUDA learner what TorchRL's ``policy_device`` does). Tells where acting is fastest: training acts on the
-    CPU (:class:`~kddrl_trl.collectors.PolicySnapshot`) because the CPU measured faster. On the CPU also
-    ``cpu_captured``: the policy through :func:`kddrl_trl.collectors.capture`, as a compiling learner acts, and
-    ``captured_gain`` = the plain policy's time / the captured one's."""
+    CPU (:class:`~kddrl_trl.collectors.PolicySnapshot`) because the CPU measured faster."""
     env = TransformedEnv(
         FakeHighwayEnv(num_roads=k, seed=seed),
         Compose(make_kddrl_transforms(seed=seed), DecisionClock(learner_kwargs(False)[1])),
     )
     td = env.reset()
-    arms = {}
+    rows = {}
     for device in devices:
         learner = HierarchicalLearner(**learner_kwargs(False)[0], device=device)
-        if device.type == "cpu":
-            arms["cpu"], arms["cpu_captured"] = learner._policy(), capture(learner._policy(), eager_calls=0)
-        else:
-            arms[str(device)] = _OnDevice(learner._policy(), device)
-    rows = {}
-    for name, policy in arms.items():
+        policy = learner._policy() if device.type == "cpu" else _OnDevice(learner._policy(), device)
         with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):  # exploring, as a collector acts
             for _ in range(20):
                 policy(td.clone())
-            _sync(torch.device(name.split("_")[0]))
+            _sync(device)
             t0 = time.perf_counter()
             for _ in range(calls):
                 policy(td.clone())
-            _sync(torch.device(name.split("_")[0]))
-        rows[name] = 1e3 * (time.perf_counter() - t0) / calls
-        print(f"  acting policy, {name}, K={k}: {rows[name]:.2f} ms per call", flush=True)
+            _sync(device)
+        rows[str(device)] = 1e3 * (time.perf_counter() - t0) / calls
+        print(f"  acting policy, learner on {device}, K={k}: {rows[str(device)]:.2f} ms per call", flush=True)
     env.close()
-    return {
-        "num_roads": k,
-        "calls": calls,
-        "ms_per_call": rows,
-        "fastest": min(rows, key=rows.get),
-        **({"captured_gain": rows["cpu"] / rows["cpu_captured"]} if "cpu" in rows else {}),
-    }
+    return {"num_roads": k, "calls": calls, "ms_per_call": rows, "fastest": min(rows, key=rows.get)}
 
 
 class _Stopwatch:
@@ -584,8 +570,8 @@ def measure_collect(
 ) -> dict:
     """(b) at ``k`` roads; ``clock="cpu"`` times both arms in CPU seconds of this (single-threaded) process, which a
     shared, saturated machine does not distort as it does wall time. ``direct=False``: the compiled stack's every
-    call under TorchDynamo's guards and the policy's own TensorDict modules acting (no
-    :class:`~kddrl_trl.collectors.CapturedPolicy`), as before warm graphs were called directly there.
+    call under TorchDynamo's guards, as before its warm graph was called directly
+    (:func:`kddrl_trl.transforms.stack.warm_frames`).
 
     ``breakdown``: where the collection's time goes, in milliseconds per env step (``k`` ego-frames) and as shares:
     ``env`` (``SumoHighwayEnv`` 's step and partial resets: SUMO and the observation building), ``transforms``
@@ -595,13 +581,10 @@ def measure_collect(
     copies). The parts are timed around those calls only, so nothing else is counted twice."""
     timer = CLOCKS[clock]
     sim_fps, _ = measure_sim("baseline", k, seed, frames // k, 20, timer=timer)
-    learner = HierarchicalLearner(**learner_kwargs(transform_kwargs(compile)["compile"])[0])  # acts as in training
+    learner = HierarchicalLearner(**learner_kwargs(False)[0])
     env = collect_env(k, compile, seed=seed)
     rb_cf, rb_lc = make_buffer(frames * 2, 256, seed), make_buffer(frames, 64, seed)
-    policy = learner.policy() if direct else learner._policy()
-    for part in policy.modules():  # captured from the first call: the steady state of a long run
-        if isinstance(part, CapturedPolicy):
-            part.eager_calls = 0
+    policy = learner.policy()
     if not direct:
         for t in env.transform.modules():
             if isinstance(t, PredictiveStack):
@@ -784,8 +767,8 @@ def main(argv=None) -> int:
         type=int,
         default=0,
         metavar="N",
-        help="(b) also without the direct calls (stack graph under TorchDynamo's guards, policy uncaptured), N turns "
-        "each: collect_direct_gain, the median of the turns' fps ratios",
+        help="(b) also with the stack's graph under TorchDynamo's guards, N turns each: collect_direct_gain, the "
+        "median of the turns' fps ratios",
     )
     p.add_argument("--batch-size-cf", type=int, default=None, help="(a): TD3 minibatch (default: training's 128)")
     p.add_argument(

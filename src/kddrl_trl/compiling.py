@@ -2,9 +2,7 @@
 
 The sites themselves are :func:`kddrl_trl.transforms.stack.compiled_frames` (the fused predictive-state stack)
 and the learner's gradient function (:meth:`kddrl_trl.training.Learner._compile`, for every learner; its measured
-gain is stated on :class:`kddrl_trl.training.HierarchicalLearner`), both called through :class:`WarmCompiled`. A
-compiling learner's acting policy is captured by TorchDynamo without compiling its arithmetic
-(:class:`kddrl_trl.collectors.CapturedPolicy`).
+gain is stated on :class:`kddrl_trl.training.HierarchicalLearner`), both called through :class:`WarmCompiled`.
 """
 
 from __future__ import annotations

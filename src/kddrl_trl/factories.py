@@ -23,9 +23,8 @@ into one part, and holds no algorithm. Also the final evaluation ``train.py`` an
 =============================  ===========================================================================
 
 ``compile`` (the top-level ``compile: true | false | auto`` key) reaches the two compile sites: the fused
-transform stack (:func:`make_transforms`) and the learner's update (:func:`make_learner`), whose acting policy is
-then captured too (:class:`~kddrl_trl.collectors.CapturedPolicy`); a learner that only acts is built with
-``compile=False``. ``device`` (``auto | cpu | cuda``) places the learner
+transform stack (:func:`make_transforms`) and the learner's update (:func:`make_learner`); a learner that
+only acts is built with ``compile=False``. ``device`` (``auto | cpu | cuda``) places the learner
 (:func:`make_learner`, :func:`load_trained_learner`) and its buffers (:func:`make_buffers`), ``cudagraphs`` graphs
 its compiled updates on CUDA; the env, SUMO, the transforms and acting stay on the CPU.
 """

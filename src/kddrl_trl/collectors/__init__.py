@@ -3,7 +3,6 @@ clock itself is a transform: :class:`kddrl_trl.transforms.DecisionClock`), and t
 macro-transitions. None of it is specific to
 SUMO: any TorchRL env batch and any pair of TensorDict policies."""
 
-from .captured import CapturedPolicy, capture
 from .collector import MultiTimescaleCollector
 from .macro import MacroTransitionWriter
 from .overlap import OverlappedCollector
@@ -11,11 +10,9 @@ from .policy import MultiRatePolicy
 from .snapshot import PolicySnapshot
 
 __all__ = [
-    "CapturedPolicy",
     "MacroTransitionWriter",
     "MultiRatePolicy",
     "MultiTimescaleCollector",
     "OverlappedCollector",
     "PolicySnapshot",
-    "capture",
 ]

@@ -64,20 +64,6 @@ class MultiRatePolicy(TensorDictModuleBase):
         self.extra_out_keys = tuple(extra_out_keys)
         self.lc_in_keys = _keys(lc_policy)
 
-    def with_parts(self, wrap) -> MultiRatePolicy:
-        """The same policy (keys and clocks) with each part ``wrap(part)``: the lane-change, car-following and
-        shared modules (e.g. :class:`~kddrl_trl.collectors.captured.CapturedPolicy`)."""
-        return MultiRatePolicy(
-            wrap(self.lc_policy),
-            wrap(self.cf_policy),
-            wrap(self.shared) if self.shared is not None else None,
-            decide_key=self.decide_key,
-            held_key=self.held_key,
-            lc_action_key=self.lc_action_key,
-            cf_action_key=self.cf_action_key,
-            extra_out_keys=self.extra_out_keys,
-        )
-
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         work = tensordict.select(*self.in_keys, strict=False)

@@ -49,7 +49,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from .. import keys as K
-from ..collectors import PolicySnapshot, capture
+from ..collectors import PolicySnapshot
 from ..compiling import GraphedUpdate, WarmCompiled, inductor_options, resolve_cudagraphs, resolved
 from .adam import FusedAdam
 
@@ -156,10 +156,9 @@ class Learner(nn.Module):
 
     def policy(self, explore: bool = True) -> TensorDictModuleBase:
         """The acting policy (exploration modules act only under ``ExplorationType.RANDOM``) for env TensorDicts
-        on the CPU: :meth:`_policy`, with ``compile`` through :func:`~kddrl_trl.collectors.capture` (the same
-        actions, bit for bit); a non-CPU learner's is a CPU copy, :class:`~kddrl_trl.collectors.PolicySnapshot`
-        (acting is faster on the CPU, measured)."""
-        policy = capture(self._policy(explore)) if self.compiled else self._policy(explore)
+        on the CPU: :meth:`_policy`; a non-CPU learner's is a CPU copy,
+        :class:`~kddrl_trl.collectors.PolicySnapshot` (acting is faster on the CPU, measured)."""
+        policy = self._policy(explore)
         return policy if self.device.type == "cpu" else PolicySnapshot(policy)
 
     # ------------------------------------------------------------------------------- to implement
