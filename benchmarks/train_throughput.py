@@ -77,7 +77,7 @@ from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 
 from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
-from kddrl_trl.compiling import inductor_options, resolve_compile  # noqa: E402
+from kddrl_trl.compiling import inductor_options, resolve_compile, tracing_gradients  # noqa: E402
 from kddrl_trl.devtools.bench_results import keep_previous  # noqa: E402
 from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
@@ -263,8 +263,6 @@ class DynamoFrames:
         self.fn, self.warmup, self.calls = fn, warmup, {}
 
     def __call__(self, name: str, *args):
-        from kddrl_trl.compiling import tracing_gradients
-
         self.calls[name] = self.calls.get(name, 0) + 1
         if self.calls[name] <= self.warmup:
             with tracing_gradients():

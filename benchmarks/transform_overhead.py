@@ -18,8 +18,8 @@ traffic, so the drifts of this noisy machine hit all alike. Every arm steps with
 arm's cost ``1 - fps_arm / fps_none`` (time summed over all turns; the median of the per-turn ratios beside
 it), what compiling earns: ``compile_gain = fps_compiled / fps_eager - 1`` (collection fps; a compile site is
 kept only where it earns >= 5 %), and what calling the warm graph directly earns:
-``direct_call_gain = fps_compiled / fps_compiled_dynamo - 1``. Goal: cost of the default compiled stack <= 25 % at K = 32. Prints a table
-and writes ``benchmarks/results/transform_overhead.json``.
+``direct_call_gain = fps_compiled / fps_compiled_dynamo - 1``. Goal: cost of the default compiled stack <= 25 % at
+K = 32. Prints a table and writes ``benchmarks/results/transform_overhead.json``.
 
     python benchmarks/transform_overhead.py [--roads 1 8 32] [--frames 1500] [--segment 50]
 """

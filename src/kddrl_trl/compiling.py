@@ -211,9 +211,10 @@ class WarmCompiled:
                 direct = self.direct[key] = self._warm_function(name, *args)
                 if direct is None:
                     log.info(
-                        "the warm compiled step %r has no graph to call directly (a graph break, or TorchDynamo's "
+                        "the warm compiled %s (%s) has no graph to call directly (a graph break, or TorchDynamo's "
                         "recompile limit reached): its calls stay under TorchDynamo",
-                        name,
+                        self._func.__qualname__,
+                        name if isinstance(name, str) else type(name).__name__,  # a loss name, not a members' repr
                     )
         if direct is not None:
             try:
