@@ -16,7 +16,11 @@
     :func:`kddrl_trl.compiling.inductor_options` drops; ``size_asserts_gain`` = its time / the compiled arm's; and
     ``compiled_dynamo_frames``: the same graphs called through TorchDynamo's frame evaluation with most guards
     skipped (:class:`DynamoFrames`) instead of directly (:class:`kddrl_trl.compiling.WarmCompiled`);
-    ``direct_call_gain`` = its time / the compiled arm's.
+    ``direct_call_gain`` = its time / the compiled arm's; and ``compiled_torch_adam``: the learner's optimisers as
+    ``torch.optim.Adam(fused=True)``, each stepped by its own ``step()``, instead of :mod:`kddrl_trl.training.adam`'s
+    lean steps (:func:`~kddrl_trl.training.adam.step_all`); ``lean_adam_gain`` = its time / the compiled arm's.
+    Every timed pass starts from batches without the ``keys.PRIORITY`` an update writes into them, as a fresh
+    sample in training does (a key more is another graph signature, compiled inside the timed pass).
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
     ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is
     found) + DecisionClock + both exploring policies through
@@ -69,12 +73,14 @@ from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
+from tensordict import TensorDictBase
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 
+from kddrl_trl import keys as K  # noqa: E402
 from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402
 from kddrl_trl.compiling import inductor_options, resolve_compile, tracing_gradients  # noqa: E402
@@ -85,6 +91,7 @@ from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
 from kddrl_trl.eval.records import record_bytes  # noqa: E402
 from kddrl_trl.generative import shipped_traffic  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
+from kddrl_trl.training.base import adam  # noqa: E402
 from kddrl_trl.transforms import (
     DecisionClock,  # noqa: E402
     PredictiveStack,  # noqa: E402
@@ -158,15 +165,25 @@ def _sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
+def _unprioritized(batches: list) -> list:
+    """``batches`` without the ``keys.PRIORITY`` an update wrote into them (a TensorDict's, in place)."""
+    for b in batches:
+        if isinstance(b, TensorDictBase) and K.PRIORITY in b.keys():
+            del b[K.PRIORITY]
+    return batches
+
+
 def time_updates(
     update_cf, update_lc, cf_batches, lc_batches, lc_period: int, device: torch.device = torch.device("cpu")
 ) -> tuple[float, float, float]:
-    """Seconds per TD3 update, per D3QN update, and per frame (TD3 + D3QN / lc_period)."""
+    """Seconds per TD3 update, per D3QN update, and per frame (TD3 + D3QN / lc_period), each pass on batches as
+    fresh samples come (:func:`_unprioritized`)."""
     n = len(cf_batches)
-    for b in cf_batches[:10]:
+    for b in _unprioritized(cf_batches)[:10]:
         update_cf(b)
-    for b in lc_batches[:5]:
+    for b in _unprioritized(lc_batches)[:5]:
         update_lc(b)
+    _unprioritized(cf_batches), _unprioritized(lc_batches)
     _sync(device)
     t0 = time.perf_counter()
     for b in cf_batches:
@@ -199,7 +216,7 @@ def measure_update(
     names = ("plain", "eager", "compiled") + (
         ("compiled_cpu_batches",)
         if device.type == "cuda"
-        else ("compiled_python_wrapper", "compiled_size_asserts", "compiled_dynamo_frames")
+        else ("compiled_python_wrapper", "compiled_size_asserts", "compiled_dynamo_frames", "compiled_torch_adam")
     )
     on_device = [b.to(device) for b in cf_batches], [b.to(device) for b in lc_batches]  # as the buffers sample
     for name in names:
@@ -224,6 +241,8 @@ def measure_update(
                 recompiled_step(learner, "step_size_asserts", {"cpp_wrapper": True})
             if name == "compiled_dynamo_frames":
                 recompiled_step(learner, "step_dynamo_frames", inductor_options("cpu"), caller=DynamoFrames)
+            if name == "compiled_torch_adam":
+                torch_adam(learner)
             arms[name] = (learner.update_cf, learner.update_lc, *on_device)
     runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
     for _ in range(repeats):
@@ -286,6 +305,16 @@ def recompiled_step(learner: HierarchicalLearner, name: str, options: dict, call
     copy = FunctionType(fn.__code__.replace(co_name=name), fn.__globals__, name)
     bound = copy.__get__(learner)
     learner.__dict__["_gradients"] = (caller or WarmCompiled)(torch.compile(bound, dynamic=False, options=options))
+
+
+def torch_adam(learner: HierarchicalLearner) -> None:
+    """The arm ``compiled_torch_adam``: ``learner``'s optimisers, before its first update, as
+    ``torch.optim.Adam(fused=True)`` on the same parameters and learning rates (no lean step: each steps through
+    ``torch.optim``, its own kernel call)."""
+    for attr in ("opt_lc", "opt_critic", "opt_actor", "opt_embed"):
+        opt = getattr(learner, attr)
+        if opt is not None:
+            setattr(learner, attr, adam(opt.param_groups[0]["params"], opt.param_groups[0]["lr"], lean=False))
 
 
 def python_wrapper(learner: HierarchicalLearner) -> None:
@@ -928,6 +957,8 @@ def main(argv=None) -> int:
             result["size_asserts_gain"] = (
                 update["compiled_size_asserts"]["per_frame_s"] / update["compiled"]["per_frame_s"]
             )
+        if "compiled_torch_adam" in update:  # what the lean optimiser steps earn: > 1.0 is a gain
+            result["lean_adam_gain"] = update["compiled_torch_adam"]["per_frame_s"] / update["compiled"]["per_frame_s"]
         if "compiled_dynamo_frames" in update:  # what calling warm graphs directly earns: > 1.0 is a gain
             result["direct_call_gain"] = (
                 update["compiled_dynamo_frames"]["per_frame_s"] / update["compiled"]["per_frame_s"]

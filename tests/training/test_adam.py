@@ -1,5 +1,6 @@
 """``FusedAdam`` (the learners' CPU optimiser) against ``torch.optim.Adam(fused=True)``: the same bits, the same
-state, checkpoints either way, the full step wherever the lean one does not apply, hooks once per step."""
+state, checkpoints either way, the full step wherever the lean one does not apply, hooks once per step; ``step_all``:
+several optimisers' lean steps in shared kernel calls, with the bits of one ``step()`` each."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import torch
 from testkit import SMALL
 
 from kddrl_trl.training import HierarchicalLearner
-from kddrl_trl.training.adam import FusedAdam
+from kddrl_trl.training.adam import FusedAdam, step_all
 from kddrl_trl.training.base import adam
 
 SHAPES = [(16, 7), (16,), (16, 16), (16,), (1, 16), (1,)]
@@ -100,3 +101,51 @@ def test_the_learners_cpu_optimisers_are_lean_and_the_plain_ones_are_torchs():
     learner = HierarchicalLearner(**SMALL)
     assert all(type(o) is FusedAdam for o in learner.optimizers().values())
     assert type(adam(params(), 1e-3, lean=False)) is torch.optim.Adam
+
+
+def _step_all_run(lrs, n: int, hook=None, patch=False):
+    """``n`` gradient steps of optimisers with learning rates ``lrs`` over their own copies of :func:`params`, by
+    :func:`step_all` (FusedAdam) and by ``torch.optim.Adam(fused=True)`` stepped one by one; the two runs' tensors."""
+    g = torch.Generator().manual_seed(4)
+    sets = [(params(i), params(i)) for i in range(len(lrs))]
+    ours = [FusedAdam(a, lr=lr) for (a, _), lr in zip(sets, lrs)]
+    ref = [torch.optim.Adam(b, lr=lr, fused=True) for (_, b), lr in zip(sets, lrs)]
+    if hook is not None:
+        ours[-1].register_step_post_hook(hook)
+    if patch:  # as an LR scheduler patches an optimiser's step on the instance
+        plain_step = ours[0].step
+        ours[0].step = lambda *a, **k: (calls.append(1), plain_step(*a, **k))[1]
+    calls = []
+    for _ in range(n):
+        for a, b in sets:
+            for pa, pb in zip(a, b):
+                pa.grad = pb.grad = torch.randn(pa.shape, generator=g)
+        step_all(ours)
+        for o in ref:
+            o.step()
+    return sets, ours, ref, calls
+
+
+def test_step_all_gives_each_optimisers_own_steps_bits_in_shared_kernel_calls():
+    sets, ours, ref, _ = _step_all_run([1e-2, 1e-2, 3e-3], 12)
+    for (a, b), oa, ob in zip(sets, ours, ref):
+        assert_same(a, oa, b, ob)  # the parameters and every state tensor, bit for bit
+    assert all(o._tensors is not None for o in ours)  # all three took the lean step
+    # the step counters are views of one tensor of each optimiser's, still each parameter's own state["step"]
+    for o, (a, _) in zip(ours, sets):
+        flat = o._tensors[4]
+        assert all(o.state[p]["step"]._base is flat for p in a) and torch.equal(flat, torch.full((len(a),), 12.0))
+        saved = o.state_dict()["state"][0]["step"]
+        assert saved.dim() == 0 and float(saved) == 12.0
+
+
+def test_step_all_leaves_a_watched_optimiser_to_its_own_step():
+    post = []
+    sets, ours, ref, _ = _step_all_run([1e-2, 1e-2], 5, hook=lambda *a: post.append(1))
+    assert len(post) == 5  # the hook ran on every step: step_all called step() of each
+    for (a, b), oa, ob in zip(sets, ours, ref):
+        assert_same(a, oa, b, ob)
+    sets, ours, ref, calls = _step_all_run([1e-2, 1e-2], 5, patch=True)
+    assert len(calls) == 5  # the step patched on the instance ran every time
+    for (a, b), oa, ob in zip(sets, ours, ref):
+        assert_same(a, oa, b, ob)

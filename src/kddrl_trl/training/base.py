@@ -51,7 +51,7 @@ from torch import nn
 from .. import keys as K
 from ..collectors import PolicySnapshot
 from ..compiling import GraphedUpdate, WarmCompiled, inductor_options, resolve_cudagraphs, resolved
-from .adam import FusedAdam
+from .adam import FusedAdam, step_all
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
 STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
@@ -219,16 +219,15 @@ class Learner(nn.Module):
     def _descend(self, name: str, batch: TensorDictBase, *optimizers: torch.optim.Optimizer | None):
         """One gradient step on the loss ``name`` of ``batch``: the gradients of :meth:`_gradients` become the
         parameters' ``grad`` (what ``zero_grad`` then ``backward`` would leave), then each optimiser steps (None
-        entries skipped). The parameters a step trains are its optimisers' own, in their order. Returns the detached
-        loss and the ``|δ|`` (or None)."""
+        entries skipped; :func:`~.adam.step_all`: lean ones share their fused kernel call). The parameters a step
+        trains are its optimisers' own, in their order. Returns the detached loss and the ``|δ|`` (or None)."""
         opts = [o for o in optimizers if o is not None]
         if name not in self._trained:
             self._trained[name] = tuple(p for o in opts for g in o.param_groups for p in g["params"])
         losses, priority, grads = self._gradients(name, batch)
         for p, g in zip(self._trained[name], grads, strict=True):
             p.grad = g
-        for o in opts:
-            o.step()
+        step_all(opts)
         return losses, priority
 
     def full_state_dict(self) -> dict:
