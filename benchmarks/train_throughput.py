@@ -615,7 +615,7 @@ def measure_collect(
     if not direct:
         for t in env.transform.modules():
             if isinstance(t, PredictiveStack):
-                warm_frames(t).warmup = 10**9  # every call under TorchDynamo's guards
+                warm_frames(t).guard_every_call()
     mtc = MultiTimescaleCollector.from_env(
         env,
         policy,

@@ -54,7 +54,7 @@ def make_arm(name: str, seed: int):
         return None
     stack = make_kddrl_transforms(seed=seed, compile=name.startswith("compiled"))
     if name == "compiled_dynamo":
-        warm_frames(stack).warmup = 10**9  # every call under TorchDynamo's guards
+        warm_frames(stack).guard_every_call()
     return stack
 
 

@@ -198,6 +198,13 @@ class WarmCompiled:
         self.calls: dict = {}  # signature -> calls made with every guard
         self.direct: dict = {}  # signature -> the warm graph's function, called without TorchDynamo, or None
 
+    def guard_every_call(self) -> WarmCompiled:
+        """From now on every call runs under TorchDynamo's guards, none directly: what a benchmark or a test compares
+        the direct calls with. Returns ``self``."""
+        self.warmup = float("inf")
+        self.direct.clear()
+        return self
+
     def __call__(self, name: str, *args):
         try:
             key = (name, *map(_signature, args))
@@ -209,12 +216,15 @@ class WarmCompiled:
             direct = None
             if self.calls.get(key, 0) >= self.warmup:
                 direct = self.direct[key] = self._warm_function(name, *args)
-                if direct is None:
+                label = name if isinstance(name, str) else type(name).__name__  # a loss name, not a members' repr
+                if direct is not None:
+                    log.debug("the warm compiled %s (%s): a signature called directly", self._func.__qualname__, label)
+                else:
                     log.info(
                         "the warm compiled %s (%s) has no graph to call directly (a graph break, or TorchDynamo's "
                         "recompile limit reached): its calls stay under TorchDynamo",
                         self._func.__qualname__,
-                        name if isinstance(name, str) else type(name).__name__,  # a loss name, not a members' repr
+                        label,
                     )
         if direct is not None:
             try:

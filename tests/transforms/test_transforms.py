@@ -679,7 +679,7 @@ def test_compiled_stack_calls_its_warm_graph_directly_with_the_same_bits():
         pytest.skip("torch.compile needs a C++ compiler on a CPU machine")
     frames = FakeHighwayEnv(num_roads=3, seed=7).rollout(6, break_when_any_done=False)["next"]
     direct, guarded = make_kddrl_transforms(seed=5, compile=True), make_kddrl_transforms(seed=5, compile=True)
-    warm_frames(guarded).warmup = 10**9  # never warm: every call under TorchDynamo's guards
+    warm_frames(guarded).guard_every_call()  # never warm: every call under TorchDynamo's guards
     for t in range(frames.shape[1]):  # the noise streams advance alike in both
         a, b = direct(frames[:, t].clone()), guarded(frames[:, t].clone())
         for key in DERIVED:
