@@ -3,8 +3,8 @@
 For batches of 1, 8 and 32 environments (x 3 leaders) this times, in one run, one call of
 ``TrajGANPredictor`` (one sample, and the mean of K = 8 samples) and of ``LCGANPredictor`` built from
 the weights shipped with the package, on raw observations of ``FakeHighwayEnv`` plus the IDM prior
-and key gaps from the transforms ``IDMPrior`` + ``KeyGapsFromPrior``, i.e. inputs of the right shapes and ranges. Prints a table
-(median microseconds per call and per environment) and writes ``benchmarks/results/gan_inference.json``.
+and key gaps from the transforms ``IDMPrior`` + ``KeyGapsFromPrior``, i.e. inputs of the right shapes and ranges. Prints
+a table (median microseconds per call and per environment) and writes ``benchmarks/results/gan_inference.json``.
 
     python benchmarks/gan_inference.py [--envs 1 8 32] [--calls 300] [--device cpu]
 """

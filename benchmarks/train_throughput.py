@@ -9,8 +9,9 @@
     target with masked argmax, twin critics with clipped target smoothing, the D3QN's greedy next lane-change
     action on decision frames in the TD3 target, delayed actor on detached s_e, Polyak updates of every target
     incl. the embedding's; :class:`PlainKDDRL`, proved equal by ``tests/training/test_learner_update.py``).
-    ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs nothing extra). Replay sampling is outside the timed part for both.
-    On the CPU also ``compiled_python_wrapper``: the compiled learner with TorchInductor's Python wrapper instead
+    ``update_ratio_vs_plain`` = plain time / ours (>= 1.0: TorchRL costs nothing extra). Replay sampling is outside the
+    timed part for both. On the CPU also ``compiled_python_wrapper``: the compiled learner with TorchInductor's Python
+    wrapper instead
     of the C++ one (:func:`python_wrapper`); ``cpp_wrapper_gain`` = its time / the compiled arm's; and
     ``compiled_size_asserts``: the C++ wrapper with TorchInductor's size asserts, which
     :func:`kddrl_trl.compiling.inductor_options` drops; ``size_asserts_gain`` = its time / the compiled arm's; and
@@ -46,8 +47,8 @@
     training times and whether the two runs' training (and evaluation) records are identical.
 
     python benchmarks/train_throughput.py [--roads 8] [--updates 200] [--frames 2000] [--clock wall|cpu]
-                                          [--full-run runs/... [--baseline-run runs/...]] [--device cpu|cuda] [--skip-collect]
-                                          [--workers 1,2] [--skip-update] [--compile auto|true|false]
+                                          [--full-run runs/... [--baseline-run runs/...]] [--device cpu|cuda]
+                                          [--skip-collect] [--workers 1,2] [--skip-update] [--compile auto|true|false]
 
 ``--device cuda`` runs (a) on the GPU: the learner (compiled arm: compiled update functions in
 ``CudaGraphModule``, capturable Adam), the plain reference's networks and the batches moved there, and writes a

@@ -17,8 +17,9 @@ and the batch is ``train.batch_size_cf`` of ``conf/config.yaml``. The shared emb
 out of both arms: this is the TD3 part of the update, not the learner's whole update. The target-smoothing noise
 (Eq. 6) is drawn once per batch, outside both arms, so both compute the same update. ``equivalence`` says how
 far apart the two arms' weights are after 1, 10 and 200 of the same updates from the same start: float rounding
-(the graph orders the arithmetic its own way), which Adam's normalised steps then let drift apart. The floor is the update's FLOPs (``torch.utils.flop_counter``) over the GEMM rate
-at its shapes (:func:`train_throughput.gemm_rate`), as ``train_throughput.py --floor`` computes it for the learner.
+(the graph orders the arithmetic its own way), which Adam's normalised steps then let drift apart. The floor is the
+update's FLOPs (``torch.utils.flop_counter``) over the GEMM rate at its shapes (:func:`train_throughput.gemm_rate`), as
+``train_throughput.py --floor`` computes it for the learner.
 
 (L) The same structure on the learner itself: the learner's critic step (the TD3 critics and the shared embedding,
 Eq. 6-7 and 23-24, TorchRL's ``TD3Loss`` inside) as the learner runs it, against one compiled graph of it

@@ -157,7 +157,8 @@ def make_transforms(
 ) -> Compose:
     """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
     ``algo.transforms`` (none with ``enabled: false``; ``weights: auto`` takes the GAN weights trained on the
-    traffic of ``simulator``, :func:`kddrl_trl.generative.shipped_traffic`) and MOBIL's criteria (``mobil_criteria: true``,
+    traffic of ``simulator``, :func:`kddrl_trl.generative.shipped_traffic`) and MOBIL's criteria (``mobil_criteria:
+    true``,
     :class:`~kddrl_trl.transforms.MOBILCriteria`); MOBIL's safety mask where ``algo.mobil_safety_mask``
     (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
     :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
@@ -286,7 +287,8 @@ def make_collector(
     ``env.num_roads``), run in this process or in ``collector.workers`` workers of ``collector.backend``
     (:meth:`MultiTimescaleCollector.from_env`). ``lc_reward`` (``algo.lc_reward``): ``frames`` sums the per-frame
     lane-change rewards of a macro-transition (Algorithm 1 line 35); ``decision`` counts the efficiency term the env
-    writes (``keys.EFFICIENCY_TERM``) once per decision (§III.G, :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
+    writes (``keys.EFFICIENCY_TERM``) once per decision (§III.G,
+    :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
     from .collectors import MacroTransitionWriter
 
     if lc_reward not in LC_REWARDS:

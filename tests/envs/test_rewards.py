@@ -67,7 +67,8 @@ def test_safe_differs_from_the_paper_only_below_v_min():
 
 
 def test_both_envs_use_the_configured_variant():
-    """The fake env computes its rewards with the same functions and config (the SUMO env: tests/envs/test_env_sumo.py)."""
+    """The fake env computes its rewards with the same functions and config (the SUMO env:
+    tests/envs/test_env_sumo.py)."""
     import torch.nn.functional as F
 
     from kddrl_trl import keys as K

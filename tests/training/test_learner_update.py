@@ -274,8 +274,9 @@ def learner_tensors(learner: HierarchicalLearner) -> dict:
 
 
 def test_benchmark_plain_reference_makes_the_learners_update(samples):
-    """``PlainKDDRL`` (the plain-PyTorch reference, ``kddrl_trl.devtools.plain_kddrl``, the benchmark's plain arm) computes the learner's
-    update: from the same weights, on the same batches, with the same TD3 target noise (same seeds), both reach the
+    """``PlainKDDRL`` (the plain-PyTorch reference, ``kddrl_trl.devtools.plain_kddrl``, the benchmark's plain arm)
+    computes the learner's update: from the same weights, on the same batches, with the same TD3 target noise (same
+    seeds), both reach the
     same networks and targets after 6 TD3 and 3 D3QN updates, the D3QN's greedy next lane-change action in the TD3
     target (F6) included: the batches hold decision frames where it differs from the held action."""
     frames, macros = samples
@@ -311,8 +312,9 @@ def test_benchmark_plain_reference_makes_the_learners_update(samples):
 
 
 def test_benchmark_results_keep_what_a_run_did_not_measure_and_say_which_run_did():
-    """``keep_previous`` (the results merger of ``benchmarks/train_throughput.py``): a run that measured only the full job keeps the previous file's update
-    and GPU figures, each attributed to the run that made it, across two merges; this run's own figure wins."""
+    """``keep_previous`` (the results merger of ``benchmarks/train_throughput.py``): a run that measured only the full
+    job keeps the previous file's update and GPU figures, each attributed to the run that made it, across two merges;
+    this run's own figure wins."""
     run = lambda note: {"args": {"n": note}, "machine": {}, "note": note}  # noqa: E731
     gpu_file = {**run("gpu"), "gpu": {"td3": 2125}, "update": {"x": 1}}
     cpu = {**run("cpu"), "update": {"x": 2}, "gpu": None, "collect": []}

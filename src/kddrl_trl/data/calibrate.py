@@ -154,7 +154,8 @@ def write_calibration(result: Mapping[str, Any], path: str | os.PathLike) -> Non
 
     ``env: drivers:`` is a valid ``make_config`` override: one entry per fitted class with its share, IDM
     parameters and (when estimated from >= 5 per-vehicle fits) spread; the lane-change eagerness (and the
-    spread otherwise) are those of the default class of the same name (``DriverClass`` defaults otherwise). ``idm:`` holds the population fit, ``mobil:`` the MOBIL fit.
+    spread otherwise) are those of the default class of the same name (``DriverClass`` defaults otherwise). ``idm:``
+    holds the population fit, ``mobil:`` the MOBIL fit.
     """
     import yaml
 

@@ -2,8 +2,9 @@
 D3QN's greedy next lane command in its target, the D3QN update of Eqs. 5-7, Polyak updates of every target):
 the same network modules and arithmetic on plain tensors, no TensorDict, no TorchRL.
 
-Two uses: ``benchmarks/train_throughput.py`` times it as the ``plain`` arm, and ``tests/training/test_learner_update.py``
-checks that :class:`~kddrl_trl.training.HierarchicalLearner` reaches the same parameters from the same weights
+Two uses: ``benchmarks/train_throughput.py`` times it as the ``plain`` arm, and
+``tests/training/test_learner_update.py`` checks that :class:`~kddrl_trl.training.HierarchicalLearner` reaches the same
+parameters from the same weights
 and batches (a test oracle, not part of the pipeline).
 """
 
@@ -31,7 +32,8 @@ def _loaded(module: torch.nn.Module, params, prefix: str) -> torch.nn.Module:
 class PlainKDDRL:
     """The same update as ``HierarchicalLearner`` in plain PyTorch on tensors (no TensorDict, no TorchRL), on the
     learner's device (all its network copies and optimisers there). Item by item what the learner computes
-    (``tests/training/test_learner_update.py`` checks that both reach the same parameters from the same weights and batches):
+    (``tests/training/test_learner_update.py`` checks that both reach the same parameters from the same weights and
+    batches):
 
     - TD3 critic step (``TD3Loss.value_loss``, Eq. 6-7): the target action ``clip(mu'(s') + clip(eps, -c, c))``,
       ``eps ~ N(0, policy_noise)`` drawn first (``randn_like`` of the action, as ``TD3Loss`` does), the min of the two

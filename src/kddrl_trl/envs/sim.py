@@ -57,8 +57,8 @@ class HighwaySim:
             parameter draws, ego designation, braking events). Same seed -> identical rollouts.
 
     Outputs of a frame (:meth:`outputs`): ``obs`` (every raw key of ``kddrl_trl.keys``), ``reward_lc``,
-    ``reward_cf`` and their named ``terms``, ``terminated``, ``truncated``. A road whose episode ended keeps the outputs of its final
-    frame until it is reset.
+    ``reward_cf`` and their named ``terms``, ``terminated``, ``truncated``. A road whose episode ended keeps the outputs
+    of its final frame until it is reset.
     """
 
     def __init__(self, cfg: HighwayConfig, num_roads: int, seed: int = 0):

@@ -6,8 +6,8 @@ The seed (run) is the unit of evidence: each run's evaluation episodes give one 
 percentile-bootstrap CI over seeds (:mod:`kddrl_trl.eval.stats`). ``report.json`` is the machine-readable form:
 a list of rows ``{"algo", "scenario", "seeds", "episodes", "metrics": {name: {"mean", "ci_low", "ci_high"}}}``. A policy
 evaluated on another scenario than it was trained on (``+scenario=mixed`` with ``eval_scenarios``, or
-``kddrl_trl.evaluate``) is its own row, ``"<algo> (trained on <scenario>)"`` (:func:`~kddrl_trl.eval.records.algo_label`),
-compared with the reference trained on the scenario evaluated.
+``kddrl_trl.evaluate``) is its own row, ``"<algo> (trained on <scenario>)"``
+(:func:`~kddrl_trl.eval.records.algo_label`), compared with the reference trained on the scenario evaluated.
 """
 
 from __future__ import annotations

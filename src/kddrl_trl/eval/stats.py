@@ -1,8 +1,8 @@
 """Confidence intervals over seeds: the seed (run) is the unit of evidence (docs/design.md, "Evidence").
 
 Percentile bootstrap (``scipy.stats.bootstrap``) of the across-seed mean, and of the difference (or the ratio) of
-two systems' means (independent seeds, each resampled on its own). Fixed ``random_state``: the same records give the same
-report. With one seed there is no interval (None); with identical values the interval is that value.
+two systems' means (independent seeds, each resampled on its own). Fixed ``random_state``: the same records give the
+same report. With one seed there is no interval (None); with identical values the interval is that value.
 """
 
 from __future__ import annotations

@@ -156,8 +156,8 @@ def build_agent_states(
     state, masked by its ``("lc", "action_mask")``) gives it there, as the target actor gives TD3's own next
     action (Eq. 6). Without ``next_lc_policy`` the root action is copied on every row (wrong on the frame before
     each decision: the paper's Algorithm 1 read literally). A collector that writes ``("next", "lc", "action")``
-    itself wins. With n-step returns (``train.n_steps``) the next state lies k frames ahead: the held action is then the batch's
-    ``("next", "lc", "held")`` (the action in force at the window's last frame) instead of the root one.
+    itself wins. With n-step returns (``train.n_steps``) the next state lies k frames ahead: the held action is then the
+    batch's ``("next", "lc", "held")`` (the action in force at the window's last frame) instead of the root one.
 
     Returns a shallow copy of ``td``; ``td`` (e.g. a replay-buffer sample) is not modified.
     """

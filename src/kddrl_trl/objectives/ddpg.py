@@ -47,7 +47,8 @@ def make_ddpg(
     TorchRL's ``OrnsteinUhlenbeckProcessModule`` keeps its noise state in the rollout's TensorDict, which the
     two-clock policy does not carry from frame to frame, and Fujimoto et al. found uncorrelated Gaussian noise
     as good); its noise is clipped to ``±exploration_clip`` as KDDRL's (Algorithm 1 line 32; ``None``: unclipped),
-    so both hierarchical systems explore alike. Target actor and critic (``delay_actor=True``, ``delay_value=True``), as in DDPG.
+    so both hierarchical systems explore alike. Target actor and critic (``delay_actor=True``, ``delay_value=True``), as
+    in DDPG.
     """
     actor, critic, explore = car_following_heads(
         obs_dim, low, high, hidden, exploration_sigma, obs_key, exploration_clip=exploration_clip

@@ -115,7 +115,8 @@ def make_td3(
 
     Noise scales are in m/s² (Fujimoto et al.'s defaults 0.1 / 0.2 / 0.5 of the action bound 5 m/s²):
     ``exploration_sigma`` for acting, its noise clipped to ``±exploration_clip`` (Algorithm 1 line 32, the c of
-    ``clip(ε, -c, c)``; ``None``: unclipped, TorchRL's ``AdditiveGaussianModule``), ``policy_noise`` clipped to ``±noise_clip`` for target smoothing (Eq. 6).
+    ``clip(ε, -c, c)``; ``None``: unclipped, TorchRL's ``AdditiveGaussianModule``), ``policy_noise`` clipped to
+    ``±noise_clip`` for target smoothing (Eq. 6).
     """
     actor, critic, explore = car_following_heads(
         obs_dim, low, high, hidden, exploration_sigma, obs_key, exploration_clip=exploration_clip

@@ -114,8 +114,9 @@ def minibatches(buffer: TensorDictReplayBuffer, n: int):
 
     A uniform buffer does not change between the updates of one collection batch, so its ``n`` minibatches are
     drawn as one sample of up to ``MINIBATCHES_PER_DRAW`` x ``batch_size`` rows and split into views: the same
-    indices, from the same generator stream, as ``n`` calls of ``buffer.sample()`` (``tests/training/test_trainer_minibatches.py``),
-    at a fraction of the cost per minibatch (``benchmarks/replay_sampling.py`` measures it: arm
+    indices, from the same generator stream, as ``n`` calls of ``buffer.sample()``
+    (``tests/training/test_trainer_minibatches.py``), at a fraction of the cost per minibatch
+    (``benchmarks/replay_sampling.py`` measures it: arm
     ``uniform_grouped``). A prioritized buffer is sampled once per
     update, since each update rewrites the priorities the next draw reads."""
     if is_prioritized(buffer):

@@ -18,8 +18,9 @@ class LCGANPrior(FrozenPredictorTransform):
     Wraps the frozen :class:`~kddrl_trl.generative.LCGANPredictor` (default: the shipped weights, or
     ``checkpoint``), or any TensorDict module ``predictor`` writing ``PRIOR_P_LCGAN``. The condition
     ``C^t = {S_AV, S_SV, y_lv^pre}`` is read from the raw observation (``EGO_STATE``, ``EGO_LANE``,
-    ``NEIGHBORS_REL``, ``NEIGHBORS_MASK``, ``EGO_LANE_OFFSET``, ``NEIGHBORS_LANE_OFFSET``) and the key-step gaps ``PRED_KEY_GAPS`` written by the transform before
-    it (:class:`TrajGANPrediction`, or :class:`KeyGapsFromPrior` in the stacks without trajGAN). One generator
+    ``NEIGHBORS_REL``, ``NEIGHBORS_MASK``, ``EGO_LANE_OFFSET``, ``NEIGHBORS_LANE_OFFSET``) and the key-step gaps
+    ``PRED_KEY_GAPS`` written by the transform before it (:class:`TrajGANPrediction`, or :class:`KeyGapsFromPrior` in
+    the stacks without trajGAN). One generator
     call for all environments, under ``no_grad`` with ``requires_grad=False`` weights.
 
     Noise: ``draws`` noise draws averaged per call (1 = one sample), from the predictor's own

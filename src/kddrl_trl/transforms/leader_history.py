@@ -11,8 +11,9 @@ Decision (a slot's vehicle change, without ids)
     ``|v - v_prev| <= speed_tolerance`` (1 m/s in 0.1 s: 10 m/s², beyond any car's braking). All three slots of
     the previous frame are candidates, the best continued one wins (errors in units of the tolerances): when the
     *ego* changes lane its leaders move between slots (b becomes c, ...), and their windows move with them; of two
-    vehicles side by side, the nearer in (y, v) is taken. A vehicle that continues nothing starts a new window: its current (y, v)
-    back-extrapolated at constant speed over the ``H`` frames (oldest first, last = now). An absent slot holds
+    vehicles side by side, the nearer in (y, v) is taken. A vehicle that continues nothing starts a new window: its
+    current (y, v) back-extrapolated at constant speed over the ``H`` frames (oldest first, last = now). An absent slot
+    holds
     zeros.
 
 What the SUMO env's own history does (:class:`kddrl_trl.envs.observe.Observer`), for comparison
