@@ -184,7 +184,8 @@ def time_updates(
         update_cf(b)
     for b in _unprioritized(lc_batches)[:5]:
         update_lc(b)
-    _unprioritized(cf_batches), _unprioritized(lc_batches)
+    _unprioritized(cf_batches)
+    _unprioritized(lc_batches)
     _sync(device)
     t0 = time.perf_counter()
     for b in cf_batches:
@@ -312,10 +313,8 @@ def torch_adam(learner: HierarchicalLearner) -> None:
     """The arm ``compiled_torch_adam``: ``learner``'s optimisers, before its first update, as
     ``torch.optim.Adam(fused=True)`` on the same parameters and learning rates (no lean step: each steps through
     ``torch.optim``, its own kernel call)."""
-    for attr in ("opt_lc", "opt_critic", "opt_actor", "opt_embed"):
-        opt = getattr(learner, attr)
-        if opt is not None:
-            setattr(learner, attr, adam(opt.param_groups[0]["params"], opt.param_groups[0]["lr"], lean=False))
+    for name, opt in learner.optimizers().items():  # each held as ``opt_<name>``
+        setattr(learner, f"opt_{name}", adam(opt.param_groups[0]["params"], opt.param_groups[0]["lr"], lean=False))
 
 
 def python_wrapper(learner: HierarchicalLearner) -> None:

@@ -87,7 +87,8 @@ class FusedAdam(torch.optim.Adam):
         grads = None if closure is not None else self._lean_grads()
         if grads is None:
             loss = _adam_step(self, closure)
-            self._tensors = self._lean_tensors()
+            if self._tensors is None and not torch.compiler.is_compiling():  # taken once, outside a traced step
+                self._tensors = self._lean_tensors()
             return loss
         _fused_steps([(self, grads)])
         return None
@@ -108,8 +109,8 @@ def step_all(optimizers: Sequence[torch.optim.Optimizer]) -> None:
     for o in optimizers:
         grads = o._lean_grads() if isinstance(o, FusedAdam) and o._unwatched() else None
         if grads is None:
-            for o in optimizers:
-                o.step()
+            for each in optimizers:
+                each.step()
             return
         lean.append((o, grads))
     _fused_steps(lean)
