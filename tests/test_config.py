@@ -269,3 +269,32 @@ def test_matmul_precision_is_checked_and_applied_by_every_job():
                 make_job(compose(config_name="config", overrides=["matmul_precision=low"]))
     finally:
         torch.set_float32_matmul_precision(before)
+
+
+def test_flush_denormal_is_applied_by_every_job_on_every_intra_op_thread():
+    """``flush_denormal`` (on by default) flushes float32 denormals to zero in an operation split over two threads
+    (the OpenMP pool already running); ``flush_denormal=false`` keeps them; each job sets its own."""
+    import torch
+    from hydra import compose, initialize_config_module
+
+    from kddrl_trl.factories import make_job
+
+    tiny = torch.finfo(torch.float32).tiny
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+
+    def denormals() -> int:
+        out = torch.full((1 << 22,), 3e-39) * 0.5  # split over both threads
+        return int(((out != 0) & (out.abs() < tiny)).sum())
+
+    try:
+        torch.set_flush_denormal(False)  # as before any job (an earlier test's job may have set it)
+        assert denormals() == 1 << 22  # the pool runs, denormals kept
+        with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+            make_job(compose(config_name="config"))
+            assert denormals() == 0
+            make_job(compose(config_name="config", overrides=["flush_denormal=false"]))
+            assert denormals() == 1 << 22
+    finally:
+        torch.set_flush_denormal(False)
+        torch.set_num_threads(threads)

@@ -8,6 +8,7 @@ into one part, and holds no algorithm. Also the final evaluation ``train.py`` an
 :func:`seed_everything`        ``random``, ``numpy`` and ``torch`` from one seed (each env is seeded itself)
 :func:`make_device`            ``auto`` | ``cpu`` | ``cuda``
 :func:`make_job`               the typed job of a config; a refused one leaves no run folder behind
+:func:`apply_flush_denormal`   the CPU's flush-to-zero mode, which every job sets
 :func:`make_run_dir`           the folder Hydra made for this run, and whether it resumes
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
 :func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
@@ -31,6 +32,7 @@ its compiled updates on CUDA; the env, SUMO, the transforms and acting stay on t
 
 from __future__ import annotations
 
+import logging
 import random
 import time
 from dataclasses import asdict
@@ -103,7 +105,8 @@ def make_job(cfg: DictConfig):
     A job's top-level knobs are resolved here, once, and the parts receive the results: ``device``
     (:func:`make_device`, so ``device=cuda`` without a GPU stops at once; as ``job.torch_device``), ``compile``
     and ``cudagraphs`` (bools, :func:`kddrl_trl.compiling.resolve_compile` / ``resolve_cudagraphs``); and
-    ``matmul_precision`` is applied (``torch.set_float32_matmul_precision``)."""
+    ``matmul_precision`` and ``flush_denormal`` are applied (``torch.set_float32_matmul_precision``,
+    :func:`apply_flush_denormal`)."""
     with no_folder_if_refused():
         job = OmegaConf.to_object(cfg)
         if hasattr(job, "device"):
@@ -114,7 +117,19 @@ def make_job(cfg: DictConfig):
             job.cudagraphs = resolve_cudagraphs(job.cudagraphs, job.torch_device)
         if hasattr(job, "matmul_precision"):  # process-wide: set by every job, so none inherits another's
             torch.set_float32_matmul_precision(job.matmul_precision)
+        if hasattr(job, "flush_denormal"):
+            apply_flush_denormal(job.flush_denormal)
         return job
+
+
+def apply_flush_denormal(on: bool) -> bool:
+    """``torch.set_flush_denormal(on)``: flush-to-zero and denormals-are-zero for the CPU's float32 (and float64)
+    arithmetic, the intra-op threads' too (tested), set by every job as it starts. Returns whether the mode is on: a
+    CPU without it (neither x86 with SSE3 nor AArch64) keeps its denormals, with a warning, and the job runs on."""
+    if torch.set_flush_denormal(bool(on)) or not on:
+        return bool(on)
+    logging.getLogger(__name__).warning("flush_denormal=true: this CPU has no flush-to-zero mode; denormals kept")
+    return False
 
 
 def make_run_dir(resume) -> tuple[Path, bool]:
@@ -136,7 +151,6 @@ def make_run_dir(resume) -> tuple[Path, bool]:
 def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> MultiLogger:
     """CSV logger always (``cfg.csv``); TensorBoard when installed (``tensorboard: auto``) or asked."""
     import importlib.util
-    import logging
 
     from torchrl.record.loggers import CSVLogger
 

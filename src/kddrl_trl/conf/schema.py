@@ -440,6 +440,7 @@ class Job:
     device: str = "auto"  # auto | cpu | cuda (cuda:N): the learner's networks, sampled batches and updates
     cudagraphs: Any = "auto"  # true | false | auto (on with a CUDA learner): CudaGraphModule around the updates
     matmul_precision: str = "highest"  # torch.set_float32_matmul_precision: highest | high (TF32) | medium
+    flush_denormal: bool = True  # torch.set_flush_denormal: CPU float32 values under 1.18e-38 taken as zero
 
     def __post_init__(self) -> None:
         _at_least("", self, 1, "eval_episodes", "video_episodes")
