@@ -58,6 +58,8 @@ update's speed as a ratio of it, both measured in the run) besides the CPU ratio
 (``--torchrl-reference on`` measures (r) on the CPU too). ``--skip-collect`` measures (a) only (and (w) if asked);
 ``--skip-update`` leaves (a) out.
 ``--compile`` overrides the transform stack's ``compile`` of conf/config.yaml in (b) and (w).
+The process sets the CPU's flush-to-zero mode as every job does by default (``flush_denormal``).
+``--floor`` adds the compute floor (:func:`measure_floor`) and our update in parts (:func:`update_parts`).
 
 Prints a table and writes ``benchmarks/results/train_throughput.json``.
 """
@@ -90,6 +92,7 @@ from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
 from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
 from kddrl_trl.eval.records import record_bytes  # noqa: E402
+from kddrl_trl.factories import apply_flush_denormal  # noqa: E402
 from kddrl_trl.generative import shipped_traffic  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.training.base import adam  # noqa: E402
@@ -392,6 +395,56 @@ def gemm_in_update(seed: int, buffers: tuple, updates: int = 100) -> dict:
     return out
 
 
+def update_parts(seed: int, buffers: tuple, updates: int = 400, passes: int = 3) -> dict:
+    """Seconds per TD3 / D3QN update in each part of our compiled update as training runs it (the C++ wrapper, warm
+    graphs called directly, ``flush_denormal`` on as every job sets it): the loss-and-gradients graph
+    (``Learner._gradients``), the optimiser steps (``step_all``), the soft target updates, and the rest (Python,
+    TensorDict, the priorities), each the median over ``passes`` passes of ``updates`` updates on samples of
+    ``buffers``. With :func:`gemm_in_update` this bounds the update: the products at their speed inside it, the
+    optimiser steps and the soft updates (each streams its state through memory) are ``*_bound_over_floor`` of the
+    floor before the graphs' other kernels and the rest add anything."""
+    from kddrl_trl.training import base
+
+    torch.manual_seed(seed)
+    learner = HierarchicalLearner(**learner_kwargs(True)[0])
+    acc = dict.fromkeys(("gradients", "optimizer", "soft"), 0.0)
+
+    def timed(part: str, fn):
+        def call(*args):
+            t0 = time.perf_counter()
+            out = fn(*args)
+            acc[part] += time.perf_counter() - t0
+            return out
+
+        return call
+
+    learner._gradients = timed("gradients", learner._gradients)
+    learner._soft_cf, learner._soft_lc = timed("soft", learner._soft_cf), timed("soft", learner._soft_lc)
+    step_all = base.step_all
+    base.step_all = timed("optimizer", step_all)
+    rb_cf, rb_lc = buffers
+    out = {}
+    try:
+        for agent, update, rb in (("td3", learner.update_cf, rb_cf), ("d3qn", learner.update_lc, rb_lc)):
+            batches = [rb.sample() for _ in range(updates)]
+            for b in _unprioritized(batches)[:20]:
+                update(b)
+            runs = []
+            for _ in range(passes):
+                acc.update(dict.fromkeys(acc, 0.0))
+                t0 = time.perf_counter()
+                for b in _unprioritized(batches):
+                    update(b)
+                total = time.perf_counter() - t0
+                runs.append({**{k: v / updates for k, v in acc.items()}, "total": total / updates})
+            parts = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+            parts["rest"] = parts["total"] - parts["gradients"] - parts["optimizer"] - parts["soft"]
+            out[f"{agent}_parts_s"] = parts
+    finally:
+        base.step_all = step_all
+    return out
+
+
 def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
     """The compute floor of one update: its FLOPs over the GEMM rate at its shapes, per thread count; and our
     compiled update's and the plain reference's time per TD3 / D3QN update (``update``, measured at
@@ -410,8 +463,13 @@ def measure_floor(update: dict, seed: int, threads: list[int]) -> dict:
         for arm in ("compiled", "plain"):
             out[f"{agent}_{arm}_over_floor"] = update[arm][f"{agent}_update_s"] / floor
     out.update(gemm_in_update(seed, buffers))
+    out.update(update_parts(seed, buffers))
     for agent in ("td3", "d3qn"):
         out[f"{agent}_gemm_in_update_over_floor"] = out[f"{agent}_gemm_in_update_s"] / out[f"{agent}_floor_s"]
+        parts = out[f"{agent}_parts_s"]
+        out[f"{agent}_bound_over_floor"] = (
+            out[f"{agent}_gemm_in_update_s"] + parts["optimizer"] + parts["soft"]
+        ) / out[f"{agent}_floor_s"]
         if "compiled_python_wrapper" in update:
             out[f"{agent}_gemm_share_of_update"] = (
                 out[f"{agent}_gemm_in_update_s"] / update["compiled_python_wrapper"][f"{agent}_update_s"]
@@ -848,6 +906,7 @@ def main(argv=None) -> int:
     )
     args = p.parse_args(argv)
     compile = None if args.compile is None else resolve_compile(args.compile)
+    apply_flush_denormal(True)  # as every job sets it by default (``flush_denormal``), for every arm alike
 
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():
@@ -1021,6 +1080,18 @@ def main(argv=None) -> int:
                     f"{agent:<34}{1e3 * floor[f'{agent}_gemm_in_update_s']:>8.3f}"
                     f"{floor[f'{agent}_gemm_in_update_over_floor']:>10.2f}"
                     + (f"{100 * share:>16.0f}%" if share is not None else "")
+                )
+        if "td3_parts_s" in floor:
+            print(
+                f"\n{'our update in parts, ms':<34}{'graph':>8}{'optim':>8}{'soft':>8}{'rest':>8}{'total':>8}"
+                f"{'bound ÷ floor':>15}"
+            )
+            for agent in ("td3", "d3qn"):
+                parts = floor[f"{agent}_parts_s"]
+                print(
+                    f"{agent:<34}"
+                    + "".join(f"{1e3 * parts[k]:>8.3f}" for k in ("gradients", "optimizer", "soft", "rest", "total"))
+                    + f"{floor[f'{agent}_bound_over_floor']:>15.2f}"
                 )
     if result.get("collect"):
         print(
