@@ -170,9 +170,8 @@ def make_transforms(
     algo: LearningAlgo | RuleAlgo, seed: int, highway: HighwayConfig, compile: bool = False, simulator: str = "sumo"
 ) -> Compose:
     """The env-side transforms of ``algo``, in this order: a learning algo's predictive-state transforms of
-    ``algo.transforms`` (none with ``enabled: false``; ``weights: auto`` takes the GAN weights trained on the
-    traffic of ``simulator``, :func:`kddrl_trl.generative.shipped_traffic`) and MOBIL's criteria (``mobil_criteria:
-    true``,
+    ``algo.transforms`` (none with ``enabled: false``; ``weights: auto`` takes the GAN weights trained on the traffic of
+    ``simulator``, :func:`kddrl_trl.generative.shipped_traffic`) and MOBIL's criteria (``mobil_criteria: true``,
     :class:`~kddrl_trl.transforms.MOBILCriteria`); MOBIL's safety mask where ``algo.mobil_safety_mask``
     (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
     :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``

@@ -4,8 +4,7 @@ the same network modules and arithmetic on plain tensors, no TensorDict, no Torc
 
 Two uses: ``benchmarks/train_throughput.py`` times it as the ``plain`` arm, and
 ``tests/training/test_learner_update.py`` checks that :class:`~kddrl_trl.training.HierarchicalLearner` reaches the same
-parameters from the same weights
-and batches (a test oracle, not part of the pipeline).
+parameters from the same weights and batches (a test oracle, not part of the pipeline).
 """
 
 from __future__ import annotations

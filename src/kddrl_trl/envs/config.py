@@ -7,9 +7,9 @@ with a message naming the key.
 
 Scenarios (``baseline``, ``congested``, ``congested_text``, ``braking``, ``mixed``) are the presets of
 :data:`SCENARIOS`, defined once here: ``SumoHighwayEnv(scenario="braking")`` / ``make_config("braking")`` apply them,
-and ``kddrl_trl.conf``
-registers each as the Hydra option ``+scenario=<name>`` (an ``env:`` block in the global package), which
-Hydra applies while composing; a config built from the composed ``env`` node is not given its preset again.
+and ``kddrl_trl.conf`` registers each as the Hydra option ``+scenario=<name>`` (an ``env:`` block in the global
+package), which Hydra applies while composing; a config built from the composed ``env`` node is not given its preset
+again.
 """
 
 from __future__ import annotations

@@ -116,8 +116,7 @@ def minibatches(buffer: TensorDictReplayBuffer, n: int):
     drawn as one sample of up to ``MINIBATCHES_PER_DRAW`` x ``batch_size`` rows and split into views: the same
     indices, from the same generator stream, as ``n`` calls of ``buffer.sample()``
     (``tests/training/test_trainer_minibatches.py``), at a fraction of the cost per minibatch
-    (``benchmarks/replay_sampling.py`` measures it: arm
-    ``uniform_grouped``). A prioritized buffer is sampled once per
+    (``benchmarks/replay_sampling.py`` measures it: arm ``uniform_grouped``). A prioritized buffer is sampled once per
     update, since each update rewrites the priorities the next draw reads."""
     if is_prioritized(buffer):
         for _ in range(n):

@@ -20,8 +20,8 @@ class LCGANPrior(FrozenPredictorTransform):
     ``C^t = {S_AV, S_SV, y_lv^pre}`` is read from the raw observation (``EGO_STATE``, ``EGO_LANE``,
     ``NEIGHBORS_REL``, ``NEIGHBORS_MASK``, ``EGO_LANE_OFFSET``, ``NEIGHBORS_LANE_OFFSET``) and the key-step gaps
     ``PRED_KEY_GAPS`` written by the transform before it (:class:`TrajGANPrediction`, or :class:`KeyGapsFromPrior` in
-    the stacks without trajGAN). One generator
-    call for all environments, under ``no_grad`` with ``requires_grad=False`` weights.
+    the stacks without trajGAN). One generator call for all environments, under ``no_grad`` with
+    ``requires_grad=False`` weights.
 
     Noise: ``draws`` noise draws averaged per call (1 = one sample), from the predictor's own
     ``torch.Generator`` seeded with ``seed`` (a stream over calls, untouched by resets; :meth:`reseed`

@@ -13,8 +13,7 @@ Decision (a slot's vehicle change, without ids)
     *ego* changes lane its leaders move between slots (b becomes c, ...), and their windows move with them; of two
     vehicles side by side, the nearer in (y, v) is taken. A vehicle that continues nothing starts a new window: its
     current (y, v) back-extrapolated at constant speed over the ``H`` frames (oldest first, last = now). An absent slot
-    holds
-    zeros.
+    holds zeros.
 
 What the SUMO env's own history does (:class:`kddrl_trl.envs.observe.Observer`), for comparison
     The env knows vehicle ids: it keeps each vehicle's samples since it was first seen as a leader of the road's
