@@ -400,9 +400,9 @@ def update_parts(seed: int, buffers: tuple, updates: int = 400, passes: int = 3)
     graphs called directly, ``flush_denormal`` on as every job sets it): the loss-and-gradients graph
     (``Learner._gradients``), the optimiser steps (``step_all``), the soft target updates, and the rest (Python,
     TensorDict, the priorities), each the median over ``passes`` passes of ``updates`` updates on samples of
-    ``buffers``. With :func:`gemm_in_update` this bounds the update: the products at their speed inside it, the
-    optimiser steps and the soft updates (each streams its state through memory) are ``*_bound_over_floor`` of the
-    floor before the graphs' other kernels and the rest add anything."""
+    ``buffers``. With :func:`gemm_in_update` this bounds the update as it is built: the products at their speed inside
+    it, the optimiser steps and the soft updates (each reads and writes all of its tensors) take
+    ``*_bound_over_floor`` of the floor before the graphs' other kernels and the rest add anything."""
     from kddrl_trl.training import base
 
     torch.manual_seed(seed)

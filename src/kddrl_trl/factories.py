@@ -126,10 +126,10 @@ def apply_flush_denormal(on: bool) -> bool:
     """``torch.set_flush_denormal(on)``: flush-to-zero and denormals-are-zero for the CPU's float32 (and float64)
     arithmetic, the intra-op threads' too (tested), set by every job as it starts. Returns whether the mode is on: a
     CPU without it (neither x86 with SSE3 nor AArch64) keeps its denormals, with a warning, and the job runs on."""
-    if torch.set_flush_denormal(bool(on)) or not on:
-        return bool(on)
-    logging.getLogger(__name__).warning("flush_denormal=true: this CPU has no flush-to-zero mode; denormals kept")
-    return False
+    supported = torch.set_flush_denormal(bool(on))
+    if on and not supported:
+        logging.getLogger(__name__).warning("flush_denormal=true: this CPU has no flush-to-zero mode; denormals kept")
+    return bool(on) and supported
 
 
 def make_run_dir(resume) -> tuple[Path, bool]:
