@@ -8,7 +8,7 @@ into one part, and holds no algorithm. Also the final evaluation ``train.py`` an
 :func:`seed_everything`        ``random``, ``numpy`` and ``torch`` from one seed (each env is seeded itself)
 :func:`make_device`            ``auto`` | ``cpu`` | ``cuda``
 :func:`make_job`               the typed job of a config; a refused one leaves no run folder behind
-:func:`apply_flush_denormal`   the CPU's flush-to-zero mode, which every job sets
+:func:`torch_settings`         a job's process-wide torch arithmetic, for every process it starts
 :func:`make_run_dir`           the folder Hydra made for this run, and whether it resumes
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
 :func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
@@ -63,6 +63,7 @@ from .conf.schema import (
 from .envs.config import HighwayConfig
 from .generative import shipped_traffic
 from .loggers import MultiLogger
+from .numerics import TorchSettings
 from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
 from .training import (
     HierarchicalLearner,
@@ -105,8 +106,8 @@ def make_job(cfg: DictConfig):
     A job's top-level knobs are resolved here, once, and the parts receive the results: ``device``
     (:func:`make_device`, so ``device=cuda`` without a GPU stops at once; as ``job.torch_device``), ``compile``
     and ``cudagraphs`` (bools, :func:`kddrl_trl.compiling.resolve_compile` / ``resolve_cudagraphs``); and
-    ``matmul_precision`` and ``flush_denormal`` are applied (``torch.set_float32_matmul_precision``,
-    :func:`apply_flush_denormal`)."""
+    ``matmul_precision`` and ``flush_denormal`` are applied to this process (:func:`torch_settings`; process-wide:
+    set by every job, so none inherits another's)."""
     with no_folder_if_refused():
         job = OmegaConf.to_object(cfg)
         if hasattr(job, "device"):
@@ -115,21 +116,16 @@ def make_job(cfg: DictConfig):
             job.compile = resolve_compile(job.compile)
         if hasattr(job, "cudagraphs"):
             job.cudagraphs = resolve_cudagraphs(job.cudagraphs, job.torch_device)
-        if hasattr(job, "matmul_precision"):  # process-wide: set by every job, so none inherits another's
-            torch.set_float32_matmul_precision(job.matmul_precision)
-        if hasattr(job, "flush_denormal"):
-            apply_flush_denormal(job.flush_denormal)
+        if hasattr(job, "matmul_precision"):
+            torch_settings(job).apply()
         return job
 
 
-def apply_flush_denormal(on: bool) -> bool:
-    """``torch.set_flush_denormal(on)``: flush-to-zero and denormals-are-zero for the CPU's float32 (and float64)
-    arithmetic, the intra-op threads' too (tested), set by every job as it starts. Returns whether the mode is on: a
-    CPU without it (neither x86 with SSE3 nor AArch64) keeps its denormals, with a warning, and the job runs on."""
-    supported = torch.set_flush_denormal(bool(on))
-    if on and not supported:
-        logging.getLogger(__name__).warning("flush_denormal=true: this CPU has no flush-to-zero mode; denormals kept")
-    return bool(on) and supported
+def torch_settings(job: Job) -> TorchSettings:
+    """The job's ``matmul_precision`` and ``flush_denormal``, which :func:`make_job` applies to the job's process
+    and each worker process the job starts applies to its own (:func:`make_env_factories`,
+    :func:`make_evaluator`): :class:`~kddrl_trl.numerics.TorchSettings`."""
+    return TorchSettings(job.matmul_precision, job.flush_denormal)
 
 
 def make_run_dir(resume) -> tuple[Path, bool]:
@@ -223,9 +219,10 @@ def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[Wor
     """One :class:`~kddrl_trl.collectors.workers.WorkerEnv` per collection worker of ``job.collector``: worker
     ``i`` builds :func:`make_env` of the job's env, algo and ``compile`` with env seed
     :func:`~kddrl_trl.eval.protocol.worker_seed` ``(seed, i)`` (``seed``: the run's env seed, ``job.seed`` plus the
-    episodes already done on resume) and seeds its process's torch generator with it. A single worker of the
-    ``process`` backend is the env of the learner process: its seed is ``seed`` and torch is left as the entry point
-    seeded it (``collector.sync=false``: its one worker is a process of its own, seeded as any worker)."""
+    episodes already done on resume), seeds its process's torch generator with it and applies the job's
+    :func:`torch_settings` there. A single worker of the ``process`` backend is the env of the learner process: its
+    seed is ``seed`` and torch is left as the entry point seeded it (``collector.sync=false``: its one worker is a
+    process of its own, seeded as any worker)."""
     from functools import partial
 
     from .eval.protocol import worker_seed
@@ -233,7 +230,8 @@ def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[Wor
     workers = job.collector.workers
     in_process = workers == 1 and job.collector.backend == "process" and job.collector.sync
     make = partial(make_env, job.env, job.algo, compile=job.compile, fake=fake)
-    return [WorkerEnv(make, worker_seed(seed, i), seed_torch=not in_process) for i in range(workers)]
+    settings = torch_settings(job)
+    return [WorkerEnv(make, worker_seed(seed, i), seed_torch=not in_process, settings=settings) for i in range(workers)]
 
 
 def make_learner(
@@ -332,7 +330,8 @@ def make_collector(
 def make_evaluator(job: TrainJob):
     """The periodic evaluation of :class:`~kddrl_trl.training.Trainer` (None with ``train.eval_every=0``):
     ``train.eval_episodes`` greedy episodes on the validation seed of :mod:`kddrl_trl.eval.protocol`, in an env
-    of the job's traffic and the algo's transforms run by a worker process (eager: it acts a few times per run)."""
+    of the job's traffic and the algo's transforms run by a worker process (eager: it acts a few times per run),
+    under the job's :func:`torch_settings`."""
     from functools import partial
 
     from .eval.periodic import PeriodicEvaluator
@@ -341,8 +340,9 @@ def make_evaluator(job: TrainJob):
     if job.train.eval_every == 0:
         return None
     seed = validation_seed(job.seed)
+    make = partial(make_env, job.env, job.algo, compile=False)
     return PeriodicEvaluator(
-        partial(make_env, job.env, job.algo, seed=seed, compile=False),
+        WorkerEnv(make, seed, seed_torch=False, settings=torch_settings(job)),
         job.train.eval_episodes,
         seed,
         job.train.best_metric,
