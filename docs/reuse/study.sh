@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Do the predictive-state transforms help on a simulator that is not ours? Every arm on HighwayEnv (highway-v0,
-# the optional extra .[highway]), seeds 0-2, the same budget for every learning arm: 300 training episodes on 4 roads
-# and no periodic evaluation, then 100 greedy episodes on evaluation seeds (seed + 1,000,000) that training never saw.
+# the optional extra .[highway]), seeds 0-2 (and 3-6 for (c), (d), (e)), the same budget for every learning arm:
+# 300 training episodes on 4 roads and no periodic evaluation, then 100 greedy episodes on evaluation seeds
+# (seed + 1,000,000) that training never saw.
 #   (a) examples/transforms_in_torchrl_td3.py, with the transforms (its GANs trained on HighwayEnv's traffic)
 #   (b) the same example without them (raw observations only)
 #   (c) kddrl with the GANs trained on our SUMO traffic          (algo.transforms.weights=sumo)
@@ -30,6 +31,11 @@ jobs() {  # seed-major, so that every arm's seed 0 lands first
     echo "train $OUT/highwayenv_gans seed=$seed algo=d3qn_td3"
     echo "train $OUT/highwayenv_gans seed=$seed algo=idm_mobil"
     echo "train $OUT/highwayenv_driver seed=$seed algo=idm_mobil env.highwayenv.ego_driver=highwayenv"
+  done
+  for seed in 3 4 5 6; do  # the three KDDRL arms, whose (d) - (e) and (c) - (e) 3 seeds could not settle
+    echo "train $OUT/highwayenv_gans seed=$seed algo=kddrl"
+    echo "train $OUT/sumo_gans seed=$seed algo=kddrl algo.transforms.weights=sumo"
+    echo "train $OUT/highwayenv_gans seed=$seed algo=d3qn_td3"
   done
 }
 
