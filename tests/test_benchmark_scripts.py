@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from testkit import load_benchmark
+from testkit import fake_run, load_benchmark
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = [ROOT / "docs" / "paper" / "runs" / f"baseline__kddrl__{s}" for s in (0, 1, 2)]
@@ -148,15 +148,15 @@ def test_gpu_determinism_script_repeats_itself_on_the_cpu(tmp_path):
     assert not det.compare(a, c)["identical"] and not det.compare(a, c)["losses_identical"]
 
 
-def fake_run(folder: Path, weight: float = 1.0, loss: str = "0.5", seconds: str = "1.0") -> Path:
-    """A finished run folder with the files ``ab_records.py`` reads."""
+def ab_run(folder: Path, weight: float = 1.0, loss: str = "0.5", seconds: str = "1.0") -> Path:
+    """A finished run folder (:func:`testkit.fake_run`) with what ``ab_records.py`` reads beyond it: training
+    counts, a scalar log, a wall-clock log and a checkpoint."""
     import torch
 
+    fake_run(folder, training={"cf_updates": 4, "frames": 8, "episodes": 2})
     (folder / "logs" / "scalars" / "train").mkdir(parents=True)
     (folder / "logs" / "scalars" / "time").mkdir(parents=True)
     (folder / "checkpoints").mkdir()
-    (folder / "summary.json").write_text(json.dumps({"training": {"cf_updates": 4, "frames": 8, "episodes": 2}}))
-    (folder / "train_episodes.csv").write_text("episode,return\n0,1.0\n1,2.0\n")
     (folder / "logs" / "scalars" / "train" / "loss.csv").write_text(f"0,{loss}\n")
     (folder / "logs" / "scalars" / "time" / "elapsed_s.csv").write_text(f"0,{seconds}\n")
     state = {"modules": {"w": torch.tensor([weight, 2.0])}, "optimizers": {"cf": {"state": {0: torch.zeros(2)}}}}
@@ -167,20 +167,20 @@ def fake_run(folder: Path, weight: float = 1.0, loss: str = "0.5", seconds: str 
 def test_ab_records_says_identical_only_when_every_record_log_and_bit_is(tmp_path):
     """Wall-clock logs may differ; a record, a scalar log or one bit of a parameter may not, and each is named."""
     ab = load_benchmark("ab_records")
-    before = fake_run(tmp_path / "before")
+    before = ab_run(tmp_path / "before")
     out = tmp_path / "ab.json"
-    assert ab.main([str(before), str(fake_run(tmp_path / "same", seconds="9.0")), "--out", str(out)]) == 0
+    assert ab.main([str(before), str(ab_run(tmp_path / "same", seconds="9.0")), "--out", str(out)]) == 0
     result = json.loads(out.read_text())
     assert result["identical"] and result["checkpoint"] == "ep000002.pt"
     assert result["records_sha256_16"]["before"]["validation.csv"] is None  # absent from both: no difference
 
     nudged = torch_nextafter_one()
-    assert ab.main([str(before), str(fake_run(tmp_path / "bit", weight=nudged)), "--out", str(out)]) == 1
+    assert ab.main([str(before), str(ab_run(tmp_path / "bit", weight=nudged)), "--out", str(out)]) == 1
     result = json.loads(out.read_text())
     assert result["records_identical"] and not result["checkpoint_parameters_identical"]
     assert result["checkpoint_optimizer_states_identical"]
 
-    assert ab.main([str(before), str(fake_run(tmp_path / "log", loss="0.6")), "--out", str(out)]) == 1
+    assert ab.main([str(before), str(ab_run(tmp_path / "log", loss="0.6")), "--out", str(out)]) == 1
     assert json.loads(out.read_text())["scalar_logs_differing"] == ["train/loss.csv"]
 
 
