@@ -18,9 +18,10 @@ from kddrl_trl.eval.periodic import PeriodicEvaluator
 from kddrl_trl.eval.rollout import evaluate_policy
 from kddrl_trl.factories import make_env, make_learner
 from kddrl_trl.runs import checkpoint_candidates
-from kddrl_trl.training import load_training_checkpoint
+from kddrl_trl.training import load_training_checkpoint, save_training_checkpoint
 
 SMALL = ("env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]")
+COUNTS = ("frames", "decisions", "cf_updates", "lc_updates")
 TRAIN = dict(warmup_frames=20, batch_size_cf=16, batch_size_lc=4, frames_per_env=10, checkpoint_every=1, eval_every=1)
 
 
@@ -137,6 +138,50 @@ def test_a_resumed_run_validates_again_what_its_checkpoint_left_under_way(tmp_pa
     theirs = {v["episodes_trained"]: v["mean_speed_kmh"] for v in again.validations}
     assert done in theirs and theirs[done] == ours[done]  # the same weights validated again
     assert sorted(theirs) == [v["episodes_trained"] for v in again.validations]
+
+
+def test_a_run_resumed_at_its_last_episode_trains_no_further(tmp_path):
+    """Killed after its last checkpoint (in its final evaluation), a run resumes with the learner that checkpoint
+    holds: no batch more is collected or learned from, and the checkpoint is left as it was."""
+    learner, trainer = _trained(tmp_path)
+    final = checkpoint_candidates(tmp_path)[0]
+    written = final.read_bytes()
+    env, learner_again, again, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+    again.evaluator = LaggingEvaluator(learner_again)
+    try:
+        assert again.load(tmp_path) == 3
+        again.run(collector)
+    finally:
+        env.close()
+    assert {k: again.counters[k] for k in COUNTS} == {k: trainer.counters[k] for k in COUNTS}
+    assert again.evaluator.started == [] and again.validations == trainer.validations
+    for name, value in learner.state_dict().items():
+        torch.testing.assert_close(learner_again.state_dict()[name], value, rtol=0, atol=0, msg=name)
+    assert checkpoint_candidates(tmp_path)[0] == final and final.read_bytes() == written
+
+
+def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way(tmp_path):
+    _, trainer = _trained(tmp_path)
+    final = checkpoint_candidates(tmp_path)[0]
+    payload = load_training_checkpoint(final)
+    assert payload["validations"][-1]["episodes_trained"] == 3
+    payload["validating"], payload["validations"] = [3], payload["validations"][:-1]  # killed while it ran
+    payload.pop("format")
+    save_training_checkpoint(tmp_path, 3, payload)
+    env, learner, again, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+    again.evaluator = LaggingEvaluator(learner)
+    try:
+        assert again.load(tmp_path) == 3 and again.unfinished == [3]
+        again.run(collector)
+    finally:
+        env.close()
+    assert {k: again.counters[k] for k in COUNTS} == {k: trainer.counters[k] for k in COUNTS}
+    assert len(again.evaluator.started) == 1  # that validation only, of the same weights, recorded
+    assert again.validations[:-1] == trainer.validations[:-1]
+    assert again.validations[-1]["episodes_trained"] == 3  # the stand-in's score counts its own validations
+    assert again.validations[-1]["mean_speed_kmh"] == trainer.validations[-1]["mean_speed_kmh"]
+    resaved = load_training_checkpoint(checkpoint_candidates(tmp_path)[0])
+    assert resaved["validating"] == [] and resaved["validations"] == again.validations
 
 
 def test_a_checkpoint_listing_an_earlier_validation_under_way_is_refused(tmp_path):

@@ -337,8 +337,10 @@ class Trainer:
 
     def run(self, collector: MultiTimescaleCollector) -> list[dict]:
         """Train on the batches of ``collector`` until ``episodes`` episodes have finished (counting those of a
-        resumed run); return the training-episode history. The collector is shut down: an env passed in to it
-        stays open, the envs it built (its workers') are closed."""
+        resumed run); return the training-episode history. A run resumed from the checkpoint of its last episode
+        trains no further: its learner stays the one that checkpoint holds (a validation it lists as under way is
+        run again and recorded). The collector is shut down: an env passed in to it stays open, the envs it built
+        (its workers') are closed."""
         from tqdm.auto import tqdm
 
         learner, target = self.learner, self.episodes
@@ -361,6 +363,10 @@ class Trainer:
             self.validate()  # the checkpoint's weights are the ones that evaluation was given
             self.unfinished = []
         try:
+            if len(self.history) >= target:  # resumed after its training ended (killed in the final evaluation)
+                if self.pending:  # the final validation its checkpoint listed as under way, started again above
+                    self.checkpoint(final=True)
+                return self.history
             for batch in self.collector:
                 frames = batch.frames.numel()
                 decisions = int(batch.frames.get(self.collector.writer.decide_key).sum())
