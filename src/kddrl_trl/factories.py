@@ -35,6 +35,7 @@ from __future__ import annotations
 import logging
 import random
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
@@ -441,16 +442,29 @@ def evaluate(
 
 
 def evaluate_and_report(
-    job: Job, algo, env_cfg, learner, logger, out_dir: Path, *, title: str, reference: dict | None = None, **fields
+    job: Job,
+    algo,
+    env_cfg,
+    learner,
+    logger,
+    out_dir: Path,
+    *,
+    title: str,
+    reference: dict | None = None,
+    before_report: Callable[[], None] | None = None,
+    **fields,
 ) -> dict:
     """The final evaluation of ``train`` and ``evaluate``: the greedy policy of ``algo`` (its trained ``learner`` 's
     for a learning algo, :func:`make_policy`) on ``env_cfg`` 's traffic from the test seed of ``job``
     (:func:`kddrl_trl.eval.protocol.test_seed`), evaluated (:func:`evaluate`) and reported (:func:`report`, with
-    the scenario, algo, env counters, flow and ``fields``) into ``out_dir``."""
+    the scenario, algo, env counters, flow and ``fields``) into ``out_dir``. ``before_report`` runs between the two
+    (``train`` writes the validations there, before the summary that marks the run finished)."""
     from .eval.protocol import test_seed
 
     env = make_env(env_cfg, algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
     episodes, stats = evaluate(env, make_policy(algo, env_cfg, learner), job, logger, out_dir, algo.name)
+    if before_report is not None:
+        before_report()
     return report(
         out_dir,
         episodes,

@@ -23,6 +23,7 @@ import json
 import logging
 import time
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import hydra
@@ -58,7 +59,8 @@ log = logging.getLogger(__name__)
 
 def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     """Trains the learner of ``job.algo`` (continuing ``run_dir``'s latest checkpoint when ``resuming``);
-    returns it and the summary of its training."""
+    returns it, the summary of its training and the trainer, whose validation of the last episode may still run
+    beside the final evaluation (:func:`finish_validations`)."""
     learner = make_learner(job.algo, compile=job.compile, device=job.torch_device, cudagraphs=job.cudagraphs)
     buffers = make_buffers(job.train, job.seed, learner.device)
     trainer = Trainer(
@@ -77,28 +79,30 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
         trim_logs(run_dir, last_step=done - 1, eval_last_step=trainer.validated_through())
     # a resumed run meets new traffic: the envs (one per collection worker) start from seed + episodes already done
     envs = make_env_factories(job, seed=job.seed + done)
-    history = trainer.run(
-        make_collector(
-            envs,
-            learner,
-            buffers,
-            job.train,
-            job.algo.lc_reward,
-            collector=job.collector,
-            rows=job.env.num_roads,
+    collector = make_collector(
+        envs, learner, buffers, job.train, job.algo.lc_reward, collector=job.collector, rows=job.env.num_roads
+    )
+    history = trainer.run(collector, finish=False)
+    try:
+        write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))
+        plot_training_curves(
+            history, run_dir / "training_curves.png", title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}"
         )
-    )
-    write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))
-    if trainer.validations:
-        write_text_atomic(run_dir / "validation.csv", pd.DataFrame(trainer.validations).to_csv(index=False))
-    plot_training_curves(
-        history, run_dir / "training_curves.png", title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}"
-    )
+    except BaseException:
+        trainer.close()
+        raise
     tail = history[-100:]
     last100 = {
         k: float(np.mean([h[k] for h in tail])) for k in ("return_lc", "return_cf", "mean_speed_kmh", "collision")
     }
-    return learner, {**trainer.counters, "episodes": len(history), "last100": last100}
+    return learner, {**trainer.counters, "episodes": len(history), "last100": last100}, trainer
+
+
+def finish_validations(trainer: Trainer | None, run_dir: Path) -> None:
+    """Waits for the trainer's last validation and writes every validation to ``validation.csv`` (before the
+    ``summary.json`` that marks the run finished)."""
+    if trainer is not None and trainer.finish():
+        write_text_atomic(run_dir / "validation.csv", pd.DataFrame(trainer.validations).to_csv(index=False))
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
@@ -125,9 +129,20 @@ def main(cfg: DictConfig) -> dict:
     if not resuming:
         write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
 
-    extra, learner = {}, None
+    extra, learner, trainer = {}, None, None
     if isinstance(job.algo, LearningAlgo):
-        learner, extra["training"] = train(job, run_dir, logger, resuming)
+        learner, extra["training"], trainer = train(job, run_dir, logger, resuming)
+    try:
+        return evaluate_run(job, learner, trainer, logger, run_dir, started, extra)
+    finally:
+        if trainer is not None:
+            trainer.close()
+
+
+def evaluate_run(job: TrainJob, learner, trainer: Trainer | None, logger, run_dir: Path, started: float, extra) -> dict:
+    """The final evaluation of a run (one per scenario of ``job.eval_scenarios``), beside the trainer's last
+    validation; ``validation.csv`` is written once that ends, and ``summary.json`` last."""
+    finish = partial(finish_validations, trainer, run_dir)
     seeds = protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes, job.collector.workers)
     if not job.eval_scenarios:  # the final evaluation on the training traffic, into the run folder
         return final_evaluation(
@@ -135,6 +150,7 @@ def main(cfg: DictConfig) -> dict:
             learner,
             logger,
             run_dir,
+            before_report=finish,
             seed=job.seed,
             protocol=seeds,
             run_dir=str(run_dir),
@@ -154,6 +170,7 @@ def main(cfg: DictConfig) -> dict:
             trained_on=job.env.scenario,
             final=True,
         )
+    finish()
     summary = {
         "scenario": job.env.scenario,
         "algo": job.algo.name,
@@ -169,8 +186,9 @@ def main(cfg: DictConfig) -> dict:
     return summary
 
 
-def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, **fields) -> dict:
-    """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, written to ``out_dir``."""
+def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, before_report=None, **fields) -> dict:
+    """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, written to ``out_dir``
+    (``before_report`` is called between the episodes and the report, :func:`evaluate_and_report`)."""
     trained_on = fields.get("trained_on", job.env.scenario)
     title = job.algo.name + ("" if trained_on == job.env.scenario else f" trained on {trained_on}")
     return evaluate_and_report(
@@ -182,6 +200,7 @@ def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, **fields) ->
         out_dir,
         title=f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",
         reference=paper_reference(job.env.scenario, job.algo.name) if trained_on == job.env.scenario else None,
+        before_report=before_report,
         **fields,
     )
 

@@ -295,7 +295,7 @@ def test_sweep_runs_every_job_and_resumes_job_by_job(sweep):
         )
     kddrl = root / "sweep" / "braking__kddrl__0"
     validation = pd.read_csv(kddrl / "validation.csv")
-    assert len(validation) >= 1 and (validation["episodes"] == 2).all()
+    assert list(validation["episodes_trained"]) == [2, 4] and (validation["episodes"] == 2).all()
     assert (kddrl / "checkpoints" / "best.pt").is_file() and (
         kddrl / "logs" / "scalars" / "eval" / "score.csv"
     ).is_file()

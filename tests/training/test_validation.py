@@ -184,6 +184,26 @@ def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way
     assert resaved["validating"] == [] and resaved["validations"] == again.validations
 
 
+def test_run_without_finish_leaves_the_last_validation_running_for_the_final_evaluation(tmp_path):
+    """``run(finish=False)``: the validation of the last episode is still under way when ``run`` returns (the last
+    checkpoint lists it, a resumed run starts it again), and :meth:`Trainer.finish` records it and stops the
+    evaluator."""
+    env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+    trainer.evaluator = LaggingEvaluator(learner)
+    closed = []
+    trainer.evaluator.close = lambda: closed.append(True)
+    try:
+        trainer.run(collector, finish=False)
+    finally:
+        env.close()
+    steps = [v["episodes_trained"] for v in trainer.validations]
+    assert 3 not in steps and [s for s, _, _ in trainer.pending] == [3] and not closed
+    assert load_training_checkpoint(checkpoint_candidates(tmp_path)[0])["validating"] == [3]
+    assert trainer.finish() is trainer.validations and closed
+    assert [v["episodes_trained"] for v in trainer.validations] == [*steps, 3] and not trainer.pending
+    assert trainer.validations[-1]["mean_speed_kmh"] == _weight_sum(learner.state_dict())  # the final weights
+
+
 def test_a_checkpoint_listing_an_earlier_validation_under_way_is_refused(tmp_path):
     env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
     env.close()

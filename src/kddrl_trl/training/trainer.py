@@ -335,12 +335,17 @@ class Trainer:
         self.logger.log_scalar("time/frames_per_s", self.counters["frames"] / max(elapsed, 1e-9), step=step)
         self.logger.log_scalar("time/cf_updates", self.counters["cf_updates"], step=step)
 
-    def run(self, collector: MultiTimescaleCollector) -> list[dict]:
+    def run(self, collector: MultiTimescaleCollector, finish: bool = True) -> list[dict]:
         """Train on the batches of ``collector`` until ``episodes`` episodes have finished (counting those of a
         resumed run); return the training-episode history. A run resumed from the checkpoint of its last episode
         trains no further: its learner stays the one that checkpoint holds (a validation it lists as under way is
-        run again and recorded). The collector is shut down: an env passed in to it stays open, the envs it built
-        (its workers') are closed."""
+        run again). The collector is shut down: an env passed in to it stays open, the envs it built (its
+        workers') are closed.
+
+        ``finish``: the periodic evaluations are all recorded before the last checkpoint, and the evaluator is
+        stopped (:meth:`finish`). ``finish=False`` leaves the validation started at the last episode running, listed
+        in the last checkpoint as under way (a run resumed from it starts it again): the caller runs its final
+        evaluation beside it, then calls :meth:`finish`. On an error the evaluator is stopped either way."""
         from tqdm.auto import tqdm
 
         learner, target = self.learner, self.episodes
@@ -364,7 +369,7 @@ class Trainer:
             self.unfinished = []
         try:
             if len(self.history) >= target:  # resumed after its training ended (killed in the final evaluation)
-                if self.pending:  # the final validation its checkpoint listed as under way, started again above
+                if finish and self.pending:  # the validation its checkpoint listed as under way, started again above
                     self.checkpoint(final=True)
                 return self.history
             for batch in self.collector:
@@ -399,14 +404,32 @@ class Trainer:
                 if len(self.history) >= next_ckpt or len(self.history) >= target:
                     self.counters["elapsed_s"] += time.perf_counter() - started
                     started = time.perf_counter()
-                    self.checkpoint(final=len(self.history) >= target)
+                    self.checkpoint(final=finish and len(self.history) >= target)
                     next_ckpt = self._next_multiple(self.cfg.checkpoint_every)
                 if len(self.history) >= target:
                     break
+        except BaseException:
+            finish = True  # nothing is left running
+            raise
         finally:
             bar.close()
             self.counters["elapsed_s"] += time.perf_counter() - started
             self.collector.shutdown(close_env=False)
-            if self.evaluator is not None:
-                self.evaluator.close()
+            if finish:
+                self.close()
         return self.history
+
+    def finish(self) -> list[dict]:
+        """Waits for the periodic evaluations still under way and records them (:meth:`record_validations`), then
+        stops the evaluator; returns every validation record. What :meth:`run` does at its end, for a caller of
+        ``run(..., finish=False)``."""
+        try:
+            self.record_validations(before=math.inf)
+        finally:
+            self.close()
+        return self.validations
+
+    def close(self) -> None:
+        """Stops the evaluator; a validation still under way is not recorded. Safe to call again."""
+        if self.evaluator is not None:
+            self.evaluator.close()
