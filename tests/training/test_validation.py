@@ -160,7 +160,10 @@ def test_a_run_resumed_at_its_last_episode_trains_no_further(tmp_path):
     assert checkpoint_candidates(tmp_path)[0] == final and final.read_bytes() == written
 
 
-def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way(tmp_path):
+@pytest.mark.parametrize("finish", [True, False])
+def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way(tmp_path, finish):
+    """``finish=False`` is what ``train`` does: the validation started again runs beside the final evaluation and
+    :meth:`Trainer.finish` records it; the checkpoint then still lists it (a run killed again validates again)."""
     _, trainer = _trained(tmp_path)
     final = checkpoint_candidates(tmp_path)[0]
     payload = load_training_checkpoint(final)
@@ -172,16 +175,22 @@ def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way
     again.evaluator = LaggingEvaluator(learner)
     try:
         assert again.load(tmp_path) == 3 and again.unfinished == [3]
-        again.run(collector)
+        again.run(collector, finish=finish)
     finally:
         env.close()
+    assert len(again.validations) == len(trainer.validations) - (not finish)
+    if not finish:
+        again.finish()
     assert {k: again.counters[k] for k in COUNTS} == {k: trainer.counters[k] for k in COUNTS}
     assert len(again.evaluator.started) == 1  # that validation only, of the same weights, recorded
     assert again.validations[:-1] == trainer.validations[:-1]
     assert again.validations[-1]["episodes_trained"] == 3  # the stand-in's score counts its own validations
     assert again.validations[-1]["mean_speed_kmh"] == trainer.validations[-1]["mean_speed_kmh"]
     resaved = load_training_checkpoint(checkpoint_candidates(tmp_path)[0])
-    assert resaved["validating"] == [] and resaved["validations"] == again.validations
+    if finish:
+        assert resaved["validating"] == [] and resaved["validations"] == again.validations
+    else:
+        assert resaved["validating"] == [3] and resaved["validations"] == again.validations[:-1]
 
 
 def test_run_without_finish_leaves_the_last_validation_running_for_the_final_evaluation(tmp_path):
