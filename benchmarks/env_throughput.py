@@ -29,8 +29,8 @@ not timed; the timed part starts with a reset of all K roads (as ``env.rollout``
 ``--frames`` steps. With ``--repeats N`` every measurement is repeated N times (fresh construction each
 time) and the median is reported. Each JSON row also records, per measurement, the number of
 episodes that ended in the timed part (``*_episodes``, including the initial reset): re-designating
-egos costs time. ``torch.set_num_threads(1)`` is set at start-up: the environment
-is single-threaded and intra-op threads would only oversubscribe the cores.
+egos costs time. ``torch.set_num_threads(1)`` is set when it runs (not on import: other benchmarks import its
+helpers): the environment is single-threaded and intra-op threads would only oversubscribe the cores.
 
 Run (full benchmark; takes a while, use an otherwise idle machine)::
 
@@ -61,15 +61,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
-torch.set_num_threads(1)  # single-threaded env: avoid thread oversubscription (see module docstring)
-
-from tqdm import tqdm  # noqa: E402
-
-from kddrl_trl.baselines import IDMMobilPolicy, RandomDrivingPolicy  # noqa: E402
-from kddrl_trl.envs import SumoHighwayEnv, make_config  # noqa: E402
-from kddrl_trl.envs.sim import HighwaySim  # noqa: E402
-from kddrl_trl.provenance import cpu_model  # noqa: E402
+from kddrl_trl.baselines import IDMMobilPolicy, RandomDrivingPolicy
+from kddrl_trl.envs import SumoHighwayEnv, make_config
+from kddrl_trl.envs.sim import HighwaySim
+from kddrl_trl.provenance import cpu_model
 
 GOAL_RATIO = 0.5
 GOAL_MIN_K = 8
@@ -300,6 +297,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    torch.set_num_threads(1)  # single-threaded env: avoid thread oversubscription (see module docstring)
     info = machine_info()
     arguments = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
     rows: list[dict] = []

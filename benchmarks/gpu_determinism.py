@@ -109,6 +109,7 @@ def compare(a: dict, b: dict) -> dict:
 
 
 def main(argv=None) -> int:
+    torch.set_num_threads(1)  # the CPU side of the measurement, on one torch thread as in its recorded results
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--device", default="cuda")
     p.add_argument("--updates", type=int, default=400)

@@ -144,6 +144,7 @@ def measure_ours(batches: list, updates: int, repeats: int, device: torch.device
 
 
 def main(argv=None) -> int:
+    torch.set_num_threads(1)  # the CPU side of the measurement, on one torch thread as in its recorded results
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--batches", type=int, nargs="+", default=[128, 256])
     p.add_argument("--updates", type=int, default=300)

@@ -911,7 +911,7 @@ def main(argv=None) -> int:
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise SystemExit(f"--device {args.device}: no CUDA device is available here")
-    env_threads = torch.get_num_threads()  # env_throughput set 1 on import (for the env); the updates get their own
+    env_threads = 1  # the env and the acting policy: single-threaded (env_throughput.py); the updates get their own
     torch.set_num_threads(args.update_threads)
     update = (
         None if args.skip_update else measure_update(args.updates, args.seed, args.repeats, device, args.batch_size_cf)

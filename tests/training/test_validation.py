@@ -163,7 +163,7 @@ def test_a_run_resumed_at_its_last_episode_trains_no_further(tmp_path):
 @pytest.mark.parametrize("finish", [True, False])
 def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way(tmp_path, finish):
     """``finish=False`` is what ``train`` does: the validation started again runs beside the final evaluation and
-    :meth:`Trainer.finish` records it; the checkpoint then still lists it (a run killed again validates again)."""
+    :meth:`Trainer.finish` records it, in the last checkpoint too."""
     _, trainer = _trained(tmp_path)
     final = checkpoint_candidates(tmp_path)[0]
     payload = load_training_checkpoint(final)
@@ -187,16 +187,13 @@ def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way
     assert again.validations[-1]["episodes_trained"] == 3  # the stand-in's score counts its own validations
     assert again.validations[-1]["mean_speed_kmh"] == trainer.validations[-1]["mean_speed_kmh"]
     resaved = load_training_checkpoint(checkpoint_candidates(tmp_path)[0])
-    if finish:
-        assert resaved["validating"] == [] and resaved["validations"] == again.validations
-    else:
-        assert resaved["validating"] == [3] and resaved["validations"] == again.validations[:-1]
+    assert resaved["validating"] == [] and resaved["validations"] == again.validations
 
 
 def test_run_without_finish_leaves_the_last_validation_running_for_the_final_evaluation(tmp_path):
     """``run(finish=False)``: the validation of the last episode is still under way when ``run`` returns (the last
-    checkpoint lists it, a resumed run starts it again), and :meth:`Trainer.finish` records it and stops the
-    evaluator."""
+    checkpoint lists it, a resumed run starts it again), and :meth:`Trainer.finish` records it, writes the last
+    checkpoint again with it (the learner and counters unchanged) and stops the evaluator."""
     env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
     trainer.evaluator = LaggingEvaluator(learner)
     closed = []
@@ -207,10 +204,17 @@ def test_run_without_finish_leaves_the_last_validation_running_for_the_final_eva
         env.close()
     steps = [v["episodes_trained"] for v in trainer.validations]
     assert 3 not in steps and [s for s, _, _ in trainer.pending] == [3] and not closed
-    assert load_training_checkpoint(checkpoint_candidates(tmp_path)[0])["validating"] == [3]
+    last = checkpoint_candidates(tmp_path)[0]
+    before = load_training_checkpoint(last)
+    assert before["validating"] == [3] and before["validations"] == trainer.validations
     assert trainer.finish() is trainer.validations and closed
     assert [v["episodes_trained"] for v in trainer.validations] == [*steps, 3] and not trainer.pending
     assert trainer.validations[-1]["mean_speed_kmh"] == _weight_sum(learner.state_dict())  # the final weights
+    after = load_training_checkpoint(last)
+    assert checkpoint_candidates(tmp_path)[0] == last
+    assert after["validating"] == [] and after["validations"] == trainer.validations
+    assert {k: after["counters"][k] for k in COUNTS} == {k: before["counters"][k] for k in COUNTS}
+    torch.testing.assert_close(after["learner"], before["learner"], rtol=0, atol=0)  # weights, optimiser states
 
 
 def test_a_checkpoint_listing_an_earlier_validation_under_way_is_refused(tmp_path):

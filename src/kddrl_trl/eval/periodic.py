@@ -26,7 +26,6 @@ from torchrl.data.utils import CloudpickleWrapper
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from ..collectors import PolicySnapshot
 from ..spawning import require_main_guard
 from .metrics import summarize
 from .rollout import evaluate_policy
@@ -88,12 +87,10 @@ class PeriodicEvaluator:
         self.closed = False
 
     def submit(self, policy) -> Future:
-        """Starts a validation of ``policy`` as it is now (a copy; a :class:`~kddrl_trl.collectors.PolicySnapshot`
-        goes without its source, the learner's own policy); validations run one after the other, in order."""
+        """Starts a validation of ``policy`` as it is now (a pickled copy); validations run one after the other, in
+        order."""
         if self.closed:
             raise RuntimeError("PeriodicEvaluator: closed")
-        if isinstance(policy, PolicySnapshot):
-            policy = policy.policy
         payload = pickle.dumps(policy)
         if self.pool is None:
             context = multiprocessing.get_context("spawn")

@@ -345,7 +345,8 @@ class Trainer:
         ``finish``: the periodic evaluations are all recorded before the last checkpoint, and the evaluator is
         stopped (:meth:`finish`). ``finish=False`` leaves the validation started at the last episode running, listed
         in the last checkpoint as under way (a run resumed from it starts it again): the caller runs its final
-        evaluation beside it, then calls :meth:`finish`. On an error the evaluator is stopped either way."""
+        evaluation beside it, then calls :meth:`finish`, which records it in that checkpoint. On an error the
+        evaluator is stopped either way."""
         from tqdm.auto import tqdm
 
         learner, target = self.learner, self.episodes
@@ -422,9 +423,13 @@ class Trainer:
     def finish(self) -> list[dict]:
         """Waits for the periodic evaluations still under way and records them (:meth:`record_validations`), then
         stops the evaluator; returns every validation record. What :meth:`run` does at its end, for a caller of
-        ``run(..., finish=False)``."""
+        ``run(..., finish=False)``: a finished run's last checkpoint, which listed those evaluations as under way,
+        is written again with them recorded, as ``run(...)`` would have left it."""
         try:
-            self.record_validations(before=math.inf)
+            if self.pending and len(self.history) >= self.episodes:
+                self.checkpoint(final=True)
+            else:
+                self.record_validations(before=math.inf)
         finally:
             self.close()
         return self.validations
