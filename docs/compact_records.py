@@ -16,6 +16,8 @@ import lzma
 import sys
 from pathlib import Path
 
+from kddrl_trl.io import write_atomic
+
 KEPT = ("index", "return_lc", "return_cf", "mean_speed_kmh", "collision")
 
 
@@ -34,7 +36,8 @@ def compact(path: Path) -> int:
     csv.writer(out, lineterminator="\n").writerows([[row[i] for i in at] for row in rows])
     target = path.with_name("train_episodes.csv.xz")
     before = path.stat().st_size
-    target.write_bytes(lzma.compress(out.getvalue().encode(), preset=9))
+    data = lzma.compress(out.getvalue().encode(), preset=9)
+    write_atomic(target, lambda fh: fh.write(data), binary=True)  # a killed rewrite leaves the record as it was
     if target != path:
         path.unlink()
     return before - target.stat().st_size

@@ -5,6 +5,7 @@ import lzma
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("compact_records", ROOT / "docs" / "compact_records.py")
@@ -57,3 +58,20 @@ def test_every_committed_training_record_is_compact():
         or lzma.decompress(p.read_bytes()).decode().split("\n", 1)[0] != ",".join(compact_records.KEPT)
     ]
     assert not loose, f"run python docs/compact_records.py on: {loose[:5]}"
+
+
+def test_a_rewrite_that_fails_leaves_the_record_as_it_was(tmp_path, monkeypatch):
+    """The record is rewritten onto itself (an ``.xz`` with more columns): a write that fails before it is complete
+    (here at its flush to disk) leaves the old file whole, and no temporary file behind."""
+    path = tmp_path / "train_episodes.csv.xz"
+    text = "index,start,return_lc,return_cf,mean_speed_kmh,collision\n0,0,1.5,2.5,100.0,False\n"
+    path.write_bytes(lzma.compress(text.encode()))
+    before = path.read_bytes()
+
+    def fail(fd):
+        raise OSError("disk full")
+
+    monkeypatch.setattr("os.fsync", fail)
+    with pytest.raises(OSError, match="disk full"):
+        compact_records.compact(path)
+    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == [path.name]
