@@ -370,8 +370,8 @@ class Trainer:
             self.unfinished = []
         try:
             if len(self.history) >= target:  # resumed after its training ended (killed in the final evaluation)
-                if finish and self.pending:  # the validation its checkpoint listed as under way, started again above
-                    self.checkpoint(final=True)
+                if finish:  # records the validation its checkpoint listed as under way, started again above
+                    self.finish()
                 return self.history
             for batch in self.collector:
                 frames = batch.frames.numel()
