@@ -77,6 +77,7 @@ from pathlib import Path
 import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDictBase
+from torch._dynamo.utils import clear_compilation_metrics, get_compilation_metrics
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -249,12 +250,16 @@ def measure_update(
             if name == "compiled_torch_adam":
                 torch_adam(learner)
             arms[name] = (learner.update_cf, learner.update_lc, *on_device)
-    runs, wall = {n: [] for n in arms}, dict.fromkeys(arms, 0.0)
-    for _ in range(repeats):
+    runs, wall, compiles = {n: [] for n in arms}, dict.fromkeys(arms, 0.0), {}
+    for turn in range(repeats):
         for name, fns in arms.items():
+            if turn == 0:
+                clear_compilation_metrics()
             t0 = time.perf_counter()
             runs[name].append(time_updates(*fns, lc_period, device))
             wall[name] += time.perf_counter() - t0
+            if turn == 0:
+                compiles[name] = compile_costs()
     rows = {}
     for name in arms:
         rows[name] = {
@@ -262,10 +267,17 @@ def measure_update(
             "d3qn_update_s": statistics.median(r[1] for r in runs[name]),
             "per_frame_s": statistics.median(r[2] for r in runs[name]),
             "wall_s_incl_compile": wall[name],
+            **({"compiles": compiles[name]} if compiles[name] else {}),
         }
+        spent = [sum(c[k] for c in compiles[name]) for k in ("compile_s", "dynamo_s")]
         print(
             f"  update {name}: {1 / rows[name]['td3_update_s']:.0f} TD3 updates/s, "
-            f"{1 / rows[name]['d3qn_update_s']:.0f} D3QN updates/s",
+            f"{1 / rows[name]['d3qn_update_s']:.0f} D3QN updates/s"
+            + (
+                f"; compiled {len(compiles[name])} graphs in {spent[0]:.1f} s ({spent[1]:.1f} s tracing)"
+                if compiles[name]
+                else ""
+            ),
             flush=True,
         )
     return {
@@ -275,6 +287,25 @@ def measure_update(
         "batch_size_lc": int(lc_batches[0].numel()),
         **rows,
     }
+
+
+def compile_costs() -> list[dict]:
+    """What TorchDynamo compiled since its counters were last cleared, one row per graph: the function, the whole
+    compile's seconds, its backend's (TorchInductor, caches warm or cold as the machine has them) and the rest,
+    TorchDynamo's own tracing and guards (``torch._dynamo.utils.get_compilation_metrics``)."""
+    rows = []
+    for m in get_compilation_metrics():
+        total, backend = m.entire_frame_compile_time_s or 0.0, m.backend_compile_time_s or 0.0
+        rows.append(
+            {
+                "function": m.co_name,
+                "compile_s": total,
+                "backend_s": backend,
+                "dynamo_s": total - backend,
+                "graph_ops": m.graph_op_count,
+            }
+        )
+    return rows
 
 
 class DynamoFrames:
