@@ -21,7 +21,9 @@
     ``torch.optim.Adam(fused=True)``, each stepped by its own ``step()``, instead of :mod:`kddrl_trl.training.adam`'s
     lean steps (:func:`~kddrl_trl.training.adam.step_all`); ``lean_adam_gain`` = its time / the compiled arm's.
     Every timed pass starts from batches without the ``keys.PRIORITY`` an update writes into them, as a fresh
-    sample in training does (a key more is another graph signature, compiled inside the timed pass).
+    sample in training does (a key more is another graph signature, compiled inside the timed pass). Each arm
+    that compiles records, from its first pass, what TorchDynamo compiled (``compiles``: per graph the seconds of
+    the whole compile, of its backend and of TorchDynamo's own tracing and guards), a training process's fixed cost.
 (b) ``collect``: frames/s of ``SumoHighwayEnv`` + the full transform stack (as configured for training in
     ``conf/algo/kddrl.yaml`` and ``compile`` of ``conf/config.yaml``, i.e. compiled when a C++ compiler is
     found) + DecisionClock + both exploring policies through
