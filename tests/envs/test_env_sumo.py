@@ -197,6 +197,49 @@ def test_braking_event_distance_and_durations():
         env.close()
 
 
+@pytest.mark.parametrize("release", ["sumo", "programmed"])
+def test_released_braking_car_resumes_as_its_release_says(release):
+    """``programmed``: after standing, the car keeps its lane and gains at most ``resume_accel`` per second until
+    it is back at the speed it had before braking, then SUMO drives it again. ``sumo``: SUMO drives it at once,
+    and (IDM from a standstill) some car pulls away faster than ``resume_accel`` allows."""
+    env = SumoHighwayEnv("braking", num_roads=8, seed=0, braking={"release": release, "resume_accel": 2.0})
+    gains, lanes_changed, handed_back, td = [], 0, 0, env.reset()
+    try:
+        for _ in range(600):
+            before = {  # the released cars this frame moves, and whether the ramp commands it
+                br["vid"]: (
+                    libsumo.vehicle.getSpeed(br["vid"]),
+                    libsumo.vehicle.getLaneIndex(br["vid"]),
+                    br.get("ramping"),
+                )
+                for br in env.sim.braking.state
+                if br["phase"] == K.BRAKE_RESUMED and br.get("vid") in libsumo.vehicle.getIDList()
+            }
+            td = env.step_and_maybe_reset(IDMMobilPolicy()(td))[1]
+            for vid, (v, lane, ramping) in before.items():
+                if vid not in libsumo.vehicle.getIDList() or (release == "programmed" and not ramping):
+                    handed_back += release == "programmed" and not ramping
+                    continue
+                gains.append((libsumo.vehicle.getSpeed(vid) - v) / env.sim.dt)
+                lanes_changed += libsumo.vehicle.getLaneIndex(vid) != lane
+    finally:
+        env.close()
+    assert len(gains) > 20
+    if release == "programmed":
+        assert max(gains) <= 2.0 + 1e-6
+        assert lanes_changed == 0
+        assert handed_back > 0, "no programmed release reached its earlier speed and was handed back"
+    else:
+        assert max(gains) > 3.0
+
+
+def test_braking_release_is_checked():
+    with pytest.raises(ValueError, match="braking.release"):
+        make_config("braking", {"braking": {"release": "gentle"}})
+    with pytest.raises(ValueError, match="braking.resume_accel"):
+        make_config("braking", {"braking": {"release": "programmed", "resume_accel": 0.0}})
+
+
 @pytest.mark.slow
 def test_congested_carries_half_more_vehicles():
     counts = {}

@@ -2,6 +2,11 @@
 the ego's lane brakes to a stop at ``decel``, stands for ``stand_time`` and drives on. With ``braking.probability``
 below 1 (``+scenario=mixed``, a training curriculum) only that share of the episodes has the event.
 
+How it drives on is ``braking.release``. ``sumo`` hands it back to SUMO at once: its own IDM acceleration (up to
+its class's ``a``, 3.5-6.5 m/s²) and its own lane changes. ``programmed`` follows the paper's "gradually resume its
+normal speed": the car keeps its lane and its speed rises by ``resume_accel`` per second (never above what SUMO
+deems safe behind its own leader) until it has the speed it had before braking, then SUMO takes it back.
+
 :class:`BrakingEvents` runs the event on every road of a :class:`~kddrl_trl.envs.sim.HighwaySim` and writes its
 phase (``keys.BRAKING_PHASE``, codes of ``keys.BRAKING_PHASES``) and the gap at which it started
 (``keys.BRAKING_DISTANCE``) into the simulator's observation arrays, from which the episode metrics
@@ -60,6 +65,8 @@ class BrakingEvents:
             self._seek(r)
         elif br["phase"] in (K.BRAKE_BRAKING, K.BRAKE_STANDING):
             self._hold(r)
+        elif br.get("ramping"):
+            self._ramp(r)
 
     def _seek(self, r: int) -> None:
         ls, sim, cfg, br = _libsumo(), self.sim, self.cfg, self.state[r]
@@ -72,6 +79,7 @@ class BrakingEvents:
                 if vid != ego and cfg.min_distance <= d <= cfg.max_distance and abs(d - br["target"]) < best_err:
                     best, best_err, best_d = vid, abs(d - br["target"]), d
         if best is not None:
+            br["v_before"] = ls.vehicle.getSpeed(best)
             ls.vehicle.setDecel(best, cfg.decel)
             ls.vehicle.setEmergencyDecel(best, max(cfg.decel, 9.0))
             ls.vehicle.setLaneChangeMode(best, 0)
@@ -94,8 +102,27 @@ class BrakingEvents:
             br["stop"] = sim.t
             self._write(r, K.BRAKE_STANDING)
         elif br["phase"] == K.BRAKE_STANDING and (sim.t - br["stop"]) * sim.dt >= self.cfg.stand_time - 1e-9:
-            self._release(r)
+            if self.cfg.release == "programmed":
+                br["ramping"] = True
+                ls.vehicle.setSpeed(br["vid"], self.cfg.resume_accel * sim.dt)
+            else:
+                self._release(r)
             self._write(r, K.BRAKE_RESUMED)
+
+    def _ramp(self, r: int) -> None:
+        """One frame of a programmed release: the commanded speed rises by ``resume_accel`` per second from the
+        speed the car has, until it reaches the speed it had before braking; then SUMO takes it back."""
+        ls, sim, br = _libsumo(), self.sim, self.state[r]
+        try:
+            speed = ls.vehicle.getSpeed(br["vid"])
+        except ls.TraCIException:
+            br["ramping"] = False
+            self._write(r, K.BRAKE_VANISHED)
+            return
+        if speed >= br["v_before"] - 1e-6:
+            self._release(r)
+        else:
+            ls.vehicle.setSpeed(br["vid"], min(br["v_before"], speed + self.cfg.resume_accel * sim.dt))
 
     def _insert(self, r: int, lane: int, y: float) -> None:
         """No vehicle in range within ``trigger_frames``: insert one in the ego's lane at ``y`` (it is found
@@ -113,8 +140,9 @@ class BrakingEvents:
     def _release(self, r: int) -> None:
         """Give a braking or standing vehicle back to SUMO (its own deceleration and lane changes)."""
         ls, br = _libsumo(), self.state[r]
-        if br["phase"] not in (K.BRAKE_BRAKING, K.BRAKE_STANDING):
+        if br["phase"] not in (K.BRAKE_BRAKING, K.BRAKE_STANDING) and not br.get("ramping"):
             return
+        br["ramping"] = False
         vid = br["vid"]
         params = self.sim.vehicle_params.get(vid)
         try:

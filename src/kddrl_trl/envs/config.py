@@ -65,6 +65,10 @@ def default_drivers() -> list[DriverClass]:
     ]
 
 
+#: how the braking car drives on after standing (:attr:`BrakingEvent.release`)
+RELEASES = ("sumo", "programmed")
+
+
 @dataclass
 class BrakingEvent:
     """Scenario 2 (paper §IV.D): a leader in the ego's lane brakes hard to a stop, stands, then resumes.
@@ -82,6 +86,12 @@ class BrakingEvent:
     decel: float = 8.0  # m/s², hard braking
     stand_time: float = 3.0  # s standing still
     trigger_frames: int = 50  # frames after the episode start within which the event must begin
+    # how the car drives on after standing (paper: "and then gradually resume its normal speed"):
+    # sumo: handed back to SUMO at once (its own IDM acceleration, up to its class's a, and its own lane changes)
+    # programmed: kept in its lane and brought back to the speed it had before braking at resume_accel, then
+    #   handed back to SUMO
+    release: str = "sumo"
+    resume_accel: float = 2.0  # m/s², programmed release (ISO 15622's bound on an ACC's acceleration)
 
 
 @dataclass
@@ -193,6 +203,13 @@ class HighwayConfig:
         _check("braking.decel", br.decel, br.decel > 0, "must be > 0")
         _check("braking.stand_time", br.stand_time, br.stand_time >= 0, "must be >= 0")
         _check("braking.trigger_frames", br.trigger_frames, br.trigger_frames >= 1, "must be >= 1")
+        _check("braking.release", br.release, br.release in RELEASES, f"must be one of {RELEASES}")
+        _check(
+            "braking.resume_accel",
+            br.resume_accel,
+            br.resume_accel > 0 and math.isfinite(br.resume_accel),
+            "must be finite and > 0",
+        )
         _check(
             "braking.probability",
             br.probability,
