@@ -14,7 +14,7 @@ import pytest
 from testkit import fake_run, load_benchmark
 
 ROOT = Path(__file__).resolve().parents[1]
-RUNS = [ROOT / "docs" / "paper" / "runs" / f"baseline__kddrl__{s}" for s in (0, 1, 2)]
+RUNS = [ROOT / "studies" / "paper" / "runs" / f"baseline__kddrl__{s}" for s in (0, 1, 2)]
 
 
 @pytest.fixture(scope="module")

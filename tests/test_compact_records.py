@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("compact_records", ROOT / "docs" / "compact_records.py")
+_spec = importlib.util.spec_from_file_location("compact_records", ROOT / "studies" / "compact_records.py")
 compact_records = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(compact_records)
 
@@ -49,7 +49,7 @@ def test_a_record_without_a_kept_column_is_refused_by_name(tmp_path):
 
 
 def test_every_committed_training_record_is_compact():
-    records = sorted((ROOT / "docs").rglob("train_episodes.csv*"))
+    records = sorted((ROOT / "studies").rglob("train_episodes.csv*"))
     assert records
     loose = [
         str(p.relative_to(ROOT))
@@ -57,7 +57,7 @@ def test_every_committed_training_record_is_compact():
         if p.suffix != ".xz"
         or lzma.decompress(p.read_bytes()).decode().split("\n", 1)[0] != ",".join(compact_records.KEPT)
     ]
-    assert not loose, f"run python docs/compact_records.py on: {loose[:5]}"
+    assert not loose, f"run python studies/compact_records.py on: {loose[:5]}"
 
 
 def test_a_rewrite_that_fails_leaves_the_record_as_it_was(tmp_path, monkeypatch):

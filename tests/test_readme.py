@@ -43,10 +43,12 @@ def test_readme_is_a_front_door():
 
 
 def test_the_guide_home_is_the_readme():
-    """docs/index.md is README.md with its links made relative to docs/ (regenerate it when the README changes)."""
+    """docs/index.md is README.md with its links made relative to docs/ (regenerate it when the README changes);
+    the site reads its ``../studies/`` links as ``studies/`` (tools/mkdocs_studies.py)."""
     readme = (
         README.read_text()
         .replace("](docs/", "](")
+        .replace("](studies/", "](../studies/")
         .replace("([LICENSE](LICENSE))", "(the file LICENSE at the repository root)")
         .replace("[CITATION.cff](CITATION.cff)", "the file CITATION.cff")
     )
@@ -70,21 +72,21 @@ def test_citation_names_the_paper():
 
 
 def test_the_readme_verdict_table_is_the_reports():
-    """The README's short verdict table is ``docs/paper/readme_table.py`` 's output on the committed
-    ``docs/paper/report.json``: a regenerated report that changes a claim fails here until the README follows."""
+    """The README's short verdict table is ``studies/paper/readme_table.py`` 's output on the committed
+    ``studies/paper/report.json``: a regenerated report that changes a claim fails here until the README follows."""
     import json
     import runpy
 
-    table = runpy.run_path(str(ROOT / "docs" / "paper" / "readme_table.py"))["table"]
-    report = json.loads((ROOT / "docs" / "paper" / "report.json").read_text())
+    table = runpy.run_path(str(ROOT / "studies" / "paper" / "readme_table.py"))["table"]
+    report = json.loads((ROOT / "studies" / "paper" / "report.json").read_text())
     assert table(report) in README.read_text()
 
 
 def test_the_preset_confirmation_tables_are_the_runs():
-    """The README's safety table and docs/paper/README.md's confirmation table are ``docs/paper/confirmation.py``'s
+    """The README's safety table and studies/paper/README.md's confirmation table are ``studies/paper/confirmation.py``'s
     output on the committed run records: a run that lands and changes a row fails here until the prose follows."""
     import runpy
 
-    confirmation = runpy.run_path(str(ROOT / "docs" / "paper" / "confirmation.py"))
+    confirmation = runpy.run_path(str(ROOT / "studies" / "paper" / "confirmation.py"))
     assert confirmation["safety_table"]() in README.read_text()
-    assert confirmation["table"]() in (ROOT / "docs" / "paper" / "README.md").read_text()
+    assert confirmation["table"]() in (ROOT / "studies" / "paper" / "README.md").read_text()

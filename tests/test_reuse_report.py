@@ -1,4 +1,4 @@
-"""The HighwayEnv reuse measurement's results (docs/reuse/report.py): every arm recognised from its records, per-arm
+"""The HighwayEnv reuse measurement's results (studies/reuse/report.py): every arm recognised from its records, per-arm
 intervals over seeds, exact pooled collision intervals and paired differences over the seeds both arms have."""
 
 import importlib.util
@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 from testkit import fake_run
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("reuse_report", ROOT / "docs" / "reuse" / "report.py")
+_spec = importlib.util.spec_from_file_location("reuse_report", ROOT / "studies" / "reuse" / "report.py")
 report = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(report)
 

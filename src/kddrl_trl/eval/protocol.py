@@ -18,7 +18,7 @@ the single-process run's env; runs of nearby seeds (0-4 of a sweep) never share 
 **Choosing options** (a preset, a safety option, a hyperparameter) uses the validation traffic only: compare the
 candidates' ``validation.csv`` or evaluate them with ``python -m kddrl_trl.evaluate run=<dir> eval_seed=<s + 500000>``.
 The test traffic gives the final tables and nothing else; an option chosen on it is confirmed on fresh seeds
-before it is reported (docs/paper/README.md).
+before it is reported (studies/paper/README.md).
 
 Both seeds are recorded in every ``summary.json``; :func:`check_disjoint` refuses a seed that would replay
 training traffic.

@@ -1,5 +1,5 @@
-"""The README's short verdict table: eleven of the study's claims, read from ``docs/paper/report.json``.
-    python docs/paper/readme_table.py [report.json]  ->  the Markdown table on standard output
+"""The README's short verdict table: eleven of the study's claims, read from ``studies/paper/report.json``.
+    python studies/paper/readme_table.py [report.json]  ->  the Markdown table on standard output
 A − b is the claim's first system minus its second (``report.json``'s ``difference``), over the paired seeds; speeds in
 km/h, collision rates in percentage points; ``paper``: the same difference in the paper's tables. A claim with fewer
 than 5 paired seeds is refused: the table stands for the finished study."""

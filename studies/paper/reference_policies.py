@@ -1,6 +1,6 @@
 """Returns of two reference policies on the study's test traffic, the floor a learning system must clear:
 standing still (lane kept, -5 m/s² until stopped) and uniformly random commands (RandomDrivingPolicy).
-    python docs/paper/reference_policies.py [episodes] [scenario]  ->  docs/paper/reference_policies.json
+    python studies/paper/reference_policies.py [episodes] [scenario]  ->  studies/paper/reference_policies.json
 Same env, seed convention (seed 0's test traffic, seed + 1,000,000) and episode metrics as the study's runs."""
 
 from __future__ import annotations

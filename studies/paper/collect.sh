@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Copy the study's finished runs (those with summary.json) into docs/paper/runs/, without checkpoints, TorchRL logs
+# Copy the study's finished runs (those with summary.json) into studies/paper/runs/, without checkpoints, TorchRL logs
 # or per-run curve images (the report redraws them), their CSVs and logs xz-compressed (the report reads them as they are),
-# the training records cut to the columns the report and a reader of the learning curves use (docs/compact_records.py):
-#   bash docs/paper/collect.sh <study sweep dir> [destination, default docs/paper/runs]
+# the training records cut to the columns the report and a reader of the learning curves use (studies/compact_records.py):
+#   bash studies/paper/collect.sh <study sweep dir> [destination, default studies/paper/runs]
 set -euo pipefail
 SRC=${1:?usage: collect.sh <study sweep dir> [destination]}
 DST=${2:-$(dirname "$0")/runs}

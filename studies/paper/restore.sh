@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # On a new machine (or a fresh worktree), put the study's finished runs back into its sweep folder, so that
 # study.sh skips them (a job whose folder holds summary.json is finished) and runs only what is missing:
-#   bash docs/paper/restore.sh <study sweep dir>
+#   bash studies/paper/restore.sh <study sweep dir>
 set -euo pipefail
 DST=${1:?usage: restore.sh <study sweep dir>}
 SRC=$(dirname "$0")/runs

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Copy the reuse study's finished results into docs/reuse/runs/ (the training runs as docs/paper/collect.sh copies
+# Copy the reuse study's finished results into studies/reuse/runs/ (the training runs as studies/paper/collect.sh copies
 # them: no checkpoints, CSVs and logs xz-compressed; the example's JSON results as they are), then write the results
 # of every arm (results.md/json) and the package's report of the training runs (report/: kddrl_trl.report):
-#   bash docs/reuse/collect.sh <study output dir, e.g. ../reuse/runs/reuse>
+#   bash studies/reuse/collect.sh <study output dir, e.g. ../reuse/runs/reuse>
 set -euo pipefail
 SRC=${1:?usage: collect.sh <study output dir>}
 HERE=$(dirname "$0")

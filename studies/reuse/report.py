@@ -1,7 +1,7 @@
-"""The HighwayEnv reuse measurement (docs/reuse/README.md): every arm's greedy mean speed and collision rate with
+"""The HighwayEnv reuse measurement (studies/reuse/README.md): every arm's greedy mean speed and collision rate with
 95 % intervals over seeds, and the paired differences that answer "do the predictive states help?".
 
-    python docs/reuse/report.py [docs/reuse/runs] [--out docs/reuse]
+    python studies/reuse/report.py [studies/reuse/runs] [--out studies/reuse]
 
 Reads the runs of ``python -m kddrl_trl.train`` (``summary.json``) and the example's JSON results under the runs
 folder, and writes ``results.json`` and ``results.md``. Per arm: the mean over seeds of each seed's evaluation
@@ -143,7 +143,7 @@ def markdown(report: dict) -> str:
     lines = [
         "# HighwayEnv reuse measurement: results",
         "",
-        "Made by `python docs/reuse/report.py` from `docs/reuse/runs/` (protocol: `docs/reuse/README.md`). Means over"
+        "Made by `python studies/reuse/report.py` from `studies/reuse/runs/` (protocol: `studies/reuse/README.md`). Means over"
         " seeds with 95 % Student-t intervals over seeds (a collision rate's cut to [0, 100] %, a difference of two to"
         " [-100, 100] points); collisions also pooled over episodes (Clopper-Pearson).",
         "",

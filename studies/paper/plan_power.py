@@ -1,6 +1,6 @@
-"""The power table of the verdict's analysis plan (docs/paper/plan.md), from the pilot seeds 0-4 in report.json.
+"""The power table of the verdict's analysis plan (studies/paper/plan.md), from the pilot seeds 0-4 in report.json.
 
-    python docs/paper/plan_power.py [docs/paper/report.json]
+    python studies/paper/plan_power.py [studies/paper/report.json]
 
 For each primary claim: the pilot's difference, the across-seed standard deviation (pooled over the two systems;
 of the paired differences for the claims the plan tests paired), and, at the Bonferroni level over the family
@@ -54,7 +54,7 @@ def _n80(effect: float, paired: bool) -> float:
     return float("inf")
 
 
-def main(path: str = "docs/paper/report.json") -> None:
+def main(path: str = "studies/paper/report.json") -> None:
     rows = {(r["scenario"], r["algo"]): r for r in json.load(open(path))["rows"]}
     print("| claim | pilot a − b | paper | SD | r | power, direction | power, size | n for 80 % | reading |")
     print("|---|---|---|---|---|---|---|---|---|")

@@ -1,7 +1,7 @@
 """Keeps the committed runs' training records small: each ``train_episodes.csv[.xz]`` under the given folders is
 rewritten (xz-compressed) with the columns the reports and a reader of the learning curves use, and no others.
 
-    python docs/compact_records.py docs/paper/runs docs/ablation/runs ...
+    python studies/compact_records.py studies/paper/runs studies/ablation/runs ...
 
 The report draws Fig. 8 from ``return_lc`` / ``return_cf``; ``mean_speed_kmh`` and ``collision`` stay for a reader
 who asks how driving changed while learning. The evaluation records (``eval_episodes.csv``) are never touched: the

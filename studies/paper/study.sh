@@ -1,16 +1,16 @@
 #!/usr/bin/env bash
 # The paper's verdict study: every cell of Tables II-V at seeds 0-4, and the preset's confirmation at seeds 5-9.
-# PHASE=extension: the primary cells of the analysis plan (docs/paper/plan.md) at seeds 5-14, without the shield,
+# PHASE=extension: the primary cells of the analysis plan (studies/paper/plan.md) at seeds 5-14, without the shield,
 # baseline and congested first; braking only with BRAKING=1 (it waits for the braking study's scenario check).
-# Run it from a checkout of the study's pinned commit (docs/paper/README.md); it resumes job by job: a finished run
+# Run it from a checkout of the study's pinned commit (studies/paper/README.md); it resumes job by job: a finished run
 # (summary.json) is skipped, a killed one continues from its newest checkpoint.
-#   bash docs/paper/study.sh [SWEEP_DIR] [extra Hydra overrides...]
-#   PHASE=extension bash docs/paper/study.sh runs/paper_5-14
+#   bash studies/paper/study.sh [SWEEP_DIR] [extra Hydra overrides...]
+#   PHASE=extension bash studies/paper/study.sh runs/paper_5-14
 # Every job runs in a process of its own, JOBS (default 2) at a time, one torch thread each: a worker process that
 # ran earlier jobs (joblib's, Ray's) keeps their compiled graphs, and the pinned commit's learner then hits
 # TorchDynamo's recompile limit and falls back to eager (about 3x slower; the numbers are the same).
 # On a Ray cluster instead, one Hydra sweep per table through the Ray launcher (the optional extra .[ray]):
-#   LAUNCHER="hydra/launcher=ray" bash docs/paper/study.sh ...
+#   LAUNCHER="hydra/launcher=ray" bash studies/paper/study.sh ...
 set -euo pipefail
 SWEEP=${1:-runs/paper}
 shift || true

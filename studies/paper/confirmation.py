@@ -1,8 +1,8 @@
 """The preset's confirmation beside its selection: ``+preset=plus`` (``algo.shield=idm``) for KDDRL and D3QN+TD3.
 
-The selection rows are the runs the preset was chosen on (``docs/ablation/runs``: ``plus`` and ``shield_idm``, the
+The selection rows are the runs the preset was chosen on (``studies/ablation/runs``: ``plus`` and ``shield_idm``, the
 same configuration, for KDDRL; ``d3qn_plus`` for D3QN+TD3), measured against the IDM+MOBIL runs that study used
-(``docs/reproduction/runs``). The confirmation rows are this study's runs on fresh seeds 5-9 (``docs/paper/runs``,
+(``studies/reproduction/runs``). The confirmation rows are this study's runs on fresh seeds 5-9 (``studies/paper/runs``,
 its pinned commit), measured against IDM+MOBIL on the same seeds. Both phases use the ablation study's measures
 (:mod:`kddrl_trl.eval.stats`: the ratio of the across-seed mean speeds and the difference of the across-seed mean
 collision rates, percentile bootstrap over seeds) and its three goals for the preset:
@@ -15,7 +15,7 @@ A goal reads ``met`` when the whole 95 % interval is inside its bound, ``mean on
 interval crosses it, ``missed`` when the mean is outside. Collisions are also given pooled over the episodes, with an
 exact (Clopper-Pearson) interval.
 
-    python docs/paper/confirmation.py  ->  the Markdown table on standard output
+    python studies/paper/confirmation.py  ->  the Markdown table on standard output
 """
 
 from __future__ import annotations

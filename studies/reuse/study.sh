@@ -10,9 +10,9 @@
 #   (e) d3qn_td3 (the same agents, no predictive states)
 #   (f) idm_mobil (our IDM+MOBIL policy through the adapter's action)
 #   (g) HighwayEnv's own IDM/MOBIL vehicle as the ego                 (env.highwayenv.ego_driver=highwayenv)
-# Run it from a checkout of one commit (docs/reuse/README.md); it resumes job by job (a finished run is skipped,
+# Run it from a checkout of one commit (studies/reuse/README.md); it resumes job by job (a finished run is skipped,
 # a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
-#   bash docs/reuse/study.sh [OUT_DIR]
+#   bash studies/reuse/study.sh [OUT_DIR]
 # Every job runs in a process of its own, JOBS (default 1) at a time, one torch thread each.
 set -euo pipefail
 OUT=${1:-runs/reuse}

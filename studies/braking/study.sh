@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# The braking study's runs (studies/braking/README.md), from a checkout of the study's commit of main; it resumes
+# job by job (a finished training, summary.json, is skipped; a killed one continues from its newest checkpoint).
+#   bash studies/braking/study.sh [SWEEP_DIR, default runs/braking]
+# Section 4, the scenario check: KDDRL trained on braking as it is (release=sumo) at seeds 0-4, each trained
+# policy then evaluated on the same test traffic with the programmed release (<run>/eval__braking__<seed>__<time>/).
+# JOBS (default 1) at a time, one torch thread each: the machine is shared with the verdict study's sweep.
+set -euo pipefail
+SWEEP=${1:-runs/braking}
+export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
+
+jobs() {
+  local seed
+  for seed in 0 1 2 3 4; do echo "release_sumo $seed +scenario=braking algo=kddrl seed=$seed"; done
+}
+
+one() {  # <arm> <seed> <overrides...>: train into SWEEP/<arm>, then evaluate with the programmed release
+  local arm=$1 seed=$2
+  shift 2
+  # shellcheck disable=SC2068
+  python -m kddrl_trl.train -m progress=false resume="$SWEEP/$arm" $@ || { echo "study.sh: job failed: $*" >&2; return; }
+  local run="$SWEEP/$arm/braking__kddrl__$seed"
+  ls "$run"/eval__braking__*/summary.json > /dev/null 2>&1 && return
+  python -m kddrl_trl.evaluate run="$run" +scenario=braking seed="$seed" env.braking.release=programmed progress=false \
+    || echo "study.sh: evaluation failed: $run" >&2
+}
+export -f one
+export SWEEP
+jobs | xargs -d '\n' -P "${JOBS:-1}" -I{} bash -c 'one $1' _ {}
