@@ -11,10 +11,16 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from testkit import fake_run, load_benchmark
+from testkit import fake_run, load_benchmark, study_records
 
-ROOT = Path(__file__).resolve().parents[1]
-RUNS = [ROOT / "studies" / "paper" / "runs" / f"baseline__kddrl__{s}" for s in (0, 1, 2)]
+NAMES = [f"baseline__kddrl__{s}" for s in (0, 1, 2)]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> list[Path]:
+    """Three committed runs of the verdict study, from main's history."""
+    studies = study_records(tmp_path_factory.mktemp("records"), *(f"studies/paper/runs/{n}" for n in NAMES))
+    return [studies / "paper" / "runs" / n for n in NAMES]
 
 
 @pytest.fixture(scope="module")
@@ -22,8 +28,8 @@ def bench():
     return load_benchmark("equivalence")
 
 
-def copy_runs(root: Path) -> Path:
-    for run in RUNS:
+def copy_runs(runs: list[Path], root: Path) -> Path:
+    for run in runs:
         shutil.copytree(run, root / run.name)
     return root
 
@@ -36,15 +42,15 @@ def shift_speed(run: Path, kmh: float) -> None:
     path.write_bytes(lzma.compress(df.to_csv(index=False).encode()))
 
 
-def test_equivalence_pairs_runs_and_measures_the_difference(bench, tmp_path):
-    before, after = copy_runs(tmp_path / "before"), copy_runs(tmp_path / "after")
+def test_equivalence_pairs_runs_and_measures_the_difference(bench, runs, tmp_path):
+    before, after = copy_runs(runs, tmp_path / "before"), copy_runs(runs, tmp_path / "after")
     out = tmp_path / "eq.json"
     assert bench.main([str(before), str(after), "--out", str(out)]) == 0
     same = json.loads(out.read_text())
     speed = same["by_group"]["pooled"]["mean speed"]
     assert speed["pairs"] == 3 and speed["difference"] == 0 and speed["ci"] == [0, 0]
     assert same["training_identical"] == 3 and same["counts_equal"]
-    packed = after / RUNS[0].name / "train_episodes.csv.xz"  # one record kept plain: the same content
+    packed = after / runs[0].name / "train_episodes.csv.xz"  # one record kept plain: the same content
     packed.with_suffix("").write_bytes(lzma.decompress(packed.read_bytes()))
     packed.unlink()
     assert bench.main([str(before), str(after), "--out", str(out)]) == 0
@@ -67,14 +73,14 @@ def set_training(run: Path, **delta: int) -> None:
     path.write_text(json.dumps(summary))
 
 
-def test_equivalence_checks_the_update_rule_where_the_counts_part(bench, tmp_path):
+def test_equivalence_checks_the_update_rule_where_the_counts_part(bench, runs, tmp_path):
     """Runs whose episodes ended at other frames (a float change) part in their counts but keep the update rule
     (frames and decisions less updates: the warm-up's); an update more per frame breaks the rule."""
-    before, after = copy_runs(tmp_path / "before"), copy_runs(tmp_path / "after")
+    before, after = copy_runs(runs, tmp_path / "before"), copy_runs(runs, tmp_path / "after")
     out = tmp_path / "eq.json"
     assert bench.main([str(before), str(after), "--out", str(out)]) == 0
     assert json.loads(out.read_text())["update_rule_equal"]
-    run = after / RUNS[0].name
+    run = after / runs[0].name
     set_training(run, frames=960, cf_updates=960, decisions=48, lc_updates=48)
     assert bench.main([str(before), str(after), "--out", str(out)]) == 0
     result = json.loads(out.read_text())
@@ -84,13 +90,13 @@ def test_equivalence_checks_the_update_rule_where_the_counts_part(bench, tmp_pat
     assert not json.loads(out.read_text())["update_rule_equal"]
 
 
-def test_equivalence_refuses_a_run_without_partner_and_other_configs(bench, tmp_path):
-    before, after = copy_runs(tmp_path / "before"), copy_runs(tmp_path / "after")
-    shutil.rmtree(after / RUNS[2].name)
+def test_equivalence_refuses_a_run_without_partner_and_other_configs(bench, runs, tmp_path):
+    before, after = copy_runs(runs, tmp_path / "before"), copy_runs(runs, tmp_path / "after")
+    shutil.rmtree(after / runs[2].name)
     with pytest.raises(ValueError, match="without a partner.*baseline.*2"):
         bench.pairs(before, after)
-    shutil.copytree(RUNS[2], after / RUNS[2].name)
-    config = after / RUNS[1].name / "config.yaml"
+    shutil.copytree(runs[2], after / runs[2].name)
+    config = after / runs[1].name / "config.yaml"
     config.write_text(config.read_text().replace("episodes: 1000", "episodes: 999", 1))
     with pytest.raises(ValueError, match="other configs.*episodes"):
         bench.pairs(before, after)

@@ -82,11 +82,14 @@ def test_the_readme_verdict_table_is_the_reports():
     assert table(report) in README.read_text()
 
 
-def test_the_preset_confirmation_tables_are_the_runs():
+def test_the_preset_confirmation_tables_are_the_runs(tmp_path):
     """The README's safety table and studies/paper/README.md's confirmation table are ``studies/paper/confirmation.py``'s
     output on the committed run records: a run that lands and changes a row fails here until the prose follows."""
     import runpy
 
+    from testkit import study_records
+
+    studies = study_records(tmp_path, "studies/paper/runs", "studies/ablation/runs", "studies/reproduction/runs")
     confirmation = runpy.run_path(str(ROOT / "studies" / "paper" / "confirmation.py"))
-    assert confirmation["safety_table"]() in README.read_text()
-    assert confirmation["table"]() in (ROOT / "studies" / "paper" / "README.md").read_text()
+    assert confirmation["safety_table"](studies) in README.read_text()
+    assert confirmation["table"](studies) in (ROOT / "studies" / "paper" / "README.md").read_text()

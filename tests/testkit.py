@@ -183,3 +183,14 @@ def load_benchmark(name: str):
         sys.path.remove(str(path.parent))
         torch.set_num_threads(threads)
     return module
+
+
+def study_records(dest, *prefixes: str):
+    """The committed studies' run records under ``prefixes`` (e.g. ``studies/paper/runs/baseline__kddrl__0``),
+    extracted from main's history (``studies/records.json``) into ``dest``; returns ``dest / "studies"``."""
+    from pathlib import Path
+
+    from kddrl_trl.devtools.records import extract, repo_root
+
+    extract(repo_root(Path(__file__).parent), Path(dest), prefixes)
+    return Path(dest) / "studies"

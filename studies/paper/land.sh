@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Land a sweep's finished runs on main: collect.sh copies the new ones, they are committed whole, then their
+# records leave the tree (kept in that commit, listed in studies/records.json) and that is committed too:
+#   bash studies/paper/land.sh <sweep dir> <destination, e.g. studies/paper/runs_5-14> [commit message]
+# From main's root. Only the runs new to the destination are added (the older ones stay in their own commits).
+set -euo pipefail
+SRC=${1:?usage: land.sh <sweep dir> <destination> [message]}
+DST=${2:?usage: land.sh <sweep dir> <destination> [message]}
+MSG=${3:-"$(basename "$DST"): runs landed"}
+mkdir -p "$DST"
+before=$(find "$DST" -mindepth 1 -maxdepth 1 -type d -printf '%f\n' | sort)
+bash "$(dirname "$0")/collect.sh" "$SRC" "$DST" > /dev/null
+new=$(comm -13 <(echo "$before") <(find "$DST" -mindepth 1 -maxdepth 1 -type d -printf '%f\n' | sort))
+if [ -z "$new" ]; then echo "land.sh: no new finished run in $SRC"; exit 0; fi
+for run in $new; do git add -f "$DST/$run"; done
+[ -f "$DST/multirun.yaml" ] && git add -f "$DST/multirun.yaml"
+git commit -q -m "$MSG: $(echo $new | tr ' ' ',')"
+python -m kddrl_trl.devtools.records archive "$DST"
+git commit -q -m "$(basename "$DST"): the records of $(git rev-parse --short HEAD) leave the tree (studies/records.json)"
+echo "land.sh: landed $(echo "$new" | wc -l) run(s): $(echo $new)"
