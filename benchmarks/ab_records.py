@@ -30,7 +30,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import write_json  # noqa: E402
 
-from kddrl_trl.eval.records import record_bytes  # noqa: E402
+from kddrl_trl.reporting.records import record_bytes  # noqa: E402
 from kddrl_trl.runs import checkpoint_dir  # noqa: E402
 
 #: the records a training run writes; absent from both folders (no validation, say) is no difference

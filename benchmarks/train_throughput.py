@@ -94,9 +94,9 @@ from kddrl_trl.devtools.bench_results import keep_previous  # noqa: E402
 from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
 from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
-from kddrl_trl.eval.records import record_bytes  # noqa: E402
 from kddrl_trl.generative import shipped_traffic  # noqa: E402
 from kddrl_trl.numerics import apply_flush_denormal  # noqa: E402
+from kddrl_trl.reporting.records import record_bytes  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.training.base import adam  # noqa: E402
 from kddrl_trl.transforms import (

@@ -199,7 +199,7 @@ def test_the_plus_preset_sets_the_same_options_for_every_algo(name, scenario):
     from omegaconf import OmegaConf
 
     from kddrl_trl.conf.schema import algo_from_node
-    from kddrl_trl.eval.records import option_label
+    from kddrl_trl.reporting.records import option_label
 
     extra = [] if scenario == "baseline" else [f"+scenario={scenario}"]
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
@@ -237,7 +237,7 @@ def test_report_names_highwayenv_runs_by_the_options_they_set(preset):
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
-    from kddrl_trl.eval.records import option_label
+    from kddrl_trl.reporting.records import option_label
 
     def config(*overrides):
         with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):

@@ -1,7 +1,7 @@
 """``python -m kddrl_trl.report <run or sweep folders ...> [out=<folder>]``: the reproduction report.
 
-Reads every run under the folders (:func:`kddrl_trl.eval.records.find_runs`) and writes ``report.md``,
-``report.json`` and the figures into ``out`` (:func:`kddrl_trl.eval.report_builder.build_report`): the paper's
+Reads every run under the folders (:func:`kddrl_trl.reporting.records.find_runs`) and writes ``report.md``,
+``report.json`` and the figures into ``out`` (:func:`kddrl_trl.reporting.builder.build_report`): the paper's
 Tables II-V with across-seed 95 % CIs beside the paper's values, each algo against KDDRL, the collision
 breakdown, Figs. 8-17 and a footer of what produced them. Folders given without ``key=`` are passed as
 ``runs=[...]`` to Hydra.
@@ -19,8 +19,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas with Hydra)
 from .conf.schema import ReportJob
-from .eval.records import find_runs
-from .eval.report_builder import build_report
+from .reporting.builder import build_report
+from .reporting.records import find_runs
 
 #: the lcGAN test metrics shipped beside the weights (``generative/shipped.py``), when there are any
 SHIPPED_LCGAN_METRICS = Path(__file__).parent / "generative" / "weights" / "lcgan.metrics.json"

@@ -4,7 +4,7 @@ The selection rows are the runs the preset was chosen on (``studies/ablation/run
 same configuration, for KDDRL; ``d3qn_plus`` for D3QN+TD3), measured against the IDM+MOBIL runs that study used
 (``studies/reproduction/runs``). The confirmation rows are this study's runs on fresh seeds 5-9 (``studies/paper/runs``,
 its pinned commit), measured against IDM+MOBIL on the same seeds. Both phases use the ablation study's measures
-(:mod:`kddrl_trl.eval.stats`: the ratio of the across-seed mean speeds and the difference of the across-seed mean
+(:mod:`kddrl_trl.reporting.stats`: the ratio of the across-seed mean speeds and the difference of the across-seed mean
 collision rates, percentile bootstrap over seeds) and its three goals for the preset:
 
 - mean speed >= 1.05 x IDM+MOBIL's, in both scenarios;
@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kddrl_trl.eval.records import find_runs
-from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
-from kddrl_trl.eval.verdict import exact_collisions
+from kddrl_trl.reporting.records import find_runs
+from kddrl_trl.reporting.stats import difference_ci, mean_ci, ratio_ci
+from kddrl_trl.reporting.verdict import exact_collisions
 
 DOCS = Path(__file__).resolve().parents[1]
 SYSTEMS = {  # the report's row name -> the selection study's folders
@@ -64,7 +64,7 @@ def _ci(value: dict, scale: float = 1.0, fmt: str = ".3f") -> str:
 
 
 def _pooled(runs: list) -> str:
-    """Collisions pooled over the runs' episodes (one row's runs: :func:`~kddrl_trl.eval.verdict.exact_collisions`):
+    """Collisions pooled over the runs' episodes (one row's runs: :func:`~kddrl_trl.reporting.verdict.exact_collisions`):
     ``k / n = rate [exact 95 % CI]``."""
     (pooled,) = exact_collisions(runs).values()
     k, n, (lo, hi) = pooled["collisions"], pooled["episodes"], pooled["ci"]

@@ -5,7 +5,7 @@
 
 Reads the runs of ``python -m kddrl_trl.train`` (``summary.json``) and the example's JSON results under the runs
 folder, and writes ``results.json`` and ``results.md``. Per arm: the mean over seeds of each seed's evaluation
-value with its Student-t interval over seeds (``kddrl_trl.eval.verdict.t_interval``; a collision rate's cut to
+value with its Student-t interval over seeds (``kddrl_trl.reporting.verdict.t_interval``; a collision rate's cut to
 [0, 1], the range of a rate), and for the collision rate also the exact (Clopper-Pearson) interval over the pooled
 episodes. Paired differences (the same seed gives every arm the same evaluation traffic) with their Student-t
 interval over the seeds both arms have (a difference of collision rates cut to [-1, 1], the range it can take).
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kddrl_trl.eval.records import find_runs
-from kddrl_trl.eval.verdict import clopper_pearson, t_interval
 from kddrl_trl.io import write_json_atomic, write_text_atomic
+from kddrl_trl.reporting.records import find_runs
+from kddrl_trl.reporting.verdict import clopper_pearson, t_interval
 
 HERE = Path(__file__).resolve().parent
 #: arm -> its description
@@ -45,7 +45,7 @@ PAIRS = [
 METRICS = ("mean_speed_kmh", "collision_rate")
 
 
-#: (scenario, the package's row label of a run, :func:`kddrl_trl.eval.records.algo_label`) -> arm: the options that
+#: (scenario, the package's row label of a run, :func:`kddrl_trl.reporting.records.algo_label`) -> arm: the options that
 #: tell the arms apart are the report's own (``algo.transforms.weights``, ``env.highwayenv.ego_driver``)
 ARM_OF_ROW = {
     ("highwayenv", "kddrl [algo.transforms.weights=sumo]"): "c",
@@ -58,7 +58,7 @@ ARM_OF_ROW = {
 
 def read_results(runs: Path) -> dict[str, dict[int, dict]]:
     """arm -> seed -> {metric: value, "episodes", "collisions", "commit"}: the training runs as the package's report
-    reads them (:func:`kddrl_trl.eval.records.find_runs`), the example's JSON results under ``runs/example``."""
+    reads them (:func:`kddrl_trl.reporting.records.find_runs`), the example's JSON results under ``runs/example``."""
     out: dict[str, dict[int, dict]] = {arm: {} for arm in ARMS}
     records = find_runs([runs]) if any(runs.rglob("summary.json")) else []
     for rec in records:

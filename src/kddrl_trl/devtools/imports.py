@@ -27,7 +27,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("modules", "objectives"),  # networks and losses
     ("collectors",),  # acting and storing
     ("training",),  # learners and the trainer
-    ("eval",),  # evaluation, figures, reports
+    ("eval",),  # evaluation during and after training: rollouts, episode metrics, validations, traces
+    ("reporting",),  # offline: run records read back, statistics over seeds, the paper's verdict, figures, reports
     ("loggers", "gym_env"),  # run logs; the Gymnasium view of the env (its episode metrics, its renderer)
     ("conf",),  # the typed configs
     ("factories",),  # make_* from a config

@@ -1,4 +1,4 @@
-"""The paper's verdict (eval/verdict.py): paired intervals over seeds, Holm's correction, exact collision intervals,
+"""The paper's verdict (reporting/verdict.py): paired intervals over seeds, Holm's correction, exact collision intervals,
 and the report's ``verdict=true`` form (claims, commits as rows of their own)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from testkit import fake_run
 
-from kddrl_trl.eval.verdict import CLAIMS, Claim, clopper_pearson, holm, judge, t_interval
+from kddrl_trl.reporting.verdict import CLAIMS, Claim, clopper_pearson, holm, judge, t_interval
 
 
 def test_t_interval_by_hand_and_degenerate_cases():
@@ -91,8 +91,8 @@ def test_the_claims_cover_the_issue_list():
 
 
 def test_verdict_report_keeps_commits_apart_and_writes_claims(tmp_path):
-    from kddrl_trl.eval.records import find_runs
-    from kddrl_trl.eval.report_builder import build_report
+    from kddrl_trl.reporting.builder import build_report
+    from kddrl_trl.reporting.records import find_runs
 
     for seed in range(3):
         fake_run(

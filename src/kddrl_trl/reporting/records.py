@@ -1,6 +1,6 @@
 """The records a run leaves (``summary.json``, ``eval_episodes.csv``, ``train_episodes.csv``, ``validation.csv``,
 ``traces/``, also those of its ``eval__<its scenario>__*`` evaluations), found under any run or sweep folder and read
-back for the report (:mod:`kddrl_trl.eval.report_builder`). Each CSV may also be compressed (``eval_episodes.csv.xz`` or
+back for the report (:mod:`kddrl_trl.reporting.builder`). Each CSV may also be compressed (``eval_episodes.csv.xz`` or
 ``.gz``), as the committed studies keep them (:func:`record_file`).
 
 A run folder is any folder holding ``summary.json`` and ``eval_episodes.csv`` (written by
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from .metrics import summarize
+from ..eval.metrics import summarize
 
 #: columns every ``eval_episodes.csv`` must hold (EpisodeTracker records)
 EPISODE_COLUMNS = (

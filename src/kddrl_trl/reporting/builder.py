@@ -2,12 +2,12 @@
 collision breakdown, the figures and a footer saying what produced them (``python -m kddrl_trl.report``).
 
 The seed (run) is the unit of evidence: each run's evaluation episodes give one value per metric
-(:meth:`~kddrl_trl.eval.records.RunRecord.metrics`), and a row's value is the mean over its seeds with a
-percentile-bootstrap CI over seeds (:mod:`kddrl_trl.eval.stats`). ``report.json`` is the machine-readable form:
+(:meth:`~kddrl_trl.reporting.records.RunRecord.metrics`), and a row's value is the mean over its seeds with a
+percentile-bootstrap CI over seeds (:mod:`kddrl_trl.reporting.stats`). ``report.json`` is the machine-readable form:
 a list of rows ``{"algo", "scenario", "seeds", "episodes", "metrics": {name: {"mean", "ci_low", "ci_high"}}}``. A policy
 evaluated on another scenario than it was trained on (``+scenario=mixed`` with ``eval_scenarios``, or
 ``kddrl_trl.evaluate``) is its own row, ``"<algo> (trained on <scenario>)"``
-(:func:`~kddrl_trl.eval.records.algo_label`), compared with the reference trained on the scenario evaluated.
+(:func:`~kddrl_trl.reporting.records.algo_label`), compared with the reference trained on the scenario evaluated.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import keys as K
+from ..eval.paper import PAPER_NAMES, TABLES, paper_value
 from ..provenance import commit, machine, versions
 from . import figures
-from .paper import PAPER_NAMES, TABLES, paper_value
 from .records import RunRecord
 from .stats import difference_ci, mean_ci, ratio_ci
 from .verdict import CLAIMS, exact_collisions, judge, speed_vs_rules
@@ -400,7 +400,7 @@ def build_report(
 ) -> dict:
     """Write ``report.md``, ``report.json`` and the figures into ``out_dir``; return the JSON content. ``verdict``:
     runs of other commits as rows of their own (:func:`split_commits`), the paper's claims tested
-    (:mod:`~kddrl_trl.eval.verdict`), and ``report.json`` an object ``{"rows", "claims", "commits"}``."""
+    (:mod:`~kddrl_trl.reporting.verdict`), and ``report.json`` an object ``{"rows", "claims", "commits"}``."""
     from ..io import write_json_atomic, write_text_atomic
 
     if not runs:

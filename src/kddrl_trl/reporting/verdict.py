@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .paper import paper_value
+from ..eval.paper import paper_value
 
 ALPHA = 0.05
 #: fewer paired seeds than this: no test (``inconclusive``)

@@ -12,7 +12,7 @@ import pytest
 from testkit import TINY_BUDGET, fake_run, run_module
 
 from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
-from kddrl_trl.eval.stats import difference_ci, mean_ci, ratio_ci
+from kddrl_trl.reporting.stats import difference_ci, mean_ci, ratio_ci
 
 #: a tiny KDDRL budget that still trains, validates and evaluates
 TINY = [
@@ -69,7 +69,7 @@ def test_bootstrap_intervals_over_seeds():
 
 
 def test_records_refuse_bad_files_naming_file_and_column(tmp_path):
-    from kddrl_trl.eval.records import find_runs, load_run
+    from kddrl_trl.reporting.records import find_runs, load_run
 
     run = fake_run(tmp_path / "a")
     assert load_run(run).metrics()["collision_rate"] == 0.5
@@ -95,7 +95,7 @@ def test_compressed_records_read_as_plain_ones(tmp_path, suffix):
     import lzma
     import shutil
 
-    from kddrl_trl.eval.records import load_run
+    from kddrl_trl.reporting.records import load_run
 
     plain = fake_run(tmp_path / "plain", speeds=(100.0, 120.0, 90.0), collisions=(False, True, False))
     pd.DataFrame({"return_lc": [1.0, 2.0], "return_cf": [3.0, 4.0]}).to_csv(plain / "train_episodes.csv", index=False)
@@ -110,15 +110,15 @@ def test_compressed_records_read_as_plain_ones(tmp_path, suffix):
     pd.testing.assert_frame_equal(a.episodes, b.episodes)
     pd.testing.assert_frame_equal(a.training, b.training)
     assert a.metrics() == b.metrics() and b.metrics()["collision_rate"] == pytest.approx(1 / 3)
-    from kddrl_trl.eval.records import record_bytes
+    from kddrl_trl.reporting.records import record_bytes
 
     assert record_bytes(packed, "train_episodes.csv") == record_bytes(plain, "train_episodes.csv")
     assert record_bytes(packed, "train_episodes.csv") != record_bytes(packed, "eval_episodes.csv")
 
 
 def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
-    from kddrl_trl.eval.records import find_runs
-    from kddrl_trl.eval.report_builder import build_report
+    from kddrl_trl.reporting.builder import build_report
+    from kddrl_trl.reporting.records import find_runs
 
     for seed, speed in enumerate((100.0, 120.0, 140.0)):
         fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(speed, speed + 10), collisions=(False, False))
@@ -148,8 +148,8 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
 def test_shield_interventions_and_collisions_are_read_against_the_rules(tmp_path):
     """Issue 14: a shielded row shows how often its shield acted (fraction of frames), and every row's speed ratio
     and collision difference to IDM+MOBIL come with their intervals."""
-    from kddrl_trl.eval.records import find_runs
-    from kddrl_trl.eval.report_builder import build_report
+    from kddrl_trl.reporting.builder import build_report
+    from kddrl_trl.reporting.records import find_runs
 
     for seed in range(3):
         run = fake_run(
@@ -170,8 +170,8 @@ def test_shield_interventions_and_collisions_are_read_against_the_rules(tmp_path
 def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
     """A run trained on ``mixed`` (its ``final__*`` evaluations) and a ``kddrl_trl.evaluate`` folder named on the
     command line are reported as "<algo> (trained on <scenario>)", beside, not inside, the runs trained there."""
-    from kddrl_trl.eval.records import find_runs
-    from kddrl_trl.eval.report_builder import build_report
+    from kddrl_trl.reporting.builder import build_report
+    from kddrl_trl.reporting.records import find_runs
 
     for seed in range(3):
         fake_run(tmp_path / "runs" / f"b{seed}", seed=seed, scenario="braking", speeds=(100.0, 100.0))
@@ -398,7 +398,7 @@ def test_runs_with_options_are_rows_of_their_own(tmp_path):
     import yaml
     from omegaconf import OmegaConf
 
-    from kddrl_trl.eval.records import default_config, find_runs
+    from kddrl_trl.reporting.records import default_config, find_runs
 
     defaults = default_config("kddrl", "braking")
     options = OmegaConf.to_container(
@@ -426,7 +426,7 @@ def test_runs_with_options_are_rows_of_their_own(tmp_path):
 
 
 def test_figures_keep_one_colour_per_system_and_few_series_per_axes():
-    from kddrl_trl.eval.figures import MAX_SERIES, series_panels, style, system_of
+    from kddrl_trl.reporting.figures import MAX_SERIES, series_panels, style, system_of
 
     labels = ["kddrl"] + [f"kddrl [opt{i}]" for i in range(13)] + ["d3qn_td3 [algo.shield=idm]", "idm_mobil", "ni"]
     panels = series_panels(labels)

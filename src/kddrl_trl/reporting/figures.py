@@ -1,4 +1,4 @@
-"""The report's figures (paper Figs. 8-10, 12-17) from run records (:class:`~kddrl_trl.eval.records.RunRecord`).
+"""The report's figures (paper Figs. 8-10, 12-17) from run records (:class:`~kddrl_trl.reporting.records.RunRecord`).
 
 Every function writes one PNG and returns its path; a figure with nothing to draw is not written (None).
 
@@ -230,7 +230,7 @@ def space_time(runs, out_dir: Path, prefer: str = "kddrl") -> dict:
     with ``video=true``), one with a lane change and one without, of ``prefer``'s runs where they have traces."""
     import json
 
-    from .render import plot_space_time
+    from ..eval.render import plot_space_time
 
     out = {}
     for scenario in sorted({r.scenario for r in runs}):
