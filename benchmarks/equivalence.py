@@ -4,7 +4,7 @@ A speed change that keeps the algorithm (the same losses, the same update counts
 arithmetic otherwise cannot keep the training records byte-identical. It lands on evidence that the results did
 not move: the same runs (algo, scenario, seed) trained with the code before and after it, and, per algo and
 scenario and pooled, the paired differences after − before of the final evaluation's mean speed and collision
-rate with their Student-t 95 % intervals over the pairs (:func:`kddrl_trl.reporting.verdict.t_interval`), beside how
+rate with their Student-t 95 % intervals over the pairs (:func:`kddrl_trl.reporting.stats.mean_test`), beside how
 many pairs kept byte-identical training records, the update counts of each pair (equal where the records are;
 where the arithmetic changed, episodes end at other frames, so the counts part, but the update rule must hold in
 both: frames and decisions less updates, the warm-up's, equal pair by pair) and the ratio of their training
@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from env_throughput import write_json  # noqa: E402
 
 from kddrl_trl.reporting.records import find_runs, record_bytes  # noqa: E402
-from kddrl_trl.reporting.verdict import t_interval  # noqa: E402
+from kddrl_trl.reporting.stats import mean_test  # noqa: E402
 from kddrl_trl.runs import config_differences  # noqa: E402
 
 #: the measures compared, from each run's final evaluation: (name, summary key, scale to the unit, unit)
@@ -108,8 +108,14 @@ def differences(rows: list[dict]) -> dict:
     out = {}
     for name, key, scale, unit in MEASURES:
         d = np.array([scale * (r["after"][key] - r["before"][key]) for r in rows])
-        low, high, p = t_interval(d) if d.size >= 2 else (None, None, None)
-        out[name] = {"unit": unit, "pairs": int(d.size), "difference": float(d.mean()), "ci": [low, high], "p": p}
+        t = mean_test(d)
+        out[name] = {
+            "unit": unit,
+            "pairs": int(d.size),
+            "difference": t["mean"],
+            "ci": [t["ci_low"], t["ci_high"]],
+            "p": t["p"],
+        }
     return out
 
 

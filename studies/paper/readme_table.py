@@ -1,8 +1,10 @@
-"""The README's short verdict table: eleven of the study's claims, read from ``studies/paper/report.json``.
+"""The README's verdict table: the analysis plan's primary claims (``studies/paper/plan.md``), read from
+``studies/paper/report.json``.
     python studies/paper/readme_table.py [report.json]  ->  the Markdown table on standard output
-A − b is the claim's first system minus its second (``report.json``'s ``difference``), over the paired seeds; speeds in
-km/h, collision rates in percentage points; ``paper``: the same difference in the paper's tables. A claim with fewer
-than 5 paired seeds is refused: the table stands for the finished study."""
+a − b is the claim's first system minus its second; speeds in km/h, collision rates in percentage points; ``paper``:
+the same difference in the paper's tables. "ours" is the confirmatory test's estimate on seeds 5-14 once every cell
+has them; until then the verdicts read pending and "ours" is the estimate over all the seeds run so far (the pilot's
+0-4 included), marked "so far". The p-values are in the report."""
 
 from __future__ import annotations
 
@@ -10,58 +12,42 @@ import json
 import sys
 from pathlib import Path
 
-#: (paper table, the claim as the README words it, the claim's name in report.json)
-ROWS = (
-    ("II, baseline", "KDDRL drives faster than Ni", "Table II: kddrl drives faster than ni"),
-    ("II, baseline", "KDDRL drives faster than Peng et al.", "Table II: kddrl drives faster than peng"),
-    (
-        "II, baseline",
-        "unified D3QN drives slower than KDDRL",
-        "Table II (unified slower): d3qn_unified drives slower than kddrl",
-    ),
-    (
-        "II, baseline",
-        "unified PASAC drives slower than KDDRL",
-        "Table II (unified slower): pasac_unified drives slower than kddrl",
-    ),
-    ("III, congested", "KDDRL drives faster than Ni", "Table III: kddrl drives faster than ni"),
-    ("IV, braking", "KDDRL drives faster than Ni", "Table IV: kddrl drives faster than ni"),
-    ("IV, braking", "KDDRL collides less than Ni", "Table IV: kddrl collides less than ni"),
-    ("V, baseline", "+LG collides less than D3QN+TD3", "Table V (+LG): d3qn_td3_lg collides less than d3qn_td3"),
-    ("V, baseline", "+TG (KDDRL) collides less than +LG", "Table V (+TG): kddrl collides less than d3qn_td3_lg"),
-    (
-        "V, baseline",
-        "two clocks drive faster than one",
-        "Table V (two clocks): kddrl drives faster than kddrl_same_clock",
-    ),
-    (
-        "V, baseline",
-        "IDM+MOBIL drives slower than KDDRL",
-        "Table V (rules slowest): idm_mobil drives slower than kddrl",
-    ),
-)
+#: the README's words for the systems
+NAMES = {
+    "kddrl": "KDDRL",
+    "ni": "Ni",
+    "peng": "Peng",
+    "d3qn_td3": "D3QN+TD3",
+    "d3qn_td3_lg": "+LG",
+    "kddrl_same_clock": "one clock",
+    "idm_mobil": "IDM+MOBIL",
+}
+VERBS = {("mean_speed_kmh", "greater"): "faster than", ("mean_speed_kmh", "less"): "slower than"}
+VERBS |= {("collision_rate", "less"): "collides less than"}
+
+
+def _estimate(c: dict, value, ci) -> str:
+    scale, unit = (100.0, "pts") if c["metric"] == "collision_rate" else (1.0, "km/h")
+    if value is None:
+        return "—"
+    return f"{scale * value:+.1f} {unit}" + ("" if ci is None else f" [{scale * ci[0]:+.1f}, {scale * ci[1]:+.1f}]")
 
 
 def table(report: dict) -> str:
-    claims = {c["claim"]: c for c in report["claims"]}
-    lines = [
-        "| table | the paper's claim | ours: a − b [95 % CI] | paper | p (Holm) | verdict |",
-        "|---|---|---|---|---|---|",
-    ]
-    for where, label, name in ROWS:
-        if name not in claims:
-            raise KeyError(f"report.json has no claim {name!r}")
-        c = claims[name]
-        if len(c["seeds"]) < 5:
-            raise ValueError(f"{name!r}: {len(c['seeds'])} paired seeds, the table needs 5")
-        points = c["metric"] == "collision_rate"
-        scale, unit = (100.0, "pts") if points else (1.0, "km/h")
-        lo, hi = (scale * v for v in c["ci"])
-        paper = "-" if c["paper"] is None else f"{scale * c['paper']:+.1f}"
-        p = "1" if c["p_holm"] >= 1 else f"{c['p_holm']:.2g}"
+    primary = [c for c in report["claims"] if c.get("family") == "primary"]
+    if len(primary) != 17:
+        raise ValueError(f"report.json holds {len(primary)} primary claims, the plan has 17")
+    lines = ["| # | claim | ours: a − b [95 % CI] | paper | direction | size |", "|---|---|---|---|---|---|"]
+    for c in primary:
+        scale = 100.0 if c["metric"] == "collision_rate" else 1.0
+        claim = f"{c['scenario']}: {NAMES[c['a']]} {VERBS[(c['metric'], c['claimed'])]} {NAMES[c['b']]}"
+        if c["direction"] == "pending":
+            d = c["description"]
+            ours = "—" if d is None else f"{_estimate(c, d['difference'], d['ci'])}, n={min(d['n'])} so far"
+        else:
+            ours = _estimate(c, c["difference"], c["ci"])
         lines.append(
-            f"| {where} | {label} | {scale * c['difference']:+.1f} {unit} [{lo:+.1f}, {hi:+.1f}] | {paper} | {p} "
-            f"| {c['verdict']} |"
+            f"| {c['id']} | {claim} | {ours} | {scale * c['paper']:+.1f} | {c['direction']} | {c['size'] or '—'} |"
         )
     return "\n".join(lines)
 

@@ -5,7 +5,7 @@
 
 Reads the runs of ``python -m kddrl_trl.train`` (``summary.json``) and the example's JSON results under the runs
 folder, and writes ``results.json`` and ``results.md``. Per arm: the mean over seeds of each seed's evaluation
-value with its Student-t interval over seeds (``kddrl_trl.reporting.verdict.t_interval``; a collision rate's cut to
+value with its Student-t interval over seeds (``kddrl_trl.reporting.stats.mean_test``; a collision rate's cut to
 [0, 1], the range of a rate), and for the collision rate also the exact (Clopper-Pearson) interval over the pooled
 episodes. Paired differences (the same seed gives every arm the same evaluation traffic) with their Student-t
 interval over the seeds both arms have (a difference of collision rates cut to [-1, 1], the range it can take).
@@ -21,7 +21,7 @@ import numpy as np
 
 from kddrl_trl.io import write_json_atomic, write_text_atomic
 from kddrl_trl.reporting.records import find_runs
-from kddrl_trl.reporting.verdict import clopper_pearson, t_interval
+from kddrl_trl.reporting.stats import clopper_pearson, mean_test
 
 HERE = Path(__file__).resolve().parent
 #: arm -> its description
@@ -100,7 +100,8 @@ def interval(values, within: tuple[float, float] | None = None) -> dict:
     values = np.asarray(values, dtype=float)
     if values.size < 2:
         return {"mean": float(values.mean()) if values.size else None, "ci_low": None, "ci_high": None}
-    low, high, p = t_interval(values)
+    t = mean_test(values)
+    low, high, p = t["ci_low"], t["ci_high"], t["p"]
     if within is not None:
         low, high = max(low, within[0]), min(high, within[1])
     return {"mean": float(values.mean()), "ci_low": low, "ci_high": high, "p": p}

@@ -1,5 +1,6 @@
-"""The paper's verdict (reporting/verdict.py): paired intervals over seeds, Holm's correction, exact collision intervals,
-and the report's ``verdict=true`` form (claims, commits as rows of their own)."""
+"""The verdict of the analysis plan (kddrl_trl.reporting.verdict) and the statistics behind every interval of the
+reports (kddrl_trl.reporting.stats): known inputs give each reading, and the library calls give the textbook
+numbers."""
 
 from __future__ import annotations
 
@@ -7,129 +8,169 @@ import json
 
 import numpy as np
 import pytest
+from scipy import stats as sps
 from testkit import fake_run
 
-from kddrl_trl.reporting.verdict import CLAIMS, Claim, clopper_pearson, holm, judge, t_interval
+from kddrl_trl.reporting.stats import (
+    clopper_pearson,
+    difference_test,
+    holm,
+    mean_ci,
+    mean_test,
+    ratio_ci,
+    seeds_for_power,
+)
+from kddrl_trl.reporting.verdict import CLAIMS, PRIMARY, TEST_SEEDS, Claim, judge, paper_difference
+
+SEEDS = list(TEST_SEEDS)
 
 
-def test_t_interval_by_hand_and_degenerate_cases():
-    low, high, p = t_interval([1.0, 2.0, 3.0])  # mean 2, sd 1, t(0.975, 2) = 4.303
-    assert (low, high) == pytest.approx((2 - 4.3027 / np.sqrt(3), 2 + 4.3027 / np.sqrt(3)), abs=1e-3)
-    assert p == pytest.approx(0.0742, abs=1e-3)  # t = 3.464 on 2 degrees of freedom
-    assert t_interval([0.0, 0.0, 0.0]) == (0.0, 0.0, 1.0)
-    assert t_interval([0.5, 0.5]) == (0.5, 0.5, 0.0)
+def test_mean_interval_by_hand_and_degenerate_cases():
+    t = mean_test([1.0, 2.0, 3.0])  # mean 2, sd 1, t(0.975, 2) = 4.303
+    assert (t["ci_low"], t["ci_high"]) == pytest.approx((2 - 4.303 / np.sqrt(3), 2 + 4.303 / np.sqrt(3)), abs=1e-3)
+    assert t["p"] == pytest.approx(2 * sps.t.sf(2 / (1 / np.sqrt(3)), 2))
+    assert mean_test([0.5, 0.5]) == {"mean": 0.5, "ci_low": 0.5, "ci_high": 0.5, "p": 1.0, "n": 2}  # no spread: p 1
+    assert mean_ci([2.0]) == {"mean": 2.0, "ci_low": None, "ci_high": None, "n": 1}
+    with pytest.raises(ValueError, match="finite"):
+        mean_ci([1.0, float("nan")])
 
 
-def test_holm_steps_down_and_stays_monotone():
+def test_welch_and_paired_differences_and_a_null_other_than_zero():
+    x, y = [10.0, 12.0, 11.0, 13.0], [5.0, 9.0, 4.0, 8.0, 6.0]
+    w = difference_test(x, y)
+    ref = sps.ttest_ind(x, y, equal_var=False)
+    assert w["test"] == "welch" and w["p"] == pytest.approx(ref.pvalue)
+    assert (w["ci_low"], w["ci_high"]) == pytest.approx(tuple(ref.confidence_interval()))
+    shifted = difference_test(x, y, null=w["mean"])  # H0 at our own estimate: nothing to reject
+    assert shifted["p"] == pytest.approx(1.0) and shifted["ci_low"] == pytest.approx(w["ci_low"])
+    p = difference_test([1.0, 2.0, 3.0, 4.0], [0.9, 2.1, 2.8, 3.9], paired=True)
+    assert p["test"] == "paired" and p["p"] == pytest.approx(sps.ttest_rel([1, 2, 3, 4], [0.9, 2.1, 2.8, 3.9]).pvalue)
+    with pytest.raises(ValueError, match="same seeds"):
+        difference_test([1.0, 2.0], [1.0], paired=True)
+
+
+def test_ratio_interval_stays_positive_and_holds_the_ratio():
+    r = ratio_ci([110.0, 112.0, 108.0], [100.0, 101.0, 99.0])
+    assert r["mean"] == pytest.approx(1.1) and 1.0 < r["ci_low"] < 1.1 < r["ci_high"]
+    wide = ratio_ci([1.0, 50.0, 3.0], [10.0, 11.0, 9.0])
+    assert wide["ci_low"] > 0
+    with pytest.raises(ValueError, match="> 0"):
+        ratio_ci([1.0], [0.0])
+
+
+def test_holm_binomial_and_power_come_from_the_libraries():
     assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
-    assert holm([0.5, 0.001]) == pytest.approx([0.5, 0.002])
-    assert holm([0.9, 0.8, 0.7]) == pytest.approx([1.0, 1.0, 1.0])
-
-
-def test_clopper_pearson_reads_zero_in_5000_as_an_interval():
+    assert holm([]) == []
     low, high = clopper_pearson(0, 5000)
-    assert low == 0.0 and high == pytest.approx(0.000738, rel=1e-2)  # [0, 0.074 %]
-    low, high = clopper_pearson(50, 1000)
-    assert low < 0.05 < high
-    with pytest.raises(ValueError, match="k=3, n=2"):
-        clopper_pearson(3, 2)
+    assert low == 0.0 and high == pytest.approx(0.000737, abs=1e-5)
+    # 80 % power for an effect of one SD at 0.05, two-sided, two samples: 17 per group (textbook)
+    assert seeds_for_power(1.0, 1.0, 0.05, paired=False) == 17
+    assert seeds_for_power(0.0, 1.0, 0.05, paired=False) == float("inf")
 
 
-def _rows(a_speeds, b_speeds, seeds_a=None, seeds_b=None):
-    def row(algo, speeds, seeds):
-        return {
-            "algo": algo,
-            "scenario": "baseline",
-            "seeds": seeds or list(range(len(speeds))),
-            "per_seed": {"mean_speed_kmh": list(speeds)},
-        }
+def _rows(a, b, metric="mean_speed_kmh", scenario="baseline", algo_a="kddrl", algo_b="ni"):
+    """Two report rows holding per-seed values ``a`` and ``b`` on the given seeds ({seed: value})."""
 
-    return [row("kddrl", a_speeds, seeds_a), row("ni", b_speeds, seeds_b)]
+    def row(algo, values):
+        return {"algo": algo, "scenario": scenario, "seeds": list(values), "per_seed": {metric: list(values.values())}}
+
+    return [row(algo_a, a), row(algo_b, b)]
 
 
-CLAIM = Claim("kddrl drives faster than ni", "II", "baseline", "mean_speed_kmh", "kddrl", "ni", "greater")
+P = Claim("P1", "II", "baseline", "mean_speed_kmh", "kddrl", "ni", "greater", "primary")  # the paper: +1.7 km/h
+RNG = np.random.default_rng(0)
+NOISE = RNG.normal(0.0, 1.0, size=len(SEEDS))
 
 
-def test_a_claim_holds_is_contradicted_or_stays_inconclusive():
-    holds = judge([CLAIM], _rows([130, 131, 129, 132, 130], [120, 122, 119, 121, 120]))[0]
-    assert holds["verdict"] == "holds" and holds["difference"] == pytest.approx(10.0) and holds["ci"][0] > 0
-    against = judge([CLAIM], _rows([110, 111, 109, 112, 110], [120, 122, 119, 121, 120]))[0]
-    assert against["verdict"] == "contradicted" and against["ci"][1] < 0
-    noisy = judge([CLAIM], _rows([130, 110, 125, 112, 121], [120, 122, 119, 121, 120]))[0]
-    assert noisy["verdict"] == "inconclusive" and noisy["p_holm"] >= 0.05
-    few = judge([CLAIM], _rows([130, 131], [120, 122]))[0]
-    assert few["verdict"] == "inconclusive" and few["p"] is None
-    # paired on the seeds both ran: seed 9 of kddrl has no partner
-    paired = judge([CLAIM], _rows([130, 131, 129, 500], [120, 121, 119], seeds_a=[0, 1, 2, 9]))[0]
-    assert paired["seeds"] == [0, 1, 2] and paired["difference"] == pytest.approx(10.0)
+def _judge(a_mean: float, b_mean: float, sd: float = 1.0, claims=(P,)):
+    a = {s: a_mean + sd * e for s, e in zip(SEEDS, NOISE, strict=True)}
+    b = {s: b_mean + sd * e for s, e in zip(SEEDS, NOISE[::-1], strict=True)}
+    return judge(list(claims), _rows(a, b))
 
 
-def test_holm_is_applied_over_the_family():
-    """A claim significant alone (p < 0.05) is not once 20 claims share the correction."""
-    rows = _rows([130.0, 133.0, 129.0, 134.0, 131.0], [128.0, 129.0, 128.5, 129.0, 128.0])
-    alone = judge([CLAIM], rows)[0]
-    assert alone["p"] < 0.05 and alone["verdict"] == "holds"
-    family = judge([CLAIM] * 20, rows)
-    assert family[0]["p_holm"] == pytest.approx(min(1.0, 20 * alone["p"])) and family[0]["verdict"] == "inconclusive"
+def test_direction_holds_is_contradicted_or_stays_inconclusive():
+    assert _judge(140, 120)[0]["direction"] == "holds"
+    assert _judge(120, 140)[0]["direction"] == "contradicted"
+    noisy = _judge(121, 120, sd=10)[0]
+    assert noisy["direction"] == "inconclusive" and noisy["p_direction_adjusted"] >= 0.05
 
 
-def test_the_claims_cover_the_issue_list():
-    text = " ".join(c.claim for c in CLAIMS)
-    for needle in (
-        "(+LG)",
-        "(+TG)",
-        "(two clocks)",
-        "(rules slowest)",
-        "(rules safest)",
-        "(unified slower)",
-        "(unified changes lanes more)",
-        "Table III",
-        "Table IV",
-    ):
-        assert needle in text, needle
-    assert all(c.direction in ("greater", "less") for c in CLAIMS)
+def test_size_excluded_smaller_larger_or_compatible():
+    assert _judge(120.0, 120.0)[0]["size"] == "excluded, smaller"  # ours 0 against the paper's +1.7, tight
+    assert _judge(140.0, 120.0)[0]["size"] == "excluded, larger"  # +20 against +1.7
+    compatible = _judge(121.7, 120.0, sd=3)[0]
+    assert compatible["size"] == "compatible" and compatible["ci"][0] < paper_difference(P) < compatible["ci"][1]
+    # a claim the other way round: further below zero than the paper's -12.8 is larger
+    slower = Claim("P16", "V", "baseline", "mean_speed_kmh", "idm_mobil", "kddrl", "less", "primary")
+    rules = dict.fromkeys(SEEDS, 100.0) | {5: 101.0}
+    learner = {s: 140.0 + e for s, e in zip(SEEDS, NOISE, strict=True)}
+    far = judge([slower], _rows(rules, learner, algo_a="idm_mobil", algo_b="kddrl"))[0]
+    assert far["direction"] == "holds" and far["size"] == "excluded, larger"
 
 
-def test_verdict_report_keeps_commits_apart_and_writes_claims(tmp_path):
+def test_a_paper_difference_too_small_for_any_realistic_n_says_so():
+    entry = _judge(120.2, 120.0, sd=4)[0]  # the paper's +1.7 km/h at an SD of 4: about 90 seeds per system
+    assert entry["direction"] == "inconclusive" and entry["seeds_needed"] > 50
+    assert entry["reading"].startswith("not testable at a realistic n")
+    decided = _judge(140, 120)[0]
+    assert decided["reading"] is None
+
+
+def test_the_test_reads_the_confirmatory_seeds_only_and_waits_for_all_of_them():
+    a = {s: 140.0 + e for s, e in zip(SEEDS, NOISE)} | {0: 1000.0}  # a pilot seed far off: not in the test
+    b = {s: 120.0 + e for s, e in zip(SEEDS, NOISE[::-1])} | {0: 120.0}
+    entry = judge([P], _rows(a, b))[0]
+    assert entry["seeds"] == SEEDS and entry["n"] == 10 and entry["difference"] == pytest.approx(20.0, abs=1.0)
+    assert entry["description"]["n"] == [11, 11] and entry["description"]["difference"] > 90  # all seeds described
+    del a[14]
+    pending = judge([P], _rows(a, b))[0]
+    assert pending["direction"] == "pending" and pending["size"] == "pending" and pending["p_direction"] is None
+    assert pending["description"] is not None
+
+
+def test_holm_is_applied_over_the_primary_family_only():
+    one = _judge(121.2, 120.0)[0]
+    assert one["p_direction"] < 0.05
+    explored = Claim("S1", "II", "baseline", "mean_speed_kmh", "kddrl", "ni", "greater")
+    many = _judge(121.2, 120.0, claims=[P] * 17 + [explored] * 3)
+    assert many[0]["p_direction_adjusted"] == pytest.approx(min(1.0, 17 * one["p_direction"]))
+    assert all(e["family"] == "secondary" and e["direction"] is None for e in many[17:])
+
+
+def test_the_plan_family_has_17_distinct_claims_and_no_mirror_image():
+    assert len(PRIMARY) == 17 and [c.id for c in PRIMARY] == [f"P{i}" for i in range(1, 18)]
+    keys = [(c.scenario, c.metric, frozenset((c.a, c.b))) for c in CLAIMS]
+    assert len(keys) == len(set(keys)), "a claim and its mirror image (or a duplicate) are both in the family"
+    assert {c.id for c in PRIMARY if c.paired} == {"P10", "P12"}  # braking collisions, as the plan says
+    assert paper_difference(PRIMARY[9]) == pytest.approx(0.010 - 0.248)
+
+
+def test_verdict_report_keeps_commits_apart_and_writes_both_readings(tmp_path):
     from kddrl_trl.reporting.builder import build_report
     from kddrl_trl.reporting.records import find_runs
 
     for seed in range(3):
-        fake_run(
-            tmp_path / "runs" / f"k{seed}",
-            "kddrl",
-            seed,
-            speeds=(130.0 + seed, 131.0),
-            collisions=(False, False),
-            commit="aaaaaaa",
-        )
-        fake_run(
-            tmp_path / "runs" / f"n{seed}",
-            "ni",
-            seed,
-            speeds=(120.0 + seed, 121.0),
-            collisions=(True, False),
-            commit="aaaaaaa",
-        )
-        fake_run(
-            tmp_path / "runs" / f"i{seed}",
-            "idm_mobil",
-            seed,
-            speeds=(100.0, 100.0),
-            collisions=(False, False),
-            commit="aaaaaaa",
-        )
+        for algo, speed, hit in (("kddrl", 130.0, False), ("ni", 120.0, True), ("idm_mobil", 100.0, False)):
+            fake_run(
+                tmp_path / "runs" / f"{algo}{seed}",
+                algo,
+                seed,
+                speeds=(speed + seed, speed + 1),
+                collisions=(hit, False),
+                commit="aaaaaaa",
+            )
     fake_run(tmp_path / "runs" / "k3", "kddrl", 3, speeds=(10.0, 10.0), collisions=(True, True), commit="bbbbbbb")
     build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep", verdict=True)
     report = json.loads((tmp_path / "rep" / "report.json").read_text())
-    assert set(report) == {"rows", "claims", "commits"} and report["commits"] == {"aaaaaaa": 9, "bbbbbbb": 1}
+    assert set(report) == {"rows", "claims", "commits", "plan_commit"}
+    assert report["commits"] == {"aaaaaaa": 9, "bbbbbbb": 1}
     rows = {r["algo"]: r for r in report["rows"]}
-    assert rows["kddrl"]["seeds"] == [0, 1, 2] and rows["kddrl"]["commits"] == ["aaaaaaa"]
-    assert rows["kddrl @bbbbbbb"]["seeds"] == [3]  # never pooled with the study's commit
+    assert rows["kddrl"]["seeds"] == [0, 1, 2] and rows["kddrl @bbbbbbb"]["seeds"] == [3]  # never pooled
     assert rows["ni"]["collisions_exact"]["collisions"] == 3 and rows["ni"]["collisions_exact"]["episodes"] == 6
-    assert rows["kddrl"]["speed_vs_idm_mobil"]["ratio"] == pytest.approx(np.mean([1.305, 1.31, 1.315]))
-    faster = next(c for c in report["claims"] if c["claim"] == "Table II: kddrl drives faster than ni")
-    assert faster["seeds"] == [0, 1, 2] and faster["difference"] == pytest.approx(10.0)
-    assert {"claim", "table", "verdict", "difference", "ci", "p_holm"} <= set(faster)
+    p1 = next(c for c in report["claims"] if c["id"] == "P1")
+    assert {"family", "direction", "size", "ci", "n", "p_direction_adjusted", "p_size_adjusted"} <= set(p1)
+    assert p1["family"] == "primary" and p1["direction"] == "pending" and p1["n"] == 0  # no seed 5-14 here
+    assert p1["description"]["difference"] == pytest.approx(10.0)
     md = (tmp_path / "rep" / "report.md").read_text()
-    assert "## The paper's claims" in md and "| baseline | ni | 3 / 6 | 50.00% [" in md
+    assert "## The paper's claims" in md and "### Secondary claims (exploratory)" in md
+    assert "| baseline | ni | 3 / 6 | 50.00% [" in md

@@ -65,8 +65,13 @@ def manifest(root: Path) -> list[dict]:
     return entries
 
 
+def _under(path: str, folder: str) -> bool:
+    """``path`` is ``folder`` or lies inside it (whole path components: ``runs_5-14`` is not under ``runs``)."""
+    return path == folder or path.startswith(folder.rstrip("/") + "/")
+
+
 def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
-    """Write every file of every archive (in the manifest's order; a later one wins) whose path starts with one of
+    """Write every file of every archive (in the manifest's order; a later one wins) that lies under one of
     ``prefixes`` (all where empty) to the same relative path under ``dest``. A file that ``dest`` holds already
     and main keeps in its tree must be byte-identical. Returns the number of files written."""
     written = 0
@@ -82,14 +87,13 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
         if prefixes:  # the narrower of each overlapping pair: one run of a study is archived alone
             wanted = [x.rstrip("/") for x in prefixes]
             paths = sorted(
-                {x for x in wanted for p in paths if x.startswith(p)}
-                | {p for p in paths for x in wanted if p.startswith(x)}
+                {x for x in wanted for p in paths if _under(x, p)} | {p for p in paths for x in wanted if _under(p, x)}
             )
         if not paths:
             continue
         with tarfile.open(fileobj=io.BytesIO(_git(root, "archive", commit, "--", *paths, binary=True))) as tar:
             for member in tar.getmembers():
-                if not member.isfile() or (prefixes and not member.name.startswith(prefixes)):
+                if not member.isfile() or (prefixes and not any(_under(member.name, x) for x in wanted)):
                     continue
                 target, data = dest / member.name, tar.extractfile(member).read()
                 if kept_in_tree(member.name) and target.exists():

@@ -3,7 +3,8 @@ collision breakdown, the figures and a footer saying what produced them (``pytho
 
 The seed (run) is the unit of evidence: each run's evaluation episodes give one value per metric
 (:meth:`~kddrl_trl.reporting.records.RunRecord.metrics`), and a row's value is the mean over its seeds with a
-percentile-bootstrap CI over seeds (:mod:`kddrl_trl.reporting.stats`). ``report.json`` is the machine-readable form:
+Student-t CI over seeds; every interval of the report, the verdict's included, comes from
+:mod:`kddrl_trl.reporting.stats`. ``report.json`` is the machine-readable form:
 a list of rows ``{"algo", "scenario", "seeds", "episodes", "metrics": {name: {"mean", "ci_low", "ci_high"}}}``. A policy
 evaluated on another scenario than it was trained on (``+scenario=mixed`` with ``eval_scenarios``, or
 ``kddrl_trl.evaluate``) is its own row, ``"<algo> (trained on <scenario>)"``
@@ -24,7 +25,7 @@ from ..provenance import commit, machine, versions
 from . import figures
 from .records import RunRecord
 from .stats import difference_ci, mean_ci, ratio_ci
-from .verdict import CLAIMS, exact_collisions, judge, speed_vs_rules
+from .verdict import CLAIMS, PLAN_COMMIT, TEST_SEEDS, exact_collisions, judge, speed_vs_rules
 
 #: metric name -> (column title, unit, format); the first four are the paper's table columns
 METRICS = {
@@ -47,10 +48,12 @@ TABLE_METRICS = (
     "lane_changes_per_1000_episodes",
     "collision_rate",
 )
+#: the metrics' possible ranges: their intervals are cut to them
+RANGES = {"collision_rate": (0.0, 1.0), "shield_rate": (0.0, 1.0)}
 REFERENCE = "kddrl"
 #: the rule-based reference of the safety comparison (the safety goals are read against it)
 RULE_REFERENCE = "idm_mobil"
-#: fewer seeds than this on a side: no verdict (a percentile bootstrap over 2 seeds only spans the two values seen)
+#: fewer seeds than this on a side: no reading of a difference (a t interval over 2 seeds is all but unbounded)
 MIN_SEEDS_FOR_VERDICT = 3
 #: scenario order of the paper's tables
 SCENARIO_ORDER = ("baseline", "congested", "congested_text", "braking", "mixed")
@@ -105,7 +108,11 @@ def rows(runs: list[RunRecord]) -> list[dict]:
                 "episodes": int(sum(m["episodes"] for m in per_seed)),
                 "episodes_per_seed": sorted({int(m["episodes"]) for m in per_seed}),
                 "metrics": {
-                    name: {k: v for k, v in mean_ci([m[name] for m in per_seed]).items() if k != "n"}
+                    name: {
+                        k: v
+                        for k, v in mean_ci([m[name] for m in per_seed], within=RANGES.get(name)).items()
+                        if k != "n"
+                    }
                     for name in METRICS
                 },
                 "per_seed": {name: [m[name] for m in per_seed] for name in METRICS},
@@ -132,10 +139,9 @@ def _table(scenario: str, table_rows: list[dict]) -> list[str]:
     lines = [
         f"### {scenario} (paper {TABLES.get(scenario, 'no table')})",
         "",
-        "Each cell: the mean over seeds [95 % bootstrap CI over seeds]; below it, the paper's value (mean ± its "
-        "unexplained ±) where it published one. A row of 2 seeds has no real interval: its bracket is the range of "
-        "the two seeds' values (the percentile bootstrap cannot reach beyond them); intervals mean something "
-        f"from {MIN_SEEDS_FOR_VERDICT} seeds on, and are still narrow at 3-5.",
+        "Each cell: the mean over seeds [95 % Student-t CI over seeds: each seed, one trained policy, is one "
+        "observation, collision rates included]; below it, the paper's value (mean ± its unexplained ±) where it "
+        "published one.",
         "",
         "| " + " | ".join(head) + " |",
         "|" + "---|" * len(head),
@@ -157,10 +163,7 @@ def _verdict(diff: dict, metric: str, algo: str, n: tuple[int, int]) -> str:
     if diff["ci_low"] is None:
         return "one seed on a side: no interval"
     if min(n) < MIN_SEEDS_FOR_VERDICT:
-        return (
-            f"too few seeds for a verdict ({n[0]} vs {n[1]}; with 2 seeds the bootstrap interval is only the "
-            "range of the two values seen)"
-        )
+        return f"too few seeds for a reading ({n[0]} vs {n[1]})"
     if diff["ci_low"] > 0:
         return f"{algo} is higher"
     if diff["ci_high"] < 0:
@@ -176,7 +179,7 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
     lines = [
         f"### {scenario}: each algo minus {REFERENCE}",
         "",
-        "Difference of the across-seed means, 95 % bootstrap CI (seeds resampled within each system), and the "
+        "Difference of the across-seed means, Welch's 95 % CI (the verdict's test, unadjusted here), and the "
         f"probability of improvement P(algo > {REFERENCE}) over all pairs of seeds.",
         "",
         "| algo | metric | difference | 95 % CI | P(algo > kddrl) | reading |",
@@ -195,7 +198,7 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
 
 def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
     """Each other row against :data:`RULE_REFERENCE` on one scenario: its mean speed as a ratio of the rule
-    baseline's and its collision rate minus the rule baseline's, with bootstrap CIs over seeds (the safety goals:
+    baseline's and its collision rate minus the rule baseline's, with Welch's CIs over seeds (the safety goals:
     speed >= 1.05 x, collisions <= + 0.5 points on baseline, <= 2 % on braking)."""
     ref = next((r for r in table_rows if r["algo"] == RULE_REFERENCE), None)
     others = [r for r in table_rows if r["algo"] != RULE_REFERENCE]
@@ -206,7 +209,7 @@ def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
         f"### {scenario}: each algo against {RULE_REFERENCE} ({len(ref['seeds'])} seeds)",
         "",
         f"Mean speed ÷ {RULE_REFERENCE}'s and collision rate − {RULE_REFERENCE}'s (percentage points), "
-        "95 % bootstrap CI (seeds resampled within each system).",
+        "Welch's 95 % CI over seeds (of the log-ratio for the speed).",
         "",
         "| algo | seeds | speed ratio | 95 % CI | collision rate | collisions − rules | 95 % CI |"
         + (" shield interventions |" if shield else ""),
@@ -334,45 +337,93 @@ def split_commits(runs: list[RunRecord]) -> list[RunRecord]:
     ]
 
 
+def _num(metric: str, v, unit: bool = True) -> str:
+    """A difference in the claims' units: collision rates in percentage points, the rest as they are."""
+    if v is None:
+        return "—"
+    return (f"{100 * v:+.2f}" + (" pts" if unit else "")) if metric == "collision_rate" else f"{v:+.2f}"
+
+
+def _interval(metric: str, ci) -> str:
+    return "" if ci is None else f"[{_num(metric, ci[0], False)}, {_num(metric, ci[1], False)}]"
+
+
+def _estimate(metric: str, value, ci) -> str:
+    return "—" if value is None else f"{_num(metric, value)} {_interval(metric, ci)}".strip()
+
+
+def _p(p) -> str:
+    return "—" if p is None else ("1" if p >= 1 else f"{p:.2g}")
+
+
 def _claims_section(claims: list[dict], table_rows: list[dict], exact: dict, ratios: dict) -> list[str]:
-    """The verdict table (every claim, its paired difference over seeds, CI, Holm-adjusted p and verdict) and, per
-    row, the exact collision interval and the speed ratio to IDM+MOBIL."""
-
-    def num(metric, v):
-        return "—" if v is None else (f"{100 * v:+.2f} pts" if metric == "collision_rate" else f"{v:+.2f}")
-
-    counts = Counter(c["verdict"] for c in claims)
+    """The verdict of the analysis plan (``studies/paper/plan.md``): the primary claims with both readings and
+    their description over all seeds, the secondary claims as exploratory estimates, and, per row, the pooled
+    collision count and the speed ratio to IDM+MOBIL."""
+    primary = [c for c in claims if c["family"] == "primary"]
+    secondary = [c for c in claims if c["family"] != "primary"]
+    seeds = f"{TEST_SEEDS[0]}-{TEST_SEEDS[-1]}"
+    directions, sizes = Counter(c["direction"] for c in primary), Counter(c["size"] for c in primary)
     md = [
         "## The paper's claims",
         "",
-        "Each claim is one paired comparison: the difference a − b of the per-seed values over the seeds both "
-        "systems ran (the same seed is the same evaluation traffic), its 95 % Student-t CI over seeds, and the "
-        "two-sided paired t-test's p-value adjusted by Holm-Bonferroni over all the claims tested. *holds*: adjusted "
-        "p < 0.05 in the claimed direction; *contradicted*: adjusted p < 0.05 against it; *inconclusive*: neither, "
-        "or fewer than 3 paired seeds. Collision differences are in percentage points; speeds in km/h; lane "
-        "changes per episode. `paper`: the same difference in the paper's tables.",
+        f"The analysis plan (`studies/paper/plan.md`) fixed {len(primary)} primary claims from the paper's text, the "
+        f"test and n before the confirmatory seeds {seeds} ran. Each primary claim is tested once, on those seeds only, "
+        "by Welch's t-test (the paired t-test for braking collisions, marked *paired*), with two questions, each "
+        f"Holm-corrected over the {len(primary)}: **direction** (H0: no difference; *holds* / *contradicted* at an "
+        "adjusted p < 0.05 in / against the claimed direction, else *inconclusive*) and **size** (H0: the paper's "
+        "difference; *excluded, smaller* or *larger* along the claimed direction, else *compatible*). Until every "
+        "cell has all its confirmatory seeds, both read *pending*. *described* is the estimate over all seeds "
+        "(0-14, the pilot's included) with its 95 % interval. Collision differences in percentage points, speeds in "
+        "km/h, lane changes per episode; `paper`: the same difference in the paper's tables.",
         "",
-        f"**{counts.get('holds', 0)} hold, {counts.get('contradicted', 0)} contradicted, "
-        f"{counts.get('inconclusive', 0)} inconclusive** of {len(claims)} claims.",
+        "**Direction:** "
+        + ", ".join(f"{k} {v}" for k, v in sorted(directions.items()))
+        + ". **Size:** "
+        + ", ".join(f"{k} {v}" for k, v in sorted(sizes.items(), key=lambda kv: str(kv[0])))
+        + f" (of {len(primary)} primary claims).",
         "",
-        "| claim | seeds | difference a − b | 95 % CI | p (Holm) | verdict | paper |",
-        "|---|---|---|---|---|---|---|",
+        f"| # | claim | n ({seeds}) | a − b [95 % CI] | simultaneous CI | paper | p direction (Holm) | direction "
+        "| p size (Holm) | size | described: a − b [95 % CI], seeds |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for c in claims:
-        ci = "—" if c["ci"] is None else f"[{num(c['metric'], c['ci'][0])}, {num(c['metric'], c['ci'][1])}]"
-        p = "—" if c["p_holm"] is None else f"{c['p_holm']:.3g}"
+    for c in primary:
+        m, d = c["metric"], c["description"]
+        direction = f"**{c['direction']}**" + ("" if c["reading"] is None else f"; {c['reading']}")
+        described = "—" if d is None else f"{_estimate(m, d['difference'], d['ci'])}, {min(d['n'])}"
         md.append(
-            f"| {c['claim']} | {len(c['seeds'])} | {num(c['metric'], c['difference'])} | {ci} | {p} | "
-            f"**{c['verdict']}** | {num(c['metric'], c['paper'])} |"
+            f"| {c['id']} | {c['claim']}{' (paired)' if c['test'] == 'paired' else ''} | {c['n']} | "
+            f"{_estimate(m, c['difference'], c['ci'])} | {_interval(m, c['ci_simultaneous']) or '—'} | "
+            f"{_num(m, c['paper'])} | {_p(c['p_direction_adjusted'])} | {direction} | "
+            f"{_p(c['p_size_adjusted'])} | {c['size'] or '—'} | {described} |"
         )
     md += [
         "",
-        "### Collision rates (exact) and speed against IDM+MOBIL",
+        "### Secondary claims (exploratory)",
         "",
-        "Collisions pooled over a row's episodes with a Clopper-Pearson 95 % interval; speed as the mean of the "
-        "per-seed ratios to IDM+MOBIL's speed on the same seeds (t interval), beside the paper's ratio.",
+        "Every other comparative statement of the paper, over all the seeds each system has: Welch's difference, "
+        "its unadjusted 95 % interval and p-value. No verdict: these were not planned tests.",
         "",
-        "| scenario | algo | collisions / episodes | rate [exact 95 % CI] | speed ÷ IDM+MOBIL | paper |",
+        "| # | claim | seeds (a, b) | a − b [95 % CI] | p (unadjusted) | paper |",
+        "|---|---|---|---|---|---|",
+    ]
+    for c in secondary:
+        m, d = c["metric"], c["description"]
+        n = "—" if d is None else f"{d['n'][0]}, {d['n'][1]}"
+        md.append(
+            f"| {c['id']} | {c['claim']} | {n} | {_estimate(m, c['difference'], c['ci'])} | "
+            f"{_p(c['p'])} | {_num(m, c['paper'])} |"
+        )
+    md += [
+        "",
+        "### Collisions pooled, and speed against IDM+MOBIL",
+        "",
+        "Collisions pooled over a row's episodes with a Clopper-Pearson 95 % interval: a description of these "
+        "trained policies, not an interval for the method (its seeds vary far more than a binomial; the tables' "
+        "seed-level intervals are the method's). Speed as the mean of the per-seed ratios to IDM+MOBIL's speed on "
+        "the same seeds (t interval), beside the paper's ratio.",
+        "",
+        "| scenario | algo | collisions / episodes, pooled | rate [exact 95 % CI] | speed ÷ IDM+MOBIL | paper |",
         "|---|---|---|---|---|---|",
     ]
     for row in table_rows:
@@ -496,13 +547,18 @@ def build_report(
             f"{m['collision_rate']:.1%} | {'—' if wall is None else f'{wall:.0f}'} | `{folder}` |"
         )
     md += [""] + footer(runs, command)
+    if verdict:
+        md.append(f"* **Analysis plan:** `studies/paper/plan.md`, fixed at commit {PLAN_COMMIT}")
     report = [
         {k: v for k, v in row.items() if k not in ("runs", "per_seed")} | {"per_seed": row["per_seed"]}
         for row in table_rows
     ]
     if verdict:
         commits = Counter(r.commit for r in runs)
-        write_json_atomic(out_dir / "report.json", {"rows": report, "claims": claims, "commits": dict(commits)})
+        write_json_atomic(
+            out_dir / "report.json",
+            {"rows": report, "claims": claims, "commits": dict(commits), "plan_commit": PLAN_COMMIT},
+        )
     else:
         write_json_atomic(out_dir / "report.json", report)
     write_text_atomic(out_dir / "report.md", "\n".join(md) + "\n")

@@ -1,76 +1,159 @@
-"""Confidence intervals over seeds: the seed (run) is the unit of evidence (docs/design.md, "Evidence").
+"""Statistics over seeds: the seed (one trained policy) is the unit of evidence (docs/design.md, "Evidence").
 
-Percentile bootstrap (``scipy.stats.bootstrap``) of the across-seed mean, and of the difference (or the ratio) of
-two systems' means (independent seeds, each resampled on its own). Fixed ``random_state``: the same records give the
-same report. With one seed there is no interval (None); with identical values the interval is that value.
+Every interval of the reports comes from here, so that no two sections disagree (the verdict's tests are these
+functions too, :mod:`kddrl_trl.reporting.verdict`):
+
+* the mean of one system's per-seed values (or of paired differences): Student's t interval and one-sample test
+  (``scipy.stats.ttest_1samp``);
+* the difference of two systems' means: Welch's t-test and its interval (``scipy.stats.ttest_ind``, unequal
+  variances), or the paired t-test (``scipy.stats.ttest_rel``) where the plan pairs seeds;
+* the ratio of two systems' means: Welch's interval of the log-ratio (the delta method), which stays positive;
+* a rate pooled over every episode of a row (a description of those trained policies, not an interval for the
+  method): the exact Clopper-Pearson interval (``scipy.stats.binomtest``);
+* Holm's step-down adjustment over a family (``statsmodels.stats.multitest.multipletests``).
+
+A collision rate is a per-seed value like any other (each seed's rate is one observation). With 5 seeds a
+percentile bootstrap covers far less than its nominal level, so none is used. With one seed there is no interval
+(None); with no spread at all, the interval is the value itself and the test's p-value is 1 (no evidence either
+way), never 0.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 CONFIDENCE = 0.95
-RESAMPLES = 10_000
 
 
-def _bootstrap(samples: tuple, statistic, confidence: float, resamples: int) -> tuple[float, float]:
-    from scipy.stats import bootstrap
-
-    res = bootstrap(
-        samples,
-        statistic,
-        confidence_level=confidence,
-        n_resamples=resamples,
-        method="percentile",
-        vectorized=True,
-        random_state=np.random.default_rng(0),
-        axis=-1,
-    )
-    return float(res.confidence_interval.low), float(res.confidence_interval.high)
-
-
-def mean_ci(values, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
-    """``{"mean", "ci_low", "ci_high", "n"}`` of ``values`` (one per seed)."""
+def _finite(values, what: str) -> np.ndarray:
     x = np.asarray(values, dtype=float)
     if x.size == 0 or not np.isfinite(x).all():
-        raise ValueError(f"mean_ci: need finite values, got {x.tolist()}")
+        raise ValueError(f"{what}: need finite values, got {x.tolist()}")
+    return x
+
+
+def mean_test(values, null: float = 0.0, confidence: float = CONFIDENCE) -> dict:
+    """``{"mean", "ci_low", "ci_high", "p", "n"}`` of ``values`` (one per seed, or paired differences): Student's t
+    interval of the mean and the two-sided one-sample t-test of H0: mean = ``null``."""
+    from scipy.stats import ttest_1samp
+
+    x = _finite(values, "mean_test")
     mean = float(x.mean())
     if x.size < 2:
-        return {"mean": mean, "ci_low": None, "ci_high": None, "n": int(x.size)}
+        return {"mean": mean, "ci_low": None, "ci_high": None, "p": None, "n": int(x.size)}
     if np.ptp(x) == 0:
-        return {"mean": mean, "ci_low": mean, "ci_high": mean, "n": int(x.size)}
-    low, high = _bootstrap((x,), lambda s, axis=-1: s.mean(axis=axis), confidence, resamples)
-    return {"mean": mean, "ci_low": low, "ci_high": high, "n": int(x.size)}
+        return {"mean": mean, "ci_low": mean, "ci_high": mean, "p": 1.0, "n": int(x.size)}
+    res = ttest_1samp(x, null)
+    ci = res.confidence_interval(confidence)
+    return {"mean": mean, "ci_low": float(ci.low), "ci_high": float(ci.high), "p": float(res.pvalue), "n": int(x.size)}
 
 
-def _two_systems(values, reference, statistic, confidence: float, resamples: int) -> dict:
-    """``statistic(x, y)`` of two systems' per-seed values (independent seeds, each resampled on its own) with its
-    bootstrap interval, and the probability of improvement ``P(X > Y)`` over all pairs of seeds (ties count one
-    half)."""
-    x, y = np.asarray(values, dtype=float), np.asarray(reference, dtype=float)
-    value = float(statistic(x, y))
-    pairs = x[:, None] - y[None, :]
-    p_greater = float(((pairs > 0) + 0.5 * (pairs == 0)).mean())
+def mean_ci(values, confidence: float = CONFIDENCE, within: tuple[float, float] | None = None) -> dict:
+    """``{"mean", "ci_low", "ci_high", "n"}`` of ``values`` (one per seed): Student's t interval of the mean, cut to
+    ``within`` (the values' possible range, e.g. [0, 1] for a rate) when given."""
+    out = {k: v for k, v in mean_test(values, confidence=confidence).items() if k != "p"}
+    if within is not None and out["ci_low"] is not None:
+        out["ci_low"], out["ci_high"] = max(out["ci_low"], within[0]), min(out["ci_high"], within[1])
+    return out
+
+
+def difference_test(values, reference, null: float = 0.0, paired: bool = False, confidence: float = CONFIDENCE):
+    """Mean of ``values`` minus mean of ``reference`` (per-seed values; ``paired``: the same seeds in the same
+    order) with the test of H0: difference = ``null`` (two-sided; Welch's, or the paired t-test) and the
+    interval of the difference at ``confidence`` -> ``{"mean", "ci_low", "ci_high", "p", "test", "n"}``.
+    No spread on either side: the interval is the difference itself and p is 1."""
+    from scipy.stats import ttest_ind, ttest_rel
+
+    x, y = _finite(values, "difference_test"), _finite(reference, "difference_test")
+    if paired and x.size != y.size:
+        raise ValueError(f"difference_test: paired values need the same seeds, got {x.size} and {y.size}")
+    value = float(x.mean() - y.mean())
+    out = {"mean": value, "ci_low": None, "ci_high": None, "p": None, "test": "paired" if paired else "welch"}
+    out["n"] = [int(x.size), int(y.size)]
     if min(x.size, y.size) < 2:
-        return {"mean": value, "ci_low": None, "ci_high": None, "p_greater": p_greater}
-    if np.ptp(x) == 0 and np.ptp(y) == 0:
-        return {"mean": value, "ci_low": value, "ci_high": value, "p_greater": p_greater}
-    low, high = _bootstrap((x, y), statistic, confidence, resamples)
-    return {"mean": value, "ci_low": low, "ci_high": high, "p_greater": p_greater}
+        return out
+    spread = np.ptp(x - y) if paired else max(np.ptp(x), np.ptp(y))
+    if spread == 0:
+        return {**out, "ci_low": value, "ci_high": value, "p": 1.0}
+    res = ttest_rel(x - null, y) if paired else ttest_ind(x - null, y, equal_var=False)
+    ci = res.confidence_interval(confidence)
+    return {**out, "ci_low": float(ci.low) + null, "ci_high": float(ci.high) + null, "p": float(res.pvalue)}
 
 
-def difference_ci(values, reference, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
-    """Mean of ``values`` minus mean of ``reference`` (independent seeds) with its bootstrap interval, and the
-    probability of improvement ``P(X > Y)`` over all pairs of seeds (ties count one half)."""
-    return _two_systems(
-        values, reference, lambda a, b, axis=-1: a.mean(axis=axis) - b.mean(axis=axis), confidence, resamples
-    )
+def difference_ci(values, reference, confidence: float = CONFIDENCE) -> dict:
+    """Mean of ``values`` minus mean of ``reference`` (independent seeds) with Welch's interval and p-value
+    (:func:`difference_test`), and the probability of improvement ``P(X > Y)`` over all pairs of seeds (ties count
+    one half)."""
+    x, y = _finite(values, "difference_ci"), _finite(reference, "difference_ci")
+    pairs = x[:, None] - y[None, :]
+    return {
+        **difference_test(x, y, confidence=confidence),
+        "p_greater": float(((pairs > 0) + 0.5 * (pairs == 0)).mean()),
+    }
 
 
-def ratio_ci(values, reference, confidence: float = CONFIDENCE, resamples: int = RESAMPLES) -> dict:
+def ratio_ci(values, reference, confidence: float = CONFIDENCE) -> dict:
     """Mean of ``values`` divided by the mean of ``reference`` (independent seeds; e.g. a policy's mean speed over
-    the rule baseline's, as the safety goal "speed >= 1.05 x IDM+MOBIL's" reads) with its bootstrap interval."""
-    y = np.asarray(reference, dtype=float)
-    if y.size == 0 or not (np.isfinite(y).all() and (y > 0).all()):
-        raise ValueError(f"ratio_ci: the reference values must be finite and > 0, got {y.tolist()}")
-    return _two_systems(values, y, lambda a, b, axis=-1: a.mean(axis=axis) / b.mean(axis=axis), confidence, resamples)
+    the rule baseline's, as the safety goal "speed >= 1.05 x IDM+MOBIL's" reads): Welch's interval of the log of
+    the ratio (delta method: var ≈ s_x² / (n_x m_x²) + s_y² / (n_y m_y²), Welch-Satterthwaite degrees of freedom),
+    taken back by exp. Both means must be > 0."""
+    from scipy.stats import t
+
+    x, y = _finite(values, "ratio_ci"), _finite(reference, "ratio_ci")
+    if not (x.mean() > 0 and (y > 0).all()):
+        raise ValueError(f"ratio_ci: the means must be > 0, got {x.tolist()} over {y.tolist()}")
+    ratio = float(x.mean() / y.mean())
+    out = {"mean": ratio, "ci_low": None, "ci_high": None}
+    if min(x.size, y.size) < 2:
+        return out
+    vx, vy = x.var(ddof=1) / (x.size * x.mean() ** 2), y.var(ddof=1) / (y.size * y.mean() ** 2)
+    if vx + vy == 0:
+        return {**out, "ci_low": ratio, "ci_high": ratio}
+    df = (vx + vy) ** 2 / (vx**2 / (x.size - 1) + vy**2 / (y.size - 1))
+    half = float(t.ppf(0.5 + confidence / 2, df)) * math.sqrt(vx + vy)
+    return {**out, "ci_low": ratio * math.exp(-half), "ci_high": ratio * math.exp(half)}
+
+
+def clopper_pearson(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float]:
+    """Exact binomial interval of a rate of ``k`` events in ``n`` trials (``scipy.stats.binomtest``)."""
+    from scipy.stats import binomtest
+
+    if n <= 0 or not 0 <= k <= n:
+        raise ValueError(f"clopper_pearson: need 0 <= k <= n and n > 0, got k={k}, n={n}")
+    ci = binomtest(int(k), int(n)).proportion_ci(confidence_level=confidence, method="exact")
+    return float(ci.low), float(ci.high)
+
+
+def holm(pvalues) -> list[float]:
+    """Holm-Bonferroni adjusted p-values in the input's order (``statsmodels``' ``multipletests``)."""
+    from statsmodels.stats.multitest import multipletests
+
+    p = np.asarray(pvalues, dtype=float)
+    return [] if p.size == 0 else multipletests(p, method="holm")[1].tolist()
+
+
+def seeds_for_power(effect: float, sd: float, alpha: float, paired: bool, power: float = 0.8) -> float:
+    """Seeds per system a two-sided t-test at ``alpha`` needs to find a true difference ``effect`` with
+    probability ``power`` (statsmodels' power classes; Welch read as the equal-variance test at the pooled
+    ``sd``; ``paired``: ``sd`` of the differences). ``inf`` when there is no spread to measure against."""
+    from statsmodels.stats.power import TTestIndPower, TTestPower
+
+    if sd <= 0 or effect == 0:
+        return math.inf
+    solver, key = (TTestPower(), "nobs") if paired else (TTestIndPower(), "nobs1")
+
+    def enough(n: int) -> bool:
+        p = solver.power(abs(effect) / sd, alpha=alpha, **{key: n})
+        return bool(np.isnan(p) or p >= power)  # NaN: statsmodels' noncentral t far out, where the power is 1
+
+    low, high = 2, 4
+    while not enough(high):
+        low, high = high, high * 2
+        if high > 10**7:
+            return math.inf
+    while high - low > 1:  # the power grows with n: the smallest n that is enough
+        mid = (low + high) // 2
+        low, high = (low, mid) if enough(mid) else (mid, high)
+    return float(high)
