@@ -2,7 +2,8 @@
 # Land a sweep's finished runs on main: collect.sh copies the new ones, they are committed whole, then their
 # records leave the tree (kept in that commit, listed in studies/records.json) and that is committed too:
 #   bash studies/paper/land.sh <sweep dir> <destination, e.g. studies/paper/runs_5-14> [commit message]
-# From main's root. Only the runs new to the destination are added (the older ones stay in their own commits).
+# From main's root. Only the runs new to the destination are added (the older ones stay in their own commits). The
+# study's report and the README's verdict table are regenerated in the second commit (its records restored first).
 set -euo pipefail
 SRC=${1:?usage: land.sh <sweep dir> <destination> [message]}
 DST=${2:?usage: land.sh <sweep dir> <destination> [message]}
@@ -16,5 +17,10 @@ for run in $new; do git add -f "$DST/$run"; done
 [ -f "$DST/multirun.yaml" ] && git add -f "$DST/multirun.yaml"
 git commit -q -m "$MSG: $(echo $new | tr ' ' ',')"
 python -m kddrl_trl.devtools.records archive "$DST"
-git commit -q -m "$(basename "$DST"): the records of $(git rev-parse --short HEAD) leave the tree (studies/records.json)"
+# the study's report and the README's verdict table follow the runs it reads (every record of the study restored first)
+python -m kddrl_trl.devtools.records restore paper > /dev/null
+python -m kddrl_trl.report studies/paper/runs studies/paper/runs_5-14 out=studies/paper verdict=true > /dev/null
+python "$(dirname "$0")/readme_table.py" --write README.md docs/index.md
+git add studies/paper/report.md studies/paper/report.json studies/paper/fig*.png README.md docs/index.md
+git commit -q -m "$(basename "$DST"): the records of $(git rev-parse --short HEAD) leave the tree (studies/records.json); report and README table regenerated"
 echo "land.sh: landed $(echo "$new" | wc -l) run(s): $(echo $new)"
