@@ -1,6 +1,6 @@
 """Periodic validation beside the training: each validation is of the learner as it was when it started, the
-training goes on while it runs, a checkpoint waits only for those started before its episode, and a resumed run
-starts again the one its checkpoint lists as under way."""
+training goes on while it runs, a checkpoint does not wait for it but lists it with the learner it was given, and a
+resumed run starts again, on those weights, every one its checkpoint lists as under way."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from kddrl_trl.eval.periodic import PeriodicEvaluator
 from kddrl_trl.eval.rollout import evaluate_policy
 from kddrl_trl.factories import make_env, make_learner
 from kddrl_trl.runs import checkpoint_candidates
-from kddrl_trl.training import load_training_checkpoint, save_training_checkpoint
+from kddrl_trl.training import CheckpointError, load_training_checkpoint, save_training_checkpoint
 
 SMALL = ("env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]")
 COUNTS = ("frames", "decisions", "cf_updates", "lc_updates")
@@ -31,12 +31,12 @@ def _weight_sum(state: dict) -> float:
 
 class LaggingEvaluator:
     """An in-process stand-in for :class:`PeriodicEvaluator` whose validations finish only when the trainer asks for
-    their result: every one is still running at the next batch, so the trainer must wait at its checkpoints. A
+    their result (``waited`` counts those asks): every one is still running at the next batch and checkpoint. A
     validation's ``mean_speed_kmh`` is a function of the learner's weights when it started (kept here too, to
     compare); its score falls with each validation, so the first one is the best."""
 
     def __init__(self, learner):
-        self.learner, self.started = learner, []
+        self.learner, self.started, self.waited = learner, [], 0
 
     def submit(self, policy) -> Future:
         future = Future()
@@ -45,6 +45,7 @@ class LaggingEvaluator:
         return future
 
     def result(self, future: Future):
+        self.waited += 1
         future.set_result(None)
         keys = ("mean_accel", "lane_changes", "return_lc", "return_cf", "collision_rate")
         summary = {"score": -float(future.order), "mean_speed_kmh": _weight_sum(future.state)}
@@ -82,13 +83,34 @@ def test_validations_are_recorded_at_their_episodes_with_the_weights_they_starte
     # eval/ rows logged once each, at the validations' episodes
     rows = (tmp_path / "logs" / "scalars" / "eval" / "score.csv").read_text().split()
     assert [int(float(r.split(",")[0])) for r in rows] == steps
-    # a checkpoint lists at most its own episode's validation as under way; the last lists none
-    for path in checkpoint_candidates(tmp_path):
+    # a checkpoint lists the validations under way with the learner each was given; the last lists none
+    for path in checkpoint_candidates(tmp_path)[1:]:
         payload = load_training_checkpoint(path)
-        done = len(payload["history"])
-        assert payload["validating"] in ([], [done])
-        assert all(v["episodes_trained"] < done for v in payload["validations"] if v["episodes_trained"] != done)
-    assert load_training_checkpoint(checkpoint_candidates(tmp_path)[0])["validating"] == []
+        under_way = payload["validating"]
+        assert under_way and under_way == sorted(under_way) and under_way[-1] <= len(payload["history"])
+        for step, given in zip(under_way, payload["validating_learners"], strict=True):
+            assert _weight_sum(given["modules"]) == _weight_sum(started[steps.index(step)])
+    last = load_training_checkpoint(checkpoint_candidates(tmp_path)[0])
+    assert last["validating"] == [] and last["validating_learners"] == []
+
+
+def test_a_checkpoint_does_not_wait_for_a_validation_under_way(tmp_path):
+    """Every validation of the stand-in runs until the trainer asks for it: the checkpoints after each batch ask
+    for none (counted after each), only the last one (``final``) does."""
+    env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+    trainer.evaluator = LaggingEvaluator(learner)
+    saves = []
+    checkpoint = trainer.checkpoint
+    trainer.checkpoint = lambda final=False: (
+        checkpoint(final),
+        saves.append((final, trainer.evaluator.waited)),
+    )[0]
+    try:
+        trainer.run(collector)
+    finally:
+        env.close()
+    assert len(saves) >= 3 and all(waited == 0 for final, waited in saves if not final)
+    assert saves[-1][0] and trainer.evaluator.waited == len(trainer.validations) == len(trainer.evaluator.started)
 
 
 class PromptEvaluator(LaggingEvaluator):
@@ -120,23 +142,35 @@ def test_a_finished_validation_is_logged_after_the_next_batch_not_at_the_next_ch
 
 
 def test_a_resumed_run_validates_again_what_its_checkpoint_left_under_way(tmp_path):
+    """Resumed from a checkpoint that lists several validations under way, the run starts each again on the very
+    weights it was given (bit for bit), then trains on with the checkpoint's own learner (bit for bit)."""
     _, trainer = _trained(tmp_path)
-    previous = checkpoint_candidates(tmp_path)[1]  # the newest but one: written while its validation ran
+    previous = checkpoint_candidates(tmp_path)[1]  # the newest but one: written while its validations ran
     payload = load_training_checkpoint(previous)
-    done = len(payload["history"])
-    assert payload["validating"] == [done]
+    done, under_way = len(payload["history"]), payload["validating"]
+    assert len(under_way) >= 2 and under_way[-1] == done
     (tmp_path / "checkpoints" / checkpoint_candidates(tmp_path)[0].name).unlink()  # resume from `previous`
     (tmp_path / "checkpoints" / "latest").unlink()
     env, learner, again, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
     again.evaluator = LaggingEvaluator(learner)
+    trained_from = []
+    explore_step = learner.explore_step  # the first thing the loop does with the learner, after the restarts
+    learner.explore_step = lambda *a: (trained_from.append(copy.deepcopy(learner.state_dict())), explore_step(*a))
     try:
-        assert again.load(tmp_path) == done and again.unfinished == [done]
+        assert again.load(tmp_path) == done and [s for s, _ in again.unfinished] == under_way
         again.run(collector)
     finally:
         env.close()
+    started = trainer.evaluator.started
+    steps = [v["episodes_trained"] for v in trainer.validations]
+    for k, step in enumerate(under_way):  # started again in order, each on its own weights
+        for name, value in started[steps.index(step)].items():
+            torch.testing.assert_close(again.evaluator.started[k][name], value, rtol=0, atol=0, msg=f"{step} {name}")
+    for name, value in payload["learner"]["modules"].items():  # the training goes on from the checkpoint's learner
+        torch.testing.assert_close(trained_from[0][name], value, rtol=0, atol=0, msg=name)
     ours = {v["episodes_trained"]: v["mean_speed_kmh"] for v in trainer.validations}
     theirs = {v["episodes_trained"]: v["mean_speed_kmh"] for v in again.validations}
-    assert done in theirs and theirs[done] == ours[done]  # the same weights validated again
+    assert all(theirs[s] == ours[s] for s in under_way)
     assert sorted(theirs) == [v["episodes_trained"] for v in again.validations]
 
 
@@ -169,12 +203,13 @@ def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way
     payload = load_training_checkpoint(final)
     assert payload["validations"][-1]["episodes_trained"] == 3
     payload["validating"], payload["validations"] = [3], payload["validations"][:-1]  # killed while it ran
+    payload["validating_learners"] = [payload["learner"]]
     payload.pop("format")
     save_training_checkpoint(tmp_path, 3, payload)
     env, learner, again, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
     again.evaluator = LaggingEvaluator(learner)
     try:
-        assert again.load(tmp_path) == 3 and again.unfinished == [3]
+        assert again.load(tmp_path) == 3 and [s for s, _ in again.unfinished] == [3]
         again.run(collector, finish=finish)
     finally:
         env.close()
@@ -191,9 +226,9 @@ def test_a_run_resumed_at_its_last_episode_records_the_validation_left_under_way
 
 
 def test_run_without_finish_leaves_the_last_validation_running_for_the_final_evaluation(tmp_path):
-    """``run(finish=False)``: the validation of the last episode is still under way when ``run`` returns (the last
-    checkpoint lists it, a resumed run starts it again), and :meth:`Trainer.finish` records it, writes the last
-    checkpoint again with it (the learner and counters unchanged) and stops the evaluator."""
+    """``run(finish=False)``: the validations still running when ``run`` returns, the last episode's among them, are
+    under way (the last checkpoint lists them, a resumed run starts them again), and :meth:`Trainer.finish` records
+    them, writes the last checkpoint again with them (the learner and counters unchanged) and stops the evaluator."""
     env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
     trainer.evaluator = LaggingEvaluator(learner)
     closed = []
@@ -203,12 +238,13 @@ def test_run_without_finish_leaves_the_last_validation_running_for_the_final_eva
     finally:
         env.close()
     steps = [v["episodes_trained"] for v in trainer.validations]
-    assert 3 not in steps and [s for s, _, _ in trainer.pending] == [3] and not closed
+    running = [s for s, _, _ in trainer.pending]
+    assert 3 not in steps and running[-1] == 3 and not closed
     last = checkpoint_candidates(tmp_path)[0]
     before = load_training_checkpoint(last)
-    assert before["validating"] == [3] and before["validations"] == trainer.validations
+    assert before["validating"] == running and before["validations"] == trainer.validations
     assert trainer.finish() is trainer.validations and closed
-    assert [v["episodes_trained"] for v in trainer.validations] == [*steps, 3] and not trainer.pending
+    assert [v["episodes_trained"] for v in trainer.validations] == [*steps, *running] and not trainer.pending
     assert trainer.validations[-1]["mean_speed_kmh"] == _weight_sum(learner.state_dict())  # the final weights
     after = load_training_checkpoint(last)
     assert checkpoint_candidates(tmp_path)[0] == last
@@ -217,13 +253,44 @@ def test_run_without_finish_leaves_the_last_validation_running_for_the_final_eva
     torch.testing.assert_close(after["learner"], before["learner"], rtol=0, atol=0)  # weights, optimiser states
 
 
-def test_a_checkpoint_listing_an_earlier_validation_under_way_is_refused(tmp_path):
-    env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+@pytest.mark.parametrize(
+    ("validating", "learners", "message"),
+    [
+        ([1, 2], None, r"under way at episodes \[1, 2\] without the learners"),  # older code's, earlier ones
+        ([1, 2], ["one"], r"'validating' \[1, 2\] and 'validating_learners' \(1\) do not pair up"),
+        ([9], ["one"], r"do not pair up as evaluations started by episode 3"),
+    ],
+)
+def test_a_checkpoint_whose_validations_under_way_cannot_be_started_again_is_refused(
+    tmp_path, validating, learners, message
+):
+    _trained(tmp_path)
+    payload = load_training_checkpoint(checkpoint_candidates(tmp_path)[0])
+    payload["validating"] = validating
+    if learners is None:
+        del payload["validating_learners"]
+    else:
+        payload["validating_learners"] = [payload["learner"]] * len(learners)
+    payload.pop("format")
+    path = save_training_checkpoint(tmp_path, 3, payload)
+    env, learner, again, _ = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
     env.close()
-    trainer.evaluator = LaggingEvaluator(learner)
-    trainer.history, trainer.unfinished = [{}] * 2, [1]
-    with pytest.raises(RuntimeError, match=r"under way at episodes \[1\]"):
-        trainer.run(collector)
+    with pytest.raises(CheckpointError, match=message) as err:
+        again.load(tmp_path)
+    assert str(path) in str(err.value)
+
+
+def test_an_older_checkpoint_listing_its_own_episode_starts_it_again_on_its_own_learner(tmp_path):
+    _trained(tmp_path)
+    payload = load_training_checkpoint(checkpoint_candidates(tmp_path)[0])
+    payload["validating"], payload["validations"] = [3], payload["validations"][:-1]
+    del payload["validating_learners"]  # as the code before this contract wrote it
+    payload.pop("format")
+    save_training_checkpoint(tmp_path, 3, payload)
+    env, learner, again, _ = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
+    env.close()
+    assert again.load(tmp_path) == 3 and [s for s, _ in again.unfinished] == [3]
+    assert _weight_sum(again.unfinished[0][1]["modules"]) == _weight_sum(payload["learner"]["modules"])
 
 
 def test_a_validation_is_of_the_policy_as_it_was_when_it_started(tmp_path):

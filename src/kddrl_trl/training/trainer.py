@@ -20,8 +20,8 @@ Per collection batch of ``frames_per_env`` frames from each of the B environment
    (:class:`~kddrl_trl.eval.periodic.PeriodicEvaluator`, fixed seeds disjoint from training) in a worker process,
    on a copy of its weights, while the training goes on; each is logged under ``eval/`` at the episode it started
    at, and the best score so far keeps the learner as it was then as ``checkpoints/best.pt`` beside ``latest``.
-   A checkpoint waits for the validations started before its episode; one started at its own episode, on its
-   weights, may still run, and a run resumed from it starts that validation again.
+   A checkpoint does not wait for them: it lists those under way with the learner each was given, and a run
+   resumed from it starts them again on those weights.
 """
 
 from __future__ import annotations
@@ -42,7 +42,12 @@ from .. import keys as K
 from ..collectors import MultiTimescaleCollector
 from ..envs.episode_metrics import EpisodeTracker
 from .base import Learner
-from .checkpoint import load_latest_training_checkpoint, save_best_checkpoint, save_training_checkpoint
+from .checkpoint import (
+    CheckpointError,
+    load_latest_training_checkpoint,
+    save_best_checkpoint,
+    save_training_checkpoint,
+)
 from .priority_trees import PortablePrioritizedSampler
 
 log = logging.getLogger(__name__)
@@ -132,6 +137,28 @@ def minibatches(buffer: TensorDictReplayBuffer, n: int):
         n -= m
 
 
+def _under_way(path: Path, payload: dict, episodes: int) -> list[tuple[int, dict]]:
+    """The periodic evaluations a checkpoint lists as under way, each with the learner it was given:
+    ``validating`` and ``validating_learners`` pair up. A checkpoint without the learners (written by code whose
+    checkpoints waited for every earlier evaluation) may list only its own episode's, whose learner is its own;
+    anything else is refused, naming the file."""
+    steps = [int(s) for s in payload.get("validating", [])]
+    learners = payload.get("validating_learners")
+    if learners is None:
+        if steps not in ([], [episodes]):
+            raise CheckpointError(
+                f"{path}: lists periodic evaluations under way at episodes {steps} without the learners they were "
+                f"given; only its own episode's ({episodes}) can be started again"
+            )
+        return [(s, payload["learner"]) for s in steps]
+    if len(learners) != len(steps) or sorted(steps) != steps or any(s > episodes for s in steps):
+        raise CheckpointError(
+            f"{path}: 'validating' {steps} and 'validating_learners' ({len(learners)}) do not pair up as evaluations "
+            f"started by episode {episodes}"
+        )
+    return list(zip(steps, learners, strict=True))
+
+
 class Trainer:
     """Trains a :class:`~kddrl_trl.training.Learner` for ``episodes`` episodes (:meth:`run`, on a
     :class:`~kddrl_trl.collectors.MultiTimescaleCollector` whose env carries the predictive-state transforms and
@@ -176,7 +203,8 @@ class Trainer:
         self.collector: MultiTimescaleCollector | None = None
         #: periodic evaluations under way: (episodes trained, future, the learner's state then), in start order
         self.pending: deque = deque()
-        self.unfinished: list[int] = []  # a loaded checkpoint's evaluations under way when it was written
+        #: a loaded checkpoint's evaluations under way when it was written: (episodes, the learner they were given)
+        self.unfinished: list[tuple[int, dict]] = []
 
     # ------------------------------------------------------------------------------ checkpoints
     def state(self) -> dict:
@@ -186,8 +214,9 @@ class Trainer:
             "counters": dict(self.counters),
             "history": list(self.history),
             "validations": list(self.validations),
-            # the evaluation started at this episode and not finished yet (a resumed run starts it again)
+            # the evaluations under way, each with the learner it was given (a resumed run starts them again)
             "validating": [step for step, _, _ in self.pending],
+            "validating_learners": [learner for _, _, learner in self.pending],
         }
         if self.cfg.keep_buffers:
             state["buffer_cf"] = self.buffer_cf.state_dict()
@@ -202,7 +231,7 @@ class Trainer:
         self.counters.update(payload["counters"])
         self.history = list(payload["history"])
         self.validations = list(payload.get("validations", []))
-        self.unfinished = [int(s) for s in payload.get("validating", [])]
+        self.unfinished = _under_way(path, payload, len(self.history))
         if "buffer_cf" in payload:
             load_buffer(self.buffer_cf, payload["buffer_cf"])
             load_buffer(self.buffer_lc, payload["buffer_lc"])
@@ -218,10 +247,10 @@ class Trainer:
         return len(self.history)
 
     def checkpoint(self, final: bool = False) -> Path:
-        """Writes a checkpoint once the periodic evaluations started before this episode are recorded (``final``:
-        all of them). Only the evaluation started at this very episode may still run: its weights are this
-        checkpoint's, so a run resumed from it evaluates them again (:meth:`run`)."""
-        self.record_validations(before=math.inf if final else len(self.history))
+        """Writes a checkpoint without waiting for the periodic evaluations under way (``final``: once all are
+        recorded): it records those that have finished and lists the others with the learner each was given, so a
+        run resumed from it starts them again on those weights (:meth:`run`)."""
+        self.record_validations(before=math.inf if final else 0)
         return save_training_checkpoint(self.run_dir, len(self.history), self.state())
 
     def _next_multiple(self, every: int) -> int:
@@ -231,9 +260,20 @@ class Trainer:
     def validate(self) -> None:
         """Starts one periodic evaluation of the greedy policy as it is now, at the number of episodes trained: the
         evaluator's worker drives it while the training goes on (:meth:`record_validations` takes its result), and
-        the learner's state is kept beside it for ``checkpoints/best.pt``."""
+        the learner's state is kept beside it for ``checkpoints/best.pt`` and the checkpoints."""
         future = self.evaluator.submit(self.learner.policy(explore=False))
         self.pending.append((len(self.history), future, copy.deepcopy(self.learner.full_state_dict())))
+
+    def _restart(self, step: int, state: dict) -> None:
+        """Starts again the evaluation a checkpoint listed as under way at ``step``, of the learner it was given
+        (``state``); the learner is its own again after the start (the evaluator has taken its copy)."""
+        own = copy.deepcopy(self.learner.full_state_dict())
+        self.learner.load_full_state_dict(state)
+        try:
+            future = self.evaluator.submit(self.learner.policy(explore=False))
+        finally:
+            self.learner.load_full_state_dict(own)
+        self.pending.append((step, future, state))
 
     def record_validations(self, before: float = 0) -> None:
         """Records the periodic evaluations that have finished, in the order they started, and waits for those
@@ -360,13 +400,9 @@ class Trainer:
         )
         started = time.perf_counter()
         losses: dict[str, list[float]] = {"loss_qvalue": [], "loss_actor": [], "loss_lc": []}
-        if self.unfinished and self.evaluator is not None:
-            if self.unfinished != [len(self.history)]:  # checkpoint() waits for every earlier one
-                raise RuntimeError(
-                    f"checkpoint of {len(self.history)} episodes in {self.run_dir}: it lists periodic evaluations "
-                    f"under way at episodes {self.unfinished}; only its own episode's can be started again"
-                )
-            self.validate()  # the checkpoint's weights are the ones that evaluation was given
+        if self.evaluator is not None:
+            for step, state in self.unfinished:  # in the order they started, each on the weights it was given
+                self._restart(step, state)
             self.unfinished = []
         try:
             if len(self.history) >= target:  # resumed after its training ended (killed in the final evaluation)
