@@ -12,7 +12,7 @@ they part.
         train.eval_every=50 train.eval_episodes=20 hydra.run.dir=/tmp/ab/before) &
     OMP_NUM_THREADS=1 python -m kddrl_trl.train seed=0 episodes=150 eval_episodes=30 \\
         train.eval_every=50 train.eval_episodes=20 hydra.run.dir=/tmp/ab/after; wait
-    python benchmarks/ab_records.py /tmp/ab/before /tmp/ab/after --change "what changed" --before-rev <commit>
+    python -m benchmarks.ab_records /tmp/ab/before /tmp/ab/after --change "what changed" --before-rev <commit>
 
 Prints a table and writes ``benchmarks/results/ab_records.json`` (or ``--out``); exits 1 when anything differs.
 """
@@ -22,14 +22,11 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import sys
 from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from env_throughput import write_json  # noqa: E402
-
+from benchmarks.env_throughput import write_json  # noqa: E402
 from kddrl_trl.reporting.records import record_bytes  # noqa: E402
 from kddrl_trl.runs import checkpoint_dir  # noqa: E402
 

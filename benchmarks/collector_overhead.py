@@ -16,7 +16,7 @@ The trivial env's and policy's own calls are timed and taken out, as (b) takes o
 TorchRL's per env step. ``kddrl_keys ÷ ours`` says how much of our ``torchrl`` part TorchRL's collector costs with
 our keys; the rest is ``TransformedEnv`` 's plumbing around the transform stack.
 
-    python benchmarks/collector_overhead.py [--roads 8] [--frames 4000] [--out benchmarks/results/collector_overhead.json]
+    python -m benchmarks.collector_overhead [--roads 8] [--frames 4000] [--out benchmarks/results/collector_overhead.json]
 
 Prints a table and writes the JSON (``--out``).
 """
@@ -24,7 +24,6 @@ Prints a table and writes the JSON (``--out``).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -34,9 +33,8 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from env_throughput import machine_info, write_json  # noqa: E402
-from train_throughput import FRAMES_PER_ENV, _Stopwatch, collect_env, measure_collect  # noqa: E402
+from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.train_throughput import FRAMES_PER_ENV, _Stopwatch, collect_env, measure_collect  # noqa: E402
 
 
 class TrivialEnv(EnvBase):

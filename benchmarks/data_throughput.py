@@ -6,7 +6,7 @@ HighD CSV files; (c) extraction: samples (leader + lane-change) per second of ``
 recordings read back from disk, and the reading itself. Prints a table and writes
 ``benchmarks/results/data_throughput.json``.
 
-    python benchmarks/data_throughput.py [--duration 900] [--roads 4] [--seed 0]
+    python -m benchmarks.data_throughput [--duration 900] [--roads 4] [--seed 0]
 """
 
 from __future__ import annotations

@@ -34,11 +34,11 @@ helpers): the environment is single-threaded and intra-op threads would only ove
 
 Run (full benchmark; takes a while, use an otherwise idle machine)::
 
-    python benchmarks/env_throughput.py
+    python -m benchmarks.env_throughput
 
 Quick check::
 
-    python benchmarks/env_throughput.py --roads 1 8 --scenarios baseline --frames 200 --out /tmp/envbench.json
+    python -m benchmarks.env_throughput --roads 1 8 --scenarios baseline --frames 200 --out /tmp/envbench.json
 
 Results are printed as a table and written to ``benchmarks/results/env_throughput.json`` (``--out``),
 atomically, after every completed setting.

@@ -16,7 +16,7 @@ Running the two sides (each from a worktree pinned at its commit, with Hydra's m
     git worktree add ../before <commit before>  &&  git worktree add ../after <commit after>
     (cd ../before && python -m kddrl_trl.train -m seed=0,1,2 +scenario=baseline,braking hydra.sweep.dir=runs/eq)
     (cd ../after && python -m kddrl_trl.train -m seed=0,1,2 +scenario=baseline,braking hydra.sweep.dir=runs/eq)
-    python benchmarks/equivalence.py ../before/runs/eq ../after/runs/eq [--out PATH]
+    python -m benchmarks.equivalence ../before/runs/eq ../after/runs/eq [--out PATH]
 
 Every run must have its partner, with the same ``config.yaml`` (else the error names the run and the keys that
 differ). Prints a table and writes ``benchmarks/results/equivalence.json`` (or ``--out``).
@@ -25,15 +25,12 @@ differ). Prints a table and writes ``benchmarks/results/equivalence.json`` (or `
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 from omegaconf import OmegaConf
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from env_throughput import write_json  # noqa: E402
-
+from benchmarks.env_throughput import write_json  # noqa: E402
 from kddrl_trl.reporting.records import find_runs, record_bytes  # noqa: E402
 from kddrl_trl.reporting.stats import mean_test  # noqa: E402
 from kddrl_trl.runs import config_differences  # noqa: E402

@@ -6,7 +6,7 @@ the weights shipped with the package, on raw observations of ``FakeHighwayEnv`` 
 and key gaps from the transforms ``IDMPrior`` + ``KeyGapsFromPrior``, i.e. inputs of the right shapes and ranges. Prints
 a table (median microseconds per call and per environment) and writes ``benchmarks/results/gan_inference.json``.
 
-    python benchmarks/gan_inference.py [--envs 1 8 32] [--calls 300] [--device cpu]
+    python -m benchmarks.gan_inference [--envs 1 8 32] [--calls 300] [--device cpu]
 """
 
 from __future__ import annotations

@@ -12,9 +12,9 @@ every tensor of :meth:`~kddrl_trl.training.Learner.full_state_dict` (networks, t
 the losses of every update. Two processes with the same arguments write the same hashes exactly when the updates
 repeat bit for bit; ``--compare A B`` says which tensors differ.
 
-    python benchmarks/gpu_determinism.py [--device cuda] [--updates 400] [--seed 0] [--matmul-precision highest]
+    python -m benchmarks.gpu_determinism [--device cuda] [--updates 400] [--seed 0] [--matmul-precision highest]
                                          [--out PATH]
-    python benchmarks/gpu_determinism.py --compare A.json B.json
+    python -m benchmarks.gpu_determinism --compare A.json B.json
 
 Prints a line and writes ``benchmarks/results/gpu_determinism.json`` (or ``--out``).
 """
@@ -24,16 +24,13 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import sys
 import time
 from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from env_throughput import machine_info, write_json  # noqa: E402
-from train_throughput import batch_sizes, buffer_keys, learner_kwargs, sample_batches  # noqa: E402
-
+from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.train_throughput import batch_sizes, buffer_keys, learner_kwargs, sample_batches  # noqa: E402
 from kddrl_trl.compiling import fresh_compiler  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402
 

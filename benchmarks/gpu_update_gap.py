@@ -20,7 +20,7 @@ mode for every arm (``default``; ``max-autotune-no-cudagraphs`` lets TorchInduct
 bias and activation fused into them). The JSON is written after every arm, so a run cut short keeps what it
 measured.
 
-    python benchmarks/gpu_update_gap.py [--batches 128 256] [--updates 300] [--repeats 3]
+    python -m benchmarks.gpu_update_gap [--batches 128 256] [--updates 300] [--repeats 3]
                                         [--mode default] [--arms ours ...] [--out PATH]
 
 Prints a table and writes ``benchmarks/results/gpu_update_gap.json``.
@@ -31,17 +31,14 @@ from __future__ import annotations
 import argparse
 import functools
 import statistics
-import sys
 import time
 from pathlib import Path
 
 import torch
 import torch._inductor.config
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from env_throughput import machine_info, write_json  # noqa: E402
-from train_throughput import _sync, buffer_keys, learner_kwargs, measure_torchrl_td3, sample_batches  # noqa: E402
-
+from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.train_throughput import _sync, buffer_keys, learner_kwargs, measure_torchrl_td3, sample_batches  # noqa: E402
 from kddrl_trl.modules import cf_obs_dim  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402
 

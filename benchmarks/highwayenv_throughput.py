@@ -13,8 +13,8 @@ Arms, in one run, taking turns (``--repeats`` rounds; the median of each arm is 
 Ego-frames per second = frames x K / wall seconds. The ratios (b)/(a) and (c)/(b) are what compare; absolute
 figures depend on the machine and its load.
 
-    python benchmarks/highwayenv_throughput.py                       # K = 1, 4; 300 frames per arm
-    python benchmarks/highwayenv_throughput.py --roads 1 --frames 100 --repeats 1 --out /tmp/hw.json
+    python -m benchmarks.highwayenv_throughput                       # K = 1, 4; 300 frames per arm
+    python -m benchmarks.highwayenv_throughput --roads 1 --frames 100 --repeats 1 --out /tmp/hw.json
 
 Writes ``benchmarks/results/highwayenv_throughput.json`` (``--out``).
 """

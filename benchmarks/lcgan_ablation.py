@@ -15,7 +15,7 @@ measures on the test split:
 
 Prints a table (mean and sd over seeds) and writes ``benchmarks/results/lcgan_ablation.json``.
 
-    python benchmarks/lcgan_ablation.py [--seeds 0 1 2] [--data-dir data/datasets/synthetic_baseline_seed0]
+    python -m benchmarks.lcgan_ablation [--seeds 0 1 2] [--data-dir data/datasets/synthetic_baseline_seed0]
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ to ``--capacity``), three arms:
 - ``prioritized`` (``train.prioritized``): sampling, importance weights and the priority write-back of
   :meth:`kddrl_trl.training.Trainer._update`, one minibatch per update.
 
-    python benchmarks/replay_sampling.py [--capacity 100000] [--batch-size 128] [--calls 480] [--repeats 3]
+    python -m benchmarks.replay_sampling [--capacity 100000] [--batch-size 128] [--calls 480] [--repeats 3]
 
 The arms run in one process, taking turns ``repeats`` times (a shared machine's drifts hit all alike); the table
 gives the medians, ``prioritized_ratio`` = prioritized / uniform and ``grouped_ratio`` = uniform_grouped / uniform
@@ -25,16 +25,13 @@ import json
 import os
 import platform
 import statistics
-import sys
 import time
 from pathlib import Path
 
 import torch
 from tensordict import TensorDict
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from train_throughput import learner_kwargs, sample_batches  # noqa: E402
-
+from benchmarks.train_throughput import learner_kwargs, sample_batches  # noqa: E402
 from kddrl_trl import keys as K  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.training.priority_trees import native_trees_available  # noqa: E402

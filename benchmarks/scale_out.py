@@ -33,9 +33,9 @@ single runs of the same code spread from 0.52 to 0.62 (``sweep_time_ratio``) and
 Prints a table and writes ``benchmarks/results/scale_out.json`` (after each repeat). Needs the extra ``.[ray]``.
 Measure on an idle machine: a busy one shares its cores with the sweep.
 
-    python benchmarks/scale_out.py                       # 2 algos x 2 seeds, 150 training + 20 evaluation episodes
-    python benchmarks/scale_out.py --repeats 3           # the figures of docs/scaling.md
-    python benchmarks/scale_out.py --episodes 2 --eval-episodes 2 --set env.num_roads=2 compile=false \
+    python -m benchmarks.scale_out                       # 2 algos x 2 seeds, 150 training + 20 evaluation episodes
+    python -m benchmarks.scale_out --repeats 3           # the figures of docs/scaling.md
+    python -m benchmarks.scale_out --episodes 2 --eval-episodes 2 --set env.num_roads=2 compile=false \
         train.eval_every=0 train.warmup_frames=50 env.max_steps=120 --out /tmp/scale_out.json    # a smoke run
 """
 
@@ -53,8 +53,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Callable
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "scale_out.json"
 

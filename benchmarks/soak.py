@@ -10,8 +10,8 @@ whose command line names SUMO) and this process's open file descriptors. Also th
 (:class:`~kddrl_trl.envs.observe.FiniteCheck`) against a frame. Prints a table and writes
 ``benchmarks/results/soak.json``.
 
-    python benchmarks/soak.py                                          # 10,000 evaluation + 1,000 training episodes
-    python benchmarks/soak.py --eval-episodes 200 --train-episodes 20 --every 50 --out /tmp/soak.json  # a smoke run
+    python -m benchmarks.soak                                          # 10,000 evaluation + 1,000 training episodes
+    python -m benchmarks.soak --eval-episodes 200 --train-episodes 20 --every 50 --out /tmp/soak.json  # a smoke run
 
 Training uses the package's config (``conf/config.yaml``: KDDRL, periodic evaluation in a worker process,
 checkpoints with both buffers into a temporary run folder); ``--set key=value`` overrides it (e.g.

@@ -48,7 +48,7 @@
     code, trained side by side with ``--full-run``'s, one core each): ``full_run_vs_baseline``, the ratio of the two
     training times and whether the two runs' training (and evaluation) records are identical.
 
-    python benchmarks/train_throughput.py [--roads 8] [--updates 200] [--frames 2000] [--clock wall|cpu]
+    python -m benchmarks.train_throughput [--roads 8] [--updates 200] [--frames 2000] [--clock wall|cpu]
                                           [--full-run runs/... [--baseline-run runs/...]] [--device cpu|cuda]
                                           [--skip-collect] [--workers 1,2] [--skip-update] [--compile auto|true|false]
 
@@ -72,7 +72,6 @@ import argparse
 import json
 import os
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -83,9 +82,7 @@ from torch._dynamo.utils import clear_compilation_metrics, get_compilation_metri
 from torchrl.envs import Compose, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from env_throughput import machine_info, measure_sim, write_json  # noqa: E402
-
+from benchmarks.env_throughput import machine_info, measure_sim, write_json  # noqa: E402
 from kddrl_trl import keys as K  # noqa: E402
 from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.collectors.workers import WorkerEnv  # noqa: E402

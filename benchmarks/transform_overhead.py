@@ -21,7 +21,7 @@ kept only where it earns >= 5 %), and what calling the warm graph directly earns
 ``direct_call_gain = fps_compiled / fps_compiled_dynamo - 1``. Goal: cost of the default compiled stack <= 25 % at
 K = 32. Prints a table and writes ``benchmarks/results/transform_overhead.json``.
 
-    python benchmarks/transform_overhead.py [--roads 1 8 32] [--frames 1500] [--segment 50]
+    python -m benchmarks.transform_overhead [--roads 1 8 32] [--frames 1500] [--segment 50]
 """
 
 from __future__ import annotations

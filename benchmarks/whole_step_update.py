@@ -26,7 +26,7 @@ Eq. 6-7 and 23-24, TorchRL's ``TD3Loss`` inside) as the learner runs it, against
 (:func:`learner_whole_step`), taking turns on the same buffer-L samples of the fake env; with the largest difference
 between that graph's gradients and ``backward`` 's on one batch. ``--skip-learner`` leaves it out.
 
-    python benchmarks/whole_step_update.py [--updates 400] [--repeats 5] [--threads 2] [--skip-learner]
+    python -m benchmarks.whole_step_update [--updates 400] [--repeats 5] [--threads 2] [--skip-learner]
 
 Prints a table and writes ``benchmarks/results/whole_step_update.json``.
 """
@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -44,10 +43,8 @@ from omegaconf import OmegaConf
 from torch.func import functional_call, grad_and_value
 from torch.utils.flop_counter import FlopCounterMode
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from env_throughput import machine_info, write_json  # noqa: E402
-from train_throughput import CONF, gemm_rate, learner_kwargs, sample_batches  # noqa: E402
-
+from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.train_throughput import CONF, gemm_rate, learner_kwargs, sample_batches  # noqa: E402
 from kddrl_trl.compiling import inductor_options  # noqa: E402
 from kddrl_trl.modules import cf_obs_dim  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402

@@ -167,22 +167,15 @@ def run_script(folder, body: str, timeout: int = 300) -> subprocess.CompletedPro
 
 
 def load_benchmark(name: str):
-    """The module of ``benchmarks/<name>.py`` (its folder on ``sys.path`` while it imports its siblings); the torch
-    thread count is kept (the benchmarks' shared module sets one thread when imported)."""
-    import importlib.util
-    from pathlib import Path
+    """The module ``benchmarks.<name>`` (the repository's root is on ``sys.path``: pytest's ``pythonpath``); the
+    torch thread count is kept (the benchmarks' shared module sets one thread when imported)."""
+    import importlib
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
     threads = torch.get_num_threads()
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(path.parent))
     try:
-        spec.loader.exec_module(module)
+        return importlib.import_module(f"benchmarks.{name}")
     finally:
-        sys.path.remove(str(path.parent))
         torch.set_num_threads(threads)
-    return module
 
 
 def study_records(dest, *prefixes: str):

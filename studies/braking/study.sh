@@ -4,21 +4,26 @@
 #   bash studies/braking/study.sh [SWEEP_DIR, default runs/braking]
 # Section 4, the scenario check: KDDRL trained on braking as it is (release=sumo) at seeds 0-4, each trained
 # policy then evaluated on the same test traffic with the programmed release (<run>/eval__braking__<seed>__<time>/).
+# Section 3, the training length: KDDRL, then D3QN+TD3+LG, 3000 episodes on braking (validation every 200 episodes,
+# on the validation traffic), seeds 0-4 (SWEEP/length_3000).
 # JOBS (default 1) at a time, one torch thread each: the machine is shared with the verdict study's sweep.
 set -euo pipefail
 SWEEP=${1:-runs/braking}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 
 jobs() {
-  local seed
+  local seed algo
   for seed in 0 1 2 3 4; do echo "release_sumo $seed +scenario=braking algo=kddrl seed=$seed"; done
+  for algo in kddrl d3qn_td3_lg; do for seed in 0 1 2 3 4; do
+    echo "length_3000 $seed +scenario=braking algo=$algo seed=$seed episodes=3000"; done; done
 }
 
-one() {  # <arm> <seed> <overrides...>: train into SWEEP/<arm>, then evaluate with the programmed release
+one() {  # <arm> <seed> <overrides...>: train into SWEEP/<arm>; release_sumo: then evaluate with the programmed release
   local arm=$1 seed=$2
   shift 2
   # shellcheck disable=SC2068
   python -m kddrl_trl.train -m progress=false resume="$SWEEP/$arm" $@ || { echo "study.sh: job failed: $*" >&2; return; }
+  [ "$arm" = release_sumo ] || return 0
   local run="$SWEEP/$arm/braking__kddrl__$seed"
   ls "$run"/eval__braking__*/summary.json > /dev/null 2>&1 && return
   python -m kddrl_trl.evaluate run="$run" +scenario=braking seed="$seed" env.braking.release=programmed progress=false \

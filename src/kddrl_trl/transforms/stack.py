@@ -49,7 +49,7 @@ def compiled_frames():
     on a stack, so stacks pickle as they are). Stacks call it through :func:`warm_frames`.
 
     Its gain (collection ego-frames/s with the full KDDRL stack, compiled vs eager) is measured by
-    ``python benchmarks/transform_overhead.py`` (``benchmarks/results/transform_overhead.json``)."""
+    ``python -m benchmarks.transform_overhead`` (``benchmarks/results/transform_overhead.json``)."""
     return torch.compile(run_frames, dynamic=True)
 
 
