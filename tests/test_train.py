@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -384,6 +385,25 @@ def test_a_bad_algo_or_train_value_is_refused_before_any_simulator_starts(tmp_pa
         done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
         assert done.returncode != 0 and override.split("=")[0] in done.stderr, done.stderr
         assert "SUMO" not in done.stdout + done.stderr and not list(tmp_path.glob("runs/*/checkpoints"))
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("+episods=5", "error: unknown config key(s) episods: not in the schema"),
+        ("+env.braking.relase=x", "error: unknown config key(s) env.braking.relase"),
+        ("episodes=-3", "error: episodes must be >= 1, got -3"),
+    ],
+)
+def test_a_refused_config_is_one_line_and_leaves_nothing_behind(tmp_path, override, message):
+    """Our refusals end the command with one line naming the key (no traceback unless HYDRA_FULL_ERROR=1), and the
+    folders Hydra made for the run (``runs/`` too) are gone; a key added with ``+`` is checked like any other."""
+    cmd = [sys.executable, "-m", "kddrl_trl.train", override, "progress=false"]
+    env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode != 0 and done.stderr.strip().startswith(message), done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_evaluate_does_not_import_the_training_entry_point():

@@ -60,6 +60,7 @@ from .conf.schema import (
     TrainConfig,
     TrainJob,
     algo_from_node,
+    unknown_keys,
 )
 from .envs.config import HighwayConfig
 from .generative import shipped_traffic
@@ -111,6 +112,12 @@ def make_job(cfg: DictConfig):
     set by every job, so none inherits another's)."""
     with no_folder_if_refused():
         job = OmegaConf.to_object(cfg)
+        unknown = unknown_keys(cfg, job)
+        if unknown:
+            raise ValueError(
+                f"unknown config key(s) {', '.join(unknown)}: not in the schema (a '+' adds a key Hydra cannot check; "
+                "check its spelling, or see --help / docs/usage.md for the keys)"
+            )
         if hasattr(job, "device"):
             job.torch_device = make_device(job.device)
         if hasattr(job, "compile"):

@@ -10,6 +10,7 @@ reads it from ``HydraConfig`` and learns that it resumes from the checkpoint the
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
@@ -127,24 +128,41 @@ def remove_refused_run_dir(run_dir: str | Path, sweep_dir: str | Path | None = N
             root.removeHandler(handler)
             handler.close()
     shutil.rmtree(run_dir, ignore_errors=True)
+    top = run_dir
     if sweep_dir is not None and _hydra_only(Path(sweep_dir)):
         shutil.rmtree(sweep_dir, ignore_errors=True)
+        top = Path(sweep_dir)
+    _remove_empty_parents(top.parent)
     return True
+
+
+def _remove_empty_parents(folder: Path) -> None:
+    """The folders Hydra made above a removed run folder (``runs/``), while they are empty, up to the working
+    directory (never it, nor anything outside it)."""
+    here, folder = Path.cwd().resolve(), folder.resolve()
+    while folder != here and here in folder.parents and folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()
+        folder = folder.parent
 
 
 @contextmanager
 def no_folder_if_refused():
     """Inside a Hydra entry point: an error raised in the block (a refused config) removes the output folder
-    Hydra made for the run (:func:`remove_refused_run_dir`), then propagates."""
+    Hydra made for the run (:func:`remove_refused_run_dir`), then propagates. A refusal (``ValueError``: a bad value
+    or an unknown key, the message naming it) ends the command with that one line, without a traceback, unless
+    ``HYDRA_FULL_ERROR=1``; outside a Hydra run (a test, a script) it propagates as it is."""
     try:
         yield
-    except BaseException:
+    except BaseException as err:
         from hydra.core.hydra_config import HydraConfig
         from hydra.types import RunMode
 
-        if HydraConfig.initialized():
-            hydra_cfg = HydraConfig.get()
-            remove_refused_run_dir(
-                hydra_cfg.runtime.output_dir, hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None
-            )
+        if not HydraConfig.initialized():
+            raise
+        hydra_cfg = HydraConfig.get()
+        remove_refused_run_dir(
+            hydra_cfg.runtime.output_dir, hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None
+        )
+        if isinstance(err, ValueError) and os.environ.get("HYDRA_FULL_ERROR") != "1":
+            raise SystemExit(f"error: {err}") from None
         raise

@@ -27,7 +27,7 @@ Each option of the ``algo`` group names its schema first in its defaults list (`
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field, fields, make_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass, make_dataclass
 from typing import Any, Optional
 
 from omegaconf import MISSING, DictConfig, OmegaConf
@@ -409,6 +409,22 @@ def algo_from_node(node: DictConfig) -> LearningAlgo | RuleAlgo:
     if kind not in ALGO_SCHEMAS:
         raise ValueError(f"algo.kind={kind!r}: known kinds are {', '.join(ALGO_SCHEMAS)}")
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(ALGO_SCHEMAS[kind]), node))
+
+
+def unknown_keys(node: DictConfig, obj: Any, prefix: str = "") -> list[str]:
+    """The keys of a composed config ``node`` that its typed object ``obj`` (``OmegaConf.to_object``) has no field
+    for, as dotted paths: a key added with ``+`` (``+episods=5``) passes Hydra's struct check and would otherwise be
+    dropped without a word. Nested typed nodes are checked too; free-form ones (dicts, lists) are not."""
+    if not is_dataclass(obj) or not isinstance(node, DictConfig):
+        return []
+    names = {f.name for f in fields(obj)}
+    found = []
+    for key in node.keys():
+        if key not in names:
+            found.append(f"{prefix}{key}")
+        elif OmegaConf.is_dict(node._get_node(key)):
+            found += unknown_keys(node[key], getattr(obj, str(key)), f"{prefix}{key}.")
+    return found
 
 
 def check_device(device: str) -> None:
