@@ -438,3 +438,13 @@ def test_figures_keep_one_colour_per_system_and_few_series_per_axes():
     assert style("kddrl", labels)["color"] != style("ni", labels)["color"]
     assert system_of("kddrl [algo.shield=idm] @abc1234") == "kddrl" and system_of("ni (trained on mixed)") == "ni"
     assert series_panels(["peng", "kddrl", "ni"]) == [["kddrl", "ni", "peng"]]  # the paper's order
+
+
+def test_an_evaluation_in_other_traffic_than_its_training_is_labelled_by_what_differs():
+    from kddrl_trl.reporting.records import evaluation_label
+
+    programmed = {"env": {"braking": {"release": "programmed", "resume_accel": 2.0, "stand_time": 3.0}}}
+    assert evaluation_label(programmed, {"env": {"braking": {"stand_time": 3.0}}}) == "env.braking.release=programmed"
+    assert evaluation_label(programmed, {"env": {"braking": {"release": "programmed"}}}) == ""  # as it was trained
+    assert evaluation_label({"env": {"braking": {"stand_time": 5.0}}}, None) == "env.braking.stand_time=5.0"
+    assert evaluation_label(None, programmed) == ""

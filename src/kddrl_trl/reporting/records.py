@@ -142,6 +142,10 @@ def load_run(path: str | Path) -> RunRecord:
     )
     # the options it ran with: its training run's config (an evaluation folder of kddrl_trl.evaluate: its run's)
     config = _config((path.parent if path.name.startswith("eval__") else trained) / "config.yaml")
+    label = algo_label(summary, config)
+    if path.name.startswith("eval__"):  # evaluated in traffic set otherwise than its training's: a row of its own
+        changed = evaluation_label(_config(path / ".hydra" / "config.yaml"), config)
+        label = f"{label} [evaluated with {changed}]" if changed else label
     trained_summary = (
         summary
         if trained == path
@@ -151,7 +155,7 @@ def load_run(path: str | Path) -> RunRecord:
     )
     return RunRecord(
         path,
-        algo_label(summary, config),
+        label,
         str(summary["scenario"]),
         int(summary["seed"]),
         summary,
@@ -261,6 +265,28 @@ def option_label(config: dict, algo: str, scenario: str) -> str:
         if value is not _MISSING and default is not _MISSING and value != default:
             shown = "[" + ",".join(map(str, value)) + "]" if isinstance(value, list) else value
             diffs.append(f"{key}={shown}")
+    return ", ".join(diffs)
+
+
+#: traffic keys an evaluation (``kddrl_trl.evaluate``) may set otherwise than the training did
+EVALUATION_KEYS = ("env.braking.release", "env.braking.resume_accel", "env.braking.stand_time", "env.braking.decel")
+
+
+def evaluation_label(evaluation: dict | None, training: dict | None) -> str:
+    """``key=value, ...`` of the :data:`EVALUATION_KEYS` an evaluation's own config sets otherwise than its
+    training run's (a key the training config lacks, saved before it existed, ran as its default today)."""
+    if not evaluation:
+        return ""
+    from ..envs.config import BrakingEvent
+
+    defaults = {f"env.braking.{k}": v for k, v in vars(BrakingEvent()).items()}
+    diffs = []
+    for key in EVALUATION_KEYS:
+        value = _dotted(evaluation, key)
+        trained = _dotted(training or {}, key)
+        trained = defaults.get(key, _MISSING) if trained is _MISSING else trained
+        if value is not _MISSING and value != trained:
+            diffs.append(f"{key}={value}")
     return ", ".join(diffs)
 
 
