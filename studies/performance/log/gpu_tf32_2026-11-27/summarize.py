@@ -6,7 +6,7 @@ high − highest for the same seed (the same training and evaluation traffic), w
 over the seeds (:func:`kddrl_trl.eval.verdict.t_interval`). A seed whose run lacks a record is left out of that
 measure and named.
 
-    python benchmarks/results/gpu_tf32_2026-11-27/summarize.py
+    python studies/performance/log/gpu_tf32_2026-11-27/summarize.py
 """
 
 from __future__ import annotations
