@@ -3,7 +3,7 @@ limits of the 2 s forward window on our recordings (issue 18).
 
 For each seed and each variant (``adversarial=true`` / ``false``) this trains lcGAN with
 :func:`~kddrl_trl.generative.pretraining.run_pretraining` on the default dataset (``data_dir``, made by
-``python -m kddrl_trl.pretrain`` / ``python -m kddrl_trl.data.prepare``), exactly as the entry point does, and
+``python -m kddrl_trl.pretrain`` / ``python -m kddrl_trl.prepare``), exactly as the entry point does, and
 measures on the test split:
 
 * accuracy, per-class recall and precision of ``argmax P`` (the shipped operating point);

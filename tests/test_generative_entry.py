@@ -96,7 +96,7 @@ def run(module, args, cwd):
 
 
 def test_pretrain_runs_as_typed_and_exports(tmp_path):
-    prep = run("kddrl_trl.data.prepare", ["record.duration_s=60", "record.num_roads=1", "calibrate=false"], tmp_path)
+    prep = run("kddrl_trl.prepare", ["record.duration_s=60", "record.num_roads=1", "calibrate=false"], tmp_path)
     assert prep.returncode == 0, prep.stderr
     for kind in ("trajgan", "lcgan"):
         done = run(

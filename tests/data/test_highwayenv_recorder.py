@@ -87,7 +87,7 @@ def test_record_entry_point_records_highwayenv_traffic(tmp_path):
     out = tmp_path / "rec"
     run_module(
         [
-            "kddrl_trl.data.record",
+            "kddrl_trl.record",
             "env=highwayenv",
             "duration_s=6",
             "num_roads=1",

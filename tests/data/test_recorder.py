@@ -223,7 +223,7 @@ def test_record_entry_point_runs_from_any_directory(tmp_path):
     cmd = [
         sys.executable,
         "-m",
-        "kddrl_trl.data.record",
+        "kddrl_trl.record",
         "duration_s=20",
         "num_roads=1",
         "progress=false",

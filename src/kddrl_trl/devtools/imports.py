@@ -32,7 +32,17 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("loggers", "gym_env"),  # run logs; the Gymnasium view of the env (its episode metrics, its renderer)
     ("conf",),  # the typed configs
     ("factories",),  # make_* from a config
-    ENTRY_POINTS := ("train", "evaluate", "pretrain", "report", "data.prepare", "data.record", "devtools"),
+    ENTRY_POINTS := (
+        "train",
+        "evaluate",
+        "pretrain",
+        "report",
+        "prepare",
+        "record",
+        "data.prepare",
+        "data.record",
+        "devtools",
+    ),
     (PACKAGE,),  # the package's ``__init__``: its public names
 )
 
