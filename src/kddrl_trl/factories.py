@@ -481,6 +481,7 @@ def evaluate_and_report(
         algo=algo.name,
         env_stats=stats,
         flow_vph=env_cfg.flow,
+        compile=job.compile,
         **fields,
     )
 

@@ -177,6 +177,7 @@ def evaluate_run(job: TrainJob, learner, trainer: Trainer | None, logger, run_di
         "seed": job.seed,
         "final_evaluations": finals,
         "protocol": seeds,
+        "compile": job.compile,
         "run_dir": str(run_dir),
         "wall_s": time.perf_counter() - started,
         **extra,
