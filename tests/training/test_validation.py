@@ -55,10 +55,10 @@ class LaggingEvaluator:
         pass
 
 
-def _trained(tmp_path):
+def _trained(tmp_path, episodes: int = 3):
     """(learner, trainer) of a 3-episode run on the fake env, validated and checkpointed after every batch."""
     env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
-    trainer.evaluator = LaggingEvaluator(learner)
+    trainer.evaluator, trainer.episodes = LaggingEvaluator(learner), episodes
     try:
         trainer.run(collector)
     finally:
@@ -96,20 +96,26 @@ def test_validations_are_recorded_at_their_episodes_with_the_weights_they_starte
 
 def test_a_checkpoint_does_not_wait_for_a_validation_under_way(tmp_path):
     """Every validation of the stand-in runs until the trainer asks for it: the checkpoints after each batch ask
-    for none (counted after each), only the last one (``final``) does."""
+    for none (counted after each), even those written while a validation started at an earlier episode still runs;
+    only the last one (``final``) does."""
     env, learner, trainer, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
-    trainer.evaluator = LaggingEvaluator(learner)
+    trainer.evaluator, trainer.episodes = LaggingEvaluator(learner), 8
     saves = []
     checkpoint = trainer.checkpoint
-    trainer.checkpoint = lambda final=False: (
-        checkpoint(final),
-        saves.append((final, trainer.evaluator.waited)),
-    )[0]
+
+    def counted(final=False):
+        path = checkpoint(final)
+        running = [step for step, _, _ in trainer.pending]
+        saves.append((final, trainer.evaluator.waited, any(s < len(trainer.history) for s in running)))
+        return path
+
+    trainer.checkpoint = counted
     try:
         trainer.run(collector)
     finally:
         env.close()
-    assert len(saves) >= 3 and all(waited == 0 for final, waited in saves if not final)
+    assert any(earlier for final, _, earlier in saves if not final), "no checkpoint met an earlier validation"
+    assert all(waited == 0 for final, waited, _ in saves if not final)
     assert saves[-1][0] and trainer.evaluator.waited == len(trainer.validations) == len(trainer.evaluator.started)
 
 
@@ -144,7 +150,7 @@ def test_a_finished_validation_is_logged_after_the_next_batch_not_at_the_next_ch
 def test_a_resumed_run_validates_again_what_its_checkpoint_left_under_way(tmp_path):
     """Resumed from a checkpoint that lists several validations under way, the run starts each again on the very
     weights it was given (bit for bit), then trains on with the checkpoint's own learner (bit for bit)."""
-    _, trainer = _trained(tmp_path)
+    _, trainer = _trained(tmp_path, episodes=8)  # 2 roads: at least 4 batches, so several validations under way
     previous = checkpoint_candidates(tmp_path)[1]  # the newest but one: written while its validations ran
     payload = load_training_checkpoint(previous)
     done, under_way = len(payload["history"]), payload["validating"]
@@ -152,7 +158,7 @@ def test_a_resumed_run_validates_again_what_its_checkpoint_left_under_way(tmp_pa
     (tmp_path / "checkpoints" / checkpoint_candidates(tmp_path)[0].name).unlink()  # resume from `previous`
     (tmp_path / "checkpoints" / "latest").unlink()
     env, learner, again, collector = fake_trainer(compose_job(*SMALL), tmp_path, **TRAIN)
-    again.evaluator = LaggingEvaluator(learner)
+    again.evaluator, again.episodes = LaggingEvaluator(learner), trainer.episodes
     trained_from = []
     explore_step = learner.explore_step  # the first thing the loop does with the learner, after the restarts
     learner.explore_step = lambda *a: (trained_from.append(copy.deepcopy(learner.state_dict())), explore_step(*a))
