@@ -173,8 +173,12 @@ def _describe(c: Claim, a: dict, b: dict) -> dict | None:
     d = _test(c, a, b, sorted(set(a) | set(b)))
     if d is None:
         return None
-    ci = None if d["ci_low"] is None else [d["ci_low"], d["ci_high"]]
-    return {"difference": d["mean"], "ci": ci, "n": d["n"], "p": d["p"], "seeds": sorted(set(a) | set(b))}
+    return {"difference": d["mean"], "ci": _interval(d), "n": d["n"], "p": d["p"], "seeds": sorted(set(a) | set(b))}
+
+
+def _interval(test: dict) -> list[float] | None:
+    """``[low, high]`` of a result of :mod:`kddrl_trl.reporting.stats` (``ci_low``, ``ci_high``), None without one."""
+    return None if test["ci_low"] is None else [test["ci_low"], test["ci_high"]]
 
 
 def judge(claims, rows: list[dict], test_seeds=TEST_SEEDS) -> list[dict]:
@@ -188,31 +192,24 @@ def judge(claims, rows: list[dict], test_seeds=TEST_SEEDS) -> list[dict]:
         entry = _entry(c) | {"description": _describe(c, a, b)}
         desc = entry["description"]
         if c.family != "primary":
-            entry |= {
-                "difference": None if desc is None else desc["difference"],
-                "ci": None if desc is None else desc["ci"],
-                "n": None if desc is None else min(desc["n"]),
-                "p": None if desc is None else desc["p"],
-                "direction": None,
-                "size": None,
-            }
-            out.append(entry)
+            d = desc or {}
+            n = min(d["n"]) if desc else None
+            entry |= {"difference": d.get("difference"), "ci": d.get("ci"), "n": n, "p": d.get("p")}
+            out.append(entry | {"direction": None, "size": None})
             continue
         have = (set(a) & set(test_seeds), set(b) & set(test_seeds))
         entry |= {"seeds": sorted(have[0] & have[1]), "n": min(len(have[0]), len(have[1]))}
         complete = all(len(h) == len(test_seeds) for h in have)
-        entry |= dict.fromkeys(
-            ("difference", "ci", "ci_simultaneous", "p_direction", "p_size", "p_direction_adjusted"), None
-        )
-        entry |= {"p_size_adjusted": None, "reading": None, "seeds_needed": None}
-        entry |= {"direction": "pending", "size": "pending"} if not complete else {}
+        entry |= dict.fromkeys(("difference", "ci", "ci_simultaneous", "p_direction", "p_size"), None)
+        entry |= dict.fromkeys(("p_direction_adjusted", "p_size_adjusted", "reading", "seeds_needed"), None)
+        entry |= {} if complete else {"direction": "pending", "size": "pending"}
         if complete:
             t = _test(c, a, b, test_seeds)
             sim = _test(c, a, b, test_seeds, confidence=1 - ALPHA / m)
             entry |= {
                 "difference": t["mean"],
-                "ci": None if t["ci_low"] is None else [t["ci_low"], t["ci_high"]],
-                "ci_simultaneous": None if sim["ci_low"] is None else [sim["ci_low"], sim["ci_high"]],
+                "ci": _interval(t),
+                "ci_simultaneous": _interval(sim),
                 "p_direction": t["p"],
             }
             if entry["paper"] is not None:
@@ -291,7 +288,7 @@ def speed_vs_rules(rows: list[dict]) -> dict[tuple[str, str], dict]:
         a, b = paper_value(row["scenario"], row["algo"], SPEED), paper_value(row["scenario"], RULES, SPEED)
         out[(row["scenario"], row["algo"])] = {
             "ratio": ratio["mean"],
-            "ci": None if ratio["ci_low"] is None else [ratio["ci_low"], ratio["ci_high"]],
+            "ci": _interval(ratio),
             "seeds": seeds,
             "paper": None if a is None or b is None else a[0] / b[0],
         }
