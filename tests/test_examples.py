@@ -58,3 +58,15 @@ def test_the_example_runs_on_highwayenv(tmp_path):
     )
     assert 0.0 < result["mean_speed_kmh"] < 250.0 and result["episodes"] >= 2
     assert json.loads(out.read_text())["args"]["env"] == "highwayenv"
+
+
+def test_sb3_ppo_example_learns_and_evaluates(tmp_path):
+    """``examples/sb3_ppo.py`` (the optional extra ``.[sb3]``): PPO on the flat form, two envs in one DummyVecEnv."""
+    pytest.importorskip("stable_baselines3")
+    spec = importlib.util.spec_from_file_location("sb3_ppo", EXAMPLE.with_name("sb3_ppo.py"))
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    out = tmp_path / "ppo.json"
+    result = example.main(["--steps", "128", "--n-steps", "64", "--eval-episodes", "2", "--out", str(out)])
+    assert result["episodes"] == 2 and 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1
+    assert json.loads(out.read_text()) == result and result["args"]["envs"] == 2

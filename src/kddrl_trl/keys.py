@@ -90,6 +90,11 @@ RAW_OBSERVATION_KEYS = (
     BRAKING_PHASE,
     BRAKING_DISTANCE,
 )
+#: the raw keys that label the episode for metrics and study records (whether and how it ended, the scripted event's
+#: phase): written by the env beside the observation, never something a driver senses
+EPISODE_LABEL_KEYS = (COLLISION, OUTCOME, COLLISION_KIND, COLLISION_SLOT, BRAKING_PHASE, BRAKING_DISTANCE)
+#: the raw keys a driver senses: the ego's own state, its neighbours, their leaders and its lane-change state
+SENSED_KEYS = tuple(key for key in RAW_OBSERVATION_KEYS if key not in EPISODE_LABEL_KEYS)
 
 # ------------------------------------------------------------------------------ derived (transforms)
 PRED_PRIOR_TRAJ = ("pred", "prior_traj")  # [3, 20] IDM-rolled prior positions TC of a, b, c

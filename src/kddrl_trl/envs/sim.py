@@ -47,6 +47,11 @@ log = logging.getLogger(__name__)
 _ACTIVE: "HighwaySim | None" = None  # libsumo holds one simulation per process
 
 
+def simulation_open() -> bool:
+    """Whether a :class:`HighwaySim` runs in this process now (libsumo allows one per process)."""
+    return _ACTIVE is not None
+
+
 class HighwaySim:
     """K disconnected copies of the road in one SUMO simulation; numpy arrays of shape [K, ...] out.
 
