@@ -9,6 +9,7 @@ import sys
 
 import pytest
 from hydra import compose, initialize_config_module
+from omegaconf import OmegaConf
 from testkit import SMALL_NETS, TINY, TINY_BUDGET, compose_job, fake_trainer
 
 
@@ -118,11 +119,30 @@ def test_the_new_systems_train_and_evaluate_on_sumo_as_typed(algo, small, tmp_pa
     assert (run / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
 
 
-def test_evaluate_refuses_a_directory_without_a_trained_run(tmp_path):
-    cmd = [sys.executable, "-m", "kddrl_trl.evaluate", f"run={tmp_path / 'nothing'}", "progress=false"]
-    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert done.returncode != 0 and "no config.yaml" in done.stderr
-    assert not (tmp_path / "nothing").exists()  # refused before Hydra made an output folder in it
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["run=runs/nope"], "error: run=runs/nope: no config.yaml there"),
+        (["run=elsewhere/deep/nope"], "error: run=elsewhere/deep/nope: no config.yaml there"),
+        (["run=runs/r", "eval_episodes=-3"], "error: eval_episodes must be >= 1, got -3"),
+        (["run=runs/r", "+eval_episods=3"], "error: unknown config key(s) eval_episods"),
+        (["run=runs/r"], "error: no checkpoint in runs/r/checkpoints"),  # fails after Hydra made the eval folder
+    ],
+)
+def test_a_refused_or_failed_evaluation_is_one_line_and_leaves_nothing_behind(tmp_path, args, message):
+    """A missing run, a bad value, a ``+`` typo or a run without checkpoints: one line naming it, no traceback, and
+    no folder left (neither the ``eval__*`` folder nor the folders Hydra made for a run that does not exist)."""
+    (tmp_path / "runs" / "r").mkdir(parents=True)
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        config = compose(config_name="config", overrides=["algo=kddrl"])
+    (tmp_path / "runs" / "r" / "config.yaml").write_text(OmegaConf.to_yaml(config))
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
+    cmd = [sys.executable, "-m", "kddrl_trl.evaluate", *args, "progress=false", "compile=false"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode != 0 and done.stderr.strip().startswith(message), done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
 
 
 def _latest_episodes(run) -> int:
@@ -463,3 +483,14 @@ def test_a_mixed_traffic_run_is_evaluated_and_reported_per_scenario(tmp_path):
         ("baseline", "idm_mobil (trained on mixed)", "mixed"),
         ("braking", "idm_mobil (trained on mixed)", "mixed"),
     ]
+
+
+@pytest.mark.parametrize("entry", ["train", "evaluate", "report"])
+def test_help_offers_only_configs_a_user_can_choose(entry):
+    """The typed schemas are stored outside the config groups: ``--help`` lists algos, envs, loggers, not them."""
+    done = subprocess.run(
+        [sys.executable, "-m", f"kddrl_trl.{entry}", "--help"], capture_output=True, text=True, timeout=120
+    )
+    groups = done.stdout.split("== Config ==")[0]
+    assert done.returncode == 0 and "algo: d3qn_td3," in groups and "kddrl" in groups, done.stdout[:2000]
+    assert "_schema" not in groups and "_job" not in groups

@@ -113,7 +113,7 @@ def fake_run(
     folder, algo="kddrl", seed=0, speeds=(100.0, 110.0), collisions=(False, True), scenario="baseline", **fields
 ):
     """A run folder of records a report reads: ``eval_episodes.csv`` with one episode per speed, ``summary.json``
-    with ``fields``."""
+    with their count and ``fields``."""
     folder.mkdir(parents=True)
     n = len(speeds)
     pd.DataFrame(
@@ -134,7 +134,8 @@ def fake_run(
             "collision_with": ["b" if c else "" for c in collisions],
         }
     ).to_csv(folder / "eval_episodes.csv", index=False)
-    (folder / "summary.json").write_text(json.dumps({"algo": algo, "scenario": scenario, "seed": seed, **fields}))
+    summary = {"algo": algo, "scenario": scenario, "seed": seed, "episodes": n, **fields}
+    (folder / "summary.json").write_text(json.dumps(summary))
     return folder
 
 

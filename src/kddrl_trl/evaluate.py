@@ -21,12 +21,20 @@ from .conf.schema import EvaluateJob
 from .eval.protocol import check_disjoint, test_seed
 from .factories import evaluate_and_report, load_trained_learner, make_job, make_logger, seed_everything
 from .provenance import code_commit
+from .runs import no_folder_if_refused, trained_run
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
 def main(cfg: DictConfig) -> dict:
+    # a refused or failed evaluation leaves no folder: one line naming the key, the run or the file
+    with no_folder_if_refused(outputs=True):
+        return _evaluate(cfg)
+
+
+def _evaluate(cfg: DictConfig) -> dict:
     code_commit()  # the commit of the code loaded now, whatever is checked out when the evaluation ends
-    job: EvaluateJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
+    trained_run(cfg.run)  # before anything else is resolved: a missing run is the one line printed
+    job: EvaluateJob = make_job(cfg)  # typed, ranges checked before any simulator starts
     fresh_compiler()  # a launcher's reused worker holds earlier jobs' graphs
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     algo, learner, ckpt, saved = load_trained_learner(Path(job.run), job.checkpoint, job.torch_device)

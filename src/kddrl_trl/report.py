@@ -21,6 +21,7 @@ from . import conf as _conf  # noqa: F401  (registers the typed schemas with Hyd
 from .conf.schema import ReportJob
 from .reporting.builder import build_report
 from .reporting.records import find_runs
+from .runs import no_folder_if_refused
 
 #: the lcGAN test metrics shipped beside the weights (``generative/shipped.py``), when there are any
 SHIPPED_LCGAN_METRICS = Path(__file__).parent / "generative" / "weights" / "lcgan.metrics.json"
@@ -46,6 +47,12 @@ def folders_as_override(argv: list[str]) -> list[str]:
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="report")
 def main(cfg: DictConfig) -> dict:
+    # a refused record (one line naming its file) leaves no empty report folder behind
+    with no_folder_if_refused():
+        return _report(cfg)
+
+
+def _report(cfg: DictConfig) -> dict:
     job: ReportJob = OmegaConf.to_object(cfg)
     metrics_path = Path(job.lcgan_metrics) if job.lcgan_metrics else SHIPPED_LCGAN_METRICS
     lcgan = read_lcgan_metrics(metrics_path)

@@ -105,12 +105,37 @@ def trained_run(run) -> Path:
     return Path(str(run))
 
 
+#: folders that did not exist when an entry point's output folder was chosen inside them, so Hydra makes them: a
+#: refused command removes them again while they are empty (:func:`no_folder_if_refused`)
+_MADE_FOR_OUTPUT: list[Path] = []
+
+
+def output_parent(folder) -> Path:
+    """``folder`` as the parent of an entry point's output folder, chosen before Hydra makes it. Its missing part is
+    noted, so that a refusal (a ``run=`` that is not a training run, checked inside the entry point where it can end
+    with one line) leaves none of the folders Hydra made for it."""
+    path = Path(str(folder))
+    missing = [p for p in (path, *path.parents) if not p.exists()]
+    if missing:
+        _MADE_FOR_OUTPUT.append(missing[-1].resolve())
+    return path
+
+
 def _hydra_only(folder: Path) -> bool:
     """Whether ``folder`` holds nothing but what Hydra writes before an entry point runs (``.hydra/``, ``*.log``,
     a sweep's ``multirun.yaml``)."""
     return folder.is_dir() and all(
         p.name in (".hydra", "multirun.yaml") or p.suffix == ".log" for p in folder.iterdir()
     )
+
+
+def _close_log_files(folder: Path) -> None:
+    """Close and detach the log file handlers writing into ``folder``, before it is removed."""
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == folder.resolve():
+            root.removeHandler(handler)
+            handler.close()
 
 
 def remove_refused_run_dir(run_dir: str | Path, sweep_dir: str | Path | None = None) -> bool:
@@ -122,11 +147,7 @@ def remove_refused_run_dir(run_dir: str | Path, sweep_dir: str | Path | None = N
     run_dir = Path(run_dir)
     if not _hydra_only(run_dir):
         return False
-    root = logging.getLogger()
-    for handler in list(root.handlers):
-        if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename).parent == run_dir.resolve():
-            root.removeHandler(handler)
-            handler.close()
+    _close_log_files(run_dir)
     shutil.rmtree(run_dir, ignore_errors=True)
     top = run_dir
     if sweep_dir is not None and _hydra_only(Path(sweep_dir)):
@@ -137,20 +158,31 @@ def remove_refused_run_dir(run_dir: str | Path, sweep_dir: str | Path | None = N
 
 
 def _remove_empty_parents(folder: Path) -> None:
-    """The folders Hydra made above a removed run folder (``runs/``), while they are empty, up to the working
-    directory (never it, nor anything outside it)."""
+    """The folders Hydra made above a removed run folder, while they are empty: up to the working directory (never
+    it, nor anything outside it: ``runs/``), and the ones noted by :func:`output_parent` wherever they are."""
     here, folder = Path.cwd().resolve(), folder.resolve()
-    while folder != here and here in folder.parents and folder.is_dir() and not any(folder.iterdir()):
+    made = [m for m in _MADE_FOR_OUTPUT if m == folder or m in folder.parents]
+    top = min(made, key=lambda m: len(m.parts)) if made else None
+    while (
+        folder.is_dir()
+        and not any(folder.iterdir())
+        and (
+            (folder != here and here in folder.parents)
+            or (top is not None and (folder == top or top in folder.parents))
+        )
+    ):
         folder.rmdir()
         folder = folder.parent
 
 
 @contextmanager
-def no_folder_if_refused():
+def no_folder_if_refused(outputs: bool = False):
     """Inside a Hydra entry point: an error raised in the block (a refused config) removes the output folder
     Hydra made for the run (:func:`remove_refused_run_dir`), then propagates. A refusal (``ValueError``: a bad value
-    or an unknown key, the message naming it) ends the command with that one line, without a traceback, unless
-    ``HYDRA_FULL_ERROR=1``; outside a Hydra run (a test, a script) it propagates as it is."""
+    or an unknown key; ``FileNotFoundError``: a missing input; the message naming it) ends the command with that one
+    line, without a traceback, unless ``HYDRA_FULL_ERROR=1``; outside a Hydra run (a test, a script) it propagates as
+    it is. ``outputs=True``: the folder goes even when the block wrote into it (an evaluation's folder holds its
+    results alone, and a failed evaluation has none worth keeping; a training run's folder is kept to resume)."""
     try:
         yield
     except BaseException as err:
@@ -160,9 +192,12 @@ def no_folder_if_refused():
         if not HydraConfig.initialized():
             raise
         hydra_cfg = HydraConfig.get()
-        remove_refused_run_dir(
-            hydra_cfg.runtime.output_dir, hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None
-        )
-        if isinstance(err, ValueError) and os.environ.get("HYDRA_FULL_ERROR") != "1":
+        output_dir = Path(hydra_cfg.runtime.output_dir)
+        if outputs and output_dir.is_dir():
+            _close_log_files(output_dir)
+            shutil.rmtree(output_dir, ignore_errors=True)
+            _remove_empty_parents(output_dir.parent)
+        remove_refused_run_dir(output_dir, hydra_cfg.sweep.dir if hydra_cfg.mode == RunMode.MULTIRUN else None)
+        if isinstance(err, (ValueError, FileNotFoundError)) and os.environ.get("HYDRA_FULL_ERROR") != "1":
             raise SystemExit(f"error: {err}") from None
         raise

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -12,6 +13,7 @@ import pytest
 from testkit import TINY_BUDGET, fake_run, run_module
 
 from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
+from kddrl_trl.reporting.records import find_runs
 from kddrl_trl.reporting.stats import difference_ci, mean_ci, ratio_ci
 
 #: a tiny KDDRL budget that still trains, validates and evaluates
@@ -85,6 +87,32 @@ def test_records_refuse_bad_files_naming_file_and_column(tmp_path):
     fake_run(tmp_path / "c")
     with pytest.raises(ValueError, match="two runs of kddrl on baseline with seed 0"):
         find_runs([tmp_path / "b", tmp_path / "c"])
+
+
+def test_a_record_cut_short_is_refused_in_one_line_leaving_no_report_folder(tmp_path):
+    """An ``eval_episodes.csv`` cut at a row boundary parses; its row count against ``summary.json`` 's gives it
+    away. The report command ends with one line naming the file, and makes no report folder."""
+    import os
+    import sys
+
+    run = fake_run(tmp_path / "runs" / "a", speeds=(100.0, 110.0, 120.0), collisions=(False, True, False))
+    lines = (run / "eval_episodes.csv").read_text().splitlines(keepends=True)
+    (run / "eval_episodes.csv").write_text("".join(lines[:-1]))
+    env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
+    cmd = [sys.executable, "-m", "kddrl_trl.report", "runs/a", "out=out"]
+    done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
+    message = f"error: {Path('runs/a/eval_episodes.csv')}: 2 episode rows, but {Path('runs/a/summary.json')} counts 3"
+    assert done.returncode != 0 and done.stderr.strip().startswith(message), done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
+
+
+def test_a_report_of_one_system_has_no_empty_comparison(tmp_path):
+    from kddrl_trl.reporting.builder import build_report
+
+    build_report(find_runs([fake_run(tmp_path / "runs" / "a")]), tmp_path / "out")
+    assert "Comparison with KDDRL" not in (tmp_path / "out" / "report.md").read_text()
+    build_report(find_runs([fake_run(tmp_path / "runs" / "b", algo="ni"), tmp_path / "runs" / "a"]), tmp_path / "o2")
+    assert "## Comparison with KDDRL" in (tmp_path / "o2" / "report.md").read_text()
 
 
 @pytest.mark.parametrize("suffix", [".xz", ".gz"])

@@ -30,12 +30,12 @@ from .schema import (
 
 def register() -> None:
     store = ConfigStore.instance()
-    store.store(group="env", name="highway_schema", node=EnvNode)
-    store.store(group="algo", name="hierarchical_schema", node=HierarchicalAlgo)
-    store.store(group="algo", name="joint_d3qn_schema", node=JointD3QNAlgo)
-    store.store(group="algo", name="pasac_schema", node=PASACAlgo)
-    store.store(group="algo", name="rule_schema", node=RuleAlgo)
-    store.store(group="logger", name="logger_schema", node=LoggerConfig)
+    store.store(name="highway_schema", node=EnvNode)
+    store.store(name="hierarchical_schema", node=HierarchicalAlgo)
+    store.store(name="joint_d3qn_schema", node=JointD3QNAlgo)
+    store.store(name="pasac_schema", node=PASACAlgo)
+    store.store(name="rule_schema", node=RuleAlgo)
+    store.store(name="logger_schema", node=LoggerConfig)
     store.store(name="train_job", node=TrainJob)
     store.store(name="evaluate_job", node=EvaluateJob)
     store.store(name="report_job", node=ReportJob)

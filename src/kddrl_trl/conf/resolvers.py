@@ -8,8 +8,9 @@ folder behind. These resolvers decide while the config is composed, once (:mod:`
   newest ``runs/<prefix>*`` with a checkpoint; ``resume=<dir>``: that one), else ``runs/<prefix><stamp>``;
 * ``${kddrl_sweep_dir:${resume},<prefix>,<stamp>}``: the sweep folder to resume (``resume=true``: the newest
   ``<prefix>*``; ``resume=<dir>``: that one), else ``<prefix><stamp>``;
-* ``${kddrl_trained_run:${run}}``: ``run`` itself, after checking that it is a training run folder
-  (holds ``config.yaml``); a clear error naming the folder otherwise;
+* ``${kddrl_trained_run:${run}}``: ``run`` itself, the parent of an evaluation's folder; whether it is a training
+  run folder is checked inside the entry point (one line naming it), and the folders Hydra makes for a ``run`` that
+  does not exist are then removed (:func:`kddrl_trl.runs.output_parent`);
 * ``${kddrl_scenario:<name>,${env.simulator}}``: the ``env.scenario`` a ``+scenario=<name>`` preset sets
   (:func:`kddrl_trl.envs.config.scenario_label`: ``highwayenv_congested`` on HighwayEnv), so that the run folder
   already carries the simulator.
@@ -22,7 +23,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from ..envs.config import scenario_label
-from ..runs import find_resume_dir, find_sweep_dir, trained_run
+from ..runs import find_resume_dir, find_sweep_dir, output_parent
 
 
 def train_dir(resume, runs_root: str, prefix: str, stamp: str) -> str:
@@ -35,7 +36,7 @@ def register() -> None:
     """Register the resolvers (idempotent; cached so a config resolves them once)."""
     for name, fn in (
         ("kddrl_train_dir", train_dir),
-        ("kddrl_trained_run", lambda run: str(trained_run(run))),
+        ("kddrl_trained_run", lambda run: str(output_parent(run))),
         ("kddrl_sweep_dir", lambda resume, prefix, stamp: str(find_sweep_dir(resume, prefix, stamp))),
         ("kddrl_scenario", scenario_label),
     ):

@@ -19,8 +19,9 @@ composed config into these objects (``OmegaConf.to_object``), before any simulat
 ``train.py`` job       :class:`TrainJob`; ``evaluate.py`` job: :class:`EvaluateJob`
 =====================  =================================================================================
 
-Each option of the ``algo`` group names its schema first in its defaults list (``hierarchical_schema``,
-``joint_d3qn_schema``, ``pasac_schema`` or ``rule_schema``), so one group types every kind of algo; the algo's
+Each option of the ``algo`` group names its schema first in its defaults list (``/hierarchical_schema@_here_``,
+``/joint_d3qn_schema@_here_``, ``/pasac_schema@_here_`` or ``/rule_schema@_here_``), so one group types every kind of
+algo. The schemas are stored outside the groups, so ``--help`` offers only the options a user can choose; the algo's
 ``kind`` says which it is, also in a run's saved ``config.yaml`` (:func:`algo_from_node`).
 """
 

@@ -480,9 +480,11 @@ def build_report(
         for row in table_rows:
             row["collisions_exact"] = exact[(row["scenario"], row["algo"])]
             row["speed_vs_idm_mobil"] = ratios.get((row["scenario"], row["algo"]))
-    md += ["## Comparison with KDDRL", ""]
-    for s in scenarios:
-        md += _comparisons(s, [r for r in table_rows if r["scenario"] == s]) + [""]
+    comparisons = [line for s in scenarios for line in _comparisons(s, [r for r in table_rows if r["scenario"] == s])]
+    if comparisons:  # a report of KDDRL alone, or without it, has nothing to compare
+        md += ["## Comparison with KDDRL", ""]
+        for s in scenarios:
+            md += _comparisons(s, [r for r in table_rows if r["scenario"] == s]) + [""]
     against = [
         line for s in scenarios for line in _against_rules(s, [r for r in table_rows if r["scenario"] == s]) + [""]
     ]

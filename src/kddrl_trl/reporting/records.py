@@ -120,6 +120,11 @@ def load_run(path: str | Path) -> RunRecord:
             raise ValueError(f"{summary_path}: no {key!r} key")
     episodes_path = record_file(path, "eval_episodes.csv")
     episodes = _csv(episodes_path, EPISODE_COLUMNS)
+    if "episodes" in summary and int(summary["episodes"]) != len(episodes):
+        raise ValueError(
+            f"{episodes_path}: {len(episodes)} episode rows, but {summary_path} counts {summary['episodes']} "
+            "(a record cut short or from another run)"
+        )
     episodes["collision"] = (
         episodes["collision"].astype(str).str.lower().map({"true": True, "false": False, "1": True, "0": False})
     )
