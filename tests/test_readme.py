@@ -71,6 +71,19 @@ def test_citation_names_the_paper():
     assert "cff-version" in text and "Knowledge-Data-Dual-Driven Reinforcement Learning" in text
 
 
+def test_one_version_everywhere():
+    """``__version__`` is the installed package's (pyproject.toml), and the citation and the changelog name it."""
+    import tomllib
+
+    import kddrl_trl
+
+    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert kddrl_trl.__version__ == version
+    assert f"\nversion: {version}\n" in (ROOT / "CITATION.cff").read_text()
+    assert f"## {version} (" in (ROOT / "CHANGELOG.md").read_text()
+    assert (ROOT / "src" / "kddrl_trl" / "py.typed").is_file()
+
+
 def test_the_readme_verdict_table_is_the_reports():
     """The README's short verdict table is ``studies/paper/readme_table.py`` 's output on the committed
     ``studies/paper/report.json``: a regenerated report that changes a claim fails here until the README follows."""

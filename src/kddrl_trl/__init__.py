@@ -3,7 +3,12 @@
 Importing the package registers the Gymnasium id ``kddrl_trl/SumoHighway-v0``.
 """
 
-__version__ = "0.1.0"
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("kddrl_trl")  # one place for it: pyproject.toml
+except PackageNotFoundError:  # imported from a source tree that was never installed
+    __version__ = "0+unknown"
 
 from .gym_env import register as _register_gym
 
