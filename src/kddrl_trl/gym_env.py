@@ -236,7 +236,10 @@ class SumoHighwayGymEnv(gym.Env):
         info = {"reward_lc": r_lc, "reward_cf": r_cf, "labels": self._labels()}
         frame = self._batch((*K.RAW_OBSERVATION_KEYS, K.LC_REWARD, K.CF_REWARD, "terminated", "truncated"))
         frame["done"] = frame["terminated"] | frame["truncated"]
-        for episode in self.tracker(TensorDict({"next": frame}, batch_size=[1]).unsqueeze(-1)):
+        step = TensorDict({"next": frame}, batch_size=[1])
+        step.set(K.LC_ACTION, torch.nn.functional.one_hot(torch.tensor([lc]), 3).float())  # the commands, for the
+        step.set(K.CF_ACTION, torch.tensor([[cf]], dtype=torch.float32))  # episode's crash fields
+        for episode in self.tracker(step.unsqueeze(-1)):
             info["episode"] = episode
         self._draw(first=False)
         terminated, truncated = bool(self._frame["terminated"][0]), bool(self._frame["truncated"][0])

@@ -68,6 +68,11 @@ COLLISION_SLOT = ("episode", "collision_slot")  # [1]  int64, NEIGHBOR_SLOTS ind
 #                                                      observation before the collision; -1 none / not a neighbour
 BRAKING_PHASE = ("braking", "phase")  # [1]  int64, code in BRAKING_PHASES
 BRAKING_DISTANCE = ("braking", "distance")  # [1]  gap (m) to the braking leader when it started; 0 before
+# the event's car, from the frame it starts braking to the episode's end (0 before; the last values once it is gone):
+BRAKING_GAP = ("braking", "gap")  # [1]  m from the ego's front bumper to the car's rear bumper (< 0: behind the ego)
+BRAKING_SPEED = ("braking", "speed")  # [1]  its speed (m/s)
+BRAKING_LANE_CHANGES = ("braking", "lane_changes")  # [1]  int64, its lane changes since it was released
+BRAKING_CONTACT = ("braking", "contact")  # [1]  bool, this frame's collision of the ego was with it
 
 RAW_OBSERVATION_KEYS = (
     EGO_STATE,
@@ -89,10 +94,25 @@ RAW_OBSERVATION_KEYS = (
     COLLISION_SLOT,
     BRAKING_PHASE,
     BRAKING_DISTANCE,
+    BRAKING_GAP,
+    BRAKING_SPEED,
+    BRAKING_LANE_CHANGES,
+    BRAKING_CONTACT,
 )
 #: the raw keys that label the episode for metrics and study records (whether and how it ended, the scripted event's
 #: phase): written by the env beside the observation, never something a driver senses
-EPISODE_LABEL_KEYS = (COLLISION, OUTCOME, COLLISION_KIND, COLLISION_SLOT, BRAKING_PHASE, BRAKING_DISTANCE)
+EPISODE_LABEL_KEYS = (
+    COLLISION,
+    OUTCOME,
+    COLLISION_KIND,
+    COLLISION_SLOT,
+    BRAKING_PHASE,
+    BRAKING_DISTANCE,
+    BRAKING_GAP,
+    BRAKING_SPEED,
+    BRAKING_LANE_CHANGES,
+    BRAKING_CONTACT,
+)
 #: the raw keys a driver senses: the ego's own state, its neighbours, their leaders and its lane-change state
 SENSED_KEYS = tuple(key for key in RAW_OBSERVATION_KEYS if key not in EPISODE_LABEL_KEYS)
 

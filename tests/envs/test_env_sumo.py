@@ -197,6 +197,55 @@ def test_braking_event_distance_and_durations():
         env.close()
 
 
+def test_braking_episodes_record_the_onset_and_crashes_explain_themselves():
+    """Every braking episode records the event's onset (gap, speeds, headway, time to collision); a crash episode
+    records the ego's speed and commands, since when its lane command was held, and whether it hit the event's car;
+    a clean episode leaves the crash fields empty. Roads 0-1 keep their lane at +3 m/s² (they crash), roads 2-3
+    drive IDM+MOBIL."""
+    from kddrl_trl.envs.episode_metrics import CRASH_FIELDS, ONSET_FIELDS
+
+    env = SumoHighwayEnv("braking", num_roads=4, seed=0)
+    rule = IDMMobilPolicy()
+
+    def policy(td):
+        td = rule(td)
+        td[K.LC_ACTION][:2] = torch.tensor([0.0, 1.0, 0.0])
+        td[K.CF_ACTION][:2] = 3.0
+        return td
+
+    try:
+        eps = EpisodeTracker()(torch.stack(rollout(env, policy, 500), 1))
+    finally:
+        env.close()
+    crashes = [e for e in eps if e["collision"]]
+    clean = [e for e in eps if not e["collision"]]
+    assert crashes and clean
+    gassing = [e for e in crashes if e["road"] < 2]
+    assert gassing and any(e["crash_with_event_car"] is True for e in gassing)
+    for e in crashes:
+        assert all(
+            e[name] != "" and not (isinstance(e[name], float) and np.isnan(e[name]))
+            for name in CRASH_FIELDS
+            if name not in ("crash_lane_change_frame", "crash_event_gap", "crash_event_speed")
+        ), e
+        assert e["crash_lc_command"] in K.LC_ACTIONS and 1 <= e["crash_lc_command_frame"] <= e["frames"]
+        assert isinstance(e["crash_with_event_car"], bool) and e["crash_speed"] >= 0
+    for e in gassing:
+        assert e["crash_cf_command"] == 3.0 and e["crash_lc_command"] == "keep" and e["crash_lc_command_frame"] == 1
+        assert np.isnan(e["crash_lane_change_frame"])  # it never changed lane
+        if e["crash_with_event_car"]:
+            assert -1.0 < e["crash_event_gap"] < 5.0  # the last observation before the contact
+    for e in clean:
+        assert all(e[name] == "" or np.isnan(e[name]) for name in CRASH_FIELDS), e
+    for e in eps:
+        assert all(np.isfinite(e[name]) or e[name] == np.inf for name in ONSET_FIELDS), e  # an event every episode
+        assert e["onset_gap"] == pytest.approx(e["braking_distance"] - 5.0, abs=1e-3)  # 5 m cars: bumper to bumper
+        assert e["onset_headway"] == pytest.approx(e["onset_gap"] / e["onset_speed"])
+        closing = e["onset_speed"] - e["onset_leader_speed"]
+        assert e["onset_ttc"] == (pytest.approx(e["onset_gap"] / closing) if closing > 0 else np.inf)
+        assert e["event_car_lane_changes"] >= 0
+
+
 @pytest.mark.parametrize("release", ["sumo", "programmed"])
 def test_released_braking_car_resumes_as_its_release_says(release):
     """``programmed``: after standing, the car keeps its lane and gains at most ``resume_accel`` per second until
@@ -439,7 +488,9 @@ class _StubSim:
         self.cfg = make_config("mixed", {"braking": {"probability": probability}})
         self.num_roads = roads
         self.rngs = [np.random.default_rng([seed, r]) for r in range(roads)]
-        self.obs = {K.BRAKING_PHASE: np.zeros((roads, 1), np.int64), K.BRAKING_DISTANCE: np.zeros((roads, 1))}
+        from kddrl_trl.envs.observe import observation_arrays
+
+        self.obs = observation_arrays(self.cfg, roads)
         self.stats = {"braking_skipped": 0, "braking_missed": 0}
 
 

@@ -8,9 +8,12 @@ normal speed": the car keeps its lane and its speed rises by ``resume_accel`` pe
 deems safe behind its own leader) until it has the speed it had before braking, then SUMO takes it back.
 
 :class:`BrakingEvents` runs the event on every road of a :class:`~kddrl_trl.envs.sim.HighwaySim` and writes its
-phase (``keys.BRAKING_PHASE``, codes of ``keys.BRAKING_PHASES``) and the gap at which it started
-(``keys.BRAKING_DISTANCE``) into the simulator's observation arrays, from which the episode metrics
-(``braking_distance``, ``braking_start_frame`` ...) are read.
+phase (``keys.BRAKING_PHASE``, codes of ``keys.BRAKING_PHASES``), the gap at which it started
+(``keys.BRAKING_DISTANCE``) and, every frame from then on, the event car's gap, speed and lane changes since its
+release (``keys.BRAKING_GAP``, ``BRAKING_SPEED``, ``BRAKING_LANE_CHANGES``) into the simulator's observation arrays,
+from which the episode metrics (``braking_distance``, ``braking_start_frame``, the onset and crash fields of
+:class:`~kddrl_trl.envs.episode_metrics.EpisodeTracker`) are read. These are labels for the records, never observed by
+a policy (``keys.EPISODE_LABEL_KEYS``).
 """
 
 from __future__ import annotations
@@ -47,6 +50,9 @@ class BrakingEvents:
         scenario has no event)."""
         self.state[r] = dict(phase=K.BRAKE_NONE, target=math.nan, active=False)
         self._write(r, K.BRAKE_NONE, 0.0)
+        obs = self.sim.obs
+        obs[K.BRAKING_GAP][r, 0] = obs[K.BRAKING_SPEED][r, 0] = obs[K.BRAKING_LANE_CHANGES][r, 0] = 0
+        obs[K.BRAKING_CONTACT][r, 0] = False
         if not self.cfg.enabled:
             return
         if self.cfg.probability < 1.0 and not self.sim.rngs[r].random() < self.cfg.probability:
@@ -67,6 +73,30 @@ class BrakingEvents:
             self._hold(r)
         elif br.get("ramping"):
             self._ramp(r)
+        if "vid" in br and br["phase"] != K.BRAKE_VANISHED:
+            self._track(r)
+
+    def _track(self, r: int) -> None:
+        """The event car's gap to the ego, speed, and lane changes since its release, this frame (kept as they
+        were once SUMO no longer knows it)."""
+        ls, sim, br = _libsumo(), self.sim, self.state[r]
+        vid = br["vid"]
+        try:
+            y, length = longitudinal(vid, sim.cfg), ls.vehicle.getLength(vid)
+            speed, lane = ls.vehicle.getSpeed(vid), ls.vehicle.getLaneIndex(vid)
+            y_ego = longitudinal(sim.ego[r], sim.cfg)
+        except ls.TraCIException:
+            return
+        sim.obs[K.BRAKING_GAP][r, 0] = y - length - y_ego
+        sim.obs[K.BRAKING_SPEED][r, 0] = speed
+        if br["phase"] == K.BRAKE_RESUMED:
+            if lane != br["lane"]:
+                sim.obs[K.BRAKING_LANE_CHANGES][r, 0] += 1
+                br["lane"] = lane
+
+    def is_event_car(self, r: int, vid: str) -> bool:
+        """Whether ``vid`` is road ``r``'s event car."""
+        return self.state[r].get("vid") == vid
 
     def _seek(self, r: int) -> None:
         ls, sim, cfg, br = _libsumo(), self.sim, self.cfg, self.state[r]
@@ -107,6 +137,7 @@ class BrakingEvents:
                 ls.vehicle.setSpeed(br["vid"], self.cfg.resume_accel * sim.dt)
             else:
                 self._release(r)
+            br["lane"] = ls.vehicle.getLaneIndex(br["vid"])  # its lane changes are counted from here
             self._write(r, K.BRAKE_RESUMED)
 
     def _ramp(self, r: int) -> None:

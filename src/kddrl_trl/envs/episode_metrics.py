@@ -14,6 +14,7 @@ import torch
 from tensordict import TensorDictBase
 
 from .. import keys as K
+from .specs import lc_command
 
 #: running sums per row, in column order
 SUMS = (
@@ -54,8 +55,32 @@ IN_KEYS = tuple(
         K.BRAKING_DISTANCE,
     )
 )
-#: entries read when present (0 where absent): the car-following shield's interventions (``keys.CF_SHIELD``)
-OPTIONAL_KEYS = (("next", *K.CF_SHIELD),)
+#: entries read when present (0 where absent): the car-following shield's interventions (``keys.CF_SHIELD``), the
+#: braking event's car (gap, speed, lane changes, contact: envs without the event need not write them), and the
+#: frame's commands at its root (the policy's; the crash fields ``crash_lc_command`` ... are empty without them)
+OPTIONAL_KEYS = (
+    ("next", *K.CF_SHIELD),
+    ("next", *K.BRAKING_GAP),
+    ("next", *K.BRAKING_SPEED),
+    ("next", *K.BRAKING_LANE_CHANGES),
+    ("next", *K.BRAKING_CONTACT),
+    K.LC_ACTION,
+    K.CF_ACTION,
+)
+#: the onset and crash fields of an episode (empty: NaN, or "" for the lane command and the event-car contact, where
+#: the episode had no braking event or no crash)
+ONSET_FIELDS = ("onset_gap", "onset_speed", "onset_leader_speed", "onset_headway", "onset_ttc")
+CRASH_FIELDS = (
+    "crash_speed",
+    "crash_accel",
+    "crash_cf_command",
+    "crash_lc_command",
+    "crash_lc_command_frame",
+    "crash_lane_change_frame",
+    "crash_with_event_car",
+    "crash_event_gap",
+    "crash_event_speed",
+)
 
 
 class EpisodeTracker:
@@ -85,7 +110,18 @@ class EpisodeTracker:
       role: leaders a/b/c, followers d/e/f), ``ended_changing_lane`` (the ego's lane-change manoeuvre was under
       way at the last frame);
     - ``braking_distance`` (m, NaN without a braking event) and, once reached, ``braking_start_frame``,
-      ``braking_stop_frame``, ``braking_resume_frame`` (the episode's frame count at which each phase began).
+      ``braking_stop_frame``, ``braking_resume_frame`` (the episode's frame count at which each phase began);
+    - at the braking event's onset (:data:`ONSET_FIELDS`, NaN without one): ``onset_gap`` (m, the ego's front to
+      the braking car's rear), ``onset_speed`` and ``onset_leader_speed`` (m/s, the ego's and the braking car's),
+      ``onset_headway`` (s, gap / ego speed) and ``onset_ttc`` (s, gap / closing speed; ``inf`` when not closing);
+      ``event_car_lane_changes`` (the released car's own lane changes by the episode's end);
+    - at a crash (:data:`CRASH_FIELDS`, empty otherwise): ``crash_speed`` (m/s, the ego's in the last observation
+      before the contact), ``crash_accel`` (m/s², executed in the crash frame), ``crash_cf_command`` (m/s²) and
+      ``crash_lc_command`` (a ``keys.LC_ACTIONS`` label) of the crash frame, ``crash_lc_command_frame`` (the
+      episode's frame count since which that lane command was held), ``crash_lane_change_frame`` (the frame count at
+      which the ego's last lane change started, NaN if none), ``crash_with_event_car`` (the other vehicle was the
+      braking event's car), ``crash_event_gap`` and ``crash_event_speed`` (that car's, NaN without an event). The
+      commands are read from the frames' root (``keys.LC_ACTION``, ``CF_ACTION``) when there.
     """
 
     def __init__(self):
@@ -95,12 +131,18 @@ class EpisodeTracker:
         self._start: torch.Tensor | None = None  # [B] start number of each row's open episode
         self._phase: torch.Tensor | None = None  # [B] braking phase of each row's last frame
         self._events: list[dict] = []  # per row: braking fields of the open episode
+        self._seen: torch.Tensor | None = None  # [B] frames seen per row before this batch (a row's frame numbers)
+        # [B] per row: frame number of the last lane-change start and of the last change of the lane command, and
+        # the last frame's command (frame numbers count every frame the row has had, across episodes)
+        self._last_lc: torch.Tensor | None = None
+        self._last_cmd_change: torch.Tensor | None = None
+        self._last_cmd: torch.Tensor | None = None
 
     @staticmethod
     def _column(nxt: TensorDictBase, key, index: int = 0, optional: bool = False) -> torch.Tensor:
         value = nxt.get(key, None)
         if value is None and optional:
-            return torch.zeros(nxt.batch_size)
+            return torch.full(nxt.batch_size, math.nan) if optional == "nan" else torch.zeros(nxt.batch_size)
         if value is None:
             raise KeyError(
                 f"EpisodeTracker: the frames have no ('next', {key!r}) entry; the env must write the raw "
@@ -136,14 +178,37 @@ class EpisodeTracker:
             -1,
         ).long()
         distance = col(nxt, K.BRAKING_DISTANCE).double()
+        event = {
+            "gap": col(nxt, K.BRAKING_GAP, optional=True).double(),
+            "speed": col(nxt, K.BRAKING_SPEED, optional=True).double(),
+            "lane_changes": col(nxt, K.BRAKING_LANE_CHANGES, optional=True).double(),
+            "contact": col(nxt, K.BRAKING_CONTACT, optional=True).bool(),
+        }
+        has_cmd = frames.get(K.LC_ACTION, None) is not None
+        cmd = lc_command(frames.get(K.LC_ACTION).reshape(b, t, -1).cpu()) if has_cmd else torch.full((b, t), K.KEEP)
+        cf_cmd = col(frames, K.CF_ACTION, optional="nan").double()
         if self._carry is None:
             self._carry = torch.zeros(b, len(SUMS), dtype=torch.float64)
             self._start = torch.arange(b) + self.finished
             self._phase = torch.zeros(b, dtype=torch.long)
             self._events = [{} for _ in range(b)]
             self.started = self.finished + b
+            self._seen = torch.zeros(b, dtype=torch.long)
+            self._last_lc = torch.zeros(b, dtype=torch.long)
+            self._last_cmd_change = torch.zeros(b, dtype=torch.long)
+            self._last_cmd = torch.full((b,), -1, dtype=torch.long)
         elif self._carry.shape[0] != b:
             raise ValueError(f"EpisodeTracker: the batch has {b} rows, earlier batches had {self._carry.shape[0]}")
+        # frame numbers of the row (1 = its first frame ever), and per frame the number of the last lane-change start
+        # and of the last change of the lane command at or before it (0: none yet)
+        number = self._seen[:, None] + torch.arange(1, t + 1)
+        zero = torch.zeros_like(number)
+        last_lc = torch.where(col(nxt, K.LC_STARTED).bool(), number, zero).cummax(1).values
+        last_lc = torch.maximum(last_lc, self._last_lc[:, None])
+        cmd_changed = cmd != torch.cat([self._last_cmd[:, None], cmd[:, :-1]], 1)
+        last_cmd = torch.maximum(
+            torch.where(cmd_changed, number, zero).cummax(1).values, self._last_cmd_change[:, None]
+        )
         # a braking phase change within an episode (a new episode starts from phase "none")
         before = torch.cat([self._phase[:, None], phase[:, :-1]], 1)
         before[:, 1:][done[:, :-1]] = K.BRAKE_NONE
@@ -156,12 +221,45 @@ class EpisodeTracker:
             sums = csum[r, j] - base[r]
             if changed[r, j]:
                 self._braking_event(r, int(phase[r, j]), int(sums[0]), float(distance[r, j]))
+                if int(phase[r, j]) == K.BRAKE_BRAKING:
+                    self._onset(r, float(event["gap"][r, j]), float(speed[r, j]), float(event["speed"][r, j]))
             if done[r, j]:
+                first = int(number[r, j] - sums[0]) + 1  # the row's frame number of the episode's first frame
+                at_end = {name: value[r, j] for name, value in event.items()}
+                if int(codes[r, j, 0]) == K.COLLIDED:
+                    self._events[r].update(
+                        crash_speed=float(speed[r, j]),
+                        crash_accel=float(accel[r, j]),
+                        crash_cf_command=float(cf_cmd[r, j]),
+                        crash_lc_command=K.LC_ACTIONS[int(cmd[r, j])] if has_cmd else "",
+                        crash_lc_command_frame=(max(int(last_cmd[r, j]), first) - first + 1) if has_cmd else math.nan,
+                        crash_lane_change_frame=int(last_lc[r, j]) - first + 1 if last_lc[r, j] >= first else math.nan,
+                        crash_with_event_car=bool(at_end["contact"]),
+                    )
+                    if "braking_start_frame" in self._events[r]:
+                        self._events[r].update(
+                            crash_event_gap=float(at_end["gap"]), crash_event_speed=float(at_end["speed"])
+                        )
+                if "braking_start_frame" in self._events[r]:
+                    self._events[r]["event_car_lane_changes"] = int(at_end["lane_changes"])
                 out.append(self._episode(r, sums, codes[r, j].tolist()))
                 base[r] = csum[r, j]
         self._carry = csum[:, -1] - base
         self._phase = torch.where(done[:, -1], K.BRAKE_NONE, phase[:, -1])
+        self._seen += t
+        self._last_lc, self._last_cmd_change, self._last_cmd = last_lc[:, -1], last_cmd[:, -1], cmd[:, -1]
         return out
+
+    def _onset(self, r: int, gap: float, speed: float, leader_speed: float) -> None:
+        """The braking event's onset on row ``r``: the gap, both speeds, the time headway and the time to collision."""
+        closing = speed - leader_speed
+        self._events[r].update(
+            onset_gap=gap,
+            onset_speed=speed,
+            onset_leader_speed=leader_speed,
+            onset_headway=gap / speed if speed > 0 else math.inf,
+            onset_ttc=gap / closing if closing > 0 else math.inf,
+        )
 
     def _braking_event(self, r: int, phase: int, frame: int, distance: float) -> None:
         if phase == K.BRAKE_NONE:
@@ -199,6 +297,12 @@ class EpisodeTracker:
             "shield_interventions": int(total["shield"]),
             "shield_rate": total["shield"] / n,
             "braking_distance": events.pop("braking_distance", math.nan),
+            **{name: events.pop(name, math.nan) for name in ONSET_FIELDS},
+            "event_car_lane_changes": events.pop("event_car_lane_changes", math.nan),
+            **{
+                name: events.pop(name, "" if name in ("crash_lc_command", "crash_with_event_car") else math.nan)
+                for name in CRASH_FIELDS
+            },
             **events,
         }
         self.finished += 1

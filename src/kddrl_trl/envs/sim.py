@@ -348,6 +348,7 @@ class HighwaySim:
         self.obs[K.OUTCOME][roads] = K.RUNNING
         self.obs[K.COLLISION_KIND][roads] = K.NO_CONTACT
         self.obs[K.COLLISION_SLOT][roads] = -1
+        self.obs[K.BRAKING_CONTACT][roads] = False
 
     def step(self, lc_cmd: np.ndarray, accel: np.ndarray) -> None:
         """Advance every road by one frame. ``lc_cmd`` [K] int in (left, keep, right); ``accel`` [K] m/s².
@@ -467,6 +468,7 @@ class HighwaySim:
         slots = self.observer.slots[r]
         self.obs[K.COLLISION_KIND][r] = kind
         self.obs[K.COLLISION_SLOT][r] = slots.index(other) if other in slots else -1
+        self.obs[K.BRAKING_CONTACT][r] = self.braking.is_event_car(r, other)
 
     def _lose(self, r: int, why: str) -> None:
         """SUMO no longer knows road r's ego (removed, teleported, ...): log, count, truncate the episode.

@@ -52,6 +52,10 @@ def observation_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
         braking=Composite(
             phase=Bounded(0, len(K.BRAKING_PHASES) - 1, shape=(*b, 1), dtype=torch.int64),  # keys.BRAKING_PHASES
             distance=Unbounded(shape=(*b, 1), dtype=f32),  # m
+            gap=Unbounded(shape=(*b, 1), dtype=f32),  # m, ego front to the event car's rear
+            speed=Unbounded(shape=(*b, 1), dtype=f32),  # m/s, the event car's
+            lane_changes=Unbounded(shape=(*b, 1), dtype=torch.int64),  # the event car's, since its release
+            contact=Categorical(2, shape=(*b, 1), dtype=torch.bool),  # the ego's collision was with it
             shape=b,
         ),
         shape=b,
