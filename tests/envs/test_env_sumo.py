@@ -222,11 +222,13 @@ def test_braking_episodes_record_the_onset_and_crashes_explain_themselves():
     assert crashes and clean
     gassing = [e for e in crashes if e["road"] < 2]
     assert gassing and any(e["crash_with_event_car"] is True for e in gassing)
+    assert any(e["collision_with"] == "b" for e in gassing)
     for e in crashes:
         assert all(
             e[name] != "" and not (isinstance(e[name], float) and np.isnan(e[name]))
             for name in CRASH_FIELDS
             if name not in ("crash_lane_change_frame", "crash_event_gap", "crash_event_speed")
+            and not name.startswith("crash_other")
         ), e
         assert e["crash_lc_command"] in K.LC_ACTIONS and 1 <= e["crash_lc_command_frame"] <= e["frames"]
         assert isinstance(e["crash_with_event_car"], bool) and e["crash_speed"] >= 0
@@ -235,6 +237,8 @@ def test_braking_episodes_record_the_onset_and_crashes_explain_themselves():
         assert np.isnan(e["crash_lane_change_frame"])  # it never changed lane
         if e["crash_with_event_car"]:
             assert -1.0 < e["crash_event_gap"] < 5.0  # the last observation before the contact
+        if e["collision_with"] == "b":  # it ran into its leader: just ahead, slower
+            assert 0.0 < e["crash_other_dy"] < 15.0 and e["crash_other_speed"] < e["crash_speed"]
     for e in clean:
         assert all(e[name] == "" or np.isnan(e[name]) for name in CRASH_FIELDS), e
     for e in eps:

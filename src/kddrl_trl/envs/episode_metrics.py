@@ -56,7 +56,8 @@ IN_KEYS = tuple(
     )
 )
 #: entries read when present (0 where absent): the car-following shield's interventions (``keys.CF_SHIELD``), the
-#: braking event's car (gap, speed, lane changes, contact: envs without the event need not write them), and the
+#: braking event's car (gap, speed, lane changes, contact: envs without the event need not write them), the
+#: neighbours' states (the other vehicle of a crash), and the
 #: frame's commands at its root (the policy's; the crash fields ``crash_lc_command`` ... are empty without them)
 OPTIONAL_KEYS = (
     ("next", *K.CF_SHIELD),
@@ -64,6 +65,8 @@ OPTIONAL_KEYS = (
     ("next", *K.BRAKING_SPEED),
     ("next", *K.BRAKING_LANE_CHANGES),
     ("next", *K.BRAKING_CONTACT),
+    ("next", *K.NEIGHBORS_REL),
+    ("next", *K.NEIGHBORS_KIN),
     K.LC_ACTION,
     K.CF_ACTION,
 )
@@ -80,6 +83,9 @@ CRASH_FIELDS = (
     "crash_with_event_car",
     "crash_event_gap",
     "crash_event_speed",
+    "crash_other_dy",
+    "crash_other_speed",
+    "crash_other_accel",
 )
 
 
@@ -184,6 +190,14 @@ class EpisodeTracker:
             "lane_changes": col(nxt, K.BRAKING_LANE_CHANGES, optional=True).double(),
             "contact": col(nxt, K.BRAKING_CONTACT, optional=True).bool(),
         }
+        neighbors = {  # [B, T, 6] each: the neighbours' longitudinal offsets, speeds, accelerations
+            name: None if value is None else value[..., feature].cpu()
+            for name, value, feature in (
+                ("dy", nxt.get(K.NEIGHBORS_REL, None), 1),
+                ("speed", nxt.get(K.NEIGHBORS_KIN, None), 1),
+                ("accel", nxt.get(K.NEIGHBORS_KIN, None), 2),
+            )
+        }
         has_cmd = frames.get(K.LC_ACTION, None) is not None
         cmd = lc_command(frames.get(K.LC_ACTION).reshape(b, t, -1).cpu()) if has_cmd else torch.full((b, t), K.KEEP)
         cf_cmd = col(frames, K.CF_ACTION, optional="nan").double()
@@ -239,6 +253,15 @@ class EpisodeTracker:
                     if "braking_start_frame" in self._events[r]:
                         self._events[r].update(
                             crash_event_gap=float(at_end["gap"]), crash_event_speed=float(at_end["speed"])
+                        )
+                    slot = int(codes[r, j, 2])
+                    if slot >= 0:
+                        self._events[r].update(
+                            {
+                                f"crash_other_{name}": float(v[r, j, slot])
+                                for name, v in neighbors.items()
+                                if v is not None
+                            }
                         )
                 if "braking_start_frame" in self._events[r]:
                     self._events[r]["event_car_lane_changes"] = int(at_end["lane_changes"])
