@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import lzma
 import shutil
+import subprocess
 from pathlib import Path
 
 import pandas as pd
@@ -195,3 +196,38 @@ def torch_nextafter_one() -> float:
     import torch
 
     return float(torch.nextafter(torch.tensor(1.0), torch.tensor(2.0)))
+
+
+def test_default_job_alternates_the_commits_and_gives_the_ratio(tmp_path, monkeypatch):
+    """``benchmarks/default_job.py``: A B A B, one worktree a commit, the ratio of the means (the job itself
+    stands in: a real default job takes minutes)."""
+    bench = load_benchmark("default_job")
+    order, times = [], {"A": iter([100.0, 110.0]), "B": iter([80.0, 90.0])}
+
+    def fake_run(tree, out, overrides):
+        label = out.name[0]
+        order.append(label)
+        t = next(times[label])
+        return {
+            "process_s": t,
+            "training_s": t / 2,
+            "wall_s": t,
+            "compile_s": 1.0,
+            "collision_rate": 0.0,
+            "mean_speed_kmh": 100.0,
+        }
+
+    monkeypatch.setattr(bench, "run_job", fake_run)
+    out, work = tmp_path / "default_job.json", tmp_path / "work"
+    try:
+        result = bench.main(["--a", "HEAD", "--b", "HEAD", "--work", str(work), "--out", str(out), "episodes=2"])
+    finally:
+        for tree in work.glob("*/"):
+            if (tree / ".git").exists():
+                subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=bench.ROOT, check=False)
+    assert order == ["A", "B", "A", "B"]
+    assert result["ratio_b_over_a"]["process_s"] == pytest.approx(85.0 / 105.0)
+    assert (
+        result["job"] == "python -m kddrl_trl.train episodes=2" and json.loads(out.read_text())["runs"][3]["round"] == 1
+    )
+    assert result["commits"]["A"] == result["commits"]["B"] and len(result["commits"]["A"]) == 40

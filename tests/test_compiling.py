@@ -90,3 +90,14 @@ def test_a_warm_graph_is_called_without_torchdynamo_and_gives_its_bits():
     torch._dynamo.reset()
     assert torch.equal(loss("value", x), reference)
     assert torch.equal(loss("value", x), reference)
+
+
+def test_compile_seconds_count_this_jobs_compiling_only():
+    from kddrl_trl.compiling import compile_seconds, fresh_compiler
+
+    fresh_compiler()
+    assert compile_seconds() == 0.0
+    torch.compile(lambda x: (x * 3.0).cos().sum(), backend="eager")(torch.randn(4))
+    assert compile_seconds() > 0.0
+    fresh_compiler()  # the next job starts from zero
+    assert compile_seconds() == 0.0

@@ -56,6 +56,7 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
     (run,) = list((tmp_path / "runs").glob("braking__kddrl__0__*"))
     summary = json.loads((run / "summary.json").read_text())
     assert summary["algo"] == "kddrl" and summary["episodes"] == 2 and summary["compile"] is False
+    assert summary["compile_s"] == 0.0  # compile=false: nothing compiled in the job's process
     training = summary["training"]
     assert training["episodes"] == 3 and training["cf_updates"] > 0 and training["frames"] > 50
     assert (run / "train_episodes.csv").read_text().count("\n") == 4

@@ -53,8 +53,20 @@ def fresh_compiler() -> None:
     calls of the same code (the learner's gradient function, the transform stack) run eagerly, and under
     :class:`WarmCompiled` each call first fails its guard-skipping attempt: the same numbers, several times slower.
     The graphs' kernels stay in TorchInductor's on-disk cache, so a job recompiles no faster or slower than the
-    first job of a fresh process."""
+    first job of a fresh process. Its compile timers restart too (:func:`compile_seconds`)."""
+    from torch._dynamo.utils import compilation_time_metrics
+
     torch._dynamo.reset()
+    compilation_time_metrics.clear()
+
+
+def compile_seconds() -> float:
+    """Seconds TorchDynamo and TorchInductor spent compiling in this process since the job started
+    (:func:`fresh_compiler`): tracing, lowering and code generation, cache hits included; worker processes are not
+    counted. A run's ``summary.json`` records it as ``compile_s``."""
+    from torch._dynamo.utils import compilation_time_metrics
+
+    return float(sum(compilation_time_metrics.get("_compile.compile_inner", ())))
 
 
 def resolve_cudagraphs(cudagraphs: bool | str, device: torch.device) -> bool:

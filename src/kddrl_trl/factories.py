@@ -48,7 +48,7 @@ from torchrl.envs import Compose, EnvBase, TransformedEnv
 from . import keys as K
 from .collectors import MultiTimescaleCollector
 from .collectors.workers import WorkerEnv
-from .compiling import resolve_compile, resolve_cudagraphs
+from .compiling import compile_seconds, resolve_compile, resolve_cudagraphs
 from .conf.schema import (
     LC_REWARDS,
     CollectorConfig,
@@ -401,6 +401,7 @@ def evaluate(
         h = job.env
         recorder = TraceRecorder(
             job.video_episodes,
+            collisions_only=job.video_select == "collisions",
             scenario=h.scenario,
             algo=algo,
             seed=job.seed,
@@ -496,7 +497,8 @@ def report(
 ) -> dict:
     """Summary of the evaluation ``episodes`` plus ``fields``: written to ``summary.json`` (the episodes to
     ``eval_episodes.csv``) in ``out_dir`` and printed under ``title``. ``started`` (a run's start,
-    ``time.perf_counter()``) adds ``wall_s``, the run's whole time, its evaluation included."""
+    ``time.perf_counter()``) adds ``wall_s``, the run's whole time, its evaluation included; ``compile_s`` is the
+    time this process spent compiling (:func:`kddrl_trl.compiling.compile_seconds`)."""
     import pandas as pd
 
     from .eval.metrics import format_summary, summarize
@@ -507,6 +509,7 @@ def report(
     write_text_atomic(out_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
     if started is not None:
         summary["wall_s"] = time.perf_counter() - started
+    summary["compile_s"] = compile_seconds()
     write_json_atomic(out_dir / "summary.json", summary)
     print(f"\n{title}")
     print(format_summary(summary, reference))

@@ -38,7 +38,8 @@ PHASES = ("before", "braking", "standing", "resumed")
 
 def _env(folder: Path) -> dict:
     """The env node the evaluation ran with (its Hydra config)."""
-    return yaml.safe_load((folder / ".hydra" / "config.yaml").read_text())["env"]
+    path = folder / ".hydra" / "config.yaml"
+    return yaml.safe_load((path if path.is_file() else folder / "config.yaml").read_text())["env"]
 
 
 def _phase(row) -> str:
@@ -185,11 +186,67 @@ def table(result: dict) -> str:
     return "\n".join(out)
 
 
+PHASE_COLOURS = {"braking": "#f4a582", "standing": "#d6604d", "resumed": "#92c5de"}
+
+
+def space_time(traces: list[dict], path: Path) -> None:
+    """Paper Fig. 14's form for crash episodes: position along the road against time, the ego and its leader in its
+    lane (slot b), the event's phases shaded, the crash marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = min(len(traces), 2)
+    rows = math.ceil(len(traces) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 3.6 * rows), squeeze=False)
+    for ax, trace in zip(axes.flat, traces):
+        dt = float(trace.get("step_length", 0.1))
+        frames = trace["frames"]
+        t = np.array([f["t"] for f in frames]) * dt
+        ax.plot(t, [f["y"] for f in frames], color="black", label="ego")
+        lead = [f["neighbours"].get("b", [math.nan])[0] for f in frames]
+        ax.plot(t, lead, color="tab:orange", label="its leader (slot b)")
+        for phase, colour in PHASE_COLOURS.items():
+            on = np.array([f["braking_phase"] == phase for f in frames])
+            if on.any():
+                ax.axvspan(t[on].min(), t[on].max() + dt, color=colour, alpha=0.35, lw=0, label=f"event: {phase}")
+        changes = [f["t"] * dt for f in frames if f["lc_started"]]
+        for i, x in enumerate(changes):
+            ax.axvline(x, color="tab:green", ls="--", lw=1, label="lane change starts" if i == 0 else None)
+        ax.plot(t[-1], frames[-1]["y"], "rx", ms=10, mew=2, label=f"crash ({trace.get('collision_kind', '')})")
+        ax.set(
+            xlabel="time (s)",
+            ylabel="position along the section (m)",
+            title=f"{trace.get('algo', '')} seed {trace.get('seed', '')}, episode row {trace.get('row', '')}",
+        )
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(traces) :]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("folders", nargs="+", type=Path, help="evaluation folders (summary.json, eval_episodes.csv)")
     parser.add_argument("--out", type=Path, help="write the readings as JSON")
+    parser.add_argument(
+        "--traces",
+        nargs="*",
+        type=Path,
+        default=[],
+        help="crash traces (evaluate video=true video_select=collisions: <folder>/traces/*.json) for --figure",
+    )
+    parser.add_argument("--figure", type=Path, help="write the crashes' space-time figure here")
     args = parser.parse_args(argv)
+    if args.figure:
+        traces = [json.loads(p.read_text()) for p in args.traces]
+        if not traces:
+            parser.error("--figure needs --traces")
+        space_time(traces, args.figure)
     by_system: dict[str, list[pd.DataFrame]] = {}
     for folder in args.folders:
         algo, ep = load(folder)

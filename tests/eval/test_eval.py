@@ -165,3 +165,22 @@ def test_the_same_seed_gives_the_same_episodes_again_on_an_env_with_generative_n
     finally:
         env.close()
     assert first.equals(again)
+
+
+@pytest.mark.parametrize("collisions_only", [True, False])
+def test_trace_recorder_can_keep_only_the_crashes(collisions_only):
+    """``video_select=collisions``: the recorder keeps the first episodes that end in a collision and no other; by
+    default it keeps the first episodes whatever their end."""
+    from kddrl_trl.baselines import RandomDrivingPolicy
+    from kddrl_trl.eval.trace import TraceRecorder
+
+    env = FakeHighwayEnv("braking", num_roads=4, seed=0)
+    policy, recorder, td = RandomDrivingPolicy(), TraceRecorder(2, collisions_only=collisions_only), env.reset()
+    for _ in range(2000):
+        full, td = env.step_and_maybe_reset(policy(td))
+        recorder(full)
+    outcomes = [t["outcome"] for t in recorder.chosen()]
+    if collisions_only:
+        assert outcomes == ["collision", "collision"] and recorder.done
+    else:
+        assert len(outcomes) == 2 and "collision" in {t["outcome"] for t in recorder.traces} != {"collision"}

@@ -439,6 +439,8 @@ def check_device(device: str) -> None:
 #: default); ``high``, TensorFloat-32 where the hardware has it (NVIDIA GPUs since Ampere), faster, with a 10-bit
 #: mantissa in the products; ``medium``, bfloat16 products where supported
 MATMUL_PRECISIONS = ("highest", "high", "medium")
+#: which evaluation episodes ``video=true`` records (:class:`kddrl_trl.eval.trace.TraceRecorder`)
+VIDEO_SELECTS = ("any", "collisions")
 
 
 @dataclass
@@ -450,6 +452,7 @@ class Job:
     eval_seed: Optional[int] = None  # env seed of the evaluation; null: seed + eval.protocol.TEST_OFFSET
     video: bool = False  # record evaluation episodes: traces/*.json (Fig. 14) and videos/*.mp4
     video_episodes: int = 3
+    video_select: str = "any"  # any | collisions: which evaluation episodes the video records (collisions: only those)
     progress: bool = MISSING
     compile: Any = MISSING  # true | false | auto: torch.compile the fused transform stack and the learner update
     env: EnvNode = MISSING
@@ -461,6 +464,8 @@ class Job:
 
     def __post_init__(self) -> None:
         _at_least("", self, 1, "eval_episodes", "video_episodes")
+        if self.video_select not in VIDEO_SELECTS:
+            raise ValueError(f"video_select={self.video_select!r}: known values are {', '.join(VIDEO_SELECTS)}")
         if self.matmul_precision not in MATMUL_PRECISIONS:
             raise ValueError(
                 f"matmul_precision={self.matmul_precision!r}: known values are {', '.join(MATMUL_PRECISIONS)}"

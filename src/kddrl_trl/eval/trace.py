@@ -31,15 +31,16 @@ TRACE_KEYS = (
 
 class TraceRecorder:
     """Records the first ``episodes`` episodes to finish on any row, going on (up to ``4 * episodes``) until it
-    holds at least one episode with a lane change and one without, when the env gives both.
+    holds at least one episode with a lane change and one without, when the env gives both. ``collisions_only``:
+    the first ``episodes`` episodes that end in a collision, and no other.
 
     Call it with each step's TensorDict of batch ``[B]`` (root = the observation acted on, ``"next"`` = the
     result), as :func:`~kddrl_trl.eval.evaluate_policy` does with ``trace=``. ``meta`` (e.g. scenario, algo,
     seed, lane width, number of lanes, section length, step length) is copied into each trace.
     """
 
-    def __init__(self, episodes: int = 3, **meta):
-        self.episodes, self.meta = int(episodes), dict(meta)
+    def __init__(self, episodes: int = 3, collisions_only: bool = False, **meta):
+        self.episodes, self.meta, self.collisions_only = int(episodes), dict(meta), bool(collisions_only)
         self.lane_width = float(meta.get("lane_width", 3.2))
         self.dt = float(meta.get("step_length", 0.1))
         self.traces: list[dict] = []
@@ -48,6 +49,8 @@ class TraceRecorder:
 
     @property
     def done(self) -> bool:
+        if self.collisions_only:
+            return len(self.traces) >= self.episodes
         with_lc = any(t["lane_changes"] for t in self.traces)
         without = any(not t["lane_changes"] for t in self.traces)
         return len(self.traces) >= 4 * self.episodes or (len(self.traces) >= self.episodes and with_lc and without)
@@ -100,11 +103,15 @@ class TraceRecorder:
                 trace["outcome"] = K.OUTCOMES[outcome]
                 trace["collision_kind"] = K.COLLISION_KINDS[int(nxt.get(K.COLLISION_KIND)[r].reshape(-1)[0])]
                 trace["lane_changes"] = sum(f["lc_started"] for f in trace["frames"])
+                if self.collisions_only and outcome != K.COLLIDED:
+                    continue
                 if not self.done:
                     self.traces.append(trace)
 
     def chosen(self) -> list[dict]:
         """The first ``episodes`` traces, with one with a lane change and one without among them when held."""
+        if self.collisions_only:
+            return self.traces[: self.episodes]
         picked = self.traces[: self.episodes]
         for want in (True, False):
             if not any(bool(t["lane_changes"]) == want for t in picked):
