@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from kddrl_trl.reporting.records import record_file
 from kddrl_trl.reporting.stats import mean_ci
 
 PHASES = ("before", "braking", "standing", "resumed")
@@ -66,14 +67,17 @@ def _avoidable(ep: pd.DataFrame, env: dict) -> tuple[pd.Series, pd.Series]:
 
 def load(folder: Path) -> tuple[str, pd.DataFrame]:
     summary = json.loads((folder / "summary.json").read_text())
-    ep = pd.read_csv(folder / "eval_episodes.csv")
+    ep = pd.read_csv(record_file(folder, "eval_episodes.csv"))  # plain or compressed
     missing = [c for c in ("onset_gap", "crash_speed", "crash_with_event_car") if c not in ep.columns]
     if missing:
-        raise ValueError(f"{folder / 'eval_episodes.csv'}: no {', '.join(missing)} column (evaluate_fields.sh)")
+        raise ValueError(
+            f"{record_file(folder, 'eval_episodes.csv')}: no {', '.join(missing)} column (evaluate_fields.sh)"
+        )
     env = _env(folder)
     ep["phase"] = ep.apply(_phase, axis=1)
     ep["avoidable_braking"], ep["avoidable_lane_change"] = _avoidable(ep, env)
     ep["hit_event_car"] = ep["crash_with_event_car"].astype(str).str.lower() == "true"
+    ep["dt"] = float(env["step_length"])
     return str(summary["algo"]), ep
 
 
@@ -112,7 +116,7 @@ def summarise(seeds: list[pd.DataFrame]) -> dict:
         name: {"crash": _quartiles(crash[name]), "clean": _quartiles(clean[name])}
         for name in ("onset_gap", "onset_speed", "onset_leader_speed", "onset_headway", "onset_ttc")
     }
-    dt = 0.1
+    dt = crash["dt"]  # s a frame
     after = crash.assign(
         since_command=(crash["frames"] - crash["crash_lc_command_frame"]) * dt,
         since_lane_change=(crash["frames"] - crash["crash_lane_change_frame"]) * dt,
@@ -124,10 +128,20 @@ def summarise(seeds: list[pd.DataFrame]) -> dict:
             "crash_speed",
             "crash_accel",
             "crash_cf_command",
+            "crash_other_speed",
+            "crash_event_gap",
             "since_command",
             "since_lane_change",
             "after_release",
         )
+    }
+    hit, other = after[after["hit_event_car"]], after[~after["hit_event_car"]]
+    by_target = {
+        "event_car": {name: _quartiles(hit[name]) for name in ("crash_speed", "crash_cf_command", "crash_other_speed")},
+        "other_vehicle": {
+            name: _quartiles(other[name])
+            for name in ("crash_speed", "crash_cf_command", "crash_other_speed", "crash_event_gap")
+        },
     }
     commands = crash["crash_lc_command"].value_counts().to_dict()
     return {
@@ -137,6 +151,7 @@ def summarise(seeds: list[pd.DataFrame]) -> dict:
         "per_seed": {name: {"values": v, **_share(v)} for name, v in per_seed.items()},
         "onset_quartiles": onset,
         "crash_quartiles": at_crash,
+        "crash_quartiles_by_target": by_target,
         "crash_lc_commands": {str(k): int(v) for k, v in commands.items()},
     }
 
@@ -177,6 +192,8 @@ def table(result: dict) -> str:
     for name, unit in (
         ("crash_speed", "m/s"),
         ("crash_cf_command", "m/s²"),
+        ("crash_other_speed", "m/s"),
+        ("crash_event_gap", "m"),
         ("since_command", "s"),
         ("since_lane_change", "s"),
         ("after_release", "s"),
