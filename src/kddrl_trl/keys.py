@@ -73,6 +73,11 @@ BRAKING_GAP = ("braking", "gap")  # [1]  m from the ego's front bumper to the ca
 BRAKING_SPEED = ("braking", "speed")  # [1]  its speed (m/s)
 BRAKING_LANE_CHANGES = ("braking", "lane_changes")  # [1]  int64, its lane changes since it was released
 BRAKING_CONTACT = ("braking", "contact")  # [1]  bool, this frame's collision of the ego was with it
+BRAKING_SLOT = ("braking", "slot")  # [1]  int64, the leader slot (0, 1, 2 = a, b, c) it holds in this observation; -1
+#: the event car's position (m) 10 and 20 frames ahead as its script makes it (braking at ``decel`` to a stop, standing,
+#: a programmed release), and where the script fixes it (False once SUMO drives the car, after a ``sumo`` release)
+BRAKING_FUTURE = ("braking", "future")  # [2]  m, at frames +10 and +20 (the key steps of Eq. 24)
+BRAKING_FUTURE_KNOWN = ("braking", "future_known")  # [2]  bool
 
 RAW_OBSERVATION_KEYS = (
     EGO_STATE,
@@ -98,9 +103,13 @@ RAW_OBSERVATION_KEYS = (
     BRAKING_SPEED,
     BRAKING_LANE_CHANGES,
     BRAKING_CONTACT,
+    BRAKING_SLOT,
+    BRAKING_FUTURE,
+    BRAKING_FUTURE_KNOWN,
 )
 #: the raw keys that label the episode for metrics and study records (whether and how it ended, the scripted event's
-#: phase): written by the env beside the observation, never something a driver senses
+#: phase, its car's scripted future for an oracle predictor): written by the env beside the observation, never
+#: something a driver senses
 EPISODE_LABEL_KEYS = (
     COLLISION,
     OUTCOME,
@@ -112,6 +121,9 @@ EPISODE_LABEL_KEYS = (
     BRAKING_SPEED,
     BRAKING_LANE_CHANGES,
     BRAKING_CONTACT,
+    BRAKING_SLOT,
+    BRAKING_FUTURE,
+    BRAKING_FUTURE_KNOWN,
 )
 #: the raw keys a driver senses: the ego's own state, its neighbours, their leaders and its lane-change state
 SENSED_KEYS = tuple(key for key in RAW_OBSERVATION_KEYS if key not in EPISODE_LABEL_KEYS)

@@ -162,9 +162,11 @@ TransformsConfig = _node(
     "``algo.transforms``: options of "
     ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
     "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.); ``weights``: the "
-    "shipped GAN weights used without a checkpoint path (``auto``: those trained on the env simulator's traffic).",
+    "shipped GAN weights used without a checkpoint path (``auto``: those trained on the env simulator's traffic); "
+    "``event_oracle``: the braking car's key gaps from its script (:class:`~kddrl_trl.transforms.EventOracleKeyGaps`, "
+    "the braking study's oracle, not the paper's method).",
     check=_check_transforms,
-    optional={"mobil_criteria": (bool, False), "weights": (str, "auto")},
+    optional={"mobil_criteria": (bool, False), "weights": (str, "auto"), "event_oracle": (bool, False)},
     enabled=bool,
     trajgan=bool,
     priors=bool,

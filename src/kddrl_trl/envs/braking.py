@@ -24,6 +24,9 @@ from .. import keys as K
 from .network import LC_MODE_DEFAULT, edge_ids
 from .observe import _libsumo, longitudinal
 
+#: frames ahead of ``keys.BRAKING_FUTURE`` (the key steps of Eq. 24, 1 s and 2 s at 0.1 s a frame)
+FUTURE_FRAMES = (10, 20)
+
 
 class BrakingEvents:
     """Per-road state of the braking event: seek a leader at a drawn target distance (phase ``none``), brake
@@ -53,6 +56,9 @@ class BrakingEvents:
         obs = self.sim.obs
         obs[K.BRAKING_GAP][r, 0] = obs[K.BRAKING_SPEED][r, 0] = obs[K.BRAKING_LANE_CHANGES][r, 0] = 0
         obs[K.BRAKING_CONTACT][r, 0] = False
+        obs[K.BRAKING_SLOT][r, 0] = -1
+        obs[K.BRAKING_FUTURE][r] = 0.0
+        obs[K.BRAKING_FUTURE_KNOWN][r] = False
         if not self.cfg.enabled:
             return
         if self.cfg.probability < 1.0 and not self.sim.rngs[r].random() < self.cfg.probability:
@@ -93,6 +99,60 @@ class BrakingEvents:
             if lane != br["lane"]:
                 sim.obs[K.BRAKING_LANE_CHANGES][r, 0] += 1
                 br["lane"] = lane
+
+    def observed(self, r: int, slots: list) -> None:
+        """After road ``r`` 's observation (``slots``: its neighbours' ids in slot order): the event car's leader slot
+        and its scripted future (:meth:`scripted_future`)."""
+        obs, br = self.sim.obs, self.state[r]
+        vid = br.get("vid")
+        slot = slots.index(vid) if vid is not None and vid in slots[:3] else -1
+        obs[K.BRAKING_SLOT][r, 0] = slot
+        future, known = self.scripted_future(r) if slot >= 0 else ((0.0, 0.0), (False, False))
+        obs[K.BRAKING_FUTURE][r] = future
+        obs[K.BRAKING_FUTURE_KNOWN][r] = known
+
+    def scripted_future(self, r: int) -> tuple[tuple[float, ...], tuple[bool, ...]]:
+        """Road ``r`` 's event car, :data:`FUTURE_FRAMES` frames ahead, as its script moves it: (positions in m,
+        whether the script fixes each). The script is this class's, frame by frame as SUMO executes it (Euler: the
+        speed changes by at most ``decel`` or ``resume_accel`` a second, then the car moves by its new speed): it
+        brakes to a stop, stands ``stand_time``, and with ``release=programmed`` ramps back to its earlier speed. A
+        ``sumo`` release, or the end of a programmed ramp, hands the car to SUMO: from that frame on, no position is
+        known. The car's own leader is assumed not to hold it back."""
+        ls, sim, cfg, br = _libsumo(), self.sim, self.cfg, self.state[r]
+        phase, dt = br["phase"], sim.dt
+        try:
+            y, v = longitudinal(br["vid"], sim.cfg), ls.vehicle.getSpeed(br["vid"])
+        except ls.TraCIException:
+            return (0.0,) * len(FUTURE_FRAMES), (False,) * len(FUTURE_FRAMES)
+        t, stop, ramping = sim.t, br.get("stop"), bool(br.get("ramping"))
+        if phase not in (K.BRAKE_BRAKING, K.BRAKE_STANDING) and not ramping:  # SUMO drives it already
+            return (0.0,) * len(FUTURE_FRAMES), (False,) * len(FUTURE_FRAMES)
+        positions, known, handed_back = {}, {}, False
+        # the speed commanded for the next frame: 0 while it brakes and stands, the ramp's next step after its release
+        command = min(br["v_before"], v + cfg.resume_accel * dt) if ramping else 0.0
+        for k in range(1, max(FUTURE_FRAMES) + 1):
+            if handed_back:
+                break
+            v = max(v - cfg.decel * dt, command) if command < v else min(command, v + cfg.resume_accel * dt)
+            y += v * dt
+            t += 1
+            positions[k], known[k] = y, True
+            # this class's update of that frame: stop, release, ramp
+            if phase == K.BRAKE_BRAKING and v < 1e-3:
+                phase, stop = K.BRAKE_STANDING, t
+            elif phase == K.BRAKE_STANDING and (t - stop) * dt >= cfg.stand_time - 1e-9:
+                if cfg.release != "programmed":
+                    handed_back = True
+                phase, ramping, command = K.BRAKE_RESUMED, True, cfg.resume_accel * dt
+            elif ramping:
+                if v >= br["v_before"] - 1e-6:
+                    handed_back = True
+                else:
+                    command = min(br["v_before"], v + cfg.resume_accel * dt)
+        return (
+            tuple(float(positions.get(k, 0.0)) for k in FUTURE_FRAMES),
+            tuple(k in known for k in FUTURE_FRAMES),
+        )
 
     def is_event_car(self, r: int, vid: str) -> bool:
         """Whether ``vid`` is road ``r``'s event car."""

@@ -49,6 +49,7 @@ def observation_arrays(cfg: HighwayConfig, num_roads: int) -> dict:
     obs = {key: zero.get(key).numpy() for key in zero.keys(True, True)}
     obs[K.LC_ACTION_MASK][:] = True
     obs[K.COLLISION_SLOT][:] = -1
+    obs[K.BRAKING_SLOT][:] = -1
     return obs
 
 

@@ -408,6 +408,10 @@ class HighwaySim:
         failed = self.observer.observe(roads, [self.ego[r] for r in roads], self.t, self.lc_left[roads] > 0)
         for r, why in failed.items():
             self._lose(r, why)
+        if self.cfg.braking.enabled:
+            for r in roads:
+                if self.ego[r] is not None:
+                    self.braking.observed(r, self.observer.slots[r])
 
     def _is_terminated(self, collided: bool, y: float | None) -> int:
         """``COLLIDED`` on a collision, ``LEFT_SECTION`` once the ego is past the study section, else

@@ -56,6 +56,9 @@ def observation_spec(cfg: HighwayConfig, batch: tuple[int, ...]) -> Composite:
             speed=Unbounded(shape=(*b, 1), dtype=f32),  # m/s, the event car's
             lane_changes=Unbounded(shape=(*b, 1), dtype=torch.int64),  # the event car's, since its release
             contact=Categorical(2, shape=(*b, 1), dtype=torch.bool),  # the ego's collision was with it
+            slot=Bounded(-1, 2, shape=(*b, 1), dtype=torch.int64),  # its leader slot a, b, c; -1
+            future=Unbounded(shape=(*b, 2), dtype=f32),  # m, its scripted position 10 and 20 frames ahead
+            future_known=Categorical(2, shape=(*b, 2), dtype=torch.bool),  # where the script fixes it
             shape=b,
         ),
         shape=b,

@@ -7,6 +7,8 @@ transform              writes                               paper
 :class:`TrajGANPrediction` ``("pred", "traj")`` [3, 20],     trajGAN TG, Eq. 13; key gaps y_lv^pre, Eq. 24
                         ``("pred", "key_gaps")`` [3, 2]
 :class:`KeyGapsFromPrior` ``("pred", "key_gaps")`` [3, 2]    Eq. 24 from TC (stacks without trajGAN)
+:class:`EventOracleKeyGaps` ``("pred", "key_gaps")`` [3, 2]  Eq. 24, the braking car's row from its script
+                        (an oracle of the braking study, not in the paper)
 :class:`MOBILPrior`     ``("prior", "p_mobil")`` [3]         P_MOBIL, Eq. 20-22
 :class:`LCGANPrior`     ``("prior", "p_lcgan")`` [3]         P_lcGAN, Eq. 16
 :class:`MOBILSafetyMask`  ``("lc", "action_mask")`` [3]      MOBIL's safety check as a hard mask, Eq. 20-21
@@ -27,6 +29,7 @@ stateless per frame (except :class:`LeaderHistory`, whose per-row window travels
 """
 
 from .clock import DecisionClock
+from .event_oracle import EventOracleKeyGaps
 from .factory import make_kddrl_transforms
 from .idm_prior import IDMPrior
 from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
@@ -40,6 +43,7 @@ from .trajgan import TrajGANPrediction
 __all__ = [
     "KEY_STEPS",
     "DecisionClock",
+    "EventOracleKeyGaps",
     "IDMPrior",
     "KeyGapsFromPrior",
     "LCGANPrior",

@@ -9,6 +9,7 @@ import torch
 
 from ..generative import default_checkpoint
 from ..physics import IDMParams, MOBILParams
+from .event_oracle import EventOracleKeyGaps
 from .idm_prior import IDMPrior, as_idm_params
 from .key_gaps import KeyGapsFromPrior
 from .lcgan import LCGANPrior
@@ -35,6 +36,7 @@ def make_kddrl_transforms(
     num_lanes: int = 3,
     device: str | torch.device = "cpu",
     compile: bool = False,
+    event_oracle: bool = False,
 ) -> PredictiveStack:
     """The KDDRL predictive-state transforms, in the order of Algorithm 1 (paper §III.B-C).
 
@@ -72,6 +74,8 @@ def make_kddrl_transforms(
         idm, mobil: physics parameters (default Table A.1); dataclasses or mappings of their fields.
         num_lanes: lanes of the road (MOBIL and lcGAN lane availability).
         device: device of the generative networks.
+        event_oracle: after trajGAN (or the prior's key gaps), :class:`EventOracleKeyGaps`: the braking event car's
+            key gaps from its script (the braking study's oracle; not the paper's method).
         compile: ``torch.compile`` the whole stack (physics priors and GAN inference) as ONE function per
             frame (:func:`~kddrl_trl.transforms.stack.compiled_frames`, where the measured gain is stated),
             after a one-off compile per process (a bool: a config's ``auto`` is resolved once, by ``make_job``).
@@ -108,6 +112,8 @@ def make_kddrl_transforms(
         )
     else:
         stack.append(KeyGapsFromPrior())
+    if event_oracle:
+        stack.append(EventOracleKeyGaps())
     if priors:
         stack.append(MOBILPrior(mobil_p, idm_p, num_lanes=num_lanes))
         draws = int(num_samples) if reduce == "mean" else 1
