@@ -14,13 +14,9 @@ from typing import Any, Mapping
 import torch
 from torch import nn
 
-from ..io import torch_save_atomic
+from ..io import CheckpointError, torch_save_atomic
 
 FORMAT = "kddrl_trl.generative/1"
-
-
-class CheckpointError(ValueError):
-    """A checkpoint that does not fit: other model, other architecture or other data."""
 
 
 def save_checkpoint(

@@ -22,16 +22,12 @@ from pathlib import Path
 
 import torch
 
-from ..io import remove_killed_writes, torch_save_atomic, write_text_atomic
+from ..io import CheckpointError, remove_killed_writes, torch_save_atomic, write_text_atomic
 from ..runs import checkpoint_candidates, checkpoint_dir
 
 log = logging.getLogger(__name__)
 
 FORMAT = "kddrl_trl.training/1"
-
-
-class CheckpointError(RuntimeError):
-    """No training checkpoint of a run folder could be loaded (the message lists each file and its error)."""
 
 
 def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, keep: int = 2) -> Path:
