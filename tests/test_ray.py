@@ -57,7 +57,7 @@ def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_p
 
     # the report reads the runs' folders unchanged
     run_module(["kddrl_trl.report", str(sweep), f"out={tmp_path / 'rep'}"], tmp_path)
-    rows = json.loads((tmp_path / "rep" / "report.json").read_text())
+    rows = json.loads((tmp_path / "rep" / "report.json").read_text())["rows"]
     assert sorted((r["algo"], r["seeds"], r["episodes"]) for r in rows) == [("idm_mobil", [0], 2), ("kddrl", [0], 2)]
 
     # resume=true on Ray as on any launcher: finished jobs are skipped, their records untouched

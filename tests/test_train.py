@@ -479,7 +479,7 @@ def test_a_mixed_traffic_run_is_evaluated_and_reported_per_scenario(tmp_path):
         timeout=300,
     )
     assert done.returncode == 0, done.stderr[-3000:]
-    rows = json.loads((tmp_path / "rep" / "report.json").read_text())
+    rows = json.loads((tmp_path / "rep" / "report.json").read_text())["rows"]
     assert sorted((r["scenario"], r["algo"], r["trained_on"]) for r in rows) == [
         ("baseline", "idm_mobil (trained on mixed)", "mixed"),
         ("braking", "idm_mobil (trained on mixed)", "mixed"),

@@ -3,7 +3,7 @@
 
 Loads the trained learner of a run (its ``config.yaml`` and latest or best checkpoint), evaluates it with exploration
 off on the requested traffic with the same code as the final evaluation of ``kddrl_trl.train``
-(:func:`kddrl_trl.factories.evaluate_and_report`), and writes ``summary.json`` and ``eval_episodes.csv`` into
+(:func:`kddrl_trl.eval.final.final_evaluation`), and writes ``summary.json`` and ``eval_episodes.csv`` into
 ``<run>/eval__<scenario>__<seed>__<time>/``. Wires the parts of :mod:`kddrl_trl.factories` only.
 """
 
@@ -18,8 +18,9 @@ from omegaconf import DictConfig
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from .compiling import fresh_compiler
 from .conf.schema import EvaluateJob
+from .eval.final import final_evaluation
 from .eval.protocol import check_disjoint, test_seed
-from .factories import evaluate_and_report, load_trained_learner, make_job, make_logger, seed_everything
+from .factories import load_trained_learner, make_job, make_logger, make_policy, make_test_env, seed_everything
 from .provenance import code_commit
 from .runs import no_folder_if_refused, trained_run
 
@@ -41,11 +42,11 @@ def _evaluate(cfg: DictConfig) -> dict:
     env_seed, trained_on = test_seed(job.seed, job.eval_seed), str(saved.env.scenario)
     check_disjoint("eval_seed", env_seed, int(saved.seed), int(saved.episodes))  # the run's own training traffic
     seed_everything(job.seed)
-    return evaluate_and_report(
+    return final_evaluation(
         job,
-        algo,
-        job.env,
-        learner,
+        make_test_env(job, algo, job.env),
+        make_policy(algo, job.env, learner),
+        algo.name,
         make_logger(job.logger, out_dir),
         out_dir,
         title=f"{algo.name} trained on {trained_on}, evaluated on {job.env.scenario}, "

@@ -1,8 +1,8 @@
 """Builders of the parts the entry points wire (``train.py``, ``evaluate.py``, ``pretrain.py``), as TorchRL's
 ``sota-implementations/*/utils.py`` do: each ``make_*`` turns a typed config node (:mod:`kddrl_trl.conf.schema`)
-into one part, and holds no algorithm. Also the final evaluation ``train.py`` and ``evaluate.py`` share:
-:func:`evaluate_and_report`, i.e. :func:`evaluate` (exploration off, ``test/`` scalars) then :func:`report`
-(``summary.json``, ``eval_episodes.csv``).
+into one part, and holds no algorithm. The final evaluation ``train.py`` and ``evaluate.py`` share runs in
+:mod:`kddrl_trl.eval.final` on the env of :func:`make_test_env`; the datasets of the generative models are built by
+:mod:`kddrl_trl.generative.datasets`.
 
 =============================  ===========================================================================
 :func:`seed_everything`        ``random``, ``numpy`` and ``torch`` from one seed (each env is seeded itself)
@@ -19,8 +19,8 @@ into one part, and holds no algorithm. Also the final evaluation ``train.py`` an
 :func:`make_buffers`           replay buffers L (frames) and H (macro-transitions), on the learner's device
 :func:`make_collector`         the two-clock collector filling both buffers (one env here, or N worker processes)
 :func:`make_evaluator`         the periodic evaluation during training (validation traffic, a worker process)
+:func:`make_test_env`          the env of a final evaluation (the test seed)
 :func:`load_trained_learner`   a training run's learner, from its latest (or best) checkpoint
-:func:`make_gan_data`          the dataset splits a generative model learns from
 =============================  ===========================================================================
 
 ``compile`` (the top-level ``compile: true | false | auto`` key) reaches the two compile sites: the fused
@@ -34,8 +34,6 @@ from __future__ import annotations
 
 import logging
 import random
-import time
-from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 
@@ -48,7 +46,7 @@ from torchrl.envs import Compose, EnvBase, TransformedEnv
 from . import keys as K
 from .collectors import MultiTimescaleCollector
 from .collectors.workers import WorkerEnv
-from .compiling import compile_seconds, resolve_compile, resolve_cudagraphs
+from .compiling import resolve_compile, resolve_cudagraphs
 from .conf.schema import (
     LC_REWARDS,
     CollectorConfig,
@@ -63,6 +61,7 @@ from .conf.schema import (
     unknown_keys,
 )
 from .envs.config import HighwayConfig
+from .eval.protocol import test_seed
 from .generative import shipped_traffic
 from .loggers import MultiLogger
 from .numerics import TorchSettings
@@ -384,186 +383,7 @@ def load_trained_learner(
     return algo, learner, path, saved
 
 
-def evaluate(
-    env: EnvBase, policy, job: Job, logger, out_dir: Path | None = None, algo: str = ""
-) -> tuple[list[dict], dict]:
-    """``job.eval_episodes`` episodes of ``policy`` (in start order, :func:`kddrl_trl.eval.evaluate_policy`) on
-    the test seed of :mod:`kddrl_trl.eval.protocol`, logged under ``test/``, and the env's counters; closes
-    ``env``. With ``job.video``, ``job.video_episodes`` of them are recorded into ``out_dir``: ``traces/*.json``
-    (:class:`~kddrl_trl.eval.trace.TraceRecorder`) and ``videos/*.mp4`` (:func:`~kddrl_trl.eval.render.write_video`).
-    """
-    from .eval import evaluate_policy, unwrap_env
-    from .eval.protocol import test_seed
-    from .eval.trace import TraceRecorder
-
-    recorder = None
-    if job.video:
-        h = job.env
-        recorder = TraceRecorder(
-            job.video_episodes,
-            collisions_only=job.video_select == "collisions",
-            scenario=h.scenario,
-            algo=algo,
-            seed=job.seed,
-            num_lanes=h.num_lanes,
-            lane_width=h.lane_width,
-            section_length=h.section_length,
-            step_length=h.step_length,
-        )
-
-    def on_episode(ep: dict) -> None:
-        for key in (
-            "mean_speed_kmh",
-            "mean_accel",
-            "mean_abs_accel",
-            "lane_changes",
-            "frames",
-            "return_lc",
-            "return_cf",
-            "collision",
-            "shield_rate",
-        ):
-            logger.log_scalar(f"test/{key}", float(ep[key]), step=ep["start"])
-
-    try:
-        episodes = evaluate_policy(
-            env,
-            policy,
-            job.eval_episodes,
-            test_seed(job.seed, job.eval_seed),
-            progress=job.progress,
-            on_episode=on_episode,
-            trace=recorder,
-        )
-        stats = dict(unwrap_env(env).stats)
-    finally:
-        env.close()
-    if recorder is not None:
-        from .eval.render import write_video
-        from .io import write_json_atomic
-
-        for i, trace in enumerate(recorder.chosen()):
-            name = f"{job.env.scenario}__{algo}__{job.seed}__ep{i}_{trace['lane_changes']}lc_{trace['outcome']}"
-            write_json_atomic(out_dir / "traces" / f"{name}.json", trace)
-            write_video(trace, out_dir / "videos" / f"{name}.mp4")
-    return episodes, stats
-
-
-def evaluate_and_report(
-    job: Job,
-    algo,
-    env_cfg,
-    learner,
-    logger,
-    out_dir: Path,
-    *,
-    title: str,
-    reference: dict | None = None,
-    before_report: Callable[[], None] | None = None,
-    **fields,
-) -> dict:
-    """The final evaluation of ``train`` and ``evaluate``: the greedy policy of ``algo`` (its trained ``learner`` 's
-    for a learning algo, :func:`make_policy`) on ``env_cfg`` 's traffic from the test seed of ``job``
-    (:func:`kddrl_trl.eval.protocol.test_seed`), evaluated (:func:`evaluate`) and reported (:func:`report`, with
-    the scenario, algo, env counters, flow and ``fields``) into ``out_dir``. ``before_report`` runs between the two
-    (``train`` writes the validations there, before the summary that marks the run finished)."""
-    from .eval.protocol import test_seed
-
-    env = make_env(env_cfg, algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
-    episodes, stats = evaluate(env, make_policy(algo, env_cfg, learner), job, logger, out_dir, algo.name)
-    if before_report is not None:
-        before_report()
-    return report(
-        out_dir,
-        episodes,
-        title,
-        reference,
-        scenario=env_cfg.scenario,
-        algo=algo.name,
-        env_stats=stats,
-        flow_vph=env_cfg.flow,
-        compile=job.compile,
-        **fields,
-    )
-
-
-def report(
-    out_dir: Path,
-    episodes: list[dict],
-    title: str,
-    reference: dict | None = None,
-    started: float | None = None,
-    **fields,
-) -> dict:
-    """Summary of the evaluation ``episodes`` plus ``fields``: written to ``summary.json`` (the episodes to
-    ``eval_episodes.csv``) in ``out_dir`` and printed under ``title``. ``started`` (a run's start,
-    ``time.perf_counter()``) adds ``wall_s``, the run's whole time, its evaluation included; ``compile_s`` is the
-    time this process spent compiling (:func:`kddrl_trl.compiling.compile_seconds`)."""
-    import pandas as pd
-
-    from .eval.metrics import format_summary, summarize
-    from .io import write_json_atomic, write_text_atomic
-    from .provenance import provenance
-
-    summary = {**summarize(episodes), **fields, **provenance()}
-    write_text_atomic(out_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
-    if started is not None:
-        summary["wall_s"] = time.perf_counter() - started
-    summary["compile_s"] = compile_seconds()
-    write_json_atomic(out_dir / "summary.json", summary)
-    print(f"\n{title}")
-    print(format_summary(summary, reference))
-    print(f"results in {out_dir}")
-    return summary
-
-
-#: which sample kind each generative model learns from (``kddrl_trl.data.extract``)
-GAN_DATA_KIND = {"trajgan": "leaders", "lcgan": "lane_changes"}
-#: extraction parameters that do not shape a model's samples, left out of its dataset hash (the lcGAN window label
-#: does not change the trajGAN leader samples, so it does not invalidate trajGAN weights)
-_OTHER_KIND_PARAMS = {"trajgan": ("label",), "lcgan": ()}
-
-
-def dataset_description(data_dir: Path) -> dict:
-    """The extraction parameters of the dataset in ``data_dir`` and, in words, its lcGAN window label."""
-    import json
-
-    from .data.extract import LABELS
-
-    params = json.loads((Path(data_dir) / "meta.json").read_text())["params"]
-    label = params.get("label", "end")  # datasets extracted before the option had the net change
-    return {
-        "params": params,
-        "label_definition": f"{label}: {LABELS[label]} (window = {params['window']} frames at {params['hz']} Hz)",
-    }
-
-
-def make_gan_data(
-    kind: str,
-    data_dir: Path,
-    env,
-    recordings_dir: Path,
-    seed: int,
-    device: torch.device,
-    progress: bool = True,
-) -> tuple[dict, str]:
-    """The train / val / test splits (on ``device``) that model ``kind`` learns from, and the dataset's hash
-    (the input recordings and the extraction parameters). ``data_dir`` without a dataset: the default one is
-    built first from our own recordings of the traffic of ``env`` (the ``env`` node: its simulator's traffic,
-    :func:`kddrl_trl.data.synthetic.traffic_recorder`)."""
-    import hashlib
-    import json
-
-    from .data.extract import load_dataset
-    from .data.synthetic import synthetic_dataset
-
-    if (data_dir / "meta.json").is_file():
-        meta = json.loads((data_dir / "meta.json").read_text())
-    else:
-        meta = synthetic_dataset(env, data_dir, recordings_dir, seed=seed, progress=progress)
-    splits = {
-        s: load_dataset(data_dir, GAN_DATA_KIND[kind], s).to_tensordict().to(device) for s in ("train", "val", "test")
-    }
-    params = {k: v for k, v in meta["params"].items() if k not in _OTHER_KIND_PARAMS[kind]}
-    digest = hashlib.sha256(json.dumps([meta["input_hash"], params, kind], sort_keys=True).encode()).hexdigest()
-    return splits, digest
+def make_test_env(job: Job, algo: LearningAlgo | RuleAlgo, env_cfg) -> EnvBase:
+    """The env of a final evaluation: ``env_cfg`` 's traffic (an ``env`` node) with ``algo`` 's transforms, from the
+    test seed of ``job`` (:func:`kddrl_trl.eval.protocol.test_seed`: never a training or validation seed)."""
+    return make_env(env_cfg, algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)

@@ -21,8 +21,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
-from .factories import dataset_description, make_device, make_gan_data, make_logger, seed_everything
+from .factories import make_device, make_logger, seed_everything
 from .generative import TASKS, format_metrics
+from .generative.datasets import dataset_description, gan_dataset
 from .generative.pretraining import PretrainConfig, run_pretraining
 from .generative.shipped import evaluate_checkpoint, write_shipped_metrics
 
@@ -38,7 +39,7 @@ def main(cfg: DictConfig) -> dict:
         torch.set_num_threads(int(cfg.threads))
     device = make_device(cfg.device)
     data_dir = Path(cfg.data_dir)
-    splits, dataset_hash = make_gan_data(
+    splits, dataset_hash = gan_dataset(
         kind,
         data_dir,
         OmegaConf.to_object(cfg.env),

@@ -62,7 +62,9 @@ def _report(cfg: DictConfig) -> dict:
     command = "python -m kddrl_trl.report " + " ".join(shlex.quote(r) for r in job.runs) + f" out={job.out}"
     if job.verdict:
         command += " verdict=true"
-    result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan, verdict=job.verdict)
+    if job.title:
+        command += " " + shlex.quote(f"title={job.title}")
+    result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan, verdict=job.verdict, title=job.title)
     print(
         f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures"
     )

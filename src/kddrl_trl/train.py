@@ -34,10 +34,10 @@ from omegaconf import DictConfig, OmegaConf
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from .compiling import fresh_compiler
 from .conf.schema import LearningAlgo, TrainJob
+from .eval.final import final_evaluation as run_final_evaluation
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol
 from .factories import (
-    evaluate_and_report,
     make_buffers,
     make_collector,
     make_env_factories,
@@ -45,7 +45,9 @@ from .factories import (
     make_job,
     make_learner,
     make_logger,
+    make_policy,
     make_run_dir,
+    make_test_env,
     seed_everything,
 )
 from .io import write_json_atomic, write_text_atomic
@@ -189,14 +191,14 @@ def evaluate_run(job: TrainJob, learner, trainer: Trainer | None, logger, run_di
 
 def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, before_report=None, **fields) -> dict:
     """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, written to ``out_dir``
-    (``before_report`` is called between the episodes and the report, :func:`evaluate_and_report`)."""
+    (``before_report`` is called between the episodes and the report, :func:`kddrl_trl.eval.final.final_evaluation`)."""
     trained_on = fields.get("trained_on", job.env.scenario)
     title = job.algo.name + ("" if trained_on == job.env.scenario else f" trained on {trained_on}")
-    return evaluate_and_report(
+    return run_final_evaluation(
         job,
-        job.algo,
-        job.env,
-        learner,
+        make_test_env(job, job.algo, job.env),
+        make_policy(job.algo, job.env, learner),
+        job.algo.name,
         logger,
         out_dir,
         title=f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",

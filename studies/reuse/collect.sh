@@ -15,5 +15,5 @@ if [ -d "$SRC/example" ]; then
 fi
 python "$HERE/report.py" "$HERE/runs" --out "$HERE"
 # Figs. 16-17 from the metrics of the lcGAN these runs used (HighwayEnv's)
-OMP_NUM_THREADS=1 python -m kddrl_trl.report "$HERE/runs" out="$HERE/report" \
+OMP_NUM_THREADS=1 python -m kddrl_trl.report "$HERE/runs" out="$HERE/report" title="Reuse on HighwayEnv report" \
   lcgan_metrics="$HERE/../../src/kddrl_trl/generative/weights/highwayenv/lcgan.metrics.json"

@@ -15,7 +15,11 @@ ADDED_SINCE_FIXTURE = {
     *(f"{pre}{key}" for pre in ("", "next/") for key in ("ego/lane_offset", "neighbors/lane_offset")),
     *(f"next/reward_terms/{term}" for term in ("efficiency", "lane_change", "collision", "comfort")),
     # the braking event's car, labels for the records (keys.EPISODE_LABEL_KEYS)
-    *(f"{pre}braking/{key}" for pre in ("", "next/") for key in ("gap", "speed", "lane_changes", "contact", "slot", "future", "future_known")),
+    *(
+        f"{pre}braking/{key}"
+        for pre in ("", "next/")
+        for key in ("gap", "speed", "lane_changes", "contact", "slot", "future", "future_known")
+    ),
 }
 
 

@@ -106,11 +106,14 @@ def test_a_record_cut_short_is_refused_in_one_line_leaving_no_report_folder(tmp_
     assert len(done.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
 
 
-def test_a_report_of_one_system_has_no_empty_comparison(tmp_path):
+def test_a_report_of_one_system_has_no_empty_comparison_and_one_shape(tmp_path):
     from kddrl_trl.reporting.builder import build_report
 
-    build_report(find_runs([fake_run(tmp_path / "runs" / "a")]), tmp_path / "out")
-    assert "Comparison with KDDRL" not in (tmp_path / "out" / "report.md").read_text()
+    build_report(find_runs([fake_run(tmp_path / "runs" / "a")]), tmp_path / "out", title="A study: report")
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "Comparison with KDDRL" not in md and md.startswith("# A study: report\n")
+    report = json.loads((tmp_path / "out" / "report.json").read_text())  # one shape, with or without the verdict
+    assert set(report) == {"rows", "claims", "commits", "plan_commit"} and report["claims"] == []
     build_report(find_runs([fake_run(tmp_path / "runs" / "b", algo="ni"), tmp_path / "runs" / "a"]), tmp_path / "o2")
     assert "## Comparison with KDDRL" in (tmp_path / "o2" / "report.md").read_text()
 
@@ -151,7 +154,7 @@ def test_report_of_hand_made_runs_holds_their_numbers(tmp_path):
         fake_run(tmp_path / "runs" / f"k{seed}", "kddrl", seed, speeds=(speed, speed + 10), collisions=(False, False))
         fake_run(tmp_path / "runs" / f"i{seed}", "idm_mobil", seed, speeds=(90.0, 90.0), collisions=(False, False))
     out = build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep")
-    rows = {r["algo"]: r for r in json.loads((tmp_path / "rep" / "report.json").read_text())}
+    rows = {r["algo"]: r for r in json.loads((tmp_path / "rep" / "report.json").read_text())["rows"]}
     speed = rows["kddrl"]["metrics"]["mean_speed_kmh"]
     assert speed["mean"] == pytest.approx(125.0) and speed["ci_low"] < 125.0 < speed["ci_high"]
     assert rows["kddrl"]["seeds"] == [0, 1, 2] and rows["kddrl"]["episodes"] == 6
@@ -236,7 +239,7 @@ def test_policies_trained_on_another_scenario_are_their_own_rows(tmp_path):
         + [("baseline", "kddrl (trained on mixed)")] * 3
     )
     build_report(runs, tmp_path / "rep")
-    rows = {(r["scenario"], r["algo"]): r for r in json.loads((tmp_path / "rep" / "report.json").read_text())}
+    rows = {(r["scenario"], r["algo"]): r for r in json.loads((tmp_path / "rep" / "report.json").read_text())["rows"]}
     assert rows[("braking", "kddrl")]["metrics"]["collision_rate"]["mean"] == 0.5
     assert rows[("braking", "kddrl (trained on mixed)")]["metrics"]["collision_rate"]["mean"] == 0.0
     assert rows[("braking", "kddrl (trained on mixed)")]["trained_on"] == "mixed"
@@ -347,7 +350,7 @@ def test_sweep_runs_every_job_and_resumes_job_by_job(sweep):
 def test_report_of_the_sweep_as_typed(sweep, tmp_path):
     root, _ = sweep
     run_module(["kddrl_trl.report", str(root / "sweep"), f"out={tmp_path / 'rep'}"], tmp_path)
-    rows = json.loads((tmp_path / "rep" / "report.json").read_text())
+    rows = json.loads((tmp_path / "rep" / "report.json").read_text())["rows"]
     assert sorted((r["algo"], r["scenario"]) for r in rows) == [("idm_mobil", "braking"), ("kddrl", "braking")]
     for row in rows:
         runs = [

@@ -543,7 +543,8 @@ class ReportJob:
     runs: list[str] = field(default_factory=list)
     out: str = "report"
     lcgan_metrics: Optional[str] = None  # JSON of lcGAN test metrics for Figs. 16-17 (default: beside the weights)
-    verdict: bool = False  # the paper's claims tested on paired seeds (reporting/verdict.py); report.json an object
+    verdict: bool = False  # the paper's claims tested on paired seeds (reporting/verdict.py)
+    title: Optional[str] = None  # the heading of report.md (default "kddrl_trl report")
 
     def __post_init__(self) -> None:
         if not self.runs:

@@ -1,11 +1,12 @@
-"""The reproduction report: the paper's Tables II-V with across-seed 95 % CIs, comparisons with KDDRL, the
+"""The report: the paper's Tables II-V with across-seed 95 % CIs, comparisons with KDDRL, the
 collision breakdown, the figures and a footer saying what produced them (``python -m kddrl_trl.report``).
 
 The seed (run) is the unit of evidence: each run's evaluation episodes give one value per metric
 (:meth:`~kddrl_trl.reporting.records.RunRecord.metrics`), and a row's value is the mean over its seeds with a
 Student-t CI over seeds; every interval of the report, the verdict's included, comes from
-:mod:`kddrl_trl.reporting.stats`. ``report.json`` is the machine-readable form:
-a list of rows ``{"algo", "scenario", "seeds", "episodes", "metrics": {name: {"mean", "ci_low", "ci_high"}}}``. A policy
+:mod:`kddrl_trl.reporting.stats`. ``report.json`` is the machine-readable form, one shape for every report:
+``{"rows", "claims", "commits", "plan_commit"}``, each row ``{"algo", "scenario", "seeds", "episodes", "metrics":
+{name: {"mean", "ci_low", "ci_high"}}}``. A policy
 evaluated on another scenario than it was trained on (``+scenario=mixed`` with ``eval_scenarios``, or
 ``kddrl_trl.evaluate``) is its own row, ``"<algo> (trained on <scenario>)"``
 (:func:`~kddrl_trl.reporting.records.algo_label`), compared with the reference trained on the scenario evaluated.
@@ -448,10 +449,12 @@ def build_report(
     command: str = "python -m kddrl_trl.report",
     lcgan_metrics: dict | None = None,
     verdict: bool = False,
+    title: str | None = None,
 ) -> dict:
-    """Write ``report.md``, ``report.json`` and the figures into ``out_dir``; return the JSON content. ``verdict``:
-    runs of other commits as rows of their own (:func:`split_commits`), the paper's claims tested
-    (:mod:`~kddrl_trl.reporting.verdict`), and ``report.json`` an object ``{"rows", "claims", "commits"}``."""
+    """Write ``report.md`` (headed ``title``, default "kddrl_trl report"), ``report.json`` and the figures into
+    ``out_dir``; return the JSON content. ``report.json`` always has one shape: ``{"rows", "claims", "commits",
+    "plan_commit"}``. ``verdict``: runs of other commits as rows of their own (:func:`split_commits`) and the paper's
+    claims tested (:mod:`~kddrl_trl.reporting.verdict`); without it, ``claims`` is empty and ``plan_commit`` null."""
     from ..io import write_json_atomic, write_text_atomic
 
     if not runs:
@@ -463,7 +466,7 @@ def build_report(
     table_rows = rows(runs)
     scenarios = list(dict.fromkeys(r["scenario"] for r in table_rows))
     md = [
-        "# kddrl_trl reproduction report",
+        f"# {title or 'kddrl_trl report'}",
         "",
         f"{len(runs)} runs: "
         + ", ".join(f"{r['algo']} on {r['scenario']} ({len(r['seeds'])} seeds)" for r in table_rows)
@@ -555,14 +558,16 @@ def build_report(
         {k: v for k, v in row.items() if k not in ("runs", "per_seed")} | {"per_seed": row["per_seed"]}
         for row in table_rows
     ]
-    if verdict:
-        commits = Counter(r.commit for r in runs)
-        write_json_atomic(
-            out_dir / "report.json",
-            {"rows": report, "claims": claims, "commits": dict(commits), "plan_commit": PLAN_COMMIT},
-        )
-    else:
-        write_json_atomic(out_dir / "report.json", report)
+    commits = Counter(r.commit for r in runs)
+    write_json_atomic(
+        out_dir / "report.json",
+        {
+            "rows": report,
+            "claims": claims if verdict else [],
+            "commits": dict(commits),
+            "plan_commit": PLAN_COMMIT if verdict else None,
+        },
+    )
     write_text_atomic(out_dir / "report.md", "\n".join(md) + "\n")
     return {
         "rows": report,

@@ -4,7 +4,7 @@ back for the report (:mod:`kddrl_trl.reporting.builder`). Each CSV may also be c
 ``.gz``), as the committed studies keep them (:func:`record_file`).
 
 A run folder is any folder holding ``summary.json`` and ``eval_episodes.csv`` (written by
-:func:`kddrl_trl.factories.report`): a single run, a sweep job, or an evaluation of a trained run (whose
+:func:`kddrl_trl.eval.final.write_results`): a single run, a sweep job, or an evaluation of a trained run (whose
 ``algo`` / ``scenario`` are those of the evaluation). A training run with ``eval_scenarios`` names its final
 evaluations (``final_evaluations`` in its ``summary.json``: the folders ``final__<scenario>``), which are read in its
 place. A policy evaluated on another scenario than it was trained on (``trained_on`` in the summary) is reported under

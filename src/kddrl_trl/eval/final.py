@@ -1,0 +1,138 @@
+"""The final evaluation of a run, for ``train`` and ``evaluate``: the greedy policy on the test traffic, its episodes
+logged under ``test/``, its traces and videos, and its records: ``eval_episodes.csv``, then ``summary.json``, which
+is written last and marks the run (or the evaluation) finished."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pandas as pd
+from torchrl.envs import EnvBase
+
+from ..compiling import compile_seconds
+from ..io import write_json_atomic, write_text_atomic
+from ..provenance import provenance
+from .metrics import format_summary, summarize
+from .protocol import test_seed
+from .rollout import evaluate_policy, unwrap_env
+from .trace import TraceRecorder
+
+
+def evaluate(env: EnvBase, policy, job, logger, out_dir: Path | None = None, algo: str = "") -> tuple[list[dict], dict]:
+    """``job.eval_episodes`` episodes of ``policy`` (in start order, :func:`kddrl_trl.eval.evaluate_policy`) on
+    the test seed of :mod:`kddrl_trl.eval.protocol`, logged under ``test/``, and the env's counters; closes
+    ``env``. With ``job.video``, ``job.video_episodes`` of them are recorded into ``out_dir``: ``traces/*.json``
+    (:class:`~kddrl_trl.eval.trace.TraceRecorder`) and ``videos/*.mp4`` (:func:`~kddrl_trl.eval.render.write_video`).
+    """
+    recorder = None
+    if job.video:
+        h = job.env
+        recorder = TraceRecorder(
+            job.video_episodes,
+            collisions_only=job.video_select == "collisions",
+            scenario=h.scenario,
+            algo=algo,
+            seed=job.seed,
+            num_lanes=h.num_lanes,
+            lane_width=h.lane_width,
+            section_length=h.section_length,
+            step_length=h.step_length,
+        )
+
+    def on_episode(ep: dict) -> None:
+        for key in (
+            "mean_speed_kmh",
+            "mean_accel",
+            "mean_abs_accel",
+            "lane_changes",
+            "frames",
+            "return_lc",
+            "return_cf",
+            "collision",
+            "shield_rate",
+        ):
+            logger.log_scalar(f"test/{key}", float(ep[key]), step=ep["start"])
+
+    try:
+        episodes = evaluate_policy(
+            env,
+            policy,
+            job.eval_episodes,
+            test_seed(job.seed, job.eval_seed),
+            progress=job.progress,
+            on_episode=on_episode,
+            trace=recorder,
+        )
+        stats = dict(unwrap_env(env).stats)
+    finally:
+        env.close()
+    if recorder is not None:
+        from .render import write_video  # matplotlib and ffmpeg, only for a run that records videos
+
+        for i, trace in enumerate(recorder.chosen()):
+            name = f"{job.env.scenario}__{algo}__{job.seed}__ep{i}_{trace['lane_changes']}lc_{trace['outcome']}"
+            write_json_atomic(out_dir / "traces" / f"{name}.json", trace)
+            write_video(trace, out_dir / "videos" / f"{name}.mp4")
+    return episodes, stats
+
+
+def final_evaluation(
+    job,
+    env: EnvBase,
+    policy,
+    algo: str,
+    logger,
+    out_dir: Path,
+    *,
+    title: str,
+    reference: dict | None = None,
+    before_report: Callable[[], None] | None = None,
+    **fields,
+) -> dict:
+    """The final evaluation of ``train`` and ``evaluate``: ``policy`` (the greedy policy of the algo named ``algo``) on
+    ``env`` (the test traffic: :func:`kddrl_trl.factories.make_test_env`), evaluated (:func:`evaluate`) and written
+    (:func:`write_results`, with the scenario, algo, env counters, flow and ``fields``) into ``out_dir``.
+    ``before_report`` runs between the two (``train`` writes the validations there, before the summary that marks the
+    run finished)."""
+    episodes, stats = evaluate(env, policy, job, logger, out_dir, algo)
+    if before_report is not None:
+        before_report()
+    return write_results(
+        out_dir,
+        episodes,
+        title,
+        reference,
+        scenario=job.env.scenario,
+        algo=algo,
+        env_stats=stats,
+        flow_vph=job.env.flow,
+        compile=job.compile,
+        **fields,
+    )
+
+
+def write_results(
+    out_dir: Path,
+    episodes: list[dict],
+    title: str,
+    reference: dict | None = None,
+    started: float | None = None,
+    **fields,
+) -> dict:
+    """Summary of the evaluation ``episodes`` plus ``fields``: written to ``summary.json`` (the episodes to
+    ``eval_episodes.csv``) in ``out_dir`` and printed under ``title``. ``started`` (a run's start,
+    ``time.perf_counter()``) adds ``wall_s``, the run's whole time, its evaluation included; ``compile_s`` is the
+    time this process spent compiling (:func:`kddrl_trl.compiling.compile_seconds`). ``summary.json`` is written
+    last."""
+    summary = {**summarize(episodes), **fields, **provenance()}
+    write_text_atomic(out_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
+    if started is not None:
+        summary["wall_s"] = time.perf_counter() - started
+    summary["compile_s"] = compile_seconds()
+    write_json_atomic(out_dir / "summary.json", summary)
+    print(f"\n{title}")
+    print(format_summary(summary, reference))
+    print(f"results in {out_dir}")
+    return summary
