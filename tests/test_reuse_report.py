@@ -23,12 +23,11 @@ def _train_run(folder: Path, algo: str, seed: int, speed: float, collisions: int
         folder,
         algo,
         seed,
-        speeds=(speed, speed),
-        collisions=(False, False),
+        speeds=(speed,) * 100,  # one row an episode, as its summary counts
+        collisions=(True,) * collisions + (False,) * (100 - collisions),
         scenario="highwayenv",
         mean_speed_kmh=speed,
         collision_rate=collisions / 100,
-        episodes=100,
         outcomes={"collision": collisions, "left_section": 100 - collisions},
         commit="abc1234",
     )
