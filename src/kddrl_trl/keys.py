@@ -79,7 +79,8 @@ BRAKING_SLOT = ("braking", "slot")  # [1]  int64, the leader slot (0, 1, 2 = a, 
 BRAKING_FUTURE = ("braking", "future")  # [2]  m, at frames +10 and +20 (the key steps of Eq. 24)
 BRAKING_FUTURE_KNOWN = ("braking", "future_known")  # [2]  bool
 
-RAW_OBSERVATION_KEYS = (
+#: the raw keys a driver senses: the ego's own state, its neighbours, their leaders and its lane-change state
+SENSED_KEYS = (
     EGO_STATE,
     EGO_LANE,
     EGO_ACCEL,
@@ -91,21 +92,8 @@ RAW_OBSERVATION_KEYS = (
     LC_ACTION_MASK,
     LC_ACTIVE,
     LC_STARTED,
-    COLLISION,
     EGO_LANE_OFFSET,
     NEIGHBORS_LANE_OFFSET,
-    OUTCOME,
-    COLLISION_KIND,
-    COLLISION_SLOT,
-    BRAKING_PHASE,
-    BRAKING_DISTANCE,
-    BRAKING_GAP,
-    BRAKING_SPEED,
-    BRAKING_LANE_CHANGES,
-    BRAKING_CONTACT,
-    BRAKING_SLOT,
-    BRAKING_FUTURE,
-    BRAKING_FUTURE_KNOWN,
 )
 #: the raw keys that label the episode for metrics and study records (whether and how it ended, the scripted event's
 #: phase, its car's scripted future for an oracle predictor): written by the env beside the observation, never
@@ -125,8 +113,8 @@ EPISODE_LABEL_KEYS = (
     BRAKING_FUTURE,
     BRAKING_FUTURE_KNOWN,
 )
-#: the raw keys a driver senses: the ego's own state, its neighbours, their leaders and its lane-change state
-SENSED_KEYS = tuple(key for key in RAW_OBSERVATION_KEYS if key not in EPISODE_LABEL_KEYS)
+#: every raw key the env writes
+RAW_OBSERVATION_KEYS = SENSED_KEYS + EPISODE_LABEL_KEYS
 
 # ------------------------------------------------------------------------------ derived (transforms)
 PRED_PRIOR_TRAJ = ("pred", "prior_traj")  # [3, 20] IDM-rolled prior positions TC of a, b, c

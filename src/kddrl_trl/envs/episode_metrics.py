@@ -35,6 +35,17 @@ PHASE_FIELDS = {
     K.BRAKE_STANDING: "braking_stop_frame",
     K.BRAKE_RESUMED: "braking_resume_frame",
 }
+#: the per-episode driving metrics of Tables II-V that every evaluation record and ``test/`` log carries
+METRIC_FIELDS = (
+    "mean_speed_kmh",
+    "mean_accel",
+    "mean_abs_accel",
+    "lane_changes",
+    "frames",
+    "return_lc",
+    "return_cf",
+    "collision",
+)
 #: label of an episode whose done flag the env did not set (a transform or a collector truncated it)
 TRUNCATED_OUTSIDE = "truncated"
 #: the entries of a frame the tracker reads, all under "next"

@@ -12,6 +12,7 @@ import pandas as pd
 from torchrl.envs import EnvBase
 
 from ..compiling import compile_seconds
+from ..envs.episode_metrics import METRIC_FIELDS
 from ..io import write_json_atomic, write_text_atomic
 from ..provenance import provenance
 from .metrics import format_summary, summarize
@@ -42,17 +43,7 @@ def evaluate(env: EnvBase, policy, job, logger, out_dir: Path | None = None, alg
         )
 
     def on_episode(ep: dict) -> None:
-        for key in (
-            "mean_speed_kmh",
-            "mean_accel",
-            "mean_abs_accel",
-            "lane_changes",
-            "frames",
-            "return_lc",
-            "return_cf",
-            "collision",
-            "shield_rate",
-        ):
+        for key in (*METRIC_FIELDS, "shield_rate"):
             logger.log_scalar(f"test/{key}", float(ep[key]), step=ep["start"])
 
     try:

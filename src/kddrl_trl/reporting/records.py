@@ -22,22 +22,11 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..envs.episode_metrics import METRIC_FIELDS
 from ..eval.metrics import summarize
 
 #: columns every ``eval_episodes.csv`` must hold (EpisodeTracker records)
-EPISODE_COLUMNS = (
-    "mean_speed_kmh",
-    "mean_accel",
-    "mean_abs_accel",
-    "lane_changes",
-    "frames",
-    "return_lc",
-    "return_cf",
-    "collision",
-    "outcome",
-    "collision_kind",
-    "collision_with",
-)
+EPISODE_COLUMNS = (*METRIC_FIELDS, "outcome", "collision_kind", "collision_with")
 
 
 @dataclass
