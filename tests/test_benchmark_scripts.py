@@ -231,3 +231,24 @@ def test_default_job_alternates_the_commits_and_gives_the_ratio(tmp_path, monkey
         result["job"] == "python -m kddrl_trl.train episodes=2" and json.loads(out.read_text())["runs"][3]["round"] == 1
     )
     assert result["commits"]["A"] == result["commits"]["B"] and len(result["commits"]["A"]) == 40
+
+
+def test_compile_cost_runs_eager_cold_and_warm_with_the_cache_emptied_once(tmp_path, monkeypatch):
+    """``benchmarks/compile_cost.py``: the cold run starts from an empty cache folder, the warm one reuses it (the
+    job itself stands in)."""
+    bench = load_benchmark("compile_cost")
+    seen = []
+
+    def fake_run(out, cache, compile_, overrides):
+        seen.append((out.name, compile_, sorted(p.name for p in cache.iterdir())))
+        (cache / "entry").write_text("compiled")  # what a compiled run leaves in the cache
+        compile_s = {"eager0": 0.0, "cold0": 30.0, "warm0": 10.0}[out.name]
+        return {"process_s": 20.0 + compile_s, "training_s": 15.0, "compile_s": compile_s, "compile_counts": {}}
+
+    monkeypatch.setattr(bench, "run_job", fake_run)
+    result = bench.main(["--out", str(tmp_path / "compile_cost.json")])
+    assert [s[:2] for s in seen] == [("eager0", "false"), ("cold0", "true"), ("warm0", "true")]
+    assert seen[1][2] == [] and seen[2][2] == ["entry"]  # cold: emptied; warm: what the cold run left
+    assert result["ratios"]["compile_s_cold_over_warm"] == 3.0 and result["job"].endswith(
+        "episodes=20 eval_episodes=10"
+    )

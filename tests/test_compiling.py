@@ -93,11 +93,11 @@ def test_a_warm_graph_is_called_without_torchdynamo_and_gives_its_bits():
 
 
 def test_compile_seconds_count_this_jobs_compiling_only():
-    from kddrl_trl.compiling import compile_seconds, fresh_compiler
+    from kddrl_trl.compiling import compile_counts, compile_seconds, fresh_compiler
 
     fresh_compiler()
-    assert compile_seconds() == 0.0
+    assert compile_seconds() == 0.0 and compile_counts()["graphs"] == 0
     torch.compile(lambda x: (x * 3.0).cos().sum(), backend="eager")(torch.randn(4))
-    assert compile_seconds() > 0.0
+    assert compile_seconds() > 0.0 and compile_counts()["graphs"] == 1
     fresh_compiler()  # the next job starts from zero
-    assert compile_seconds() == 0.0
+    assert compile_seconds() == 0.0 and compile_counts() == dict.fromkeys(compile_counts(), 0)

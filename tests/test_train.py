@@ -57,6 +57,7 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
     summary = json.loads((run / "summary.json").read_text())
     assert summary["algo"] == "kddrl" and summary["episodes"] == 2 and summary["compile"] is False
     assert summary["compile_s"] == 0.0  # compile=false: nothing compiled in the job's process
+    assert summary["compile_counts"]["graphs"] == 0
     training = summary["training"]
     assert training["episodes"] == 3 and training["cf_updates"] > 0 and training["frames"] > 50
     assert (run / "train_episodes.csv").read_text().count("\n") == 4

@@ -53,11 +53,13 @@ def fresh_compiler() -> None:
     calls of the same code (the learner's gradient function, the transform stack) run eagerly, and under
     :class:`WarmCompiled` each call first fails its guard-skipping attempt: the same numbers, several times slower.
     The graphs' kernels stay in TorchInductor's on-disk cache, so a job recompiles no faster or slower than the
-    first job of a fresh process. Its compile timers restart too (:func:`compile_seconds`)."""
-    from torch._dynamo.utils import compilation_time_metrics
+    first job of a fresh process. Its compile timers and counters restart too (:func:`compile_seconds`,
+    :func:`compile_counts`)."""
+    from torch._dynamo.utils import compilation_time_metrics, counters
 
     torch._dynamo.reset()
     compilation_time_metrics.clear()
+    counters.clear()
 
 
 def compile_seconds() -> float:
@@ -67,6 +69,22 @@ def compile_seconds() -> float:
     from torch._dynamo.utils import compilation_time_metrics
 
     return float(sum(compilation_time_metrics.get("_compile.compile_inner", ())))
+
+
+def compile_counts() -> dict[str, int]:
+    """What this process compiled since the job started (:func:`fresh_compiler`): the graphs TorchDynamo captured,
+    and how many of them TorchInductor's FX-graph cache and AOTAutograd's cache (on disk, shared by every process of
+    the machine) served (``*_hit``) or had to build (``*_miss``). A run's ``summary.json`` records it as
+    ``compile_counts``."""
+    from torch._dynamo.utils import counters
+
+    return {
+        "graphs": int(counters["stats"]["unique_graphs"]),
+        "fxgraph_cache_hit": int(counters["inductor"]["fxgraph_cache_hit"]),
+        "fxgraph_cache_miss": int(counters["inductor"]["fxgraph_cache_miss"]),
+        "autograd_cache_hit": int(counters["aot_autograd"]["autograd_cache_hit"]),
+        "autograd_cache_miss": int(counters["aot_autograd"]["autograd_cache_miss"]),
+    }
 
 
 def resolve_cudagraphs(cudagraphs: bool | str, device: torch.device) -> bool:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 from torchrl.envs import EnvBase
 
-from ..compiling import compile_seconds
+from ..compiling import compile_counts, compile_seconds
 from ..envs.episode_metrics import METRIC_FIELDS
 from ..io import write_json_atomic, write_text_atomic
 from ..provenance import provenance
@@ -115,13 +115,14 @@ def write_results(
     """Summary of the evaluation ``episodes`` plus ``fields``: written to ``summary.json`` (the episodes to
     ``eval_episodes.csv``) in ``out_dir`` and printed under ``title``. ``started`` (a run's start,
     ``time.perf_counter()``) adds ``wall_s``, the run's whole time, its evaluation included; ``compile_s`` is the
-    time this process spent compiling (:func:`kddrl_trl.compiling.compile_seconds`). ``summary.json`` is written
+    time this process spent compiling (:func:`kddrl_trl.compiling.compile_seconds`), ``compile_counts`` what it
+    compiled and what the compile caches served (:func:`kddrl_trl.compiling.compile_counts`). ``summary.json`` is written
     last."""
     summary = {**summarize(episodes), **fields, **provenance()}
     write_text_atomic(out_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
     if started is not None:
         summary["wall_s"] = time.perf_counter() - started
-    summary["compile_s"] = compile_seconds()
+    summary["compile_s"], summary["compile_counts"] = compile_seconds(), compile_counts()
     write_json_atomic(out_dir / "summary.json", summary)
     print(f"\n{title}")
     print(format_summary(summary, reference))
