@@ -16,32 +16,23 @@ compile seconds and compiled (warm) / eager of the process time.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import shutil
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from benchmarks.env_throughput import machine_info, write_json
+from benchmarks.jobs import timed_train_job
 
 ROOT = Path(__file__).resolve().parents[1]
 ARMS = (("eager", "false", False), ("cold", "true", True), ("warm", "true", False))  # name, compile, empty the cache
 
 
 def run_job(out: Path, cache: Path, compile_: str, overrides: list[str]) -> dict:
-    env = {**os.environ, "TORCHINDUCTOR_CACHE_DIR": str(cache), "OMP_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "kddrl_trl.train", "progress=false", f"compile={compile_}", f"hydra.run.dir={out}"]
-    started = time.perf_counter()
-    done = subprocess.run([*cmd, *overrides], cwd=out.parent, env=env, capture_output=True, text=True)
-    elapsed = time.perf_counter() - started
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd + overrides)} failed:\n{done.stderr[-3000:]}")
-    summary = json.loads((out / "summary.json").read_text())
+    job = timed_train_job(out, [f"compile={compile_}", *overrides], {"TORCHINDUCTOR_CACHE_DIR": str(cache)})
+    summary = job["summary"]
     return {
-        "process_s": elapsed,
+        "process_s": job["process_s"],
         "training_s": summary["training"]["elapsed_s"],
         "compile_s": summary.get("compile_s"),
         "compile_counts": summary.get("compile_counts"),

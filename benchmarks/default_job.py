@@ -16,14 +16,13 @@ B / A of the mean process time and of the mean training time.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from benchmarks.env_throughput import machine_info, write_json
+from benchmarks.jobs import timed_train_job
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,16 +39,10 @@ def worktree(commit: str, work: Path) -> tuple[Path, str]:
 
 def run_job(tree: Path, out: Path, overrides: list[str]) -> dict:
     """One run of the job from ``tree`` into ``out``: its times, from the process and its ``summary.json``."""
-    env = {**os.environ, "PYTHONPATH": str(tree / "src"), "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1")}
-    cmd = [sys.executable, "-m", "kddrl_trl.train", "progress=false", f"hydra.run.dir={out}", *overrides]
-    started = time.perf_counter()
-    done = subprocess.run(cmd, cwd=out.parent, env=env, capture_output=True, text=True)
-    elapsed = time.perf_counter() - started
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed in {out}:\n{done.stderr[-3000:]}")
-    summary = json.loads((out / "summary.json").read_text())
+    job = timed_train_job(out, overrides, {"PYTHONPATH": str(tree / "src")})
+    summary = job["summary"]
     return {
-        "process_s": elapsed,
+        "process_s": job["process_s"],
         "training_s": summary["training"]["elapsed_s"],
         "wall_s": summary.get("wall_s"),
         "compile_s": summary.get("compile_s"),
