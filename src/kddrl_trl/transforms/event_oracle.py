@@ -20,8 +20,8 @@ class EventOracleKeyGaps(PredictiveTransform):
 
     The oracle answers one question of the braking study: would the learners crash less if they knew where the
     braking car will be? It reads the event's script, not the simulator's future: a lookahead by saving and loading
-    SUMO's state loses the TraCI commands that hold the event car (its stop, its release) and the egos' settings, so
-    it would not be the future the policy meets. Reads ``BRAKING_SLOT``, ``BRAKING_FUTURE``, ``BRAKING_FUTURE_KNOWN``
+    SUMO's state does not give back the same simulation (the rollouts part at once; most likely the TraCI commands
+    that hold the event car and set the egos' modes are not restored), so it would not be the future the policy meets. Reads ``BRAKING_SLOT``, ``BRAKING_FUTURE``, ``BRAKING_FUTURE_KNOWN``
     (labels, never part of the agents' state otherwise) and ``EGO_STATE``.
     """
 
