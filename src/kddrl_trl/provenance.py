@@ -56,11 +56,13 @@ _LOADED: dict[str, str] = {}
 
 
 def code_commit() -> str:
-    """:func:`commit` of the code this process runs, read once, at the first call: an entry point calls it as it
-    starts, so a run records the commit its code was loaded from, not the one checked out when it ends (a
-    campaign's runs last while later commits land in the same checkout)."""
+    """:func:`commit` of the code this process runs: the checkout holding this package's files (not the working
+    directory's, which may be another checkout: a job run from one worktree with another's ``src`` first on
+    ``PYTHONPATH``), ``"unknown"`` for an installed package outside a checkout. Read once, at the first call: an entry
+    point calls it as it starts, so a run records the commit its code was loaded from, not the one checked out when it
+    ends (a campaign's runs last while later commits land in the same checkout)."""
     if "commit" not in _LOADED:
-        _LOADED["commit"] = commit()
+        _LOADED["commit"] = commit(Path(__file__).parent)
     return _LOADED["commit"]
 
 

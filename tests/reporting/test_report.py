@@ -283,6 +283,24 @@ def test_a_run_records_the_commit_its_code_was_loaded_from(monkeypatch):
     assert prov.provenance()["commit"] == "aaaaaaa" and prov.code_commit() == "aaaaaaa"
 
 
+def test_the_code_commit_is_the_packages_checkout_not_the_working_directorys(tmp_path, monkeypatch):
+    """A job run from one checkout with another's ``src`` first on ``PYTHONPATH`` records the commit of the code it
+    loaded."""
+    from pathlib import Path
+
+    from kddrl_trl import provenance as prov
+
+    other = tmp_path / "other"
+    other.mkdir()
+    git = ["git", "-C", str(other), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "commit", "-q", "--allow-empty", "-m", "another checkout"], check=True)
+    monkeypatch.chdir(other)
+    monkeypatch.setattr(prov, "_LOADED", {})
+    package_checkout = prov.commit(Path(prov.__file__).parent)
+    assert prov.code_commit() == package_checkout != prov.commit(other)
+
+
 # ------------------------------------------------------------------------------ the sweep, as typed
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
