@@ -137,8 +137,10 @@ class EpisodeTracker:
       ``crash_lc_command`` (a ``keys.LC_ACTIONS`` label) of the crash frame, ``crash_lc_command_frame`` (the
       episode's frame count since which that lane command was held), ``crash_lane_change_frame`` (the frame count at
       which the ego's last lane change started, NaN if none), ``crash_with_event_car`` (the other vehicle was the
-      braking event's car), ``crash_event_gap`` and ``crash_event_speed`` (that car's, NaN without an event). The
-      commands are read from the frames' root (``keys.LC_ACTION``, ``CF_ACTION``) when there.
+      braking event's car), ``crash_event_gap`` and ``crash_event_speed`` (that car's, NaN without an event),
+      ``crash_other_dy`` (m, the other vehicle's longitudinal offset from the ego), ``crash_other_speed`` and
+      ``crash_other_accel`` (m/s, m/s²) in the last observation (NaN when it was not a neighbour). The commands are
+      read from the frames' root (``keys.LC_ACTION``, ``CF_ACTION``) when there.
     """
 
     def __init__(self):
@@ -156,10 +158,10 @@ class EpisodeTracker:
         self._last_cmd: torch.Tensor | None = None
 
     @staticmethod
-    def _column(nxt: TensorDictBase, key, index: int = 0, optional: bool = False) -> torch.Tensor:
+    def _column(nxt: TensorDictBase, key, index: int = 0, optional: bool = False, fill: float = 0.0) -> torch.Tensor:
         value = nxt.get(key, None)
         if value is None and optional:
-            return torch.full(nxt.batch_size, math.nan) if optional == "nan" else torch.zeros(nxt.batch_size)
+            return torch.full(nxt.batch_size, fill)
         if value is None:
             raise KeyError(
                 f"EpisodeTracker: the frames have no ('next', {key!r}) entry; the env must write the raw "
@@ -211,7 +213,7 @@ class EpisodeTracker:
         }
         has_cmd = frames.get(K.LC_ACTION, None) is not None
         cmd = lc_command(frames.get(K.LC_ACTION).reshape(b, t, -1).cpu()) if has_cmd else torch.full((b, t), K.KEEP)
-        cf_cmd = col(frames, K.CF_ACTION, optional="nan").double()
+        cf_cmd = col(frames, K.CF_ACTION, optional=True, fill=math.nan).double()
         if self._carry is None:
             self._carry = torch.zeros(b, len(SUMS), dtype=torch.float64)
             self._start = torch.arange(b) + self.finished
