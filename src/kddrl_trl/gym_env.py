@@ -39,7 +39,7 @@ from torchrl.data import Bounded
 from . import keys as K
 from .envs.config import make_config
 from .envs.episode_metrics import EpisodeTracker
-from .envs.road_sim import EGO, open_road_sim
+from .envs.road_sim import EGO, check_process, open_road_sim
 from .envs.specs import observation_spec
 
 ENV_ID = "kddrl_trl/SumoHighway-v0"
@@ -112,8 +112,7 @@ class SumoHighwayGymEnv(gym.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if not isinstance(flatten, bool):
             raise ValueError(f"flatten must be True or False, got {flatten!r}")
-        if process not in ("auto", "here", "worker"):
-            raise ValueError(f"process must be 'auto', 'here' or 'worker', got {process!r}")
+        check_process(process)  # before any simulator starts
         self.render_mode = render_mode
         self.config = make_config(scenario, overrides)
         self.reward_mode, self.flatten, self.process = reward, flatten, process

@@ -121,11 +121,16 @@ class RoadSimProcess:
             self._process.kill()
 
 
-def open_road_sim(cfg: HighwayConfig, seed: int, process: str = "auto") -> RoadSim | RoadSimProcess:
-    """``process``: ``"auto"`` (here, unless a simulation already runs in this process: then in a worker),
-    ``"here"`` or ``"worker"``."""
+def check_process(process: str) -> str:
+    """``process`` if it is ``"auto"`` (here, unless a simulation already runs in this process: then in a worker),
+    ``"here"`` or ``"worker"``; a ``ValueError`` naming it otherwise."""
     if process not in ("auto", "here", "worker"):
         raise ValueError(f"process must be 'auto', 'here' or 'worker', got {process!r}")
-    if process == "worker" or (process == "auto" and simulation_open()):
+    return process
+
+
+def open_road_sim(cfg: HighwayConfig, seed: int, process: str = "auto") -> RoadSim | RoadSimProcess:
+    """One road's simulation, where ``process`` says (:func:`check_process`)."""
+    if check_process(process) == "worker" or (process == "auto" and simulation_open()):
         return RoadSimProcess(cfg, seed)
     return RoadSim(cfg, seed)
