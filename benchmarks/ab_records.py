@@ -28,7 +28,7 @@ import torch
 
 from benchmarks.env_throughput import write_json  # noqa: E402
 from kddrl_trl.reporting.records import record_bytes  # noqa: E402
-from kddrl_trl.runs import checkpoint_dir  # noqa: E402
+from kddrl_trl.run_folder import checkpoint_dir  # noqa: E402
 
 #: the records a training run writes; absent from both folders (no validation, say) is no difference
 RECORDS = ("train_episodes.csv", "validation.csv", "eval_episodes.csv")

@@ -20,11 +20,11 @@ from pathlib import Path
 
 import torch
 
+from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.data.extract import extract_dataset
 from kddrl_trl.data.highd import list_recordings, read_recording
 from kddrl_trl.data.sumo_to_highd import record_traffic, summarize_recorded
 from kddrl_trl.envs import make_config
-from kddrl_trl.io import write_json_atomic
 
 
 def main(argv=None) -> int:

@@ -33,7 +33,7 @@ from omegaconf import OmegaConf
 from benchmarks.env_throughput import write_json  # noqa: E402
 from kddrl_trl.reporting.records import find_runs, record_bytes  # noqa: E402
 from kddrl_trl.reporting.stats import mean_test  # noqa: E402
-from kddrl_trl.runs import config_differences  # noqa: E402
+from kddrl_trl.run_folder import config_differences  # noqa: E402
 
 #: the measures compared, from each run's final evaluation: (name, summary key, scale to the unit, unit)
 MEASURES = (("mean speed", "mean_speed_kmh", 1.0, "km/h"), ("collision rate", "collision_rate", 100.0, "points"))

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import torch
 
+from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.envs import FakeHighwayEnv
 from kddrl_trl.generative import load_predictor
-from kddrl_trl.io import write_json_atomic
 from kddrl_trl.transforms import IDMPrior, KeyGapsFromPrior
 
 

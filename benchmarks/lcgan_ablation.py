@@ -30,11 +30,11 @@ from pathlib import Path
 import torch
 
 from kddrl_trl import keys as K
+from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.data.extract import load_dataset
 from kddrl_trl.generative import LCGANTask
 from kddrl_trl.generative.lcgan import classification_metrics
 from kddrl_trl.generative.pretraining import PretrainConfig, run_pretraining
-from kddrl_trl.io import write_json_atomic
 
 MOVING = 0.05  # m/s: lateral speed above which the ego counts as already moving sideways
 

@@ -31,10 +31,10 @@ from pathlib import Path
 import pandas as pd
 import torch
 
+from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.baselines import IDMMobilPolicy
 from kddrl_trl.envs import SumoHighwayEnv
 from kddrl_trl.eval import evaluate_policy
-from kddrl_trl.io import write_json_atomic
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "soak.json"
 

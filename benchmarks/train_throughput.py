@@ -92,10 +92,10 @@ from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors  # noqa: E402
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv  # noqa: E402
 from kddrl_trl.eval.protocol import worker_seed  # noqa: E402
 from kddrl_trl.generative import shipped_traffic  # noqa: E402
-from kddrl_trl.numerics import apply_flush_denormal  # noqa: E402
+from kddrl_trl.process_settings import apply_flush_denormal  # noqa: E402
 from kddrl_trl.reporting.records import record_bytes  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
-from kddrl_trl.training.base import adam  # noqa: E402
+from kddrl_trl.training.learner import adam  # noqa: E402
 from kddrl_trl.transforms import (
     DecisionClock,  # noqa: E402
     PredictiveStack,  # noqa: E402

@@ -37,9 +37,9 @@ import torch
 from torchrl.envs import TransformedEnv
 
 from kddrl_trl import keys as K
+from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.baselines import IDMMobilPolicy
 from kddrl_trl.envs import SumoHighwayEnv
-from kddrl_trl.io import write_json_atomic
 from kddrl_trl.transforms import make_kddrl_transforms
 from kddrl_trl.transforms.stack import warm_frames
 

@@ -16,7 +16,7 @@ import lzma
 import sys
 from pathlib import Path
 
-from kddrl_trl.io import write_atomic
+from kddrl_trl.atomic_files import write_atomic
 
 KEPT = ("index", "return_lc", "return_cf", "mean_speed_kmh", "collision")
 

@@ -44,8 +44,8 @@ def test_the_schema_imports_nothing_lazily():
 def test_one_checkpoint_error_for_every_checkpoint():
     """A training checkpoint and a GAN checkpoint that cannot be used raise the same error, a refusal (ValueError)
     that an entry point reports in one line."""
+    from kddrl_trl.atomic_files import CheckpointError
     from kddrl_trl.generative import CheckpointError as GenerativeError
-    from kddrl_trl.io import CheckpointError
     from kddrl_trl.training import CheckpointError as TrainingError
 
     assert TrainingError is GenerativeError is CheckpointError and issubclass(CheckpointError, ValueError)

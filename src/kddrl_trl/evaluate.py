@@ -20,9 +20,10 @@ from .compiling import fresh_compiler
 from .conf.schema import EvaluateJob
 from .eval.final import final_evaluation
 from .eval.protocol import check_disjoint, test_seed
-from .factories import load_trained_learner, make_job, make_logger, make_policy, make_test_env, seed_everything
+from .factories import make_job, make_logger, make_policy, make_test_env, make_trained_learner
+from .process_settings import seed_everything
 from .provenance import code_commit
-from .runs import no_folder_if_refused, trained_run
+from .run_folder import no_folder_if_refused, trained_run
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="evaluate")
@@ -38,11 +39,11 @@ def _evaluate(cfg: DictConfig) -> dict:
     job: EvaluateJob = make_job(cfg)  # typed, ranges checked before any simulator starts
     fresh_compiler()  # a launcher's reused worker holds earlier jobs' graphs
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    algo, learner, ckpt, saved = load_trained_learner(Path(job.run), job.checkpoint, job.torch_device)
+    algo, learner, ckpt, saved = make_trained_learner(Path(job.run), job.checkpoint, job.torch_device)
     env_seed, trained_on = test_seed(job.seed, job.eval_seed), str(saved.env.scenario)
     check_disjoint("eval_seed", env_seed, int(saved.seed), int(saved.episodes))  # the run's own training traffic
     seed_everything(job.seed)
-    return final_evaluation(
+    result = final_evaluation(
         job,
         make_test_env(job, algo, job.env),
         make_policy(algo, job.env, learner),
@@ -56,6 +57,7 @@ def _evaluate(cfg: DictConfig) -> dict:
         seed=job.seed,
         eval_seed=env_seed,
     )
+    return result.write()
 
 
 if __name__ == "__main__":

@@ -5,10 +5,9 @@ into one part, and holds no algorithm. The final evaluation ``train.py`` and ``e
 :mod:`kddrl_trl.generative.datasets`.
 
 =============================  ===========================================================================
-:func:`seed_everything`        ``random``, ``numpy`` and ``torch`` from one seed (each env is seeded itself)
 :func:`make_device`            ``auto`` | ``cpu`` | ``cuda``
 :func:`make_job`               the typed job of a config; a refused one leaves no run folder behind
-:func:`torch_settings`         a job's process-wide torch arithmetic, for every process it starts
+:func:`make_torch_settings`    a job's process-wide torch arithmetic, for every process it starts
 :func:`make_run_dir`           the folder Hydra made for this run, and whether it resumes
 :func:`make_logger`            TorchRL CSV (+ TensorBoard) loggers of a run folder
 :func:`make_transforms`        the algo's predictive-state transforms, safety mask, :class:`DecisionClock`, shield
@@ -20,31 +19,36 @@ into one part, and holds no algorithm. The final evaluation ``train.py`` and ``e
 :func:`make_collector`         the two-clock collector filling both buffers (one env here, or N worker processes)
 :func:`make_evaluator`         the periodic evaluation during training (validation traffic, a worker process)
 :func:`make_test_env`          the env of a final evaluation (the test seed)
-:func:`load_trained_learner`   a training run's learner, from its latest (or best) checkpoint
+:func:`make_trained_learner`   a training run's learner, from its latest (or best) checkpoint
 =============================  ===========================================================================
 
 ``compile`` (the top-level ``compile: true | false | auto`` key) reaches the two compile sites: the fused
 transform stack (:func:`make_transforms`) and the learner's update (:func:`make_learner`); a learner that
 only acts is built with ``compile=False``. ``device`` (``auto | cpu | cuda``) places the learner
-(:func:`make_learner`, :func:`load_trained_learner`) and its buffers (:func:`make_buffers`), ``cudagraphs`` graphs
+(:func:`make_learner`, :func:`make_trained_learner`) and its buffers (:func:`make_buffers`), ``cudagraphs`` graphs
 its compiled updates on CUDA; the env, SUMO, the transforms and acting stay on the CPU.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import logging
-import random
 from dataclasses import asdict
+from functools import partial
 from pathlib import Path
 
-import numpy as np
 import torch
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs import Compose, EnvBase, TransformedEnv
+from torchrl.record.loggers import CSVLogger, TensorboardLogger
 
 from . import keys as K
-from .collectors import MultiTimescaleCollector
+from .baselines import IDMMobilPolicy
+from .collectors import MacroTransitionWriter, MultiTimescaleCollector
+from .collectors.nstep import NStepReturns
 from .collectors.workers import WorkerEnv
 from .compiling import resolve_compile, resolve_cudagraphs
 from .conf.schema import (
@@ -61,11 +65,24 @@ from .conf.schema import (
     unknown_keys,
 )
 from .envs.config import HighwayConfig
-from .eval.protocol import test_seed
+from .envs.fake import FakeHighwayEnv
+from .envs.highwayenv import HighwayEnvAdapter
+from .envs.sumo_env import SumoHighwayEnv
+from .eval.periodic import PeriodicEvaluator
+from .eval.protocol import test_seed, validation_seed, worker_seed
 from .generative import shipped_traffic
 from .loggers import MultiLogger
-from .numerics import TorchSettings
-from .runs import checkpoint_dir, latest_checkpoint, no_folder_if_refused, resume_requested, trained_run
+from .physics import IDMParams, MOBILParams
+from .process_settings import TorchSettings
+from .run_folder import (
+    RunFolder,
+    best_checkpoint,
+    checkpoint_dir,
+    latest_checkpoint,
+    no_folder_if_refused,
+    resume_requested,
+    trained_run,
+)
 from .training import (
     HierarchicalLearner,
     JointD3QNLearner,
@@ -75,15 +92,10 @@ from .training import (
     load_training_checkpoint,
     make_buffer,
 )
+from .transforms import DecisionClock, MOBILCriteria, MOBILSafetyMask, SafetyShield, make_kddrl_transforms
 
 #: the learner of each learning ``algo.kind`` (:data:`kddrl_trl.conf.schema.ALGO_SCHEMAS`)
 LEARNERS = {"hierarchical": HierarchicalLearner, "joint_d3qn": JointD3QNLearner, "pasac": PASACLearner}
-
-
-def seed_everything(seed: int) -> None:
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
 
 
 def make_device(name: str) -> torch.device:
@@ -103,11 +115,11 @@ def make_device(name: str) -> torch.device:
 def make_job(cfg: DictConfig):
     """The typed job of a composed entry-point config (``OmegaConf.to_object``: types and ranges checked once,
     before any simulator starts). A refused config raises, naming the key, and removes the output folder Hydra
-    already made for it (:func:`kddrl_trl.runs.no_folder_if_refused`): a bad value leaves no empty run folder.
+    already made for it (:func:`kddrl_trl.run_folder.no_folder_if_refused`): a bad value leaves no empty run folder.
     A job's top-level knobs are resolved here, once, and the parts receive the results: ``device``
     (:func:`make_device`, so ``device=cuda`` without a GPU stops at once; as ``job.torch_device``), ``compile``
     and ``cudagraphs`` (bools, :func:`kddrl_trl.compiling.resolve_compile` / ``resolve_cudagraphs``); and
-    ``matmul_precision`` and ``flush_denormal`` are applied to this process (:func:`torch_settings`; process-wide:
+    ``matmul_precision`` and ``flush_denormal`` are applied to this process (:func:`make_torch_settings`; process-wide:
     set by every job, so none inherits another's)."""
     with no_folder_if_refused():
         job = OmegaConf.to_object(cfg)
@@ -124,14 +136,14 @@ def make_job(cfg: DictConfig):
         if hasattr(job, "cudagraphs"):
             job.cudagraphs = resolve_cudagraphs(job.cudagraphs, job.torch_device)
         if hasattr(job, "matmul_precision"):
-            torch_settings(job).apply()
+            make_torch_settings(job).apply()
         return job
 
 
-def torch_settings(job: Job) -> TorchSettings:
+def make_torch_settings(job: Job) -> TorchSettings:
     """The job's ``matmul_precision`` and ``flush_denormal``, which :func:`make_job` applies to the job's process
     and each worker process the job starts applies to its own (:func:`make_env_factories`,
-    :func:`make_evaluator`): :class:`~kddrl_trl.numerics.TorchSettings`."""
+    :func:`make_evaluator`): :class:`~kddrl_trl.process_settings.TorchSettings`."""
     return TorchSettings(job.matmul_precision, job.flush_denormal)
 
 
@@ -140,8 +152,6 @@ def make_run_dir(resume) -> tuple[Path, bool]:
     config was composed (:mod:`kddrl_trl.conf.resolvers`: the resumed run's or sweep's own folder, or a new one);
     a run resumes when its folder holds a checkpoint. A job of a resumed sweep (``-m ... resume=true``) whose
     folder holds none starts afresh: it never reached its first checkpoint."""
-    from hydra.core.hydra_config import HydraConfig
-    from hydra.types import RunMode
 
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
@@ -153,18 +163,12 @@ def make_run_dir(resume) -> tuple[Path, bool]:
 
 def make_logger(cfg: LoggerConfig, run_dir: Path, exp_name: str = "logs") -> MultiLogger:
     """CSV logger always (``cfg.csv``); TensorBoard when installed (``tensorboard: auto``) or asked."""
-    import importlib.util
-
-    from torchrl.record.loggers import CSVLogger
-
     loggers = [CSVLogger(exp_name=exp_name, log_dir=str(run_dir))] if cfg.csv else []
     installed = importlib.util.find_spec("tensorboard") is not None
     tb = installed if str(cfg.tensorboard).lower() == "auto" else cfg.tensorboard
     if tb and not installed:
         logging.getLogger(__name__).warning("logger.tensorboard=true but tensorboard is not installed: CSV only")
     elif tb:
-        from torchrl.record.loggers import TensorboardLogger
-
         loggers.append(TensorboardLogger(exp_name=exp_name, log_dir=str(run_dir)))
     return MultiLogger(loggers)
 
@@ -179,8 +183,6 @@ def make_transforms(
     (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
     :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
     (:class:`~kddrl_trl.transforms.SafetyShield`, every algo)."""
-    from .transforms import DecisionClock, MOBILCriteria, MOBILSafetyMask, SafetyShield, make_kddrl_transforms
-
     stack = []
     learning = isinstance(algo, LearningAlgo)
     if learning:
@@ -209,16 +211,12 @@ def make_env(
     checked; a rule-based algo without a shield gets the bare env)."""
     highway = env.highway()
     transforms = make_transforms(algo, seed, highway, compile, env.simulator)
-    options = {}
     if fake:
-        from .envs.fake import FakeHighwayEnv as Env
+        base = FakeHighwayEnv(highway, num_roads=env.num_roads, seed=seed)
     elif env.simulator == "highwayenv":
-        from .envs.highwayenv import HighwayEnvAdapter as Env
-
-        options = {"options": env.highwayenv}
+        base = HighwayEnvAdapter(highway, num_roads=env.num_roads, seed=seed, options=env.highwayenv)
     else:
-        from .envs.sumo_env import SumoHighwayEnv as Env
-    base = Env(highway, num_roads=env.num_roads, seed=seed, **options)
+        base = SumoHighwayEnv(highway, num_roads=env.num_roads, seed=seed)
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
 
@@ -227,17 +225,13 @@ def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[Wor
     ``i`` builds :func:`make_env` of the job's env, algo and ``compile`` with env seed
     :func:`~kddrl_trl.eval.protocol.worker_seed` ``(seed, i)`` (``seed``: the run's env seed, ``job.seed`` plus the
     episodes already done on resume), seeds its process's torch generator with it and applies the job's
-    :func:`torch_settings` there. A single worker of the ``process`` backend is the env of the learner process: its
+    :func:`make_torch_settings` there. A single worker of the ``process`` backend is the env of the learner process: its
     seed is ``seed`` and torch is left as the entry point seeded it (``collector.sync=false``: its one worker is a
     process of its own, seeded as any worker)."""
-    from functools import partial
-
-    from .eval.protocol import worker_seed
-
     workers = job.collector.workers
     in_process = workers == 1 and job.collector.backend == "process" and job.collector.sync
     make = partial(make_env, job.env, job.algo, compile=job.compile, fake=fake)
-    settings = torch_settings(job)
+    settings = make_torch_settings(job)
     return [WorkerEnv(make, worker_seed(seed, i), seed_torch=not in_process, settings=settings) for i in range(workers)]
 
 
@@ -263,9 +257,6 @@ def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: 
     """The acting policy with exploration off: MOBIL + IDM with ``algo.idm`` / ``algo.mobil`` for a rule-based
     algo; the trained ``learner`` 's greedy policy for a learning algo."""
     if isinstance(algo, RuleAlgo):
-        from .baselines import IDMMobilPolicy
-        from .physics import IDMParams, MOBILParams
-
         return IDMMobilPolicy(
             IDMParams(**asdict(algo.idm)),
             MOBILParams(**asdict(algo.mobil)),
@@ -307,15 +298,11 @@ def make_collector(
     lane-change rewards of a macro-transition (Algorithm 1 line 35); ``decision`` counts the efficiency term the env
     writes (``keys.EFFICIENCY_TERM``) once per decision (§III.G,
     :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
-    from .collectors import MacroTransitionWriter
-
     if lc_reward not in LC_REWARDS:
         raise ValueError(f"make_collector: lc_reward must be one of {', '.join(LC_REWARDS)}, got {lc_reward!r}")
     collector = collector or CollectorConfig()
     frame_keys, nstep = learner.buffer_keys(), None
     if train.n_steps > 1:  # n-step returns in buffer L; the held lane-change action of the window's last frame
-        from .collectors.nstep import NStepReturns
-
         nstep = NStepReturns(train.n_steps, learner.frame_gamma)
         frame_keys = [*frame_keys, K.STEPS_TO_NEXT_OBS, ("next", *K.LC_HELD)]
     return MultiTimescaleCollector.from_env(
@@ -338,31 +325,26 @@ def make_evaluator(job: TrainJob):
     """The periodic evaluation of :class:`~kddrl_trl.training.Trainer` (None with ``train.eval_every=0``):
     ``train.eval_episodes`` greedy episodes on the validation seed of :mod:`kddrl_trl.eval.protocol`, in an env
     of the job's traffic and the algo's transforms run by a worker process (eager: it acts a few times per run),
-    under the job's :func:`torch_settings`."""
-    from functools import partial
-
-    from .eval.periodic import PeriodicEvaluator
-    from .eval.protocol import validation_seed
-
+    under the job's :func:`make_torch_settings`."""
     if job.train.eval_every == 0:
         return None
     seed = validation_seed(job.seed)
     make = partial(make_env, job.env, job.algo, compile=False)
     return PeriodicEvaluator(
-        WorkerEnv(make, seed, seed_torch=False, settings=torch_settings(job)),
+        WorkerEnv(make, seed, seed_torch=False, settings=make_torch_settings(job)),
         job.train.eval_episodes,
         seed,
         job.train.best_metric,
     )
 
 
-def load_trained_learner(
+def make_trained_learner(
     run: Path, checkpoint: str = "latest", device: torch.device | str | None = None
 ) -> tuple[LearningAlgo, Learner, Path, DictConfig]:
     """(algo, learner on ``device`` with the weights of its ``latest`` or ``best`` checkpoint, that checkpoint,
     the run's saved config) of a training run folder. The learner only acts: it is not compiled. Checkpoints are
     read onto the CPU and then copied to the learner's device, so a run trained on either loads on either."""
-    saved = OmegaConf.load(trained_run(run) / "config.yaml")
+    saved = OmegaConf.load(RunFolder(trained_run(run)).config)
     algo = algo_from_node(saved.algo)
     if not isinstance(algo, LearningAlgo):
         raise ValueError(
@@ -372,7 +354,7 @@ def load_trained_learner(
     if checkpoint == "latest":  # the newest that loads (a damaged one falls back to the previous, with a warning)
         path, payload = load_latest_training_checkpoint(run)
     else:
-        path = checkpoint_dir(run) / "best.pt"
+        path = best_checkpoint(run)
         if not path.is_file():
             raise FileNotFoundError(
                 f"run={run}: no {checkpoint} checkpoint in {checkpoint_dir(run)} (train.eval_every=0 writes no best.pt)"

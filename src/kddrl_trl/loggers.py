@@ -26,7 +26,7 @@ def trim_logs(run_dir: Path, last_step: int, eval_last_step: int, exp_name: str 
     folder = Path(run_dir) / exp_name / "scalars"
     if not folder.is_dir():
         return
-    from .io import write_text_atomic
+    from .atomic_files import write_text_atomic
 
     for path in folder.rglob("*.csv"):
         rel = path.relative_to(folder).as_posix()

@@ -27,6 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
 from kddrl_trl import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
+from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.data.calibrate import CalibrationImpossible, calibrate, write_calibration
 from kddrl_trl.data.extract import extract_dataset
 from kddrl_trl.data.highd import list_recordings, read_recording
@@ -38,8 +39,7 @@ from kddrl_trl.data.sumo_to_highd import (
 from kddrl_trl.data.synthetic import ensure_recordings
 from kddrl_trl.data.tracks import longitudinal_tracks
 from kddrl_trl.envs.config import default_drivers
-from kddrl_trl.io import write_json_atomic
-from kddrl_trl.runs import no_folder_if_refused
+from kddrl_trl.run_folder import no_folder_if_refused
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from . import conf as _conf  # noqa: F401  (registers the typed schemas with Hyd
 from .conf.schema import ReportJob
 from .reporting.builder import build_report
 from .reporting.records import find_runs
-from .runs import no_folder_if_refused
+from .run_folder import no_folder_if_refused
 
 #: the lcGAN test metrics shipped beside the weights (``generative/shipped.py``), when there are any
 SHIPPED_LCGAN_METRICS = Path(__file__).parent / "generative" / "weights" / "lcgan.metrics.json"

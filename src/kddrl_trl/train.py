@@ -19,21 +19,18 @@ evaluation runs once per listed scenario, each into ``<run>/final__<scenario>/``
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import replace
-from functools import partial
-from pathlib import Path
 
 import hydra
 import numpy as np
-import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from .compiling import fresh_compiler
 from .conf.schema import LearningAlgo, TrainJob
+from .eval.final import FinalEvaluation
 from .eval.final import final_evaluation as run_final_evaluation
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol
@@ -48,18 +45,17 @@ from .factories import (
     make_policy,
     make_run_dir,
     make_test_env,
-    seed_everything,
 )
-from .io import write_json_atomic, write_text_atomic
 from .loggers import trim_logs
+from .process_settings import seed_everything
 from .provenance import code_commit, provenance
-from .runs import config_differences
+from .run_folder import RunFolder, config_differences
 from .training import Trainer, plot_training_curves
 
 log = logging.getLogger(__name__)
 
 
-def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
+def train(job: TrainJob, run: RunFolder, logger, resuming: bool):
     """Trains the learner of ``job.algo`` (continuing ``run_dir``'s latest checkpoint when ``resuming``);
     returns it, the summary of its training and the trainer, whose validation of the last episode may still run
     beside the final evaluation (:func:`finish_validations`)."""
@@ -69,16 +65,16 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
         learner,
         buffers,
         job.train,
-        run_dir,
+        run.path,
         logger,
         episodes=job.episodes,
         progress=job.progress,
         evaluator=make_evaluator(job),
     )
-    done = trainer.load(run_dir) if resuming else 0
+    done = trainer.load(run.path) if resuming else 0
     if done:
-        log.info("resuming %s", run_dir)
-        trim_logs(run_dir, last_step=done - 1, eval_last_step=trainer.validated_through())
+        log.info("resuming %s", run.path)
+        trim_logs(run.path, last_step=done - 1, eval_last_step=trainer.validated_through())
     # a resumed run meets new traffic: the envs (one per collection worker) start from seed + episodes already done
     envs = make_env_factories(job, seed=job.seed + done)
     collector = make_collector(
@@ -86,10 +82,8 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     )
     history = trainer.run(collector, finish=False)
     try:
-        write_text_atomic(run_dir / "train_episodes.csv", pd.DataFrame(history).to_csv(index=False))
-        plot_training_curves(
-            history, run_dir / "training_curves.png", title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}"
-        )
+        run.write_table(run.train_episodes, history)
+        plot_training_curves(history, run.curves, title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}")
     except BaseException:
         trainer.close()
         raise
@@ -100,11 +94,11 @@ def train(job: TrainJob, run_dir: Path, logger, resuming: bool):
     return learner, {**trainer.counters, "episodes": len(history), "last100": last100}, trainer
 
 
-def finish_validations(trainer: Trainer | None, run_dir: Path) -> None:
+def finish_validations(trainer: Trainer | None, run: RunFolder) -> None:
     """Waits for the trainer's last validation and writes every validation to ``validation.csv`` (before the
     ``summary.json`` that marks the run finished)."""
     if trainer is not None and trainer.finish():
-        write_text_atomic(run_dir / "validation.csv", pd.DataFrame(trainer.validations).to_csv(index=False))
+        run.write_table(run.validation, trainer.validations)
 
 
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
@@ -113,66 +107,69 @@ def main(cfg: DictConfig) -> dict:
     job: TrainJob = make_job(cfg)  # typed, ranges checked before any simulator starts; refused: no folder left
     fresh_compiler()  # a launcher's reused worker holds earlier jobs' graphs
     run_dir, resuming = make_run_dir(job.resume)
-    if (run_dir / "config.yaml").is_file():  # a resumed run or sweep job: the same config, or refuse
+    run = RunFolder(run_dir)
+    if run.config.is_file():  # a resumed run or sweep job: the same config, or refuse
         different = config_differences(
-            OmegaConf.to_container(OmegaConf.load(run_dir / "config.yaml")), OmegaConf.to_container(cfg, resolve=True)
+            OmegaConf.to_container(OmegaConf.load(run.config)), OmegaConf.to_container(cfg, resolve=True)
         )
         if different:
             raise SystemExit(
                 f"{run_dir} holds a run of another config ({'; '.join(different[:5])}): in a sweep over "
                 "these keys, add them to hydra.sweep.subdir"
             )
-    if (run_dir / "summary.json").is_file():  # written last: a finished run (a job of a resumed sweep)
-        log.info("%s is finished (summary.json): skipped", run_dir)
-        return json.loads((run_dir / "summary.json").read_text())
+    if run.is_finished():  # a job of a resumed sweep that ended
+        log.info("%s is finished (%s): skipped", run_dir, run.SUMMARY)
+        return run.read_summary()
     started = time.perf_counter()
     seed_everything(job.seed)
     logger = make_logger(job.logger, run_dir)
     if not resuming:
-        write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+        run.write_config(OmegaConf.to_yaml(cfg, resolve=True))
 
     extra, learner, trainer = {}, None, None
     if isinstance(job.algo, LearningAlgo):
-        learner, extra["training"], trainer = train(job, run_dir, logger, resuming)
+        learner, extra["training"], trainer = train(job, run, logger, resuming)
     try:
-        return evaluate_run(job, learner, trainer, logger, run_dir, started, extra)
+        return evaluate_run(job, learner, trainer, logger, run, started, extra)
     finally:
         if trainer is not None:
             trainer.close()
 
 
-def evaluate_run(job: TrainJob, learner, trainer: Trainer | None, logger, run_dir: Path, started: float, extra) -> dict:
+def evaluate_run(
+    job: TrainJob, learner, trainer: Trainer | None, logger, run: RunFolder, started: float, extra
+) -> dict:
     """The final evaluation of a run (one per scenario of ``job.eval_scenarios``), beside the trainer's last
-    validation; ``validation.csv`` is written once that ends, and ``summary.json`` last."""
-    finish = partial(finish_validations, trainer, run_dir)
+    validation; ``validation.csv`` is written once that ends, and the run's summary last (:meth:`RunFolder.finish`)."""
     seeds = protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes, job.collector.workers)
     if not job.eval_scenarios:  # the final evaluation on the training traffic, into the run folder
-        return final_evaluation(
+        result = final_evaluation(
             job,
             learner,
             logger,
-            run_dir,
-            before_report=finish,
+            run.path,
             seed=job.seed,
             protocol=seeds,
-            run_dir=str(run_dir),
+            run_dir=str(run.path),
             started=started,
             **extra,
         )
+        finish_validations(trainer, run)
+        return result.write()
     # one final evaluation per scenario (a run trained on +scenario=mixed, evaluated on baseline and on braking)
     finals = [f"final__{s}" for s in job.eval_scenarios]
     for scenario, folder in zip(job.eval_scenarios, finals):
         final_evaluation(
             replace(job, env=job.env.with_scenario(scenario)),
             learner,
-            make_logger(job.logger, run_dir / folder),
-            run_dir / folder,
+            make_logger(job.logger, run.path / folder),
+            run.path / folder,
             seed=job.seed,
             protocol=seeds,
             trained_on=job.env.scenario,
             final=True,
-        )
-    finish()
+        ).write()
+    finish_validations(trainer, run)
     summary = {
         "scenario": job.env.scenario,
         "algo": job.algo.name,
@@ -180,18 +177,17 @@ def evaluate_run(job: TrainJob, learner, trainer: Trainer | None, logger, run_di
         "final_evaluations": finals,
         "protocol": seeds,
         "compile": job.compile,
-        "run_dir": str(run_dir),
+        "run_dir": str(run.path),
         "wall_s": time.perf_counter() - started,
         **extra,
         **provenance(),
     }
-    write_json_atomic(run_dir / "summary.json", summary)  # written last: marks the run finished
-    return summary
+    return run.finish(summary)
 
 
-def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, before_report=None, **fields) -> dict:
-    """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, written to ``out_dir``
-    (``before_report`` is called between the episodes and the report, :func:`kddrl_trl.eval.final.final_evaluation`)."""
+def final_evaluation(job: TrainJob, learner, logger, out_dir, **fields) -> FinalEvaluation:
+    """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, for ``out_dir``, not yet written
+    (:func:`kddrl_trl.eval.final.final_evaluation`)."""
     trained_on = fields.get("trained_on", job.env.scenario)
     title = job.algo.name + ("" if trained_on == job.env.scenario else f" trained on {trained_on}")
     return run_final_evaluation(
@@ -203,7 +199,6 @@ def final_evaluation(job: TrainJob, learner, logger, out_dir: Path, before_repor
         out_dir,
         title=f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",
         reference=paper_reference(job.env.scenario, job.algo.name) if trained_on == job.env.scenario else None,
-        before_report=before_report,
         **fields,
     )
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kddrl_trl.io import write_json_atomic, write_text_atomic
+from kddrl_trl.atomic_files import write_json_atomic, write_text_atomic
 from kddrl_trl.reporting.records import find_runs
 from kddrl_trl.reporting.stats import clopper_pearson, mean_test
 

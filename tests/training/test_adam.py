@@ -9,7 +9,7 @@ from testkit import SMALL
 
 from kddrl_trl.training import HierarchicalLearner
 from kddrl_trl.training.adam import FusedAdam, step_all
-from kddrl_trl.training.base import adam
+from kddrl_trl.training.learner import adam
 
 SHAPES = [(16, 7), (16,), (16, 16), (16,), (1, 16), (1,)]
 

@@ -13,7 +13,7 @@ from kddrl_trl import keys as K
 from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.envs import FakeHighwayEnv
 from kddrl_trl.modules import lc_obs_dim, lc_state
-from kddrl_trl.modules.joint import accel_levels, joint_action_mask, joint_action_split, joint_reward
+from kddrl_trl.modules.joint_action import accel_levels, joint_action_mask, joint_action_split, joint_reward
 from kddrl_trl.physics import mobil_utilities
 from kddrl_trl.training import HierarchicalLearner, JointD3QNLearner, PASACLearner, make_buffer
 from kddrl_trl.transforms import DecisionClock, MOBILCriteria

@@ -384,7 +384,7 @@ def test_a_compiled_step_traces_its_gradients_into_one_graph_and_matches_backwar
     gradients are ``backward`` 's, in the parameters' layout once through ``base._param_layout`` (a weight's
     gradient from ``mm`` comes back transposed)."""
     from kddrl_trl.compiling import tracing_gradients
-    from kddrl_trl.training.base import _param_layout
+    from kddrl_trl.training.learner import _param_layout
 
     torch.manual_seed(0)
     net = torch.nn.Sequential(torch.nn.Linear(6, 16), torch.nn.ReLU(), torch.nn.Linear(16, 1))

@@ -14,7 +14,7 @@ import time
 import pytest
 import torch
 
-from kddrl_trl.runs import checkpoint_candidates, latest_checkpoint
+from kddrl_trl.run_folder import checkpoint_candidates, latest_checkpoint
 from kddrl_trl.training import (
     CheckpointError,
     load_latest_training_checkpoint,
@@ -131,7 +131,7 @@ def test_a_refused_config_leaves_no_run_folder(tmp_path, override, sweep):
 
 
 def test_a_refused_resumed_run_keeps_its_folder(tmp_path):
-    from kddrl_trl.runs import remove_refused_run_dir
+    from kddrl_trl.run_folder import remove_refused_run_dir
 
     run = tmp_path / "runs" / "baseline__kddrl__0__x"
     (run / ".hydra").mkdir(parents=True)

@@ -17,7 +17,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from kddrl_trl.eval.periodic import PeriodicEvaluator
 from kddrl_trl.eval.rollout import evaluate_policy
 from kddrl_trl.factories import make_env, make_learner
-from kddrl_trl.runs import checkpoint_candidates
+from kddrl_trl.run_folder import checkpoint_candidates
 from kddrl_trl.training import CheckpointError, load_training_checkpoint, save_training_checkpoint
 
 SMALL = ("env.num_roads=2", "compile=false", "algo.learner.d3qn.hidden=[16]", "algo.learner.td3.hidden=[16]")

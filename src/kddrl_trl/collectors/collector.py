@@ -12,7 +12,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import ReplayBuffer
 from torchrl.envs import EnvBase
 
-from ..spawning import require_main_guard
+from ..main_guard import require_main_guard
 from .macro import MacroTransitionWriter
 from .overlap import OverlappedCollector
 from .snapshot import PolicySnapshot

@@ -5,7 +5,7 @@ libsumo, which allows one simulation per process, its own K roads and transform 
 multi-process collector (:meth:`~kddrl_trl.collectors.MultiTimescaleCollector.from_env`). Each worker gets one
 ``WorkerEnv``, pickled to the worker and called there: it seeds that process's torch generator (the exploring
 policy's draws: ε-greedy coins, Gaussian acting noise), applies the job's torch settings there
-(:class:`~kddrl_trl.numerics.TorchSettings`: a new process starts with torch's defaults) and builds the env with the
+(:class:`~kddrl_trl.process_settings.TorchSettings`: a new process starts with torch's defaults) and builds the env with the
 worker's env seed (:func:`kddrl_trl.eval.protocol.worker_seed`). Nothing here is specific to SUMO: ``make`` is any
 env factory taking ``seed=``; the validation worker builds its env through one too.
 """
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 from torchrl.envs import EnvBase
 
-from ..numerics import TorchSettings
+from ..process_settings import TorchSettings
 
 
 @dataclass(frozen=True)

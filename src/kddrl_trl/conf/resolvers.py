@@ -2,7 +2,7 @@
 
 Hydra makes ``hydra.run.dir`` before the entry point runs, so an entry point that only then learns the folder
 is another one (a resumed run) or that its input does not exist (a missing run to evaluate) leaves an empty
-folder behind. These resolvers decide while the config is composed, once (:mod:`kddrl_trl.runs` holds the rules):
+folder behind. These resolvers decide while the config is composed, once (:mod:`kddrl_trl.run_folder` holds the rules):
 
 * ``${kddrl_train_dir:${resume},runs,<prefix>,<stamp>}``: the run folder to resume (``resume=true``: the
   newest ``runs/<prefix>*`` with a checkpoint; ``resume=<dir>``: that one), else ``runs/<prefix><stamp>``;
@@ -10,7 +10,7 @@ folder behind. These resolvers decide while the config is composed, once (:mod:`
   ``<prefix>*``; ``resume=<dir>``: that one), else ``<prefix><stamp>``;
 * ``${kddrl_trained_run:${run}}``: ``run`` itself, the parent of an evaluation's folder; whether it is a training
   run folder is checked inside the entry point (one line naming it), and the folders Hydra makes for a ``run`` that
-  does not exist are then removed (:func:`kddrl_trl.runs.output_parent`);
+  does not exist are then removed (:func:`kddrl_trl.run_folder.output_parent`);
 * ``${kddrl_scenario:<name>,${env.simulator}}``: the ``env.scenario`` a ``+scenario=<name>`` preset sets
   (:func:`kddrl_trl.envs.config.scenario_label`: ``highwayenv_congested`` on HighwayEnv), so that the run folder
   already carries the simulator.
@@ -23,7 +23,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from ..envs.config import scenario_label
-from ..runs import find_resume_dir, find_sweep_dir, output_parent
+from ..run_folder import find_resume_dir, find_sweep_dir, output_parent
 
 
 def train_dir(resume, runs_root: str, prefix: str, stamp: str) -> str:

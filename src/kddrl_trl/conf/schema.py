@@ -41,7 +41,7 @@ from ..eval.protocol import MAX_WORKERS, check_disjoint, test_seed
 from ..generative import SHIPPED_TRAFFIC
 from ..modules.state import check_extras
 from ..physics import IDMParams, MOBILParams
-from ..training.learner import CF_AGENTS
+from ..training.hierarchical import CF_AGENTS
 
 
 def _at_least(prefix: str, node, low: int, *names: str) -> None:

@@ -20,6 +20,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from kddrl_trl.atomic_files import write_text_atomic
 from kddrl_trl.data.calibrate_idm import DEFAULT_BOUNDS, IDM_FIELDS, car_following_segments, fit_idm, simulate_following
 from kddrl_trl.data.calibrate_mobil import (
     DEFAULT_MOBIL_GRID,
@@ -28,7 +29,6 @@ from kddrl_trl.data.calibrate_mobil import (
     fit_mobil,
     mobil_decision,
 )
-from kddrl_trl.io import write_text_atomic
 from kddrl_trl.physics.idm import IDMParams
 
 

@@ -99,10 +99,10 @@ from tensordict import TensorDict
 from tqdm.auto import tqdm
 
 from kddrl_trl import keys as K
+from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.data.highd import HighDRecording
 from kddrl_trl.data.tracks import TRACKS10_COLUMNS, longitudinal_tracks, tracks_hz, vehicle_num_lanes
 from kddrl_trl.gan_inputs import DRIVER_TYPES, KEY_STEPS, lane_change_condition
-from kddrl_trl.io import write_json_atomic
 from kddrl_trl.physics.idm import IDMParams, idm_rollout
 
 __all__ = [

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from kddrl_trl.io import write_atomic
+from kddrl_trl.atomic_files import write_atomic
 
 __all__ = [
     "TRACKS_COLUMNS",
@@ -384,7 +384,7 @@ def _coerce(df: pd.DataFrame, path: Path, kind: str) -> pd.DataFrame:
 
 
 def _atomic_write_csv(df: pd.DataFrame, path: Path) -> None:
-    """Write ``df`` atomically (:func:`kddrl_trl.io.write_atomic`).
+    """Write ``df`` atomically (:func:`kddrl_trl.atomic_files.write_atomic`).
 
     ``float_format=None`` writes the shortest repr, which read_csv parses back to the identical float."""
     write_atomic(path, lambda fh: df.to_csv(fh, index=False, lineterminator="\n"), newline="")

@@ -51,7 +51,7 @@ class PlainKDDRL:
       updates of the target Q (D3QN tau) and the target embedding (every step).
 
     The networks are deep copies of the learner's, the learning rates and taus the learner's, the optimisers the
-    learner's kind (:func:`kddrl_trl.training.base.adam`, fused), but ``torch.optim.Adam`` itself (``lean=False``)."""
+    learner's kind (:func:`kddrl_trl.training.learner.adam`, fused), but ``torch.optim.Adam`` itself (``lean=False``)."""
 
     def __init__(self, learner: HierarchicalLearner):
         L = learner

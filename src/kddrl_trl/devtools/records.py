@@ -23,6 +23,8 @@ import subprocess
 import tarfile
 from pathlib import Path, PurePosixPath
 
+from ..run_folder import RunFolder
+
 MANIFEST = PurePosixPath("studies/records.json")
 
 
@@ -30,7 +32,7 @@ def kept_in_tree(path: str) -> bool:
     """Whether a record file stays in main's tree: a run's summary and configs, and the small per-seed results of a
     plain script (``studies/reuse/runs/example/*.json``)."""
     p = PurePosixPath(path)
-    return p.name == "summary.json" or p.suffix == ".yaml" or (p.suffix == ".json" and "example" in p.parts)
+    return p.name == RunFolder.SUMMARY or p.suffix == ".yaml" or (p.suffix == ".json" and "example" in p.parts)
 
 
 def repo_root(start: Path | None = None) -> Path:

@@ -18,7 +18,7 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..io import cache_dir, write_text_atomic
+from ..atomic_files import cache_dir, write_text_atomic
 from .config import HighwayConfig
 
 ROAD_SPACING = 50.0  # m between the centre lines of neighbouring roads

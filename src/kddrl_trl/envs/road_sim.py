@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..spawning import require_main_guard
+from ..main_guard import require_main_guard
 from .config import HighwayConfig
 from .sim import HighwaySim, simulation_open
 

@@ -1,20 +1,21 @@
 """The final evaluation of a run, for ``train`` and ``evaluate``: the greedy policy on the test traffic, its episodes
-logged under ``test/``, its traces and videos, and its records: ``eval_episodes.csv``, then ``summary.json``, which
-is written last and marks the run (or the evaluation) finished."""
+logged under ``test/``, its traces and videos (:func:`final_evaluation`), and, when the caller has written everything
+else, its records (:meth:`FinalEvaluation.write`): ``eval_episodes.csv``, then ``summary.json``, which is written
+last and marks the run (or the evaluation) finished (:meth:`kddrl_trl.run_folder.RunFolder.finish`)."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
-import pandas as pd
 from torchrl.envs import EnvBase
 
+from ..atomic_files import write_json_atomic
 from ..compiling import compile_counts, compile_seconds
 from ..envs.episode_metrics import METRIC_FIELDS
-from ..io import write_json_atomic, write_text_atomic
 from ..provenance import provenance
+from ..run_folder import RunFolder
 from .metrics import format_summary, summarize
 from .protocol import test_seed
 from .rollout import evaluate_policy, unwrap_env
@@ -69,6 +70,21 @@ def evaluate(env: EnvBase, policy, job, logger, out_dir: Path | None = None, alg
     return episodes, stats
 
 
+@dataclass
+class FinalEvaluation:
+    """A final evaluation that has run and is not yet written: its ``episodes`` and what its summary will hold."""
+
+    out_dir: Path
+    episodes: list[dict]
+    title: str
+    reference: dict | None = None
+    fields: dict = field(default_factory=dict)
+
+    def write(self) -> dict:
+        """The evaluation's records into ``out_dir`` (:func:`write_results`); the run's last writes."""
+        return write_results(self.out_dir, self.episodes, self.title, self.reference, **self.fields)
+
+
 def final_evaluation(
     job,
     env: EnvBase,
@@ -79,29 +95,17 @@ def final_evaluation(
     *,
     title: str,
     reference: dict | None = None,
-    before_report: Callable[[], None] | None = None,
     **fields,
-) -> dict:
+) -> FinalEvaluation:
     """The final evaluation of ``train`` and ``evaluate``: ``policy`` (the greedy policy of the algo named ``algo``) on
-    ``env`` (the test traffic: :func:`kddrl_trl.factories.make_test_env`), evaluated (:func:`evaluate`) and written
-    (:func:`write_results`, with the scenario, algo, env counters, flow and ``fields``) into ``out_dir``.
-    ``before_report`` runs between the two (``train`` writes the validations there, before the summary that marks the
-    run finished)."""
+    ``env`` (the test traffic: :func:`kddrl_trl.factories.make_test_env`), evaluated (:func:`evaluate`). Nothing of it
+    is written but its traces and videos: the caller writes its own files first (``train``: the validations), then
+    :meth:`FinalEvaluation.write` (the summary with the scenario, algo, env counters, flow and ``fields``)."""
     episodes, stats = evaluate(env, policy, job, logger, out_dir, algo)
-    if before_report is not None:
-        before_report()
-    return write_results(
-        out_dir,
-        episodes,
-        title,
-        reference,
-        scenario=job.env.scenario,
-        algo=algo,
-        env_stats=stats,
-        flow_vph=job.env.flow,
-        compile=job.compile,
-        **fields,
+    summary_fields = dict(
+        scenario=job.env.scenario, algo=algo, env_stats=stats, flow_vph=job.env.flow, compile=job.compile, **fields
     )
+    return FinalEvaluation(Path(out_dir), episodes, title, reference, summary_fields)
 
 
 def write_results(
@@ -113,17 +117,16 @@ def write_results(
     **fields,
 ) -> dict:
     """Summary of the evaluation ``episodes`` plus ``fields``: written to ``summary.json`` (the episodes to
-    ``eval_episodes.csv``) in ``out_dir`` and printed under ``title``. ``started`` (a run's start,
-    ``time.perf_counter()``) adds ``wall_s``, the run's whole time, its evaluation included; ``compile_s`` is the
-    time this process spent compiling (:func:`kddrl_trl.compiling.compile_seconds`), ``compile_counts`` what it
-    compiled and what the compile caches served (:func:`kddrl_trl.compiling.compile_counts`). ``summary.json`` is written
-    last."""
+    ``eval_episodes.csv``) in ``out_dir`` (:meth:`~kddrl_trl.run_folder.RunFolder.finish`) and printed under
+    ``title``. ``started`` (a run's start, ``time.perf_counter()``) adds ``wall_s``, the run's whole time, its
+    evaluation included; ``compile_s`` is the time this process spent compiling
+    (:func:`kddrl_trl.compiling.compile_seconds`), ``compile_counts`` what it compiled and what the compile caches
+    served (:func:`kddrl_trl.compiling.compile_counts`)."""
     summary = {**summarize(episodes), **fields, **provenance()}
-    write_text_atomic(out_dir / "eval_episodes.csv", pd.DataFrame(episodes).to_csv(index=False))
     if started is not None:
         summary["wall_s"] = time.perf_counter() - started
     summary["compile_s"], summary["compile_counts"] = compile_seconds(), compile_counts()
-    write_json_atomic(out_dir / "summary.json", summary)
+    RunFolder(out_dir).finish(summary, episodes)
     print(f"\n{title}")
     print(format_summary(summary, reference))
     print(f"results in {out_dir}")

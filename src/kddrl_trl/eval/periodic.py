@@ -26,7 +26,7 @@ from torchrl.data.utils import CloudpickleWrapper
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from ..spawning import require_main_guard
+from ..main_guard import require_main_guard
 from .metrics import summarize
 from .rollout import evaluate_policy
 

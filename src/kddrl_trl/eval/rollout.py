@@ -20,7 +20,7 @@ def unwrap_env(env):
 
 def restart_noise(env) -> None:
     """Restarts the noise streams of ``env`` 's transforms (each member with a ``reseed``: the generative
-    predictors', :class:`~kddrl_trl.transforms._frozen.FrozenPredictorTransform`) from their own seeds, through the
+    predictors', :class:`~kddrl_trl.transforms.frozen_predictor.FrozenPredictorTransform`) from their own seeds, through the
     ``TransformedEnv`` layers of this process (a ``ParallelEnv`` 's workers keep theirs). TorchRL's
     ``TransformedEnv.set_seed`` seeds only the base env, and those streams run on over resets."""
 

@@ -14,7 +14,7 @@ from typing import Any, Mapping
 import torch
 from torch import nn
 
-from ..io import CheckpointError, torch_save_atomic
+from ..atomic_files import CheckpointError, torch_save_atomic
 
 FORMAT = "kddrl_trl.generative/1"
 

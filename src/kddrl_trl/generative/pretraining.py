@@ -21,7 +21,7 @@ from tensordict import TensorDict
 from torch import nn
 from tqdm.auto import tqdm
 
-from ..io import write_json_atomic
+from ..atomic_files import write_json_atomic
 from .checkpoint import load_checkpoint, save_checkpoint
 
 log = logging.getLogger(__name__)

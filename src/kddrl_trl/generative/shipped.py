@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ..io import write_json_atomic
+from ..atomic_files import write_json_atomic
 from .checkpoint import load_checkpoint, read_checkpoint
 
 

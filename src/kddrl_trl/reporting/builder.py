@@ -455,7 +455,7 @@ def build_report(
     ``out_dir``; return the JSON content. ``report.json`` always has one shape: ``{"rows", "claims", "commits",
     "plan_commit"}``. ``verdict``: runs of other commits as rows of their own (:func:`split_commits`) and the paper's
     claims tested (:mod:`~kddrl_trl.reporting.verdict`); without it, ``claims`` is empty and ``plan_commit`` null."""
-    from ..io import write_json_atomic, write_text_atomic
+    from ..atomic_files import write_json_atomic, write_text_atomic
 
     if not runs:
         raise ValueError("build_report: no runs")

@@ -24,6 +24,7 @@ import pandas as pd
 
 from ..envs.episode_metrics import METRIC_FIELDS
 from ..eval.metrics import summarize
+from ..run_folder import RunFolder
 
 #: columns every ``eval_episodes.csv`` must hold (EpisodeTracker records)
 EPISODE_COLUMNS = (*METRIC_FIELDS, "outcome", "collision_kind", "collision_with")
@@ -102,12 +103,12 @@ def _csv(path: Path, required: tuple = ()) -> pd.DataFrame:
 def load_run(path: str | Path) -> RunRecord:
     """Read the run folder ``path``."""
     path = Path(path)
-    summary_path = path / "summary.json"
+    summary_path = RunFolder(path).summary
     summary = _read_summary(summary_path)
     for key in ("algo", "scenario", "seed"):
         if key not in summary:
             raise ValueError(f"{summary_path}: no {key!r} key")
-    episodes_path = record_file(path, "eval_episodes.csv")
+    episodes_path = record_file(path, RunFolder.EVAL_EPISODES)
     episodes = _csv(episodes_path, EPISODE_COLUMNS)
     if "episodes" in summary and int(summary["episodes"]) != len(episodes):
         raise ValueError(
@@ -127,7 +128,8 @@ def load_run(path: str | Path) -> RunRecord:
         episodes["collision_with"].astype(object).where(episodes["collision_with"].notna(), "").astype(str)
     )
     trained = path.parent if summary.get("final") else path  # a final__<scenario> folder: its run's training
-    training_path, validation_path = record_file(trained, "train_episodes.csv"), record_file(trained, "validation.csv")
+    training_path = record_file(trained, RunFolder.TRAIN_EPISODES)
+    validation_path = record_file(trained, RunFolder.VALIDATION)
     training = _csv(training_path, ("return_lc", "return_cf")) if training_path.is_file() else None
     validation = _csv(validation_path) if validation_path.is_file() else None
     # traces of its final evaluation, and of later evaluations of it on its own scenario (evaluate video=true)
@@ -135,7 +137,7 @@ def load_run(path: str | Path) -> RunRecord:
         path.glob(f"eval__{summary['scenario']}__*/traces/*.json")
     )
     # the options it ran with: its training run's config (an evaluation folder of kddrl_trl.evaluate: its run's)
-    config = _config((path.parent if path.name.startswith("eval__") else trained) / "config.yaml")
+    config = _config(RunFolder(path.parent if path.name.startswith("eval__") else trained).config)
     label = algo_label(summary, config)
     if path.name.startswith("eval__"):  # evaluated in traffic set otherwise than its training's: a row of its own
         changed = evaluation_label(_config(path / ".hydra" / "config.yaml"), config)
@@ -143,8 +145,8 @@ def load_run(path: str | Path) -> RunRecord:
     trained_summary = (
         summary
         if trained == path
-        else _read_summary(trained / "summary.json")
-        if (trained / "summary.json").is_file()
+        else _read_summary(RunFolder(trained).summary)
+        if RunFolder(trained).is_finished()
         else {}
     )
     return RunRecord(
@@ -313,12 +315,12 @@ def find_runs(paths) -> list[RunRecord]:
         if not p.exists():
             raise FileNotFoundError(f"{p}: no such run or sweep folder")
         summaries = (
-            [p / "summary.json"]
-            if (p / "summary.json").is_file()
-            else [s for s in sorted(p.rglob("summary.json")) if not s.parent.name.startswith("eval__")]
+            [RunFolder(p).summary]
+            if RunFolder(p).is_finished()
+            else [s for s in sorted(p.rglob(RunFolder.SUMMARY)) if not s.parent.name.startswith("eval__")]
         )
         if not summaries:
-            raise FileNotFoundError(f"{p}: holds no run (no summary.json at or under it)")
+            raise FileNotFoundError(f"{p}: holds no run (no {RunFolder.SUMMARY} at or under it)")
         for s in summaries:
             for folder in _expand(s):
                 if folder.resolve() not in found:

@@ -3,7 +3,6 @@ systems, :class:`JointD3QNLearner` and :class:`PASACLearner` of the unified ones
 (:class:`Trainer`), atomic checkpoints with resume, training curves. Built from the config by
 :mod:`kddrl_trl.factories`."""
 
-from .base import Learner
 from .checkpoint import (
     CheckpointError,
     load_latest_training_checkpoint,
@@ -11,8 +10,9 @@ from .checkpoint import (
     save_training_checkpoint,
 )
 from .curves import plot_training_curves
+from .hierarchical import HierarchicalLearner
 from .joint_d3qn import JointD3QNLearner
-from .learner import HierarchicalLearner
+from .learner import Learner
 from .pasac import PASACLearner
 from .trainer import Trainer, make_buffer
 

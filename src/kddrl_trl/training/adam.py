@@ -15,7 +15,7 @@ watches its steps (no step hooks of its own or global ones, no ``step`` patched 
 scheduler patches it), the optimisers sharing their hyperparameters share one ``torch._fused_adam_`` call. The
 kernel steps each tensor on its own (its own step counter, its own chunks), so one call over two optimisers'
 tensors gives the bits of two calls. Anything outside the lean case (a ``capturable`` group, as CUDA graphs need,
-which :func:`~kddrl_trl.training.base.adam` leaves to ``torch.optim.Adam``; several parameter groups, devices or
+which :func:`~kddrl_trl.training.learner.adam` leaves to ``torch.optim.Adam``; several parameter groups, devices or
 dtypes; a parameter without a gradient; ``amsgrad``; a closure; a step traced by ``torch.compile``) takes
 ``torch.optim.Adam.step`` itself. Step hooks run once either way (``torch.optim`` wraps every optimiser class's
 ``step`` in the function that calls them).

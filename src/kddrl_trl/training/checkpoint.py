@@ -1,6 +1,6 @@
 """Training checkpoints of a run directory: written atomically, the latest one found by ``resume``.
 
-Layout (:mod:`kddrl_trl.runs`): ``<run_dir>/checkpoints/ep<NNNNNN>.pt`` (one file: learner networks, targets,
+Layout (:mod:`kddrl_trl.run_folder`): ``<run_dir>/checkpoints/ep<NNNNNN>.pt`` (one file: learner networks, targets,
 optimisers, exploration schedules, counters, the training-episode history and — unless ``keep_buffers=false``
 — the contents of both replay buffers; not the unfinished macro-transitions: the environments restart on
 resume, so intervals open at the checkpoint are dropped) and ``<run_dir>/checkpoints/latest`` (the file name of
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import torch
 
-from ..io import CheckpointError, remove_killed_writes, torch_save_atomic, write_text_atomic
-from ..runs import checkpoint_candidates, checkpoint_dir
+from ..atomic_files import CheckpointError, remove_killed_writes, torch_save_atomic, write_text_atomic
+from ..run_folder import LATEST, best_checkpoint, checkpoint_candidates, checkpoint_dir
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +36,7 @@ def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, 
     folder = checkpoint_dir(run_dir)
     remove_killed_writes(folder)  # of a checkpoint, `latest` or best.pt: never a checkpoint
     path = torch_save_atomic(folder / f"ep{episodes:06d}.pt", {"format": FORMAT, **payload})
-    write_text_atomic(folder / "latest", path.name + "\n")
+    write_text_atomic(folder / LATEST, path.name + "\n")
     for old in sorted(folder.glob("ep*.pt"))[: -max(int(keep), 1)]:
         old.unlink(missing_ok=True)
     return path
@@ -44,7 +44,7 @@ def save_training_checkpoint(run_dir: str | Path, episodes: int, payload: dict, 
 
 def save_best_checkpoint(run_dir: str | Path, payload: dict) -> Path:
     """Write ``payload`` (``learner`` state and its ``validation`` record) as ``checkpoints/best.pt``."""
-    return torch_save_atomic(checkpoint_dir(run_dir) / "best.pt", {"format": FORMAT, **payload})
+    return torch_save_atomic(best_checkpoint(run_dir), {"format": FORMAT, **payload})
 
 
 def load_training_checkpoint(path: str | Path) -> dict:

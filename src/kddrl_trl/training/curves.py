@@ -17,7 +17,7 @@ def plot_training_curves(history: list[dict], path: str | Path, window: int = 50
     import matplotlib.pyplot as plt
     import pandas as pd
 
-    from ..io import write_atomic
+    from ..atomic_files import write_atomic
 
     if not history:
         raise ValueError("plot_training_curves: no training episodes to plot")

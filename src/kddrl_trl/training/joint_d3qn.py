@@ -2,14 +2,14 @@
 Table I, §II.B): ONE dueling double DQN over the joint discrete action (lane command x acceleration level), one
 replay buffer, acting and learning every 0.1 s.
 
-- Action: ``3 x num_levels`` joint commands (:mod:`kddrl_trl.modules.joint`; 7 levels by default: -5, -3.33,
+- Action: ``3 x num_levels`` joint commands (:mod:`kddrl_trl.modules.joint_action`; 7 levels by default: -5, -3.33,
   -1.67, 0, 1.67, 3.33, 5 m/s², the bounds of Eq. 31), split into the env's ``keys.LC_ACTION`` / ``keys.CF_ACTION``
-  by :func:`~kddrl_trl.modules.joint.joint_action_split`; commands the env would not execute
+  by :func:`~kddrl_trl.modules.joint_action.joint_action_split`; commands the env would not execute
   (``keys.LC_ACTION_MASK``) are masked with all their levels, greedily and at random.
 - State: ``keys.JOINT_OBS`` = [s_AV, Δs_i, mask] (Eq. 24 without s_e) + the previous frame's lane command and
   acceleration (:func:`~kddrl_trl.modules.cf_state` reading ``keys.LC_HELD``): the car-following state of Eq. 30
   for an agent that chooses both actions at once.
-- Reward: ``r_D3QN + r_TD3`` of the frame (:func:`~kddrl_trl.modules.joint.joint_reward`).
+- Reward: ``r_D3QN + r_TD3`` of the frame (:func:`~kddrl_trl.modules.joint_action.joint_reward`).
 - Learning: the same D3QN as KDDRL's lane-change agent (:func:`~kddrl_trl.objectives.make_d3qn`: dueling head
   Eq. 3, double-DQN target Eq. 4, soft target update Eq. 5, ε-greedy), on buffer L (every frame), one update per
   collected frame.
@@ -26,9 +26,9 @@ from tensordict.nn import TensorDictSequential
 
 from .. import keys as K
 from ..modules import build_agent_states, cf_obs_dim, cf_state
-from ..modules.joint import accel_levels, joint_action_mask, joint_action_split, joint_reward
+from ..modules.joint_action import accel_levels, joint_action_mask, joint_action_split, joint_reward
 from ..objectives import PolyakUpdate, make_d3qn, soft_update_tensors, td_priority
-from .base import STATE_KEYS, Learner, adam, transition_keys
+from .learner import STATE_KEYS, Learner, adam, transition_keys
 
 
 def joint_state(extras=()):

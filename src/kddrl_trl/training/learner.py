@@ -1,260 +1,247 @@
-"""``HierarchicalLearner``: the two agents of KDDRL and their updates (paper §III.G.3, Algorithm 1 lines 4-9,
-27-29, 38-43), around one shared embedding (Eq. 23-24, trained as :mod:`kddrl_trl.modules.sharing` decides).
+"""``Learner``: what :class:`~kddrl_trl.training.Trainer`, the collector factory and the evaluation need from a
+learning algo, whatever its agents. Three learners implement it:
 
-One class serves KDDRL and the configuration-only comparison systems of docs/design.md (``d3qn_td3``,
-``d3qn_td3_lg``, ``kddrl_same_clock``, ``ni``, ``peng``): which embedding inputs exist, dueling or not, the
-car-following agent (TD3, or DDPG for Peng et al.), MOBIL's criteria in the lane-change state (Peng et al.) and the
-decision period are options. Everything that touches a tensor is a TorchRL loss / module or a TensorDict module.
+=============================================  ======================================  ===========================
+learner                                        algos                                   buffers it learns from
+=============================================  ======================================  ===========================
+:class:`~.hierarchical.HierarchicalLearner`    kddrl, ablations, ni, peng              L (frames) and H (decisions)
+:class:`~.joint_d3qn.JointD3QNLearner`         d3qn_unified                            L (frames)
+:class:`~.pasac.PASACLearner`                  pasac_unified                           L (frames)
+=============================================  ======================================  ===========================
+
+A learner acts through :meth:`Learner.policy` (a TensorDict module writing ``keys.LC_ACTION`` and
+``keys.CF_ACTION``, the env's action keys), names the keys its updates read (:meth:`Learner.buffer_keys`), makes
+one gradient step per call of :meth:`Learner.update_frame` (a buffer-L sample, once per collected frame) and,
+when :attr:`Learner.learns_from_decisions`, of :meth:`Learner.update_decision` (a buffer-H sample of
+macro-transitions, once per lane-change decision), and saves everything in one dict
+(:meth:`Learner.full_state_dict`).
+
+Device and update functions
+--------------------------------------
+A learner lives on one ``device`` (``device=auto|cpu|cuda``, :func:`kddrl_trl.factories.make_device`): its
+networks, targets, optimiser states, its replay buffers (:func:`~kddrl_trl.training.make_buffer`: sampled there;
+:meth:`Learner._run` moves a batch from elsewhere) and its updates. The env, SUMO and the transforms stay on the
+CPU, and so does the acting policy: a non-CPU learner acts through a CPU copy of its policy
+(:class:`~kddrl_trl.collectors.PolicySnapshot`, refreshed after every batch of updates), faster than the GPU with the
+transfers there and back (measured).
+
+Each learner names its gradient steps as update functions (:meth:`Learner.update_functions`), as TorchRL's
+``sota-implementations`` (td3, dqn) write ``update(batch)``: loss, gradients, optimiser steps and soft target
+updates (:class:`~kddrl_trl.objectives.PolyakUpdate`, one ``torch._foreach_lerp_`` per group of targets) in one
+function of a sampled batch that returns its detached losses. :meth:`Learner._compile` is the learner's one compile
+site: with ``compile``, a step's loss and its gradients (:meth:`Learner._gradients`) are ``torch.compile`` d as one
+graph and, once warm, called without TorchDynamo's frame evaluation (the CPU); on CUDA with ``cudagraphs``, each
+update function is ``torch.compile`` d whole and wrapped in ``tensordict.nn.CudaGraphModule``
+(:class:`~kddrl_trl.compiling.GraphedUpdate`: a batch's leaves copied in by one ``_foreach_copy_`` per dtype;
+optimisers: ``Adam(capturable=True)``; the minibatch shapes are fixed). Nothing on the update path waits for the GPU:
+the losses come back as device tensors, read once per collection batch by the trainer, and the update counters (the
+TD3 policy delay reads one every update) stay on the CPU.
 """
 
 from __future__ import annotations
 
-import logging
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Mapping, Sequence
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictSequential
+from tensordict.nn import TensorDictModuleBase
+from tensordict.utils import NestedKey
+from torch import nn
 
 from .. import keys as K
-from ..collectors import MultiRatePolicy
-from ..modules import (
-    build_agent_states,
-    cf_obs_dim,
-    cf_state,
-    detach_embedding,
-    embedding_parameters,
-    lc_obs_dim,
-    lc_state,
-    make_shared_embedding,
-    make_target_embedding,
-)
-from ..objectives import (
-    PolyakUpdate,
-    make_d3qn,
-    make_ddpg,
-    make_td3,
-    module_tensors,
-    soft_update_tensors,
-    td_priority,
-)
-from .base import STATE_KEYS, Learner, adam, transition_keys
+from ..collectors import PolicySnapshot
+from ..compiling import GraphedUpdate, WarmCompiled, inductor_options, resolve_cudagraphs, resolved
+from .adam import FusedAdam, step_all
 
-log = logging.getLogger(__name__)
-
-#: car-following agents of a hierarchical learner: their loss factories (TD3: KDDRL; DDPG: Peng et al.)
-CF_AGENTS = {"td3": make_td3, "ddpg": make_ddpg}
-#: besides the base's state keys, the decision flag: the TD3 target's next lane-change action is the D3QN's choice
-#: where the next frame is a decision frame (``modules/sharing.py::build_agent_states``)
-HIERARCHICAL_STATE_KEYS = (*STATE_KEYS, K.LC_DECIDE)
+#: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
+STATE_KEYS = (K.EGO_STATE, K.NEIGHBORS_REL, K.NEIGHBORS_MASK, K.EGO_ACCEL, K.LC_ACTION_MASK)
+DONE_KEYS = ("done", "terminated", "truncated")
 
 
-class HierarchicalLearner(Learner):
-    """D3QN (lane change, buffer H) + TD3 or DDPG (car following, buffer L) + the shared embedding.
+def adam(params, lr: float, device: torch.device | str | None = None, lean: bool = True) -> torch.optim.Adam:
+    """Adam with the fused kernel (one call per step for all tensors; on a CPU PyTorch's default is a
+    per-tensor loop). On CUDA it is ``torch.optim.Adam(capturable=True)`` (its step counters stay on the GPU, so
+    that a CUDA graph can capture the step, which ``torch.compile`` traces); elsewhere, with ``lean``, a
+    :class:`~.adam.FusedAdam` (the same arithmetic without ``Optimizer.step`` 's bookkeeping), without it
+    ``torch.optim.Adam`` itself."""
+    params = [p for p in params if p.requires_grad]
+    capturable = device is not None and torch.device(device).type == "cuda"
+    if lean and not capturable:
+        return FusedAdam(params, lr=lr)
+    return torch.optim.Adam(params, lr=lr, fused=True, capturable=capturable)
 
-    Args (all from the ``algo`` config node, see ``conf/algo/kddrl.yaml``):
-        priors, key_gaps: inputs of the shared embedding (both False: no embedding, plain D3QN+TD3 states).
-        embed_dim, embed_hidden: size of s_e and width of the embedding MLPs.
-        d3qn, td3: keyword arguments of :func:`~kddrl_trl.objectives.make_d3qn` /
-            :func:`~kddrl_trl.objectives.make_td3` (``lr`` is taken out for the optimisers).
-        cf_agent: ``"td3"`` (KDDRL) or ``"ddpg"`` (Peng et al., :func:`~kddrl_trl.objectives.make_ddpg` with the
-            keyword arguments ``ddpg``).
-        mobil_criteria: the lane-change state carries MOBIL's utilities and safety flags (Peng et al.;
-            the env must carry :class:`~kddrl_trl.transforms.MOBILCriteria`).
-        state_extras: features appended to both agents' states (``algo.state_extras``: ``thw``, ``ttc``;
-            not in the paper; :func:`~kddrl_trl.modules.state.headway_features`).
-        embed_lr: learning rate of the embedding's own optimiser.
-        compile: ``torch.compile`` the losses (the learner's one compile site,
-            :meth:`~kddrl_trl.training.base.Learner._compile`): removes most of TensorDict's per-call overhead,
-            after a one-off compile (a bool: a config's ``auto`` is resolved once, by ``make_job``). Measured gain: see
-            ``benchmarks/results/train_throughput.json`` (``python -m benchmarks.train_throughput``).
-        device: where the networks, the sampled batches and the updates live (None: the CPU).
-        cudagraphs: wrap the update functions in ``CudaGraphModule`` (CUDA only; refused on the CPU).
 
-    Updates (one call = one gradient step), three update functions (:meth:`update_functions`):
+def _param_layout(grad: torch.Tensor | None, param: torch.Tensor) -> torch.Tensor | None:
+    """``grad`` with ``param`` 's strides, as ``backward`` stores a ``.grad`` (``AccumulateGrad`` 's layout
+    contract). ``torch.autograd.grad`` returns what the backward ops made (a weight's gradient from ``mm``
+    transposed), and torch's fused CPU Adam kernel (2.13) reads a gradient in its parameter's layout without
+    checking its strides: given a transposed one, it steps each weight with another weight's gradient, silently."""
+    if grad is None or grad.stride() == param.stride():
+        return grad
+    return grad.new_empty_strided(param.size(), param.stride()).copy_(grad)
 
-    - :meth:`update_cf`: TD3 critic (``value_loss``, trains the embedding too: ``"cf_value"``), and every
-      ``policy_delay`` critic updates the same step followed by the actor (``actor_loss`` on detached s_e) and the
-      soft target updates of the critics, the actor and the embedding (Eq. 9-10: ``"cf_full"``); DDPG: the same
-      with one critic and ``policy_delay`` 1.
-    - :meth:`update_lc`: D3QN double-DQN loss (Eq. 4, trains the embedding too), soft target updates of the
-      Q network (Eq. 5) and the embedding (``"lc"``).
-    """
 
-    learns_from_decisions = True  # buffer H: the D3QN's macro-transitions
-    frame_loss_name = "cf_loss"  # buffer L: TD3 (or Peng's DDPG)
+def transition_keys(obs: Sequence[NestedKey], actions: Sequence[NestedKey]) -> list:
+    """Keys of a stored transition: ``obs`` and ``actions`` at the root, ``obs``, both agents' rewards and the
+    done flags under ``"next"``."""
+    obs = list(dict.fromkeys(obs))
+    rewards = [("next", K.LC_REWARD), ("next", K.CF_REWARD)] + [("next", k) for k in DONE_KEYS]
+    return [*obs, *actions, *[("next", *(k if isinstance(k, tuple) else (k,))) for k in obs], *rewards]
 
-    def __init__(
-        self,
-        *,
-        priors: bool = True,
-        key_gaps: bool = True,
-        embed_dim: int = 16,
-        embed_hidden: int = 64,
-        d3qn: Mapping[str, Any] | None = None,
-        td3: Mapping[str, Any] | None = None,
-        embed_lr: float = 3e-4,
-        tau: float | None = None,
-        compile: bool = False,
-        cf_agent: str = "td3",
-        ddpg: Mapping[str, Any] | None = None,
-        mobil_criteria: bool = False,
-        device: torch.device | str | None = None,
-        cudagraphs: bool = False,
-        state_extras=(),
-    ):
-        super().__init__()
-        if cf_agent not in CF_AGENTS:
-            raise ValueError(f"cf_agent={cf_agent!r}: known car-following agents are {', '.join(CF_AGENTS)}")
-        d3qn_kw, td3_kw = dict(d3qn or {}), dict((td3 if cf_agent == "td3" else ddpg) or {})
-        self.lr_lc = float(d3qn_kw.pop("lr", 1e-4))
-        self.lr_actor = float(td3_kw.pop("actor_lr", 3e-4))
-        self.lr_critic = float(td3_kw.pop("critic_lr", 3e-4))
-        self.embedding = make_shared_embedding(embed_dim, embed_hidden, priors=priors, key_gaps=key_gaps)
-        self.target_embedding = make_target_embedding(self.embedding)
-        self.embed_tau = float(tau if tau is not None else td3_kw.get("tau", 0.005))
-        d = embed_dim if self.embedding is not None else 0
-        self.mobil_criteria = bool(mobil_criteria)
-        extras = tuple(state_extras)
-        self.lc_state = lc_state(embed=self.embedding is not None, mobil=self.mobil_criteria, extras=extras)
-        self.cf_state = cf_state(embed=self.embedding is not None, extras=extras)
-        self.d3qn = make_d3qn(lc_obs_dim(d, mobil=self.mobil_criteria, extras=extras), **d3qn_kw)
-        #: the car-following agent's parts (``TD3Parts`` or ``DDPGParts``; the attribute keeps its KDDRL name)
-        self.td3 = CF_AGENTS[cf_agent](cf_obs_dim(d, extras=extras), **td3_kw)
-        # registered so that state_dict() holds every network, target and exploration schedule
-        self.lc_loss, self.cf_loss = self.d3qn.loss, self.td3.loss
-        self.lc_explore, self.cf_explore = self.d3qn.explore, self.td3.explore
-        self.lc_actor, self.cf_actor = self.d3qn.actor, self.td3.actor
-        # the D3QN's greedy choice at a next state that is a decision frame (Eq. 30's a_D3QN^{t+1} in the TD3
-        # target, modules/sharing.py::build_agent_states); kept out of the module tree (its parameters are the
-        # lc actor's, already registered)
-        self.__dict__["next_lc_policy"] = TensorDictSequential(self.lc_state, self.lc_actor)
-        self.register_buffer("counters", torch.zeros(3, dtype=torch.long))  # lc updates, cf updates, actor updates
-        dev = self._place(device)  # then the optimisers and target updates, on the moved tensors
-        self.opt_lc = adam(self.lc_loss.parameters(), self.lr_lc, dev)
-        self.opt_critic = adam(self.td3.critic_params().flatten_keys().values(), self.lr_critic, dev)
-        self.opt_actor = adam(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor, dev)
-        emb = embedding_parameters(self.embedding)
-        self.opt_embed = adam(emb, float(embed_lr), dev) if emb else None
-        embed_targets = module_tensors(self.target_embedding, self.embedding, self.embed_tau)
-        embed_buffers = (
-            []
-            if self.embedding is None
-            else list(zip(self.target_embedding.buffers(), self.embedding.buffers(), strict=True))
-        )
-        # Eq. 9-10 (+ the target embedding) and Eq. 5 (+ the target embedding), as TorchRL's SoftUpdate computes them
-        self._soft_cf = PolyakUpdate(soft_update_tensors(self.td3.target_updater), embed_targets, copies=embed_buffers)
-        self._soft_lc = PolyakUpdate(soft_update_tensors(self.d3qn.target_updater), embed_targets, copies=embed_buffers)
-        self._compile(compile, cudagraphs)  # the learner's one compile site
 
-    # --------------------------------------------------------------------------------- acting
-    def _policy(self, explore: bool = True) -> MultiRatePolicy:
-        """The acting policy: D3QN on decision frames (held action otherwise), TD3 every frame.
+class Learner(nn.Module):
+    """Base of the learners (module docstring). Subclasses register their networks, losses and exploration
+    modules as submodules (so that ``state_dict()`` holds them) and implement the methods that raise here."""
 
-        ``explore=True`` adds ε-greedy and Gaussian noise modules; they act only under TorchRL's
-        ``ExplorationType.RANDOM`` (a collector's default), so the same policy is greedy inside
-        ``set_exploration_type(ExplorationType.DETERMINISTIC)``."""
-        lc = [self.lc_state, self.lc_actor] + ([self.lc_explore] if explore else [])
-        cf = [self.cf_state, self.cf_actor] + ([self.cf_explore] if explore else [])
-        return MultiRatePolicy(TensorDictSequential(*lc), TensorDictSequential(*cf), shared=self.embedding)
+    #: whether :meth:`update_decision` learns from buffer H (the lane-change agent's macro-transitions)
+    learns_from_decisions: bool = False
+    #: the attribute holding the TorchRL loss that learns from buffer L (frames)
+    frame_loss_name: str = ""
+
+    @property
+    def frame_gamma(self) -> float:
+        """The per-frame discount of the buffer-L loss (its TD(0) estimator's ``gamma``): what n-step returns
+        (``train.n_steps``, :class:`~kddrl_trl.collectors.nstep.NStepReturns`) discount the window's rewards by."""
+        return float(getattr(self, self.frame_loss_name).value_estimator.gamma)
+
+    def _place(self, device: torch.device | str | None) -> torch.device:
+        """Moves the learner (networks, targets, exploration schedules, counters) to ``device`` (None: the CPU)
+        and returns it. Call it before building optimisers and target updates (they hold the moved tensors)."""
+        self.device = torch.device(device if device is not None else "cpu")
+        self.to(self.device)
+        if "counters" in self._buffers:  # read on every update (the policy delay): a GPU read would wait for the GPU
+            self._buffers["counters"] = self.counters.cpu()
+        return self.device
+
+    def _compile(self, compile: bool, cudagraphs: bool = False) -> None:
+        """The learner's one compile site (module docstring), when ``compile`` (resolved by
+        :func:`kddrl_trl.factories.make_job`), with fixed minibatch shapes (``dynamic=False``):
+
+        - without CUDA graphs (the CPU): the learner's :meth:`_gradients` (a step's loss and ``torch.autograd.grad``
+          of it, forward and backward in one graph: :func:`~kddrl_trl.compiling.tracing_gradients`) is
+          ``torch.compile`` d (on the CPU with TorchInductor's C++ wrapper,
+          :func:`~kddrl_trl.compiling.inductor_options`) and, once warm, its graph is called directly, without
+          TorchDynamo's frame evaluation (:class:`~kddrl_trl.compiling.WarmCompiled`); the rest of the update
+          functions stays eager:
+          the fused Adam steps and ``_foreach_lerp_`` are one call each already, and each of them would be a graph
+          break (with its guarded resume frames) inside a compiled update function, whose TorchDynamo cache lookups
+          would then cost more than they save (``benchmarks/train_throughput.py`` measures both);
+        - with ``cudagraphs`` (CUDA learners only): each of :meth:`update_functions` is ``torch.compile`` d whole and
+          wrapped in ``CudaGraphModule``, whose replays skip Python, guards included."""
+        self._trained = {}  # loss name -> the parameters its step trains (:meth:`_descend`)
+        self.compiled = resolved("compile", compile)
+        self.cudagraphs = resolve_cudagraphs(resolved("cudagraphs", cudagraphs), self.device)  # refused off CUDA
+        if self.compiled and not self.cudagraphs:
+            options = inductor_options(self.device)
+            self.__dict__["_gradients"] = WarmCompiled(torch.compile(self._gradients, dynamic=False, options=options))
+        fns = {}
+        for name, fn in self.update_functions().items():
+            if self.compiled and self.cudagraphs:
+                fn = torch.compile(fn, dynamic=False)
+            if self.cudagraphs:
+                fn = GraphedUpdate(fn, self.device, written=(K.PRIORITY,))
+            fns[name] = fn
+        self.__dict__["_update_fns"] = fns  # not submodules (compiled wrappers hold the learner's own modules)
+
+    def _run(self, name: str, batch: TensorDictBase) -> torch.Tensor:
+        """Runs the update function ``name`` on a sampled ``batch`` (moved to the learner's device); returns its
+        detached losses (a 1-d tensor on the learner's device, not read here: on a GPU reading it would wait for
+        the update, :meth:`~kddrl_trl.training.Trainer._update` reads a whole batch of updates' losses at once)
+        and writes each transition's ``|δ|`` into ``batch`` (``keys.PRIORITY``: what a prioritized buffer's
+        ``update_tensordict_priority`` reads; a graph's outputs come back cloned)."""
+        on_device = batch if batch.device == self.device else batch.to(self.device, non_blocking=True)
+        losses, priority = self._update_fns[name](on_device)
+        batch.set(K.PRIORITY, priority)
+        return losses
+
+    def policy(self, explore: bool = True) -> TensorDictModuleBase:
+        """The acting policy (exploration modules act only under ``ExplorationType.RANDOM``) for env TensorDicts
+        on the CPU: :meth:`_policy`; a non-CPU learner's is a CPU copy,
+        :class:`~kddrl_trl.collectors.PolicySnapshot` (acting is faster on the CPU, measured)."""
+        policy = self._policy(explore)
+        return policy if self.device.type == "cpu" else PolicySnapshot(policy)
+
+    # ------------------------------------------------------------------------------- to implement
+    def _policy(self, explore: bool = True) -> TensorDictModuleBase:
+        """The acting policy on the learner's device."""
+        raise NotImplementedError
+
+    def update_functions(self) -> dict:
+        """Name -> ``update(batch) -> (detached losses (1-d tensor), |δ| per transition)``: one gradient step (loss,
+        backward, optimiser steps, soft target updates), what :meth:`_compile` compiles and graphs."""
+        raise NotImplementedError
 
     def buffer_keys(self) -> list:
         """Keys a replay-buffer entry must keep for the updates (root and under ``"next"``)."""
-        emb = list(self.embedding.in_keys) if self.embedding is not None else []
-        mobil = [K.MOBIL_INCENTIVE, K.MOBIL_SAFE] if self.mobil_criteria else []
-        return transition_keys([*HIERARCHICAL_STATE_KEYS, *emb, *mobil], [K.LC_ACTION, K.CF_ACTION])
+        raise NotImplementedError
 
-    def explore_step(self, decisions: int, frames: int) -> None:
-        """Advances ε (per decision) and the Gaussian σ schedule (per frame)."""
-        if decisions:
-            self.lc_explore.step(decisions)
-        if frames:
-            self.cf_explore.step(frames)
-
-    def exploration(self) -> dict[str, float]:
-        return {"epsilon": float(self.lc_explore.eps)}
-
-    # ---------------------------------------------------------------------------------- updates
     def loss(self, name: str, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """The loss ``name`` of a replay-buffer sample, on the agents' states (s_e of Eq. 23-24 inside), and for
-        the value losses each transition's ``|δ|`` (prioritized replay, :mod:`~kddrl_trl.objectives.priority`):
-
-        - ``"cf_value"``: TD3 twin-critic loss (Eq. 6-7); trains the embedding too (target s_e from the target
-          embedding; the next state's lane-change action is the D3QN's greedy choice where the next frame is a
-          decision frame, the held one elsewhere);
-        - ``"cf_actor"``: TD3 actor loss (Eq. 8) on a detached s_e;
-        - ``"lc"``: D3QN double-DQN loss (Eq. 4); trains the embedding too.
-
-        Tensor maths only (no optimiser step): what ``compile`` hands to ``torch.compile``."""
-        if name == "cf_value":
-            states = build_agent_states(
-                batch,
-                self.embedding,
-                self.cf_state,
-                target_embedding=self.target_embedding,
-                next_lc_policy=self.next_lc_policy,
-            )
-            return self.td3.value_loss(states)
-        if name == "cf_actor":
-            states = build_agent_states(batch.exclude("next"), self.embedding, self.cf_state)
-            return self.td3.actor_loss(detach_embedding(states)), None
-        if name == "lc":
-            states = build_agent_states(batch, self.embedding, self.lc_state, target_embedding=self.target_embedding)
-            loss = self.lc_loss(states)["loss"]  # DQNLoss writes the squared TD errors into ``states``
-            return loss, td_priority(states.get(self.lc_loss.tensor_keys.priority), states.numel())
-        raise ValueError(f"HierarchicalLearner.loss: unknown loss {name!r}; known: cf_value, cf_actor, lc")
-
-    def update_functions(self) -> dict:
-        """``"cf_value"``: the TD3 critic step; ``"cf_full"``: the critic step, then the actor step and the soft
-        target updates (the step of every ``policy_delay``-th critic update); ``"lc"``: the D3QN step."""
-        return {"cf_value": self._step_cf_value, "cf_full": self._step_cf_full, "lc": self._step_lc}
-
-    def _step_cf_value(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-        """TD3 critic step (Eq. 6-7): the critics and the embedding (its own optimiser, ``modules/sharing.py``)."""
-        value_loss, priority = self._descend("cf_value", batch, self.opt_critic, self.opt_embed)
-        return value_loss.reshape(1), priority
-
-    def _step_cf_full(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-        """The critic step, then the delayed actor step (Eq. 8, on detached s_e, after the critic moved) and the
-        soft target updates of the actor, the critics and the embedding (Eq. 9-10)."""
-        value_loss, priority = self._step_cf_value(batch)
-        actor_loss, _ = self._descend("cf_actor", batch, self.opt_actor)
-        self._soft_cf()
-        return torch.cat([value_loss, actor_loss.reshape(1)]), priority
-
-    def _step_lc(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
-        """D3QN step (Eq. 4, the embedding trained too), then the soft target updates (Eq. 5 and the embedding)."""
-        loss, priority = self._descend("lc", batch, self.opt_lc, self.opt_embed)
-        self._soft_lc()
-        return loss.reshape(1), priority
-
-    def update_cf(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """One TD3 step on a buffer-L sample (Algorithm 1 lines 38-43)."""
-        self.counters[1] += 1
-        if int(self.counters[1]) % self.td3.policy_delay == 0:
-            value_loss, actor_loss = self._run("cf_full", batch).unbind()
-            self.counters[2] += 1
-            return {"loss_qvalue": value_loss, "loss_actor": actor_loss}
-        return {"loss_qvalue": self._run("cf_value", batch)[0]}
+        """(the loss ``name`` of a replay-buffer sample, its transitions' ``|δ|`` for a value loss, else None):
+        tensor maths only, what ``compile`` compiles. A sample with ``keys.PRIORITY_WEIGHT`` (prioritized replay)
+        weights the loss's mean by them."""
+        raise NotImplementedError
 
     def update_frame(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """Buffer L: :meth:`update_cf`."""
-        return self.update_cf(batch)
+        """One gradient step on a buffer-L sample (frames); returns the losses as 0-d tensors on the learner's
+        device (unread: reading one on a GPU waits for the update; the trainer reads a batch of them at once)."""
+        raise NotImplementedError
 
     def update_decision(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """Buffer H: :meth:`update_lc`."""
-        return self.update_lc(batch)
+        """One gradient step on a buffer-H sample (macro-transitions); returns the losses as :meth:`update_frame`."""
+        raise NotImplementedError(f"{type(self).__name__} learns from buffer L only")
 
-    def update_lc(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """One D3QN step on a buffer-H sample of macro-transitions (Algorithm 1 lines 27-29)."""
-        loss = self._run("lc", batch)[0]
-        self.counters[0] += 1
-        return {"loss_lc": loss}
+    def explore_step(self, decisions: int, frames: int) -> None:
+        """Advances the exploration schedules by the decisions and frames just collected."""
 
-    # ------------------------------------------------------------------------------- checkpoints
+    def exploration(self) -> dict[str, float]:
+        """Exploration scalars logged under ``train/`` per training episode (ε, temperatures, ...)."""
+        return {}
+
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
-        opts = {"lc": self.opt_lc, "critic": self.opt_critic, "actor": self.opt_actor}
-        if self.opt_embed is not None:
-            opts["embed"] = self.opt_embed
-        return opts
+        raise NotImplementedError
+
+    # -------------------------------------------------------------------------------- shared parts
+    def _objective(self, name: str, losses: torch.Tensor) -> torch.Tensor:
+        """The scalar that the step of the loss ``name`` descends, from what :meth:`loss` returned: the loss itself
+        (a learner whose loss returns several entries, some of them diagnostics, says which to sum)."""
+        return losses
+
+    def _gradients(self, name: str, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor | None, tuple]:
+        """(the detached loss ``name`` of ``batch``, its transitions' ``|δ|`` or None, the gradients of its
+        :meth:`_objective` with respect to the parameters its step trains, in :meth:`_descend` 's order; None for a
+        parameter it does not reach). ``torch.autograd.grad`` computes the same gradients as ``backward``; what
+        ``compile`` compiles, forward and backward in one graph (:meth:`_compile`)."""
+        losses, priority = self.loss(name, batch)
+        params = self._trained[name]
+        grads = torch.autograd.grad(self._objective(name, losses), params, allow_unused=True)
+        return losses.detach(), priority, tuple(map(_param_layout, grads, params))
+
+    def _descend(self, name: str, batch: TensorDictBase, *optimizers: torch.optim.Optimizer | None):
+        """One gradient step on the loss ``name`` of ``batch``: the gradients of :meth:`_gradients` become the
+        parameters' ``grad`` (what ``zero_grad`` then ``backward`` would leave), then each optimiser steps (None
+        entries skipped; :func:`~.adam.step_all`: lean ones share their fused kernel call). The parameters a step
+        trains are its optimisers' own, in their order. Returns the detached loss and the ``|δ|`` (or None)."""
+        opts = [o for o in optimizers if o is not None]
+        if name not in self._trained:
+            self._trained[name] = tuple(p for o in opts for g in o.param_groups for p in g["params"])
+        losses, priority, grads = self._gradients(name, batch)
+        for p, g in zip(self._trained[name], grads, strict=True):
+            p.grad = g
+        step_all(opts)
+        return losses, priority
+
+    def full_state_dict(self) -> dict:
+        """Networks, targets, exploration schedules, counters and optimiser states."""
+        return {"modules": self.state_dict(), "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()}}
+
+    def load_full_state_dict(self, state: Mapping) -> None:
+        """Loads :meth:`full_state_dict`, also one saved on another device: each optimiser keeps its own
+        ``capturable`` and ``fused`` (a CPU checkpoint's ``capturable=False`` would stop a CUDA graph's capture)."""
+        self.load_state_dict(state["modules"])
+        for name, opt in self.optimizers().items():
+            saved = state["optimizers"][name]
+            groups = [
+                {**g, "capturable": own["capturable"], "fused": own["fused"]}
+                for g, own in zip(saved["param_groups"], opt.param_groups)
+            ]
+            opt.load_state_dict({**saved, "param_groups": groups})

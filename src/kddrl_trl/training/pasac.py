@@ -17,10 +17,10 @@ from tensordict.nn import TensorDictSequential
 
 from .. import keys as K
 from ..modules import build_agent_states, cf_obs_dim
-from ..modules.joint import joint_reward
+from ..modules.joint_action import joint_reward
 from ..objectives import PolyakUpdate, make_pasac, soft_update_tensors, td_priority
-from .base import Learner, adam, transition_keys
 from .joint_d3qn import JOINT_STATE_KEYS, joint_state
+from .learner import Learner, adam, transition_keys
 
 #: entries of :meth:`PASACLearner.loss` (the first four are the losses, the rest detached diagnostics)
 LOSS_ENTRIES = (

@@ -41,13 +41,13 @@ from torchrl.data import LazyTensorStorage, PrioritizedSampler, TensorDictReplay
 from .. import keys as K
 from ..collectors import MultiTimescaleCollector
 from ..envs.episode_metrics import EpisodeTracker
-from .base import Learner
 from .checkpoint import (
     CheckpointError,
     load_latest_training_checkpoint,
     save_best_checkpoint,
     save_training_checkpoint,
 )
+from .learner import Learner
 from .priority_trees import PortablePrioritizedSampler
 
 log = logging.getLogger(__name__)

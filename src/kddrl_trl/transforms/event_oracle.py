@@ -7,8 +7,8 @@ import torch
 
 from .. import keys as K
 from ..envs.braking import FUTURE_FRAMES
-from ._base import PredictiveTransform, finite_or_zero, unbounded_spec
 from .key_gaps import KEY_STEPS
+from .predictive import PredictiveTransform, finite_or_zero, unbounded_spec
 
 
 class EventOracleKeyGaps(PredictiveTransform):

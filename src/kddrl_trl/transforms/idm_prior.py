@@ -8,7 +8,7 @@ import torch
 
 from .. import keys as K
 from ..physics import IDMParams, idm_rollout
-from ._base import PredictiveTransform, as_params, finite_or_zero, unbounded_spec
+from .predictive import PredictiveTransform, as_params, finite_or_zero, unbounded_spec
 
 
 def as_idm_params(idm: IDMParams | Mapping | None) -> IDMParams:

@@ -9,7 +9,7 @@ from torch import Tensor
 
 from .. import keys as K
 from ..gan_inputs import KEY_STEPS
-from ._base import PredictiveTransform, finite_or_zero, unbounded_spec
+from .predictive import PredictiveTransform, finite_or_zero, unbounded_spec
 
 
 def key_step_gaps(traj: Tensor, ego_y: Tensor, present: Tensor, key_steps: Sequence[int] = KEY_STEPS) -> Tensor:

@@ -8,8 +8,8 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 
 from .. import keys as K
-from ._base import finite_or_zero, probability_spec
-from ._frozen import FrozenPredictorTransform
+from .frozen_predictor import FrozenPredictorTransform
+from .predictive import finite_or_zero, probability_spec
 
 
 class LCGANPrior(FrozenPredictorTransform):
@@ -26,7 +26,7 @@ class LCGANPrior(FrozenPredictorTransform):
     Noise: ``draws`` noise draws averaged per call (1 = one sample), from the predictor's own
     ``torch.Generator`` seeded with ``seed`` (a stream over calls, untouched by resets; :meth:`reseed`
     restarts it). Impossible directions (no lane) are exactly 0. Loading, freezing, noise and reseeding:
-    :class:`~kddrl_trl.transforms._frozen.FrozenPredictorTransform`.
+    :class:`~kddrl_trl.transforms.frozen_predictor.FrozenPredictorTransform`.
 
     Args:
         predictor: a TensorDict module with out key ``PRIOR_P_LCGAN`` (exclusive with ``checkpoint``).

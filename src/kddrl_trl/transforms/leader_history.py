@@ -45,7 +45,7 @@ from torchrl.envs.transforms import Transform
 
 from .. import keys as K
 from ..envs.config import HighwayConfig
-from ._base import unbounded_spec
+from .predictive import unbounded_spec
 
 _DEFAULTS = HighwayConfig()
 

@@ -12,8 +12,8 @@ from torchrl.data import Categorical
 
 from .. import keys as K
 from ..physics import IDMParams, MOBILParams, mobil_prior, mobil_utilities
-from ._base import PredictiveTransform, as_params, finite_or_zero, probability_spec, unbounded_spec
 from .idm_prior import as_idm_params
+from .predictive import PredictiveTransform, as_params, finite_or_zero, probability_spec, unbounded_spec
 
 
 def as_mobil_params(mobil: MOBILParams | Mapping | None) -> MOBILParams:

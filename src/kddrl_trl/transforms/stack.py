@@ -27,8 +27,8 @@ from tensordict import TensorDictBase
 from torchrl.envs.transforms import Compose, Transform
 
 from ..compiling import WarmCompiled, resolved, specializing_floats
-from ._base import PredictiveTransform, call_on_root_and_next
 from .leader_history import LeaderHistory
+from .predictive import PredictiveTransform, call_on_root_and_next
 
 
 def run_frames(members: Sequence[PredictiveTransform], values: dict, noises: list) -> dict:

@@ -9,9 +9,9 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 
 from .. import keys as K
-from ._base import finite_or_zero, unbounded_spec
-from ._frozen import FrozenPredictorTransform
+from .frozen_predictor import FrozenPredictorTransform
 from .key_gaps import KEY_STEPS, key_step_gaps
+from .predictive import finite_or_zero, unbounded_spec
 
 
 class TrajGANPrediction(FrozenPredictorTransform):
@@ -31,7 +31,7 @@ class TrajGANPrediction(FrozenPredictorTransform):
     draws come from the predictor's own ``torch.Generator`` seeded with ``seed``: two transforms built with the
     same seed give the same outputs for the same sequence of calls. The generator is a stream over calls, not
     per-environment state, so resets (full or partial) never touch it; :meth:`reseed` restarts it. Loading,
-    freezing, noise and reseeding: :class:`~kddrl_trl.transforms._frozen.FrozenPredictorTransform`.
+    freezing, noise and reseeding: :class:`~kddrl_trl.transforms.frozen_predictor.FrozenPredictorTransform`.
 
     Args:
         predictor: a TensorDict module with out key ``PRED_TRAJ`` (exclusive with ``checkpoint``).

@@ -12,14 +12,14 @@ from omegaconf import OmegaConf
 
 from kddrl_trl.eval.periodic import PeriodicEvaluator
 from kddrl_trl.eval.protocol import validation_seed
-from kddrl_trl.factories import load_trained_learner, make_env, make_job
+from kddrl_trl.factories import make_env, make_job, make_trained_learner
 
 if __name__ == "__main__":
     run, out = sys.argv[1], sys.argv[2]
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
         job = make_job(compose(config_name="config", overrides=sys.argv[3:]))
     assert OmegaConf.to_container(OmegaConf.load(f"{run}/config.yaml"))["train"] == vars(job.train), "not the run's job"
-    _, learner, path, _ = load_trained_learner(run)
+    _, learner, path, _ = make_trained_learner(run)
     seed = validation_seed(job.seed)
     evaluator = PeriodicEvaluator(
         partial(make_env, job.env, job.algo, seed=seed, compile=False), job.train.eval_episodes, seed

@@ -12,7 +12,7 @@ import torch
 from kddrl_trl.collectors.workers import WorkerEnv
 from kddrl_trl.envs import FakeHighwayEnv
 from kddrl_trl.eval.periodic import PeriodicEvaluator
-from kddrl_trl.numerics import TorchSettings, apply_flush_denormal
+from kddrl_trl.process_settings import TorchSettings, apply_flush_denormal
 
 #: not torch's defaults in either setting
 OTHER = TorchSettings("high", False)
@@ -43,7 +43,7 @@ def test_settings_are_applied_and_read_back(restored):
 
 def test_a_cpu_without_flush_to_zero_is_warned_about_and_runs_on(monkeypatch, caplog, restored):
     monkeypatch.setattr(torch, "set_flush_denormal", lambda on: False)  # a CPU without the mode
-    with caplog.at_level(logging.WARNING, logger="kddrl_trl.numerics"):
+    with caplog.at_level(logging.WARNING, logger="kddrl_trl.process_settings"):
         assert apply_flush_denormal(False) is False
         assert not caplog.records  # off: nothing to warn about
         assert apply_flush_denormal(True) is False

@@ -12,7 +12,7 @@ def test_unguarded_main_call_finds_the_script_line_outside_the_guard(tmp_path):
     done = run_script(
         tmp_path,
         """
-        from kddrl_trl.spawning import unguarded_main_call
+        from kddrl_trl.main_guard import unguarded_main_call
 
         def start():
             return unguarded_main_call()
@@ -37,7 +37,7 @@ def test_unguarded_main_call_finds_the_script_line_outside_the_guard(tmp_path):
 def test_a_call_that_is_not_from_a_script_passes():
     """Under pytest (a guarded entry point, or an xdist worker, whose ``__main__`` has no script), nothing is
     refused."""
-    from kddrl_trl.spawning import require_main_guard, unguarded_main_call
+    from kddrl_trl.main_guard import require_main_guard, unguarded_main_call
 
     assert unguarded_main_call() is None
     require_main_guard("anything")

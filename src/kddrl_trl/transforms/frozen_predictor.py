@@ -14,7 +14,7 @@ from tensordict.utils import NestedKey
 from torch import Tensor
 
 from .. import keys as K
-from ._base import PredictiveTransform
+from .predictive import PredictiveTransform
 
 
 def freeze(module: TensorDictModuleBase) -> TensorDictModuleBase:

@@ -1,4 +1,5 @@
-"""``TorchSettings``: a job's process-wide torch arithmetic, the same in every process of the job.
+"""What a job sets once in each of its processes: its seeds (:func:`seed_everything`) and its torch arithmetic
+(:class:`TorchSettings`, the same in every process of the job).
 
 torch keeps two of its arithmetic settings per process: the float32 matmul precision
 (``torch.set_float32_matmul_precision``) and the CPU's flush-to-zero mode (``torch.set_flush_denormal``). A job sets
@@ -12,9 +13,19 @@ learns, computes under one set of rules.
 from __future__ import annotations
 
 import logging
+import random
 from dataclasses import dataclass
 
+import numpy as np
 import torch
+
+
+def seed_everything(seed: int) -> None:
+    """``random``, ``numpy`` and ``torch`` of this process from one seed (each env seeds its own traffic)."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
 
 #: a float32 denormal: half the smallest normal float32
 _DENORMAL = torch.finfo(torch.float32).tiny / 2

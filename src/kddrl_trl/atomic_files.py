@@ -16,7 +16,7 @@ from typing import Any, Callable, TextIO
 class CheckpointError(ValueError):
     """A checkpoint file that cannot be used, of a training run or of a generative model: damaged, of another kind,
     architecture, dataset or layout, or none that loads. The message names each file and what is wrong with it; an
-    entry point ends with that one line (:func:`kddrl_trl.runs.no_folder_if_refused`)."""
+    entry point ends with that one line (:func:`kddrl_trl.run_folder.no_folder_if_refused`)."""
 
 
 def cache_dir() -> Path:

@@ -1,23 +1,112 @@
-"""Run folders: where a run's checkpoints are, which one is the latest, and which folder a run writes into.
+"""Run folders: the names of a run's files (:class:`RunFolder`), where its checkpoints are, which one is the latest,
+and which folder a run writes into.
 
-Layout of a training run: ``<run_dir>/checkpoints/ep<NNNNNN>.pt`` (the last two) and ``<run_dir>/checkpoints/latest``
-(the file name of the newest complete checkpoint, :mod:`kddrl_trl.training.checkpoint`, which falls back to the
-previous one when the newest does not load). The output folder of an
-entry point is chosen once, while Hydra composes the config (:mod:`kddrl_trl.conf.resolvers`); the entry point
-reads it from ``HydraConfig`` and learns that it resumes from the checkpoint the folder holds.
+A run folder holds ``config.yaml`` (the resolved config), ``train_episodes.csv``, ``validation.csv``,
+``training_curves.png`` and ``checkpoints/`` (a training run), ``eval_episodes.csv`` and ``summary.json``, which is
+written last: a folder with a summary is a finished run (or evaluation). Checkpoints:
+``<run_dir>/checkpoints/ep<NNNNNN>.pt`` (the last two) and ``<run_dir>/checkpoints/latest`` (the file name of the
+newest complete checkpoint, :mod:`kddrl_trl.training.checkpoint`, which falls back to the previous one when the
+newest does not load). The output folder of an entry point is chosen once, while Hydra composes the config
+(:mod:`kddrl_trl.conf.resolvers`); the entry point reads it from ``HydraConfig`` and learns that it resumes from the
+checkpoint the folder holds.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
 
+import pandas as pd
+
+from .atomic_files import write_json_atomic, write_text_atomic
+
+
+class RunFolder:
+    """The files of one run (or evaluation) folder, by name: the one place that knows them. The writers
+    (``train``, ``evaluate``, the final evaluation) and the readers (resume, :mod:`kddrl_trl.reporting.records`, the
+    studies' tools) both go through it. :meth:`finish` writes the summary, and the summary is always the last file a
+    run writes: a folder that has one is finished."""
+
+    CONFIG = "config.yaml"
+    SUMMARY = "summary.json"
+    EVAL_EPISODES = "eval_episodes.csv"
+    TRAIN_EPISODES = "train_episodes.csv"
+    VALIDATION = "validation.csv"
+    CURVES = "training_curves.png"
+    CHECKPOINTS = "checkpoints"
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+
+    def __repr__(self) -> str:
+        return f"RunFolder({str(self.path)!r})"
+
+    @property
+    def config(self) -> Path:
+        return self.path / self.CONFIG
+
+    @property
+    def summary(self) -> Path:
+        return self.path / self.SUMMARY
+
+    @property
+    def eval_episodes(self) -> Path:
+        return self.path / self.EVAL_EPISODES
+
+    @property
+    def train_episodes(self) -> Path:
+        return self.path / self.TRAIN_EPISODES
+
+    @property
+    def validation(self) -> Path:
+        return self.path / self.VALIDATION
+
+    @property
+    def curves(self) -> Path:
+        return self.path / self.CURVES
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.path / self.CHECKPOINTS
+
+    def is_finished(self) -> bool:
+        """Whether the run wrote its summary (its last file)."""
+        return self.summary.is_file()
+
+    def read_summary(self) -> dict:
+        return json.loads(self.summary.read_text())
+
+    def write_config(self, text: str) -> None:
+        write_text_atomic(self.config, text)
+
+    def write_table(self, path: Path, rows: list[dict]) -> None:
+        """``rows`` as a CSV at ``path`` (one of this folder's tables: :attr:`train_episodes`, :attr:`validation`)."""
+        write_text_atomic(path, pd.DataFrame(rows).to_csv(index=False))
+
+    def finish(self, summary: dict, episodes: list[dict] | None = None) -> dict:
+        """The run's last writes: its evaluated ``episodes`` (``eval_episodes.csv``), then ``summary`` as
+        ``summary.json``, which marks the run finished. Every other file of the run must be written before."""
+        if episodes is not None:
+            self.write_table(self.eval_episodes, episodes)
+        write_json_atomic(self.summary, summary)
+        return summary
+
 
 def checkpoint_dir(run_dir: str | Path) -> Path:
-    return Path(run_dir) / "checkpoints"
+    return RunFolder(run_dir).checkpoints
+
+
+#: the file in :func:`checkpoint_dir` naming the newest complete checkpoint
+LATEST = "latest"
+
+
+def best_checkpoint(run_dir: str | Path) -> Path:
+    """The learner of the best validation so far (:func:`kddrl_trl.training.checkpoint.save_best_checkpoint`)."""
+    return checkpoint_dir(run_dir) / "best.pt"
 
 
 def checkpoint_candidates(run_dir: str | Path) -> list[Path]:
@@ -26,7 +115,7 @@ def checkpoint_candidates(run_dir: str | Path) -> list[Path]:
     order: whatever checkpoint files are there are still found (the loader falls back along this list)."""
     folder = checkpoint_dir(run_dir)
     files = sorted(folder.glob("ep*.pt"), reverse=True)
-    pointer = folder / "latest"
+    pointer = folder / LATEST
     try:
         named = folder / pointer.read_text().strip() if pointer.is_file() else None
     except (OSError, UnicodeDecodeError):
@@ -100,7 +189,7 @@ def config_differences(saved: dict, current: dict, prefix: str = "") -> list[str
 
 def trained_run(run) -> Path:
     """``run``, if it is a folder made by ``kddrl_trl.train`` (it holds ``config.yaml``)."""
-    if not (Path(str(run)) / "config.yaml").is_file():
+    if not RunFolder(str(run)).config.is_file():
         raise FileNotFoundError(f"run={run}: no config.yaml there (is it a directory made by kddrl_trl.train?)")
     return Path(str(run))
 
