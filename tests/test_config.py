@@ -65,23 +65,28 @@ def test_a_ready_config_is_not_given_its_scenario_preset_again():
     assert again.flow_vph == 2000.0
 
 
-def test_a_run_saved_with_the_old_per_algo_compile_keys_still_loads():
+def test_a_run_saved_with_the_old_per_algo_compile_keys_loads_once_migrated():
     from hydra import compose, initialize_config_module
     from omegaconf import OmegaConf
 
     from kddrl_trl.conf.schema import HierarchicalAlgo, algo_from_node
+    from kddrl_trl.devtools.migrate_configs import migrate
     from kddrl_trl.factories import make_learner
 
     with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
         cfg = compose(config_name="config")
-    saved = OmegaConf.create(OmegaConf.to_yaml(cfg.algo))  # as a run's config.yaml holds it
-    saved.transforms.compile, saved.transforms.aot, saved.learner.compile = "auto", None, "auto"
-    algo = algo_from_node(saved)
+    saved = OmegaConf.to_container(cfg.algo)  # as a run's config.yaml holds it, with the old compile keys
+    saved["transforms"].update(compile="auto", aot=None)
+    saved["learner"]["compile"] = "auto"
+    with pytest.raises(Exception, match="compile"):  # unmigrated: refused, naming the key
+        algo_from_node(OmegaConf.create(saved))
+    assert migrate({"algo": saved}) == ["-algo.transforms.compile", "-algo.transforms.aot", "-algo.learner.compile"]
+    algo = algo_from_node(OmegaConf.create(saved))
     assert isinstance(algo, HierarchicalAlgo) and algo.lc_period == 20
     assert make_learner(algo).compiled is False
-    saved.learner.lrr = 1.0  # anything else unknown is still refused
+    saved["learner"]["lrr"] = 1.0  # anything else unknown is still refused
     with pytest.raises(Exception, match="lrr"):
-        algo_from_node(saved)
+        algo_from_node(OmegaConf.create(saved))
 
 
 def test_issue14_options_are_typed_and_checked():

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Land a sweep's finished runs on main: collect.sh copies the new ones, they are committed whole, then their
-# records leave the tree (kept in that commit, listed in studies/records.json) and that is committed too:
+# records leave the tree (kept in that commit, listed in studies/records.json), their configs are migrated to the
+# current schema, and that is committed too:
 #   bash studies/paper/land.sh <sweep dir> <destination, e.g. studies/paper/runs_5-14> [commit message]
 # From main's root. Only the runs new to the destination are added (the older ones stay in their own commits). The
 # study's report and the README's verdict table are regenerated in the second commit (its records restored first).
@@ -17,6 +18,10 @@ for run in $new; do git add -f "$DST/$run"; done
 [ -f "$DST/multirun.yaml" ] && git add -f "$DST/multirun.yaml"
 git commit -q -m "$MSG: $(echo $new | tr ' ' ',')"
 python -m kddrl_trl.devtools.records archive "$DST"
+# a run of a pinned older commit: its config as the current schema reads it (main keeps the migrated copy; the
+# record in the commit above keeps it as the run wrote it)
+python -m kddrl_trl.devtools.migrate_configs "$DST" > /dev/null
+git add "$DST"
 # the study's report and the README's verdict table follow the runs it reads (every record of the study restored first)
 python -m kddrl_trl.devtools.records restore paper > /dev/null
 python -m kddrl_trl.report studies/paper/runs studies/paper/runs_5-14 out=studies/paper verdict=true \

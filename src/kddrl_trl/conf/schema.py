@@ -88,8 +88,8 @@ class EnvNode(HighwayConfig):
 
 def _node(name: str, doc: str, check=None, optional: dict | None = None, **types: type) -> type:
     """A schema whose fields all take their values from the YAML (``field=type`` pairs, no defaults), but those of
-    ``optional`` (``{field: (type, default)}``: keys added after runs were saved without them); ``check`` (the range
-    checks) runs when the composed config becomes objects."""
+    ``optional`` (``{field: (type, default)}``: a node that an algo may leave out, such as the car-following agent
+    it does not use); ``check`` (the range checks) runs when the composed config becomes objects."""
     namespace = {"__doc__": doc} if check is None else {"__doc__": doc, "__post_init__": check}
     optional = [(key, kind, field(default=default)) for key, (kind, default) in (optional or {}).items()]
     return make_dataclass(
@@ -140,12 +140,10 @@ TrainConfig = _node(
     eval_every=int,
     eval_episodes=int,
     best_metric=str,
-    optional={
-        "n_steps": (int, 1),
-        "prioritized": (bool, False),
-        "priority_alpha": (float, 0.6),
-        "priority_beta": (float, 0.4),
-    },
+    n_steps=int,
+    prioritized=bool,
+    priority_alpha=float,
+    priority_beta=float,
 )
 #: ``algo.transforms.weights`` values: the traffic the shipped GAN weights were trained on, or ``auto`` (that of
 #: the env's simulator)
@@ -166,7 +164,6 @@ TransformsConfig = _node(
     "``event_oracle``: the braking car's key gaps from its script (:class:`~kddrl_trl.transforms.EventOracleKeyGaps`, "
     "the braking study's oracle, not the paper's method).",
     check=_check_transforms,
-    optional={"mobil_criteria": (bool, False), "weights": (str, "auto"), "event_oracle": (bool, False)},
     enabled=bool,
     trajgan=bool,
     priors=bool,
@@ -174,11 +171,13 @@ TransformsConfig = _node(
     reduce=str,
     trajgan_checkpoint=Optional[str],
     lcgan_checkpoint=Optional[str],
+    mobil_criteria=bool,
+    weights=str,
+    event_oracle=bool,
 )
 D3QNConfig = _node(
     "D3QNConfig",
     "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the learning rate.",
-    optional={"semi_mdp": (bool, False)},
     hidden=list[int],
     dueling=bool,
     double=bool,
@@ -188,11 +187,11 @@ D3QNConfig = _node(
     eps_init=float,
     eps_end=float,
     eps_decisions=int,
+    semi_mdp=bool,
 )
 TD3Config = _node(
     "TD3Config",
     "``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the learning rates.",
-    optional={"exploration_clip": (Optional[float], None)},
     hidden=list[int],
     gamma=float,
     tau=float,
@@ -202,17 +201,20 @@ TD3Config = _node(
     noise_clip=float,
     policy_delay=int,
     exploration_sigma=float,
+    # a run saved before the clipped acting noise has no clip (null: unclipped; devtools.migrate_configs)
+    optional={"exploration_clip": (Optional[float], None)},
 )
 DDPGConfig = _node(
     "DDPGConfig",
     "``algo.learner.ddpg``: :func:`~kddrl_trl.objectives.make_ddpg` options and the learning rates.",
-    optional={"exploration_clip": (Optional[float], None)},
     hidden=list[int],
     gamma=float,
     tau=float,
     actor_lr=float,
     critic_lr=float,
     exploration_sigma=float,
+    # a run saved before the clipped acting noise has no clip (null: unclipped; devtools.migrate_configs)
+    optional={"exploration_clip": (Optional[float], None)},
 )
 
 
@@ -231,10 +233,10 @@ LearnerConfig = _node(
     _check_learner,
     optional={
         "td3": (Optional[TD3Config], None),
-        "cf_agent": (str, "td3"),
         "ddpg": (Optional[DDPGConfig], None),
-        "mobil_criteria": (bool, False),
     },
+    cf_agent=str,
+    mobil_criteria=bool,
     priors=bool,
     key_gaps=bool,
     embed_dim=int,
@@ -397,17 +399,10 @@ class RuleAlgo(SafetyOptions):
 ALGO_SCHEMAS = {"hierarchical": HierarchicalAlgo, "joint_d3qn": JointD3QNAlgo, "pasac": PASACAlgo, "rule": RuleAlgo}
 
 
-#: per-algo compile options of runs saved before the single top-level ``compile`` key (ignored on reading)
-LEGACY_ALGO_KEYS = (("transforms", "compile"), ("transforms", "aot"), ("learner", "compile"))
-
-
 def algo_from_node(node: DictConfig) -> LearningAlgo | RuleAlgo:
     """The typed algo of an ``algo`` node read back from a run's saved ``config.yaml`` (a run saved by an earlier
-    version may still hold :data:`LEGACY_ALGO_KEYS`: how it was compiled does not change what it learned)."""
+    version is migrated first: ``python -m kddrl_trl.devtools.migrate_configs``)."""
     node = OmegaConf.create(OmegaConf.to_container(node))
-    for parent, key in LEGACY_ALGO_KEYS:
-        if isinstance(node.get(parent), DictConfig) and key in node[parent]:
-            del node[parent][key]
     kind = node.get("kind")
     if kind not in ALGO_SCHEMAS:
         raise ValueError(f"algo.kind={kind!r}: known kinds are {', '.join(ALGO_SCHEMAS)}")

@@ -11,7 +11,8 @@ files (``.gitignore``). From the repository's root:
                                                                   # commit the result
 
 After ``restore``, ``python -m kddrl_trl.report`` regenerates every study's report byte-identical. A restored file
-that main also tracks must come out as main has it; one that differs is an error naming it.
+that main also tracks must come out as main has it (a run's ``config.yaml`` as its record migrated to the current
+schema, :mod:`kddrl_trl.devtools.migrate_configs`); one that differs is an error naming it.
 """
 
 from __future__ import annotations
@@ -23,7 +24,10 @@ import subprocess
 import tarfile
 from pathlib import Path, PurePosixPath
 
+from omegaconf import OmegaConf
+
 from ..run_folder import RunFolder
+from .migrate_configs import migrate
 
 MANIFEST = PurePosixPath("studies/records.json")
 
@@ -99,13 +103,22 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
                     continue
                 target, data = dest / member.name, tar.extractfile(member).read()
                 if kept_in_tree(member.name) and target.exists():
-                    if target.read_bytes() != data:
+                    if target.read_bytes() != data and target.read_bytes() != migrated(member.name, data):
                         raise SystemExit(f"records: {target} differs from its record in {commit}")
                     continue
                 target.parent.mkdir(parents=True, exist_ok=True)
                 target.write_bytes(data)
                 written += 1
     return written
+
+
+def migrated(name: str, data: bytes) -> bytes | None:
+    """A run's ``config.yaml`` as main keeps it: its record migrated to the current schema
+    (:mod:`kddrl_trl.devtools.migrate_configs`, done once in main's tree); None for any other file."""
+    if PurePosixPath(name).name != RunFolder.CONFIG or ".hydra" in PurePosixPath(name).parts:
+        return None
+    config = OmegaConf.to_container(OmegaConf.create(data.decode()))
+    return OmegaConf.to_yaml(config).encode() if migrate(config) else None
 
 
 def restore(root: Path, studies: list[str]) -> int:
