@@ -1,6 +1,6 @@
 """What TorchRL's own collector costs per env step, on a trivial env, beside our collection's ``torchrl`` part.
 
-``benchmarks/train_throughput.py`` (b) splits a collection step of the KDDRL env at K roads into the env, the
+``benchmarks/collect_speed.py`` splits a collection step of the KDDRL env at K roads into the env, the
 transform stack, the acting policy, the buffer writes and ``torchrl``: the rest, TorchRL's ``Collector`` and
 ``TransformedEnv`` plumbing. This script measures, in one run, how much of that rest is TorchRL's own: its
 ``Collector`` (the same options as training's, ``frames_per_batch`` = 20 frames x K, endless) over a
@@ -33,8 +33,9 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from benchmarks.collect_speed import _Stopwatch, measure_collect
 from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
-from benchmarks.train_throughput import FRAMES_PER_ENV, _Stopwatch, collect_env, measure_collect  # noqa: E402
+from benchmarks.kddrl_parts import FRAMES_PER_ENV, collect_env
 
 
 class TrivialEnv(EnvBase):

@@ -6,7 +6,7 @@ bit there: the training records of two CPU runs of one seed are the same). What 
 (Eq. 6-10) and D3QN (Eq. 4-5) updates, with the shared embedding (Eq. 23-24), compiled and replayed as CUDA graphs
 (:class:`kddrl_trl.compiling.GraphedUpdate`), the target-smoothing noise drawn inside the graph. This script runs
 ``--updates`` TD3 updates and one D3QN update every ``lc_period`` of them (as training interleaves them) on
-minibatches of the fake env's frames (:func:`train_throughput.sample_batches`, from ``--seed``), with the learner of
+minibatches of the fake env's frames (:func:`benchmarks.kddrl_parts.sample_batches`, from ``--seed``), with the learner of
 ``conf/algo/kddrl.yaml`` built as training builds it (compiled; CUDA graphs on a GPU), and writes the SHA-256 of
 every tensor of :meth:`~kddrl_trl.training.Learner.full_state_dict` (networks, targets, optimiser states) and of
 the losses of every update. Two processes with the same arguments write the same hashes exactly when the updates
@@ -30,7 +30,7 @@ from pathlib import Path
 import torch
 
 from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
-from benchmarks.train_throughput import batch_sizes, buffer_keys, learner_kwargs, sample_batches  # noqa: E402
+from benchmarks.kddrl_parts import batch_sizes, buffer_keys, learner_kwargs, sample_batches
 from kddrl_trl.compiling import fresh_compiler  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402
 

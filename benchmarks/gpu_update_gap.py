@@ -1,8 +1,8 @@
 """What separates our CUDA-graphed TD3 update from TorchRL's own on a GPU, measured in one run.
 
-The GPU goal compares the learner's TD3 update (``train_throughput.py`` (a): compiled update functions replayed
+The GPU goal compares the learner's TD3 update (``gpu_update.py``: compiled update functions replayed
 as CUDA graphs) with TorchRL's own compiled, CUDA-graphed ``TD3Loss`` on a MuJoCo-sized task at the same
-minibatch (``train_throughput.py`` (r)). The two do different work. Ours is TD3 (Eq. 6-10) on the car-following
+minibatch (``gpu_update.py`` (r)). The two do different work. Ours is TD3 (Eq. 6-10) on the car-following
 state (Eq. 30) with 2 x 128 networks, plus the shared embedding, online and target (Eq. 23-24), and the D3QN's
 greedy next lane-change action in the TD3 target; TorchRL's is TD3 alone on 17 features with 2 x 256 networks.
 The arms, at each minibatch of ``--batches``, tell the parts apart:
@@ -38,7 +38,8 @@ import torch
 import torch._inductor.config
 
 from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
-from benchmarks.train_throughput import _sync, buffer_keys, learner_kwargs, measure_torchrl_td3, sample_batches  # noqa: E402
+from benchmarks.gpu_update import measure_torchrl_td3
+from benchmarks.kddrl_parts import buffer_keys, learner_kwargs, sample_batches, sync
 from kddrl_trl.modules import cf_obs_dim  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402
 
@@ -113,23 +114,23 @@ def _breakdown(call, graphs: list, n: int, device: torch.device) -> dict:
 
 def measure_ours(batches: list, updates: int, repeats: int, device: torch.device, probe=None, **overrides) -> dict:
     """TD3 updates per second of the compiled learner (``learner_kwargs`` with ``overrides``), CUDA-graphed on a
-    GPU; ``probe`` as :func:`train_throughput.measure_torchrl_td3` 's."""
+    GPU; ``probe`` as :func:`benchmarks.gpu_update.measure_torchrl_td3` 's."""
     kw, _ = learner_kwargs(True)
     learner = HierarchicalLearner(**{**kw, **overrides}, device=device, cudagraphs=device.type == "cuda")
     t0 = time.perf_counter()
     for b in batches[:12]:
         learner.update_cf(b)
-    _sync(device)
+    sync(device)
     compile_s = time.perf_counter() - t0
     for b in batches[:updates]:  # one untimed pass: each batch now holds the |δ| an update writes (one more key)
         learner.update_cf(b)
     runs = []
     for _ in range(repeats):
-        _sync(device)
+        sync(device)
         t0 = time.perf_counter()
         for b in batches[:updates]:
             learner.update_cf(b)
-        _sync(device)
+        sync(device)
         runs.append((time.perf_counter() - t0) / updates)
     per_update = statistics.median(runs)
     out = {"td3_update_s": per_update, "td3_updates_per_s": 1.0 / per_update, "compile_s": compile_s}

@@ -80,7 +80,7 @@ def adapter(k: int, frames: int, vehicles: int, seed: int, stack: bool) -> float
         env.close()
 
 
-def main() -> None:
+def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--roads", type=int, nargs="+", default=[1, 4])
     parser.add_argument("--frames", type=int, default=300)
@@ -88,7 +88,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     rows = []
     for k in args.roads:
         runs = {"bare_fps": [], "adapter_fps": [], "stack_fps": []}

@@ -31,7 +31,7 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
-from benchmarks.train_throughput import learner_kwargs, sample_batches  # noqa: E402
+from benchmarks.kddrl_parts import learner_kwargs, sample_batches
 from kddrl_trl import keys as K  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
 from kddrl_trl.training.priority_trees import native_trees_available  # noqa: E402
@@ -70,7 +70,7 @@ def seconds_per_call(rb, calls: int, gen: torch.Generator, per_batch: int = 0) -
     return (time.perf_counter() - t0) / calls
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--capacity", type=int, default=100_000)
     ap.add_argument("--batch-size", type=int, default=128)
@@ -79,7 +79,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "replay_sampling.json"))
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     torch.set_num_threads(1)
     gen = torch.Generator().manual_seed(args.seed)
     rows = frame_rows(args.capacity, args.seed)

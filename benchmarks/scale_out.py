@@ -20,7 +20,7 @@ with one (the machine's other load changing too: not isolated).
 
 ``collect``: the training collection (SUMO, the KDDRL transform stack, both policies, both buffers, the learner's
 weights synced to the workers after every batch) on Ray actors (``collector.backend=ray``), ``--collect-roads`` K = 8
-roads each, with 1 and with 2 actors, in wall time (``train_throughput.measure_collect_workers``).
+roads each, with 1 and with 2 actors, in wall time (``collect_speed.measure_collect_workers``).
 ``collect_scaling`` = 2-actor frames/s / 1-actor frames/s (issue 16's goal on a 2-core machine: >= 1.6).
 
 Each measurement is one entry of :data:`MEASUREMENTS`: name -> (a function of the parsed arguments returning its
@@ -137,7 +137,7 @@ def print_sweep(details: dict, ratios: dict) -> None:
 
 def measure_collect(args) -> tuple[dict, dict]:
     """Collection frames/s on 1 and on 2 Ray actors of ``args.collect_roads`` roads each."""
-    from train_throughput import measure_collect_workers
+    from benchmarks.collect_speed import measure_collect_workers
 
     os.environ.setdefault("OMP_NUM_THREADS", str(args.threads or 1))
     from kddrl_trl.compiling import resolve_compile

@@ -18,8 +18,8 @@ out of both arms: this is the TD3 part of the update, not the learner's whole up
 (Eq. 6) is drawn once per batch, outside both arms, so both compute the same update. ``equivalence`` says how
 far apart the two arms' weights are after 1, 10 and 200 of the same updates from the same start: float rounding
 (the graph orders the arithmetic its own way), which Adam's normalised steps then let drift apart. The floor is the
-update's FLOPs (``torch.utils.flop_counter``) over the GEMM rate at its shapes (:func:`train_throughput.gemm_rate`), as
-``train_throughput.py --floor`` computes it for the learner.
+update's FLOPs (``torch.utils.flop_counter``) over the GEMM rate at its shapes (:func:`benchmarks.update_floor.gemm_rate`), as
+``update_floor.py`` computes it for the learner.
 
 (L) The same structure on the learner itself: the learner's critic step (the TD3 critics and the shared embedding,
 Eq. 6-7 and 23-24, TorchRL's ``TD3Loss`` inside) as the learner runs it, against one compiled graph of it
@@ -44,7 +44,8 @@ from torch.func import functional_call, grad_and_value
 from torch.utils.flop_counter import FlopCounterMode
 
 from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
-from benchmarks.train_throughput import CONF, gemm_rate, learner_kwargs, sample_batches  # noqa: E402
+from benchmarks.kddrl_parts import CONF, learner_kwargs, sample_batches
+from benchmarks.update_floor import gemm_rate
 from kddrl_trl.compiling import inductor_options  # noqa: E402
 from kddrl_trl.modules import cf_obs_dim  # noqa: E402
 from kddrl_trl.training import HierarchicalLearner  # noqa: E402

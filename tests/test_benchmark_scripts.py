@@ -235,20 +235,50 @@ def test_default_job_alternates_the_commits_and_gives_the_ratio(tmp_path, monkey
 
 def test_compile_cost_runs_eager_cold_and_warm_with_the_cache_emptied_once(tmp_path, monkeypatch):
     """``benchmarks/compile_cost.py``: the cold run starts from an empty cache folder, the warm one reuses it (the
-    job itself stands in)."""
+    job itself stands in); over several lengths the cold arm runs once, and the crossover is where the compiled
+    job's line meets the eager one's."""
     bench = load_benchmark("compile_cost")
     seen = []
 
     def fake_run(out, cache, compile_, overrides):
         seen.append((out.name, compile_, sorted(p.name for p in cache.iterdir())))
         (cache / "entry").write_text("compiled")  # what a compiled run leaves in the cache
-        compile_s = {"eager0": 0.0, "cold0": 30.0, "warm0": 10.0}[out.name]
-        return {"process_s": 20.0 + compile_s, "training_s": 15.0, "compile_s": compile_s, "compile_counts": {}}
+        episodes = int(next(o for o in overrides if o.startswith("episodes=")).split("=")[1])
+        compile_s = {"eager": 0.0, "cold": 30.0, "warm": 10.0}[out.name.split("0_")[0]]
+        per_episode = 1.0 if compile_ == "false" else 0.5  # the compiled job trains faster per episode
+        process_s = 20.0 + compile_s + per_episode * episodes
+        return {"process_s": process_s, "training_s": 15.0, "compile_s": compile_s, "compile_counts": {}}
 
     monkeypatch.setattr(bench, "run_job", fake_run)
-    result = bench.main(["--out", str(tmp_path / "compile_cost.json")])
-    assert [s[:2] for s in seen] == [("eager0", "false"), ("cold0", "true"), ("warm0", "true")]
+    result = bench.main(["--out", str(tmp_path / "compile_cost.json"), "--episodes", "20", "100"])
+    assert [s[:2] for s in seen] == [
+        ("eager0_20", "false"),
+        ("cold0_20", "true"),
+        ("warm0_20", "true"),
+        ("eager0_100", "false"),
+        ("warm0_100", "true"),
+    ]
     assert seen[1][2] == [] and seen[2][2] == ["entry"]  # cold: emptied; warm: what the cold run left
-    assert result["ratios"]["compile_s_cold_over_warm"] == 3.0 and result["job"].endswith(
-        "episodes=20 eval_episodes=10"
-    )
+    assert result["ratios"]["compile_s_cold_over_warm"] == 3.0 and result["job"].endswith("episodes=20,100")
+    # eager 20 + n, warm 30 + n / 2: equal at n = 20; cold 50 + n / 2: at n = 60
+    assert result["crossover_episodes"]["warm"] is None  # already equal at the first length: not crossed within
+    assert result["crossover_episodes"]["cold"] == 60.0
+
+
+BENCHMARKS = sorted(
+    p.stem for p in (Path(__file__).resolve().parents[1] / "benchmarks").glob("*.py") if p.stem != "__init__"
+)
+
+
+@pytest.mark.parametrize("name", BENCHMARKS)
+def test_every_benchmark_imports_as_a_package_module_and_answers_help(name, capsys):
+    """Each script runs as ``python -m benchmarks.<name>`` (no ``sys.path`` edits) and its ``--help`` parses; a script
+    with a results file writes ``benchmarks/results/<name>.json`` by default."""
+    module = load_benchmark(name)
+    if not hasattr(module, "main"):  # a shared module (kddrl_parts, jobs)
+        return
+    with pytest.raises(SystemExit) as done:
+        module.main(["--help"])
+    assert done.value.code == 0 and "usage" in capsys.readouterr().out
+    src = Path(module.__file__).read_text()
+    assert "sys.path" not in src

@@ -126,7 +126,7 @@ def inductor_options(device: torch.device | str) -> dict:
       compiles a new graph rather than running this one.
 
     The kernels are the same either way, so are the results (bit for bit: tested); what each option earns is
-    measured by ``benchmarks/train_throughput.py`` (``cpp_wrapper_gain``, ``size_asserts_gain``). On CUDA, the
+    measured by ``benchmarks/update_speed.py`` (``cpp_wrapper_gain``, ``size_asserts_gain``). On CUDA, the
     defaults (a CUDA-graphed update's replay skips the wrapper anyway)."""
     return {"cpp_wrapper": True, "size_asserts": False} if torch.device(device).type == "cpu" else {}
 
@@ -202,7 +202,7 @@ class WarmCompiled:
     function they cover every leaf of the losses' ``TensorDictParams`` and of the sampled batch (4,365 guard lines
     for the KDDRL learner's TD3 critic loss), and even with most of them skipped
     (``torch.compiler.set_stance(skip_guard_eval_unsafe=True)``) the cache lookup and the frame evaluation around
-    a graph are a sizeable share of a compiled update on a CPU (``benchmarks/train_throughput.py`` measures it: arm
+    a graph are a sizeable share of a compiled update on a CPU (``benchmarks/update_speed.py`` measures it: arm
     ``compiled_dynamo_frames``).
 
     Calls are told apart by ``name`` (hashable: a loss name, a tuple of modules) and the signature of the other
@@ -296,7 +296,7 @@ class GraphedUpdate:
     (``TensorDict.update_``: one ``copy_`` launch per leaf, 26 for a KDDRL buffer-L sample), CPU time that a
     CUDA graph's replay is meant to save; here the copies are one ``_foreach_copy_`` per dtype (its one-kernel
     path takes a list of floating-point tensors of one dtype; the 10 ``bool`` / integer leaves of a buffer-L sample
-    are copied one by one either way); ``gpu.final_code`` of ``benchmarks/results/train_throughput.json`` measures
+    are copied one by one either way); ``gpu.final_code`` of ``benchmarks/results/gpu_update.json`` measures
     both. The graph reads the static
     TensorDict's tensors (made from the first batch, on ``device``), so every later batch must have the first
     one's batch size and keys (a sampled minibatch does; anything else is refused, naming what differs). The

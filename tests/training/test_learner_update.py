@@ -10,7 +10,6 @@ import torch
 from testkit import SMALL, fake_samples
 
 from kddrl_trl import keys as K
-from kddrl_trl.devtools.bench_results import keep_previous
 from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors
 from kddrl_trl.training import HierarchicalLearner
 
@@ -309,28 +308,6 @@ def test_benchmark_plain_reference_makes_the_learners_update(samples):
         for a, b, s in zip(ours[name], plain[name], start[name]):
             torch.testing.assert_close(a.detach(), b.detach(), rtol=1e-4, atol=1e-5, msg=name)
         assert any(not torch.equal(a.detach(), s) for a, s in zip(ours[name], start[name])), f"{name} never moved"
-
-
-def test_benchmark_results_keep_what_a_run_did_not_measure_and_say_which_run_did():
-    """``keep_previous`` (the results merger of ``benchmarks/train_throughput.py``): a run that measured only the full
-    job keeps the previous file's update and GPU figures, each attributed to the run that made it, across two merges;
-    this run's own figure wins."""
-    run = lambda note: {"args": {"n": note}, "machine": {}, "note": note}  # noqa: E731
-    gpu_file = {**run("gpu"), "gpu": {"td3": 2125}, "update": {"x": 1}}
-    cpu = {**run("cpu"), "update": {"x": 2}, "gpu": None, "collect": []}
-    keep_previous(cpu, gpu_file)
-    assert cpu["update"] == {"x": 2} and cpu["gpu"] == {"td3": 2125}
-    assert [r["note"] for r in cpu["runs"]] == ["cpu", "gpu"] and cpu["measured_by"] == {"update": 0, "gpu": 1}
-    full = {**run("full"), "train_1000_episodes_s": 569.0, "update": None}
-    keep_previous(full, cpu)
-    assert full["update"] == {"x": 2} and full["gpu"] == {"td3": 2125} and full["train_1000_episodes_s"] == 569.0
-    notes = [r["note"] for r in full["runs"]]
-    assert notes == ["full", "cpu", "gpu"]
-    assert {k: notes[i] for k, i in full["measured_by"].items()} == {
-        "train_1000_episodes_s": "full",
-        "update": "cpu",
-        "gpu": "gpu",
-    }
 
 
 def test_warm_compiled_loss_calls_each_names_graph_directly_once_warm_and_compiles_a_new_shape():

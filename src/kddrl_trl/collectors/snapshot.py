@@ -4,7 +4,7 @@ Two uses, one class:
 
 - a non-CPU learner acts through it (:meth:`kddrl_trl.training.Learner.policy`): the env's TensorDicts are on the
   CPU, and acting there is faster than a GPU call with the transfers there and back
-  (``benchmarks/train_throughput.py --device cuda --acting-calls N`` measures both: ``gpu.acting``);
+  (``benchmarks/gpu_update.py --acting-calls N`` measures both: ``gpu.acting``);
 - an overlapped collection (``collector.sync=false``, :class:`~kddrl_trl.collectors.overlap.OverlappedCollector`):
   the worker acts with the snapshot while the learner updates its own weights, and the snapshot is refreshed only
   while the worker waits between two batches.

@@ -2,7 +2,7 @@
 D3QN's greedy next lane command in its target, the D3QN update of Eqs. 5-7, Polyak updates of every target):
 the same network modules and arithmetic on plain tensors, no TensorDict, no TorchRL.
 
-Two uses: ``benchmarks/train_throughput.py`` times it as the ``plain`` arm, and
+Two uses: ``benchmarks/update_speed.py`` times it as the ``plain`` arm, and
 ``tests/training/test_learner_update.py`` checks that :class:`~kddrl_trl.training.HierarchicalLearner` reaches the same
 parameters from the same weights and batches (a test oracle, not part of the pipeline).
 """

@@ -68,7 +68,7 @@ class HierarchicalLearner(Learner):
         compile: ``torch.compile`` the losses (the learner's one compile site,
             :meth:`~kddrl_trl.training.learner.Learner._compile`): removes most of TensorDict's per-call overhead,
             after a one-off compile (a bool: a config's ``auto`` is resolved once, by ``make_job``). Measured gain: see
-            ``benchmarks/results/train_throughput.json`` (``python -m benchmarks.train_throughput``).
+            ``benchmarks/results/update_speed.json`` (``python -m benchmarks.update_speed``).
         device: where the networks, the sampled batches and the updates live (None: the CPU).
         cudagraphs: wrap the update functions in ``CudaGraphModule`` (CUDA only; refused on the CPU).
 

@@ -125,7 +125,7 @@ class Learner(nn.Module):
           functions stays eager:
           the fused Adam steps and ``_foreach_lerp_`` are one call each already, and each of them would be a graph
           break (with its guarded resume frames) inside a compiled update function, whose TorchDynamo cache lookups
-          would then cost more than they save (``benchmarks/train_throughput.py`` measures both);
+          would then cost more than they save (``benchmarks/update_speed.py`` measures both);
         - with ``cudagraphs`` (CUDA learners only): each of :meth:`update_functions` is ``torch.compile`` d whole and
           wrapped in ``CudaGraphModule``, whose replays skip Python, guards included."""
         self._trained = {}  # loss name -> the parameters its step trains (:meth:`_descend`)
