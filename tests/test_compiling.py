@@ -101,3 +101,15 @@ def test_compile_seconds_count_this_jobs_compiling_only():
     assert compile_seconds() > 0.0 and compile_counts()["graphs"] == 1
     fresh_compiler()  # the next job starts from zero
     assert compile_seconds() == 0.0 and compile_counts() == dict.fromkeys(compile_counts(), 0)
+
+
+def test_auto_trains_short_jobs_eagerly_and_an_explicit_choice_stands():
+    """``compile=auto`` is eager below :data:`SHORT_RUN_EPISODES` training episodes (the compile does not pay for
+    itself there: ``benchmarks/results/compile_cost.json``), compiles a long job where a C++ compiler is found, and
+    ``true`` / ``false`` are kept whatever the length."""
+    from kddrl_trl.compiling import SHORT_RUN_EPISODES, _compiler_found, resolve_compile
+
+    assert resolve_compile("auto", SHORT_RUN_EPISODES - 1) is False
+    assert resolve_compile("auto", SHORT_RUN_EPISODES) is _compiler_found()
+    assert resolve_compile("auto") is _compiler_found()  # not a training job
+    assert resolve_compile("true", 5) is True and resolve_compile(False, 5000) is False

@@ -85,12 +85,13 @@ def test_one_version_everywhere():
 
 
 def test_the_readme_verdict_table_is_the_reports():
-    """The README's short verdict table is ``studies/paper/readme_table.py`` 's output on the committed
-    ``studies/paper/report.json``: a regenerated report that changes a claim fails here until the README follows."""
+    """The README's short verdict table is :func:`kddrl_trl.reporting.verdict_table.table` of the committed
+    ``studies/paper/report.json`` (``python -m kddrl_trl.report ... verdict_table=[README.md,docs/index.md]`` writes
+    it): a regenerated report that changes a claim fails here until the README follows."""
     import json
-    import runpy
 
-    table = runpy.run_path(str(ROOT / "studies" / "paper" / "readme_table.py"))["table"]
+    from kddrl_trl.reporting.verdict_table import table
+
     report = json.loads((ROOT / "studies" / "paper" / "report.json").read_text())
     assert table(report) in README.read_text()
 
@@ -106,3 +107,24 @@ def test_the_preset_confirmation_tables_are_the_runs(tmp_path):
     confirmation = runpy.run_path(str(ROOT / "studies" / "paper" / "confirmation.py"))
     assert confirmation["safety_table"](studies) in README.read_text()
     assert confirmation["table"](studies) in (ROOT / "studies" / "paper" / "README.md").read_text()
+
+
+def test_the_verdict_table_is_rewritten_in_place_and_a_page_without_one_refused(tmp_path):
+    """``verdict_table=[pages]``: the table (its header to the next blank line) is replaced with the report's; the
+    rest of the page is kept; a page without the table is an error naming it."""
+    import json
+
+    import pytest
+
+    from kddrl_trl.reporting.verdict_table import table, write_table
+
+    report = json.loads((ROOT / "studies" / "paper" / "report.json").read_text())
+    new = table(report)
+    page = tmp_path / "page.md"
+    page.write_text("before\n\n" + new.split("\n", 1)[0] + "\n|---|\n| stale | row |\n\nafter\n")
+    write_table(report, [page])
+    assert page.read_text() == "before\n\n" + new + "\n\nafter\n"
+    other = tmp_path / "other.md"
+    other.write_text("no table here\n")
+    with pytest.raises(SystemExit, match="other.md: it holds no verdict table"):
+        write_table(report, [other])

@@ -30,14 +30,27 @@ def _compiler_found() -> bool:
     return found is not None
 
 
-def resolve_compile(compile: bool | str) -> bool:
+#: ``compile=auto`` trains eagerly below this many training episodes. Compiling costs a process a fixed time, which
+#: a job earns back per update; ``benchmarks/compile_cost.py --episodes 20 100 300`` (``results/compile_cost.json``)
+#: measured on 2 CPU cores that the compiled job takes less process time than the eager one from 37 training
+#: episodes with warm compile caches and from 117 with cold ones (the first compiled job of a code version on a
+#: machine), and half of it at 300. Below 100 the compiled job saves at most seconds with warm caches and costs more
+#: with cold ones.
+SHORT_RUN_EPISODES = 100
+
+
+def resolve_compile(compile: bool | str, episodes: int | None = None) -> bool:
     """A ``compile`` option -> bool. ``"auto"`` compiles when a C++ compiler is on the PATH (the CPU backend of
-    ``torch.compile`` needs one) and logs which way it went; anything else must be a bool."""
+    ``torch.compile`` needs one) and the job trains at least :data:`SHORT_RUN_EPISODES` episodes (``episodes``; None:
+    not a training job), and logs which way it went; anything else must be a bool."""
     if isinstance(compile, str):
         if compile.lower() in ("true", "false"):
             return compile.lower() == "true"
         if compile.lower() != "auto":
             raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
+        if episodes is not None and episodes < SHORT_RUN_EPISODES:
+            log.info("compile=auto: %d training episodes (< %d), eager", episodes, SHORT_RUN_EPISODES)
+            return False
         return _compiler_found()
     if not isinstance(compile, bool):
         raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")

@@ -132,7 +132,7 @@ def make_job(cfg: DictConfig):
         if hasattr(job, "device"):
             job.torch_device = make_device(job.device)
         if hasattr(job, "compile"):
-            job.compile = resolve_compile(job.compile)
+            job.compile = resolve_compile(job.compile, getattr(job, "episodes", None))
         if hasattr(job, "cudagraphs"):
             job.cudagraphs = resolve_cudagraphs(job.cudagraphs, job.torch_device)
         if hasattr(job, "matmul_precision"):

@@ -21,6 +21,7 @@ from . import conf as _conf  # noqa: F401  (registers the typed schemas with Hyd
 from .conf.schema import ReportJob
 from .reporting.builder import build_report
 from .reporting.records import find_runs
+from .reporting.verdict_table import write_table
 from .run_folder import no_folder_if_refused
 
 #: the lcGAN test metrics shipped beside the weights (``generative/shipped.py``), when there are any
@@ -54,6 +55,12 @@ def main(cfg: DictConfig) -> dict:
 
 def _report(cfg: DictConfig) -> dict:
     job: ReportJob = OmegaConf.to_object(cfg)
+    if job.verdict_table and not job.verdict:
+        raise SystemExit("verdict_table=...: the table is the verdict's; add verdict=true")
+    pages = [Path(p) for p in job.verdict_table]
+    missing = [str(p) for p in pages if not p.is_file()]
+    if missing:
+        raise SystemExit(f"verdict_table: no such page {', '.join(missing)}")
     metrics_path = Path(job.lcgan_metrics) if job.lcgan_metrics else SHIPPED_LCGAN_METRICS
     lcgan = read_lcgan_metrics(metrics_path)
     if job.lcgan_metrics and lcgan is None:
@@ -68,6 +75,9 @@ def _report(cfg: DictConfig) -> dict:
     print(
         f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures"
     )
+    if pages:
+        write_table(json.loads((Path(job.out) / "report.json").read_text()), pages)
+        print(f"the verdict table written into {', '.join(map(str, pages))}")
     return result
 
 

@@ -25,8 +25,7 @@ git add "$DST"
 # the study's report and the README's verdict table follow the runs it reads (every record of the study restored first)
 python -m kddrl_trl.devtools.records restore paper > /dev/null
 python -m kddrl_trl.report studies/paper/runs studies/paper/runs_5-14 out=studies/paper verdict=true \
-  title="Verdict report" > /dev/null
-python "$(dirname "$0")/readme_table.py" --write README.md docs/index.md
+  title="Verdict report" verdict_table=[README.md,docs/index.md] > /dev/null
 git add studies/paper/report.md studies/paper/report.json studies/paper/fig*.png README.md docs/index.md
 git commit -q -m "$(basename "$DST"): the records of $(git rev-parse --short HEAD) leave the tree (studies/records.json); report and README table regenerated"
 echo "land.sh: landed $(echo "$new" | wc -l) run(s): $(echo $new)"

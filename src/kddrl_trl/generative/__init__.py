@@ -16,8 +16,8 @@ from importlib import resources
 from pathlib import Path
 
 from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint, save_checkpoint
-from .gan_report import format_metrics
 from .lcgan import LCGANPredictor, LCGANTask
+from .metrics_table import format_metrics
 from .predictor import GANPredictor
 from .trajgan import TrajGANPredictor, TrajGANTask
 

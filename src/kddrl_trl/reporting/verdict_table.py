@@ -1,7 +1,8 @@
-"""The README's verdict table: the analysis plan's primary claims (``studies/paper/plan.md``), read from
-``studies/paper/report.json``.
-    python studies/paper/readme_table.py [report.json]  ->  the Markdown table on standard output
-    python studies/paper/readme_table.py --write README.md docs/index.md  ->  the table replaced in those pages
+"""The short verdict table: the analysis plan's 17 primary claims (``studies/paper/plan.md``), read from a verdict
+report's ``report.json`` (:mod:`kddrl_trl.reporting.verdict`).
+
+    python -m kddrl_trl.report <runs> verdict=true verdict_table=[README.md,docs/index.md]  # the table replaced there
+
 a − b is the claim's first system minus its second; speeds in km/h, collision rates in percentage points; ``paper``:
 the same difference in the paper's tables. "ours" is the confirmatory test's estimate on seeds 5-14 once every cell
 has them; until then the verdicts read pending and "ours" is the estimate over all the seeds run so far (the pilot's
@@ -9,8 +10,6 @@ has them; until then the verdicts read pending and "ours" is the estimate over a
 
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
 #: the README's words for the systems
@@ -53,7 +52,7 @@ def table(report: dict) -> str:
     return "\n".join(lines)
 
 
-def write(report: dict, pages: list[Path]) -> None:
+def write_table(report: dict, pages: list[Path]) -> None:
     """Replace the verdict table (its header line to the next blank line) in each page; a page without one is an
     error naming it."""
     new = table(report)
@@ -62,15 +61,6 @@ def write(report: dict, pages: list[Path]) -> None:
         text = page.read_text()
         start = text.find(head)
         if start < 0:
-            raise SystemExit(f"readme_table.py: {page} holds no verdict table (its header: {head})")
+            raise SystemExit(f"verdict_table={page}: it holds no verdict table (its header: {head})")
         end = text.find("\n\n", start)
         page.write_text(text[:start] + new + text[end:])
-
-
-if __name__ == "__main__":
-    here = Path(__file__).with_name("report.json")
-    if sys.argv[1:2] == ["--write"]:
-        write(json.loads(here.read_text()), [Path(p) for p in sys.argv[2:]])
-    else:
-        path = Path(sys.argv[1]) if len(sys.argv) > 1 else here
-        print(table(json.loads(path.read_text())))
