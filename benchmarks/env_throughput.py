@@ -54,7 +54,6 @@ import os
 import platform
 import statistics
 import sys
-import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -63,6 +62,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from kddrl_trl.atomic_files import write_text_atomic
 from kddrl_trl.baselines import IDMMobilPolicy, RandomDrivingPolicy
 from kddrl_trl.envs import SumoHighwayEnv, make_config
 from kddrl_trl.envs.sim import HighwaySim
@@ -214,21 +214,9 @@ def _json_safe(x):
 
 
 def write_json(path: Path, payload: dict) -> None:
-    """Write ``payload`` atomically: temp file in the same folder, then ``os.replace``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file ordinary permissions
-        with os.fdopen(fd, "w") as f:
-            json.dump(_json_safe(payload), f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``payload`` atomically (:func:`kddrl_trl.atomic_files.write_text_atomic`), keys in their order, a
+    non-finite float as null."""
+    write_text_atomic(path, json.dumps(_json_safe(payload), indent=2) + "\n")
 
 
 def format_table(rows: list[dict]) -> str:

@@ -1,6 +1,6 @@
-"""``benchmarks/equivalence.py`` (the paired differences of a float-only change, on copies of committed runs),
+"""``kddrl_trl.devtools.equivalence`` (the paired differences of a float-only change, on copies of committed runs),
 ``benchmarks/gpu_update_gap.py`` (its arms, in its CPU trial mode), ``benchmarks/gpu_determinism.py`` (its hashes
-and their comparison, on the CPU) and ``benchmarks/ab_records.py`` (two run folders of one job compared)."""
+and their comparison, on the CPU) and ``kddrl_trl.devtools.ab_records`` (two run folders of one job compared)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,9 @@ def runs(tmp_path_factory) -> list[Path]:
 
 @pytest.fixture(scope="module")
 def bench():
-    return load_benchmark("equivalence")
+    from kddrl_trl.devtools import equivalence
+
+    return equivalence
 
 
 def copy_runs(runs: list[Path], root: Path) -> Path:
@@ -173,7 +175,8 @@ def ab_run(folder: Path, weight: float = 1.0, loss: str = "0.5", seconds: str = 
 
 def test_ab_records_says_identical_only_when_every_record_log_and_bit_is(tmp_path):
     """Wall-clock logs may differ; a record, a scalar log or one bit of a parameter may not, and each is named."""
-    ab = load_benchmark("ab_records")
+    from kddrl_trl.devtools import ab_records as ab
+
     before = ab_run(tmp_path / "before")
     out = tmp_path / "ab.json"
     assert ab.main([str(before), str(ab_run(tmp_path / "same", seconds="9.0")), "--out", str(out)]) == 0

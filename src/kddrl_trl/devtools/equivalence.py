@@ -16,7 +16,7 @@ Running the two sides (each from a worktree pinned at its commit, with Hydra's m
     git worktree add ../before <commit before>  &&  git worktree add ../after <commit after>
     (cd ../before && python -m kddrl_trl.train -m seed=0,1,2 +scenario=baseline,braking hydra.sweep.dir=runs/eq)
     (cd ../after && python -m kddrl_trl.train -m seed=0,1,2 +scenario=baseline,braking hydra.sweep.dir=runs/eq)
-    python -m benchmarks.equivalence ../before/runs/eq ../after/runs/eq [--out PATH]
+    python -m kddrl_trl.devtools.equivalence ../before/runs/eq ../after/runs/eq [--out PATH]
 
 Every run must have its partner, with the same ``config.yaml`` (else the error names the run and the keys that
 differ). Prints a table and writes ``benchmarks/results/equivalence.json`` (or ``--out``).
@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 
-from benchmarks.env_throughput import write_json  # noqa: E402
-from kddrl_trl.reporting.records import find_runs, record_bytes  # noqa: E402
-from kddrl_trl.reporting.stats import mean_test  # noqa: E402
-from kddrl_trl.run_folder import config_differences  # noqa: E402
+from kddrl_trl.atomic_files import write_json_atomic
+from kddrl_trl.reporting.records import find_runs, record_bytes
+from kddrl_trl.reporting.stats import mean_test
+from kddrl_trl.run_folder import config_differences
 
 #: the measures compared, from each run's final evaluation: (name, summary key, scale to the unit, unit)
 MEASURES = (("mean speed", "mean_speed_kmh", 1.0, "km/h"), ("collision rate", "collision_rate", 100.0, "points"))
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("before", type=Path, help="sweep (or run) folder of the code before the change")
     p.add_argument("after", type=Path, help="the same runs of the code after it")
-    p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "equivalence.json")
+    p.add_argument("--out", type=Path, default=Path("benchmarks") / "results" / "equivalence.json")
     p.add_argument("--note", default=None, help="free text stored in the JSON (where and how the runs ran)")
     args = p.parse_args(argv)
     rows = pairs(args.before, args.after)
@@ -149,7 +149,7 @@ def main(argv=None) -> int:
         f"updates) equal in every pair: {result['update_rule_equal']}; training records byte-identical in "
         f"{result['training_identical']} of {len(rows)} pairs"
     )
-    write_json(args.out, result)
+    write_json_atomic(args.out, result)
     return 0
 
 

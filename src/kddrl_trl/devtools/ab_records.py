@@ -12,7 +12,7 @@ they part.
         train.eval_every=50 train.eval_episodes=20 hydra.run.dir=/tmp/ab/before) &
     OMP_NUM_THREADS=1 python -m kddrl_trl.train seed=0 episodes=150 eval_episodes=30 \\
         train.eval_every=50 train.eval_episodes=20 hydra.run.dir=/tmp/ab/after; wait
-    python -m benchmarks.ab_records /tmp/ab/before /tmp/ab/after --change "what changed" --before-rev <commit>
+    python -m kddrl_trl.devtools.ab_records /tmp/ab/before /tmp/ab/after --change "what changed" --before-rev <commit>
 
 Prints a table and writes ``benchmarks/results/ab_records.json`` (or ``--out``); exits 1 when anything differs.
 """
@@ -26,9 +26,9 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.env_throughput import write_json  # noqa: E402
-from kddrl_trl.reporting.records import record_bytes  # noqa: E402
-from kddrl_trl.run_folder import checkpoint_dir  # noqa: E402
+from kddrl_trl.atomic_files import write_json_atomic
+from kddrl_trl.reporting.records import record_bytes
+from kddrl_trl.run_folder import checkpoint_dir
 
 #: the records a training run writes; absent from both folders (no validation, say) is no difference
 RECORDS = ("train_episodes.csv", "validation.csv", "eval_episodes.csv")
@@ -127,7 +127,7 @@ def main(argv=None) -> int:
     parser.add_argument("--change", default="", help="what the change is, for the record")
     parser.add_argument("--before-rev", default="", help="the commit of the code before")
     parser.add_argument("--command", default="", help="the job both ran, for the record")
-    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results" / "ab_records.json")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks") / "results" / "ab_records.json")
     args = parser.parse_args(argv)
     result = {
         "change": args.change,
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
     for name in result["scalar_logs_differing"]:
         print(f"differs: logs/scalars/{name}")
     print(f"identical: {result['identical']}")
-    write_json(args.out, result)
+    write_json_atomic(args.out, result)
     print(f"written {args.out}")
     return 0 if result["identical"] else 1
 
