@@ -1,6 +1,6 @@
-"""The committed runs' training records stay compact, and compacting keeps what the report reads."""
+"""The committed runs' training records stay compact, compacting keeps what the report reads, and a sweep's runs are
+collected as a study keeps them (``python -m kddrl_trl.devtools.records collect``)."""
 
-import importlib.util
 import lzma
 from pathlib import Path
 
@@ -8,10 +8,10 @@ import pandas as pd
 import pytest
 from testkit import study_records
 
+from kddrl_trl.devtools import records
+from kddrl_trl.devtools.records import KEPT_TRAINING, compact
+
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("compact_records", ROOT / "studies" / "compact_records.py")
-compact_records = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(compact_records)
 
 
 def test_compacting_keeps_the_kept_columns_text_for_text(tmp_path):
@@ -29,20 +29,20 @@ def test_compacting_keeps_the_kept_columns_text_for_text(tmp_path):
     path = tmp_path / "train_episodes.csv"
     frame.to_csv(path, index=False)
     text = path.read_text().splitlines()
-    compact_records.compact(path)
+    compact(path)
     assert not path.exists()
     kept = lzma.decompress((tmp_path / "train_episodes.csv.xz").read_bytes()).decode().splitlines()
-    assert kept[0] == ",".join(compact_records.KEPT)
+    assert kept[0] == ",".join(KEPT_TRAINING)
     assert kept[1] == "0,62.690679132938385,60.40006339550018,121.48628289751012,False"
     assert len(kept) == len(text)
-    assert compact_records.compact(tmp_path / "train_episodes.csv.xz") == 0  # already compact
+    assert compact(tmp_path / "train_episodes.csv.xz") == 0  # already compact
 
 
 def test_a_record_without_a_kept_column_is_refused_by_name(tmp_path):
     path = tmp_path / "train_episodes.csv"
     pd.DataFrame({"index": [0], "return_lc": [1.0]}).to_csv(path, index=False)
     try:
-        compact_records.compact(path)
+        compact(path)
     except ValueError as err:
         assert "return_cf" in str(err) and str(path) in str(err)
     else:
@@ -56,10 +56,9 @@ def test_every_committed_training_record_is_compact(tmp_path):
     loose = [
         str(p.relative_to(tmp_path))
         for p in records
-        if p.suffix != ".xz"
-        or lzma.decompress(p.read_bytes()).decode().split("\n", 1)[0] != ",".join(compact_records.KEPT)
+        if p.suffix != ".xz" or lzma.decompress(p.read_bytes()).decode().split("\n", 1)[0] != ",".join(KEPT_TRAINING)
     ]
-    assert not loose, f"run python studies/compact_records.py on: {loose[:5]}"
+    assert not loose, f"run python -m kddrl_trl.devtools.records collect, or compact(), on: {loose[:5]}"
 
 
 def test_a_rewrite_that_fails_leaves_the_record_as_it_was(tmp_path, monkeypatch):
@@ -75,5 +74,44 @@ def test_a_rewrite_that_fails_leaves_the_record_as_it_was(tmp_path, monkeypatch)
 
     monkeypatch.setattr("os.fsync", fail)
     with pytest.raises(OSError, match="disk full"):
-        compact_records.compact(path)
+        compact(path)
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == [path.name]
+
+
+def test_collect_copies_finished_runs_as_a_study_keeps_them(tmp_path):
+    """Only finished runs, once; no checkpoints, logs or curve images; CSVs and logs xz-compressed, the training
+    record compacted, everything else as it was."""
+    sweep = tmp_path / "sweep"
+    run, unfinished = sweep / "baseline__kddrl__0", sweep / "baseline__kddrl__1"
+    for folder in (run / "checkpoints", run / "logs", run / ".hydra", unfinished):
+        folder.mkdir(parents=True)
+    (sweep / "multirun.yaml").write_text("sweep: 1\n")
+    (run / "summary.json").write_text('{"seed": 0}\n')
+    (run / "config.yaml").write_text("seed: 0\n")
+    (run / ".hydra" / "config.yaml").write_text("seed: 0\n")
+    (run / "checkpoints" / "ep000001.pt").write_bytes(b"weights")
+    (run / "logs" / "scalars.csv").write_text("a\n")
+    (run / "training_curves.png").write_bytes(b"png")
+    (run / "eval_episodes.csv").write_text("index,speed\n0,1.5\n")
+    (run / "train.log").write_text("log\n")
+    header = "index,start,return_lc,return_cf,mean_speed_kmh,collision\n0,0,1.5,2.5,100.0,False\n"
+    (run / "train_episodes.csv").write_text(header)
+    (unfinished / "config.yaml").write_text("seed: 1\n")
+    dest = tmp_path / "dest"
+    assert records.collect(sweep, dest) == ["baseline__kddrl__0"]
+    got = sorted(str(p.relative_to(dest)) for p in dest.rglob("*") if p.is_file())
+    assert got == [
+        "baseline__kddrl__0/.hydra/config.yaml",
+        "baseline__kddrl__0/config.yaml",
+        "baseline__kddrl__0/eval_episodes.csv.xz",
+        "baseline__kddrl__0/summary.json",
+        "baseline__kddrl__0/train.log.xz",
+        "baseline__kddrl__0/train_episodes.csv.xz",
+        "multirun.yaml",
+    ]
+    assert lzma.decompress((dest / run.name / "eval_episodes.csv.xz").read_bytes()) == b"index,speed\n0,1.5\n"
+    kept = lzma.decompress((dest / run.name / "train_episodes.csv.xz").read_bytes()).decode()
+    assert kept.split("\n")[0] == ",".join(KEPT_TRAINING)
+    assert records.collect(sweep, dest) == []  # collected once
+    with pytest.raises(SystemExit, match="no such sweep folder"):
+        records.collect(tmp_path / "nope", dest)

@@ -6,9 +6,14 @@ is kept in commits of main that ``studies/records.json`` lists, each with the pa
 archive: it is never rewritten (the reports cite commits), and a clone of main carries it. Git ignores the restored
 files (``.gitignore``). From the repository's root:
 
+    python -m kddrl_trl.devtools.records collect SWEEP DEST      # a sweep's finished runs, as a study keeps them
     python -m kddrl_trl.devtools.records restore [STUDY ...]    # the records back into studies/<name>/
     python -m kddrl_trl.devtools.records archive PATH [PATH ...] # PATHs, committed whole at HEAD, leave the tree;
                                                                   # commit the result
+
+``collect`` copies each finished run (it has its summary) that DEST lacks, without its checkpoints, TorchRL logs or
+curve images (the report redraws them), its CSVs and logs xz-compressed (the reports read them so), and its training
+record cut to the columns the reports and a reader of the learning curves use (:func:`compact`).
 
 After ``restore``, ``python -m kddrl_trl.report`` regenerates every study's report byte-identical. A restored file
 that main also tracks must come out as main has it (a run's ``config.yaml`` as its record migrated to the current
@@ -18,18 +23,83 @@ schema, :mod:`kddrl_trl.devtools.migrate_configs`); one that differs is an error
 from __future__ import annotations
 
 import argparse
+import csv
 import io
 import json
+import lzma
+import shutil
 import subprocess
 import tarfile
 from pathlib import Path, PurePosixPath
 
 from omegaconf import OmegaConf
 
+from ..atomic_files import write_atomic
 from ..run_folder import RunFolder
 from .migrate_configs import migrate
 
 MANIFEST = PurePosixPath("studies/records.json")
+
+
+#: the columns of a training record a study keeps: the report draws Fig. 8 from the returns; speed and collisions stay
+#: for a reader who asks how driving changed while learning (evaluation records are kept whole: the reports read
+#: every column)
+KEPT_TRAINING = ("index", "return_lc", "return_cf", "mean_speed_kmh", "collision")
+#: what a study does not keep of a run folder: its checkpoints and TorchRL logs (top level), its curve images
+NOT_COLLECTED = ("checkpoints", "logs")
+
+
+def compact(path: Path) -> int:
+    """Rewrites one training record as ``train_episodes.csv.xz`` with the :data:`KEPT_TRAINING` columns, every kept
+    value's text as it was; returns the bytes saved (0 for a record compact already)."""
+    raw = lzma.decompress(path.read_bytes()) if path.suffix == ".xz" else path.read_bytes()
+    rows = list(csv.reader(io.StringIO(raw.decode())))
+    header = rows[0]
+    missing = [k for k in KEPT_TRAINING if k not in header]
+    if missing:
+        raise ValueError(f"{path}: no column(s) {', '.join(missing)}")
+    if header == list(KEPT_TRAINING) and path.suffix == ".xz":
+        return 0
+    at = [header.index(k) for k in KEPT_TRAINING]
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerows([[row[i] for i in at] for row in rows])
+    target = path.with_name(RunFolder.TRAIN_EPISODES + ".xz")
+    before = path.stat().st_size
+    data = lzma.compress(out.getvalue().encode(), preset=9)
+    write_atomic(target, lambda fh: fh.write(data), binary=True)  # a killed rewrite leaves the record as it was
+    if target != path:
+        path.unlink()
+    return before - target.stat().st_size
+
+
+def collect(sweep: Path, dest: Path) -> list[str]:
+    """The finished runs of ``sweep`` that ``dest`` lacks, copied as a study keeps them (module docstring); a run
+    ``dest`` holds already is left as it is (a finished run's records never change). Returns their names."""
+    if not sweep.is_dir():
+        raise SystemExit(f"records collect: {sweep}: no such sweep folder")
+    dest.mkdir(parents=True, exist_ok=True)
+    if (sweep / "multirun.yaml").is_file() and not (dest / "multirun.yaml").exists():
+        shutil.copyfile(sweep / "multirun.yaml", dest / "multirun.yaml")
+    collected = []
+    for run in sorted(p for p in sweep.iterdir() if p.is_dir()):
+        if not RunFolder(run).is_finished() or RunFolder(dest / run.name).is_finished():
+            continue
+        for f in sorted(p for p in run.rglob("*") if p.is_file()):
+            rel = f.relative_to(run)
+            if rel.parts[0] in NOT_COLLECTED or f.name == RunFolder.CURVES:
+                continue
+            target = dest / run.name / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if f.suffix in (".csv", ".log"):
+                packed = target.with_name(target.name + ".xz")
+                data = lzma.compress(f.read_bytes(), preset=9)
+                write_atomic(packed, lambda fh, data=data: fh.write(data), binary=True)
+            else:
+                shutil.copyfile(f, target)
+        for record in sorted((dest / run.name).rglob(RunFolder.TRAIN_EPISODES + "*")):
+            compact(record)
+        collected.append(run.name)
+    return collected
 
 
 def kept_in_tree(path: str) -> bool:
@@ -79,7 +149,9 @@ def _under(path: str, folder: str) -> bool:
 def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
     """Write every file of every archive (in the manifest's order; a later one wins) that lies under one of
     ``prefixes`` (all where empty) to the same relative path under ``dest``. A file that ``dest`` holds already
-    and main keeps in its tree must be byte-identical. Returns the number of files written."""
+    and main keeps in its tree must be byte-identical to its record in the form main keeps (:func:`current`: a run's
+    config migrated; archives taken after the migration hold it migrated, earlier ones as the run wrote it), and ends
+    in that form. Returns the number of files written."""
     written = 0
     for entry in manifest(root):
         commit = entry["commit"]
@@ -103,9 +175,12 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
                     continue
                 target, data = dest / member.name, tar.extractfile(member).read()
                 if kept_in_tree(member.name) and target.exists():
-                    if target.read_bytes() != data and target.read_bytes() != migrated(member.name, data):
+                    have = target.read_bytes()
+                    if have != data and current(member.name, have) != current(member.name, data):
                         raise SystemExit(f"records: {target} differs from its record in {commit}")
-                    continue
+                    if current(member.name, have) == have:  # the current form (main's, or migrated already)
+                        continue
+                    data = current(member.name, data)  # an older form written by an earlier archive: migrated
                 target.parent.mkdir(parents=True, exist_ok=True)
                 target.write_bytes(data)
                 written += 1
@@ -119,6 +194,11 @@ def migrated(name: str, data: bytes) -> bytes | None:
         return None
     config = OmegaConf.to_container(OmegaConf.create(data.decode()))
     return OmegaConf.to_yaml(config).encode() if migrate(config) else None
+
+
+def current(name: str, data: bytes) -> bytes:
+    """A record file in the form main keeps: a run's config migrated (:func:`migrated`), any other file as it is."""
+    return migrated(name, data) or data
 
 
 def restore(root: Path, studies: list[str]) -> int:
@@ -147,9 +227,16 @@ def archive(root: Path, paths: list[str]) -> int:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m kddrl_trl.devtools.records", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
+    collecting = sub.add_parser("collect", help="a sweep's finished runs, as a study keeps them")
+    collecting.add_argument("sweep", type=Path)
+    collecting.add_argument("dest", type=Path)
     sub.add_parser("restore", help="the records back into the studies' folders").add_argument("studies", nargs="*")
     sub.add_parser("archive", help="records committed whole leave the tree").add_argument("paths", nargs="+")
     args = ap.parse_args(argv)
+    if args.command == "collect":
+        names = collect(args.sweep, args.dest)
+        print(f"records: {len(names)} run(s) collected into {args.dest}" + (f": {' '.join(names)}" if names else ""))
+        return
     root = repo_root()
     if args.command == "restore":
         print(f"records: {restore(root, args.studies)} files restored")
