@@ -196,6 +196,7 @@ OPTION_KEYS = (
     "algo.shield_ttc",
     "algo.state_extras",
     "algo.transforms.weights",
+    "algo.transforms.event_oracle",
     "env.highwayenv.ego_driver",
     "algo.learner.d3qn.semi_mdp",
     "algo.learner.d3qn.eps_decisions",
