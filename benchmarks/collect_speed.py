@@ -30,6 +30,7 @@ import torch
 from benchmarks.env_throughput import machine_info, measure_sim, write_json
 from benchmarks.kddrl_parts import (
     FRAMES_PER_ENV,
+    RESULTS,
     collect_env,
     learner_kwargs,
 )
@@ -44,9 +45,6 @@ from kddrl_trl.transforms import (
     PredictiveStack,
 )
 from kddrl_trl.transforms.stack import warm_frames
-
-RESULTS = Path(__file__).resolve().parent / "results"
-
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 

@@ -34,7 +34,7 @@ from torchrl.data import Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from benchmarks.collect_speed import _Stopwatch, measure_collect
-from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.kddrl_parts import FRAMES_PER_ENV, collect_env
 
 

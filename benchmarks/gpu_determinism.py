@@ -29,10 +29,10 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.kddrl_parts import batch_sizes, buffer_keys, learner_kwargs, sample_batches
-from kddrl_trl.compiling import fresh_compiler  # noqa: E402
-from kddrl_trl.training import HierarchicalLearner  # noqa: E402
+from kddrl_trl.compiling import fresh_compiler
+from kddrl_trl.training import HierarchicalLearner
 
 
 def tensor_hashes(state, prefix: str = "") -> dict[str, str]:

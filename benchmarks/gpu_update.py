@@ -25,6 +25,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.kddrl_parts import (
+    RESULTS,
     learner_kwargs,
     sync,
 )
@@ -36,8 +37,6 @@ from kddrl_trl.transforms import (
     DecisionClock,
     make_kddrl_transforms,
 )
-
-RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def measure_torchrl_td3(

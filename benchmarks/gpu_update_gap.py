@@ -37,11 +37,11 @@ from pathlib import Path
 import torch
 import torch._inductor.config
 
-from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.gpu_update import measure_torchrl_td3
 from benchmarks.kddrl_parts import buffer_keys, learner_kwargs, sample_batches, sync
-from kddrl_trl.modules import cf_obs_dim  # noqa: E402
-from kddrl_trl.training import HierarchicalLearner  # noqa: E402
+from kddrl_trl.modules import cf_obs_dim
+from kddrl_trl.training import HierarchicalLearner
 
 ARMS = ("ours", "ours_no_embedding", "torchrl_mujoco", "torchrl_our_shapes")
 #: the ratios written per minibatch: name -> (arm, reference arm), rate over rate (above 1: the arm is faster)

@@ -25,6 +25,8 @@ from kddrl_trl.transforms import (
 )
 
 CONF = Path(__file__).resolve().parents[1] / "src" / "kddrl_trl" / "conf" / "algo" / "kddrl.yaml"
+#: where each benchmark writes its ``<name>.json``
+RESULTS = Path(__file__).resolve().parent / "results"
 FRAMES_PER_ENV = 20  # frames per env row per collected batch of the collection benchmarks
 
 

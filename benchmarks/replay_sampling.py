@@ -32,10 +32,10 @@ import torch
 from tensordict import TensorDict
 
 from benchmarks.kddrl_parts import learner_kwargs, sample_batches
-from kddrl_trl import keys as K  # noqa: E402
-from kddrl_trl.training import HierarchicalLearner, make_buffer  # noqa: E402
-from kddrl_trl.training.priority_trees import native_trees_available  # noqa: E402
-from kddrl_trl.training.trainer import is_prioritized, minibatches  # noqa: E402
+from kddrl_trl import keys as K
+from kddrl_trl.training import HierarchicalLearner, make_buffer
+from kddrl_trl.training.priority_trees import native_trees_available
+from kddrl_trl.training.trainer import is_prioritized, minibatches
 
 
 def frame_rows(capacity: int, seed: int) -> TensorDict:

@@ -53,7 +53,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Callable
 
-from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.env_throughput import machine_info, write_json
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "scale_out.json"
 

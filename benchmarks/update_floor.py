@@ -21,6 +21,7 @@ import torch
 
 from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.kddrl_parts import (
+    RESULTS,
     buffer_keys,
     learner_kwargs,
     sample_batches,
@@ -30,8 +31,6 @@ from benchmarks.update_speed import measure_update, python_wrapper
 from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors
 from kddrl_trl.process_settings import apply_flush_denormal
 from kddrl_trl.training import HierarchicalLearner
-
-RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def update_flops(seed: int, buffers: tuple, updates: int = 8) -> dict:

@@ -34,6 +34,7 @@ from torch._dynamo.utils import clear_compilation_metrics, get_compilation_metri
 
 from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.kddrl_parts import (
+    RESULTS,
     learner_kwargs,
     sample_batches,
     time_updates,
@@ -43,8 +44,6 @@ from kddrl_trl.devtools.plain_kddrl import PlainKDDRL, tensors
 from kddrl_trl.process_settings import apply_flush_denormal
 from kddrl_trl.training import HierarchicalLearner
 from kddrl_trl.training.learner import adam
-
-RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def measure_update(

@@ -43,12 +43,12 @@ from omegaconf import OmegaConf
 from torch.func import functional_call, grad_and_value
 from torch.utils.flop_counter import FlopCounterMode
 
-from benchmarks.env_throughput import machine_info, write_json  # noqa: E402
+from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.kddrl_parts import CONF, learner_kwargs, sample_batches
 from benchmarks.update_floor import gemm_rate
-from kddrl_trl.compiling import inductor_options  # noqa: E402
-from kddrl_trl.modules import cf_obs_dim  # noqa: E402
-from kddrl_trl.training import HierarchicalLearner  # noqa: E402
+from kddrl_trl.compiling import inductor_options
+from kddrl_trl.modules import cf_obs_dim
+from kddrl_trl.training import HierarchicalLearner
 
 BOUND = 5.0  # m/s², the acceleration bound of the TD3 actor (TanhModule's low / high)
 
