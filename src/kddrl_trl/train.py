@@ -56,7 +56,7 @@ log = logging.getLogger(__name__)
 
 
 def train(job: TrainJob, run: RunFolder, logger, resuming: bool):
-    """Trains the learner of ``job.algo`` (continuing ``run_dir``'s latest checkpoint when ``resuming``);
+    """Trains the learner of ``job.algo`` (continuing ``run`` 's latest checkpoint when ``resuming``);
     returns it, the summary of its training and the trainer, whose validation of the last episode may still run
     beside the final evaluation (:func:`finish_validations`)."""
     learner = make_learner(job.algo, compile=job.compile, device=job.torch_device, cudagraphs=job.cudagraphs)
