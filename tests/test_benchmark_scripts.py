@@ -268,6 +268,36 @@ def test_compile_cost_runs_eager_cold_and_warm_with_the_cache_emptied_once(tmp_p
     assert result["crossover_episodes"]["cold"] == 60.0
 
 
+def test_compile_graphs_alternates_the_arms_each_cold_then_warm_on_a_cache_of_its_own(tmp_path, monkeypatch):
+    """``benchmarks/compile_graphs.py``: the arms alternate round by round; each arm's warm run reads the cache its
+    cold run filled, and no two arms or rounds share one; the ratios are one / three of the medians."""
+    bench = load_benchmark("compile_graphs")
+    seen = []
+
+    def fake_arm(arm, cache):
+        cache.mkdir(exist_ok=True)
+        state = "warm" if (cache / "entry").exists() else "cold"
+        (cache / "entry").write_text("compiled")
+        seen.append((arm, cache.name, state))
+        return {"compile_s": {"three": 40.0, "one": 30.0}[arm] / (3.0 if state == "warm" else 1.0)}
+
+    monkeypatch.setattr(bench, "run_arm", fake_arm)
+    result = bench.main(["--rounds", "2", "--out", str(tmp_path / "compile_graphs.json")])
+    assert seen == [
+        ("three", "three0", "cold"),
+        ("three", "three0", "warm"),
+        ("one", "one0", "cold"),
+        ("one", "one0", "warm"),
+        ("three", "three1", "cold"),
+        ("three", "three1", "warm"),
+        ("one", "one1", "cold"),
+        ("one", "one1", "warm"),
+    ]
+    assert result["summary"]["one_over_three_cold"] == pytest.approx(0.75)
+    assert result["summary"]["three_warm_s"] == pytest.approx(40.0 / 3)
+    assert json.loads((tmp_path / "compile_graphs.json").read_text())["runs"][2]["arm"] == "one"
+
+
 BENCHMARKS = sorted(
     p.stem for p in (Path(__file__).resolve().parents[1] / "benchmarks").glob("*.py") if p.stem != "__init__"
 )
