@@ -5,7 +5,8 @@
 # Section 4, the scenario check: KDDRL trained on braking as it is (release=sumo) at seeds 0-4, each trained
 # policy then evaluated on the same test traffic with the programmed release (<run>/eval__braking__<seed>__<time>/).
 # Section 3, the training length: KDDRL, then D3QN+TD3+LG, 3000 episodes on braking (validation every 200 episodes,
-# on the validation traffic), seeds 0-4 (SWEEP/length_3000).
+# on the validation traffic), seeds 0-4 (SWEEP/length_3000); then D3QN+TD3+LG's control, 1000 episodes as the paper
+# trains, seeds 0-4 (SWEEP/length_1000; KDDRL's 1000-episode control is section 4's release_sumo).
 # JOBS (default 1) at a time, one torch thread each: the machine is shared with the verdict study's sweep.
 set -euo pipefail
 SWEEP=${1:-runs/braking}
@@ -16,6 +17,7 @@ jobs() {
   for seed in 0 1 2 3 4; do echo "release_sumo $seed +scenario=braking algo=kddrl seed=$seed"; done
   for algo in kddrl d3qn_td3_lg; do for seed in 0 1 2 3 4; do
     echo "length_3000 $seed +scenario=braking algo=$algo seed=$seed episodes=3000"; done; done
+  for seed in 0 1 2 3 4; do echo "length_1000 $seed +scenario=braking algo=d3qn_td3_lg seed=$seed"; done
 }
 
 one() {  # <arm> <seed> <overrides...>: train into SWEEP/<arm>; release_sumo: then evaluate with the programmed release
