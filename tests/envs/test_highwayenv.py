@@ -216,3 +216,34 @@ def test_highwayenvs_own_driver_can_drive_the_ego():
     assert int(started.sum()) >= int((lanes[1:] != lanes[:-1]).sum())
     with pytest.raises(ValueError, match="ego_driver"):
         check_config(make_config("baseline", {"lane_width": 4.0}), {"ego_driver": "carla"})
+
+
+def test_highwayenvs_idm_with_its_lane_kept_drives_the_ego_in_one_lane():
+    """``ego_driver=highwayenv_idm``: HighwayEnv's IDM vehicle drives the ego whatever the policy commands, and never
+    changes lanes (MOBIL off), where the same driver with MOBIL on (``highwayenv``) does, from the same resets."""
+
+    def episodes(driver: str, lc: int, accel: float) -> tuple[int, int, torch.Tensor]:
+        """Lane changes started and lanes left over 4 episodes of 2 roads, and the ego speeds of every frame."""
+        options = HighwayEnvOptions(vehicles_count=12, observed_vehicles=10, ego_driver=driver)
+        started = moved = 0
+        speeds = []
+        for seed in (5, 6):
+            env = HighwayEnvAdapter(num_roads=2, seed=seed, options=options)
+            try:
+                lane = env.reset()[K.EGO_LANE].reshape(-1).clone()
+                assert all(r.vehicle.enable_lane_change == (driver == "highwayenv") for r in env.roads)
+                for _ in range(200):
+                    td = env.step(command(env, lc, accel))["next"]
+                    started += int(td[K.LC_STARTED].sum())
+                    moved += int((td[K.EGO_LANE].reshape(-1) != lane).sum())
+                    speeds.append(td[K.EGO_STATE][..., 1].reshape(-1))
+                    if bool(td["done"].any()):
+                        break
+            finally:
+                env.close()
+        return started, moved, torch.cat(speeds)
+
+    started, moved, slow = episodes("highwayenv_idm", K.LEFT, -5.0)
+    assert (started, moved) == (0, 0)
+    assert torch.equal(slow, episodes("highwayenv_idm", K.RIGHT, 5.0)[2])  # the commands are ignored
+    assert episodes("highwayenv", K.KEEP, 0.0)[0] > 0  # with MOBIL on, the same driver changes lanes

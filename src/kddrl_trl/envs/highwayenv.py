@@ -11,7 +11,8 @@ its ``DiscreteMetaAction`` ``LANE_LEFT`` / ``LANE_RIGHT`` do; the lateral motion
 controller (:class:`highway_env.vehicle.controller.ControlledVehicle`). A command outside ``("lc","action_mask")``
 keeps the lane, as on SUMO. With ``HighwayEnvOptions.ego_driver="highwayenv"`` the ego is one more of HighwayEnv's
 own IDM/MOBIL vehicles instead (a reference driver): the commands are ignored, and ``lc.started`` is set when that
-driver moves its target lane.
+driver moves its target lane; ``"highwayenv_idm"`` is the same IDM vehicle with its lane changes switched off (the
+reference of a policy that only accelerates).
 
 Observation: HighwayEnv's ``Kinematics`` observation (features presence, x, y, vx, vy of the ego and its
 ``observed_vehicles - 1`` nearest vehicles, sorted by longitudinal distance, see-behind) configured with
@@ -90,8 +91,9 @@ HW_LANE_WIDTH = 4.0
 HW_PERCEPTION = 200.0
 #: length of HighwayEnv's straight road (``RoadNetwork.straight_road_network``'s default, m)
 HW_ROAD_LENGTH = 10_000.0
-#: who drives the ego (``HighwayEnvOptions.ego_driver``): the policy, or HighwayEnv's own IDM/MOBIL vehicle
-EGO_DRIVERS = ("agent", "highwayenv")
+#: who drives the ego (``HighwayEnvOptions.ego_driver``): the policy, HighwayEnv's own IDM/MOBIL vehicle, or that
+#: vehicle with its lane kept (its IDM only)
+EGO_DRIVERS = ("agent", "highwayenv", "highwayenv_idm")
 #: HighwayConfig fields the adapter sets when it builds its own config (a scenario name, not a ready config)
 PRESET = {"lane_width": HW_LANE_WIDTH}
 _FEATURES = ["presence", "x", "y", "vx", "vy"]
@@ -109,7 +111,8 @@ class HighwayEnvOptions:
     simulation_frequency: int = 10  # Hz; a multiple of the policy frequency 1/step_length (10 Hz)
     lc_done_offset: float = 0.2  # m from the target lane's centre line at which a lane change is over
     ego_driver: str = "agent"  # agent: the policy's commands drive the ego | highwayenv: HighwayEnv's own IDM/MOBIL
-    #                            vehicle drives it (the commands are ignored), a reference driver
+    #                            vehicle drives it (the commands are ignored), a reference driver | highwayenv_idm:
+    #                            the same vehicle with its lane kept (IDM only)
     record_episode_s: float = 60.0  # s: a recording of HighwayEnv traffic (kddrl_trl.data.highwayenv_to_highd) is
     #                                 a sequence of highway-v0 episodes of this length, each from a fresh reset
 
@@ -278,14 +281,16 @@ def highway_settings(cfg: HighwayConfig, options: HighwayEnvOptions) -> tuple[di
     return config, action
 
 
-def highwayenv_drives_ego(env) -> None:
+def highwayenv_drives_ego(env, lane_changes: bool = True) -> None:
     """Replaces the ego of a freshly reset highway-v0 road ``env`` by one of its ``other_vehicles_type`` vehicles
-    (HighwayEnv's IDM/MOBIL driver), its behaviour randomised as highway-v0 randomises the others'."""
+    (HighwayEnv's IDM/MOBIL driver), its behaviour randomised as highway-v0 randomises the others'; without
+    ``lane_changes``, MOBIL is switched off and the vehicle keeps its lane (``IDMVehicle.enable_lane_change``)."""
     from highway_env import utils
 
     road, ego = env.road, env.vehicle
     driver = utils.class_from_path(env.config["other_vehicles_type"]).create_from(ego)
     driver.randomize_behavior()
+    driver.enable_lane_change = lane_changes
     road.vehicles[road.vehicles.index(ego)] = driver
     env.controlled_vehicles = [driver]
 
@@ -454,8 +459,8 @@ class HighwayEnvAdapter(HighwayEnvBase):
         for r in rows:
             seed = int(np.random.SeedSequence([self._seed, r, int(self.episode_count[r])]).generate_state(1)[0])
             self._obs[r] = self.roads[r].reset(seed=seed)[0]
-            if self.options.ego_driver == "highwayenv":  # the same position, heading and speed: the same observation
-                highwayenv_drives_ego(self.roads[r])
+            if self.options.ego_driver != "agent":  # the same position, heading and speed: the same observation
+                highwayenv_drives_ego(self.roads[r], lane_changes=self.options.ego_driver == "highwayenv")
             self._x0[r] = self.roads[r].vehicle.position[0]
             self.frame[r] = 0
             self.episode_count[r] += 1
@@ -474,7 +479,7 @@ class HighwayEnvAdapter(HighwayEnvBase):
         slots, vehicles = self._slots.copy(), [list(v) for v in self._vehicles]
         accel, collision = np.zeros(b), np.zeros(b, dtype=bool)
         kind, slot = np.zeros(b, dtype=np.int64), np.full(b, -1)
-        own = self.options.ego_driver == "highwayenv"
+        own = self.options.ego_driver != "agent"
         for r, env in enumerate(self.roads):
             ego = env.vehicle
             before, target = ego.speed, ego.target_lane_index
