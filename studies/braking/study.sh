@@ -7,6 +7,8 @@
 # Section 3, the training length: KDDRL, then D3QN+TD3+LG, 3000 episodes on braking (validation every 200 episodes,
 # on the validation traffic), seeds 0-4 (SWEEP/length_3000); then D3QN+TD3+LG's control, 1000 episodes as the paper
 # trains, seeds 0-4 (SWEEP/length_1000; KDDRL's 1000-episode control is section 4's release_sumo).
+# Section 5, the reward: KDDRL with env.reward=safe, seeds 0-4 (SWEEP/reward_safe; its control is release_sumo), then
+# Ni and Peng with the paper's reward and with the safe one, seed by seed (SWEEP/reward_paper, SWEEP/reward_safe).
 # JOBS (default 1) at a time, one torch thread each: the machine is shared with the verdict study's sweep.
 set -euo pipefail
 SWEEP=${1:-runs/braking}
@@ -18,6 +20,10 @@ jobs() {
   for algo in kddrl d3qn_td3_lg; do for seed in 0 1 2 3 4; do
     echo "length_3000 $seed +scenario=braking algo=$algo seed=$seed episodes=3000"; done; done
   for seed in 0 1 2 3 4; do echo "length_1000 $seed +scenario=braking algo=d3qn_td3_lg seed=$seed"; done
+  for seed in 0 1 2 3 4; do echo "reward_safe $seed +scenario=braking algo=kddrl seed=$seed env.reward=safe"; done
+  for algo in ni peng; do for seed in 0 1 2 3 4; do
+    echo "reward_paper $seed +scenario=braking algo=$algo seed=$seed"
+    echo "reward_safe $seed +scenario=braking algo=$algo seed=$seed env.reward=safe"; done; done
 }
 
 one() {  # <arm> <seed> <overrides...>: train into SWEEP/<arm>; release_sumo: then evaluate with the programmed release
