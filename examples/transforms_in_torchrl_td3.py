@@ -21,10 +21,18 @@ import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.collectors import Collector
 from torchrl.data import Bounded, LazyTensorStorage, TensorDictReplayBuffer
-from torchrl.envs import CatTensors, Compose, DTypeCastTransform, FlattenObservation, TransformedEnv
+from torchrl.envs import (
+    CatTensors,
+    Compose,
+    DTypeCastTransform,
+    FlattenObservation,
+    ObservationNorm,
+    TransformedEnv,
+)
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, AdditiveGaussianModule, TanhModule, ValueOperator
 from torchrl.objectives import SoftUpdate, TD3Loss
+from tqdm import tqdm
 
 from kddrl_trl.transforms import make_kddrl_transforms
 
@@ -33,17 +41,19 @@ RAW = [("ego", "state"), ("flat", "rel"), ("flat", "mask")]  # ego y, v_y, v_x; 
 PREDICTIVE = [("flat", "key_gaps"), ("prior", "p_mobil"), ("prior", "p_lcgan")]  # what the transforms add
 
 
-def make_env(name: str, roads: int, seed: int, transforms: bool):
-    """The env (raw keys) -> the KDDRL stack (optional; its GANs trained on the traffic of the env's simulator) ->
-    the features flattened and concatenated into ``"observation"``."""
+def make_env(name: str, roads: int, seed: int, transforms: bool, reward="paper", driver="agent", norm=None):
+    """The env (raw keys; ``reward``: the rewards' variant, ``HighwayConfig.reward``) -> the KDDRL stack (optional;
+    its GANs trained on the traffic of the env's simulator) -> the features flattened and concatenated into
+    ``"observation"`` -> ``norm`` (an ``ObservationNorm`` of it, optional). ``driver="highwayenv_idm"``:
+    HighwayEnv's IDM drives the ego in its lane (the reference)."""
     if name == "sumo":
         from kddrl_trl.envs import HighwayConfig, SumoHighwayEnv
 
-        base = SumoHighwayEnv(HighwayConfig(), num_roads=roads, seed=seed)
+        base = SumoHighwayEnv(HighwayConfig(reward=reward), num_roads=roads, seed=seed)
     else:
         from kddrl_trl.envs.highwayenv import HighwayEnvAdapter
 
-        base = HighwayEnvAdapter(num_roads=roads, seed=seed)
+        base = HighwayEnvAdapter(num_roads=roads, seed=seed, options={"ego_driver": driver}, reward=reward)
     flat = [
         FlattenObservation(
             -2, -1, in_keys=[("neighbors", "rel")], out_keys=[("flat", "rel")], allow_positive_dim=False
@@ -54,7 +64,24 @@ def make_env(name: str, roads: int, seed: int, transforms: bool):
         flat.append(FlattenObservation(-2, -1, in_keys=[("pred", "key_gaps")], out_keys=[("flat", "key_gaps")]))
     keys = RAW + (PREDICTIVE if transforms else [])
     stack = [make_kddrl_transforms(seed=seed, weights=name)] if transforms else []
-    return TransformedEnv(base, Compose(*stack, *flat, CatTensors(keys, "observation", del_keys=False)))
+    tail = [norm] if norm is not None else []
+    return TransformedEnv(base, Compose(*stack, *flat, CatTensors(keys, "observation", del_keys=False), *tail))
+
+
+def observation_norm(like: ObservationNorm | None = None) -> ObservationNorm:
+    """Standardises ``"observation"``: (x - mean) / max(std, 1) per feature, the statistics of random steps
+    (``init_stats``) or those of ``like``. Positions (up to hundreds of metres) and speeds come to unit scale; a
+    feature that varies less than 1 (a presence flag, a probability) is only centred, never blown up."""
+    if like is None:
+        return ObservationNorm(in_keys=["observation"], standard_normal=True, eps=1.0)
+    return ObservationNorm(like.loc.clone(), like.scale.clone(), in_keys=["observation"], standard_normal=True)
+
+
+def keep_lane() -> TensorDictModule:
+    """The fixed lane policy: the one-hot (left, keep, right) command of keeping the lane, every frame."""
+    return TensorDictModule(
+        lambda obs: torch.tensor([0.0, 1.0, 0.0]).expand(*obs.shape[:-1], 3), ["observation"], [LANE]
+    )
 
 
 def make_agent(obs_dim: int, hidden: int = 256):
@@ -64,9 +91,7 @@ def make_agent(obs_dim: int, hidden: int = 256):
         TensorDictModule(MLP(obs_dim, 1, num_cells=[hidden, hidden]), ["observation"], ["param"]),
         TanhModule(["param"], [ACTION], spec=spec),
     )
-    keep = TensorDictModule(
-        lambda obs: torch.tensor([0.0, 1.0, 0.0]).expand(*obs.shape[:-1], 3), ["observation"], [LANE]
-    )  # left, keep, right: always keep
+    keep = keep_lane()
     critic = ValueOperator(
         MLP(obs_dim + 1, 1, num_cells=[hidden, hidden]),
         in_keys=["observation", ACTION],
@@ -75,10 +100,11 @@ def make_agent(obs_dim: int, hidden: int = 256):
     return actor, keep, critic, spec
 
 
-def evaluate(policy, env_name: str, roads: int, seed: int, transforms: bool, episodes: int) -> dict:
+def evaluate(policy, env_name, roads, seed, transforms, episodes, driver="agent", norm=None) -> dict:
     """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, and the
-    share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates)."""
-    env = make_env(env_name, roads, seed, transforms)
+    share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates). ``norm``: training's
+    ``ObservationNorm`` (its statistics, not new ones)."""
+    env = make_env(env_name, roads, seed, transforms, driver=driver, norm=norm and observation_norm(norm))
     speed_sum, frames, speeds, collisions = torch.zeros(roads), torch.zeros(roads), [], 0
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
@@ -107,11 +133,24 @@ def main(argv=None) -> dict:
     p.add_argument("--warmup", type=int, default=2_000, help="frames collected before the first update")
     p.add_argument("--eval-episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--reward", choices=["paper", "safe"], default="paper", help="the rewards' variant (HighwayConfig)")
+    p.add_argument("--no-obs-norm", dest="obs_norm", action="store_false", help="raw observation scales")
+    p.add_argument("--norm-frames", type=int, default=2_000, help="random frames the normalisation is measured on")
+    p.add_argument("--reference", action="store_true", help="no training: HighwayEnv's IDM drives, its lane kept")
     p.add_argument("--out", help="also write the result as JSON to this file")
     args = p.parse_args(argv)
+    if args.reference and args.env != "highwayenv":
+        p.error("--reference drives with HighwayEnv's IDM: it needs --env highwayenv")
     torch.manual_seed(args.seed)
+    if args.reference:
+        return report(args, reference(args))
 
-    env = make_env(args.env, args.roads, args.seed, args.transforms)
+    norm = observation_norm() if args.obs_norm else None
+    env = make_env(args.env, args.roads, args.seed, args.transforms, args.reward, norm=norm)
+    if norm is not None:
+        norm.init_stats(
+            num_iter=args.norm_frames, reduce_dim=(0, 1), cat_dim=1
+        )  # random steps: [roads, time, features]
     actor, keep, critic, spec = make_agent(env.observation_spec["observation"].shape[-1])
     explore = TensorDictSequential(
         actor, AdditiveGaussianModule(spec, sigma_init=0.5, sigma_end=0.5, action_key=ACTION)
@@ -127,9 +166,14 @@ def main(argv=None) -> dict:
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(100_000), batch_size=128)
 
     collector, episodes, frames = Collector(env, policy, frames_per_batch=20 * args.roads, total_frames=-1), 0, 0
+    bar, crashes = tqdm(total=args.episodes, desc="training episodes", unit="ep"), []
     for batch in collector:
         buffer.extend(batch.reshape(-1))
-        episodes, frames = episodes + int(batch["next", "done"].sum()), frames + batch.numel()
+        done = batch["next", "done"].reshape(-1)
+        crashes += batch["next", "collision"].reshape(-1)[done].tolist()
+        episodes, frames = episodes + int(done.sum()), frames + batch.numel()
+        bar.update(min(int(done.sum()), args.episodes - bar.n))
+        bar.set_postfix(collisions_last_50=f"{sum(crashes[-50:]) / max(len(crashes[-50:]), 1):.0%}", refresh=False)
         if episodes >= args.episodes:
             break
         if len(buffer) < args.warmup:
@@ -145,13 +189,31 @@ def main(argv=None) -> dict:
                 opt_actor.step()
                 target.step()
         collector.update_policy_weights_()
+    bar.close()
     collector.shutdown()
     env.close()
 
     greedy = TensorDictSequential(keep, actor)
-    result = evaluate(greedy, args.env, args.roads, args.seed + 1_000_000, args.transforms, args.eval_episodes)
-    result.update(args=vars(args), train_episodes=episodes, train_frames=frames)  # episodes: evaluated
-    arm = "with the KDDRL transforms" if args.transforms else "raw observations only"
+    seed = args.seed + 1_000_000
+    result = evaluate(greedy, args.env, args.roads, seed, args.transforms, args.eval_episodes, norm=norm)
+    return report(args, {**result, "train_episodes": episodes, "train_frames": frames})  # episodes: evaluated
+
+
+def reference(args) -> dict:
+    """HighwayEnv's IDM driving the ego with its lane kept, on the evaluation traffic of ``args.seed`` (the commands
+    of the policy given are ignored): what the example's agent, which only accelerates, is measured against."""
+    zero = TensorDictModule(lambda obs: torch.zeros(*obs.shape[:-1], 1), ["observation"], [ACTION])
+    policy = TensorDictSequential(keep_lane(), zero)  # its observation unread: the raw keys (no transforms) do
+    return evaluate(policy, args.env, args.roads, args.seed + 1_000_000, False, args.eval_episodes, "highwayenv_idm")
+
+
+def report(args, result: dict) -> dict:
+    """Prints ``result`` with the arm's name, and writes it with the arguments to ``args.out`` (JSON)."""
+    result = {**result, "args": vars(args)}
+    if args.reference:
+        arm = "HighwayEnv's IDM, lane kept (reference)"
+    else:
+        arm = "with the KDDRL transforms" if args.transforms else "raw observations only"
     print(f"{args.env}, {arm}, seed {args.seed}: {result}")
     if args.out:
         with open(args.out, "w") as f:

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "transforms_in_torchrl_td3.py"
 
@@ -28,11 +29,44 @@ def test_transforms_in_a_torchrl_td3_loop(transforms, tmp_path):
         env.close()
     assert width == (3 + 24 + 6) + ((6 + 3 + 3) if transforms else 0)  # raw; + key gaps and both priors
     out = tmp_path / "result.json"
-    args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--out", str(out)]
-    result = example.main(args if transforms else [*args, "--no-transforms"])
+    args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--norm-frames", "200"]
+    result = example.main([*args, "--out", str(out)] + ([] if transforms else ["--no-transforms"]))
     assert 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1.0
     assert 2 <= result["episodes"] < 2 + 2 and result["train_episodes"] >= 2 and result["train_frames"] > 0
     assert json.loads(out.read_text()) == result and result["args"]["transforms"] == transforms
+
+
+def test_the_examples_observation_norm_scales_by_random_steps_and_evaluation_reuses_its_statistics():
+    """``observation_norm``: statistics of random steps, each feature's scale at least 1 (a presence flag is only
+    centred, never blown up); the evaluation env's copy holds training's statistics, not new ones."""
+    example = _example()
+    norm = example.observation_norm()
+    env = example.make_env("sumo", 2, 0, False, norm=norm)
+    try:
+        norm.init_stats(num_iter=200, reduce_dim=(0, 1), cat_dim=1)
+        obs = env.rollout(30)["next", "observation"]
+    finally:
+        env.close()
+    assert norm.loc.shape == norm.scale.shape == (3 + 24 + 6,) and bool((norm.scale >= 1.0).all())
+    assert bool(torch.isfinite(obs).all()) and float(obs.abs().max()) < 50.0
+    assert float(norm.scale.max()) > 5.0  # positions and speeds are scaled down: the raw ones span metres to 100s
+    copy = example.observation_norm(norm)
+    assert torch.equal(copy.loc, norm.loc) and torch.equal(copy.scale, norm.scale) and copy.loc is not norm.loc
+
+
+def test_the_examples_reference_is_highwayenvs_idm_in_its_lane(tmp_path):
+    """``--reference``: no training; HighwayEnv's IDM drives the ego with its lane kept, on the evaluation traffic.
+    It needs ``--env highwayenv``."""
+    example = _example()
+    with pytest.raises(SystemExit):
+        example.main(["--reference"])
+    pytest.importorskip("highway_env")
+    out = tmp_path / "reference.json"
+    result = example.main(
+        ["--env", "highwayenv", "--reference", "--roads", "2", "--eval-episodes", "2", "--out", str(out)]
+    )
+    assert result["episodes"] >= 2 and 0.0 < result["mean_speed_kmh"] < 250.0 and "train_frames" not in result
+    assert json.loads(out.read_text())["args"]["reference"] is True
 
 
 def test_the_example_runs_on_highwayenv(tmp_path):
