@@ -44,7 +44,7 @@ PREDICTIVE = [("flat", "key_gaps"), ("prior", "p_mobil"), ("prior", "p_lcgan")] 
 def make_env(name: str, roads: int, seed: int, transforms: bool, reward="paper", driver="agent", norm=None):
     """The env (raw keys; ``reward``: the rewards' variant, ``HighwayConfig.reward``) -> the KDDRL stack (optional;
     its GANs trained on the traffic of the env's simulator) -> the features flattened and concatenated into
-    ``"observation"`` -> ``norm`` (an ``ObservationNorm`` of it, optional). ``driver="highwayenv_idm"``:
+    ``"observation"`` -> standardised by ``norm`` = (loc, scale) (optional). ``driver="highwayenv_idm"``:
     HighwayEnv's IDM drives the ego in its lane (the reference)."""
     if name == "sumo":
         from kddrl_trl.envs import HighwayConfig, SumoHighwayEnv
@@ -64,17 +64,19 @@ def make_env(name: str, roads: int, seed: int, transforms: bool, reward="paper",
         flat.append(FlattenObservation(-2, -1, in_keys=[("pred", "key_gaps")], out_keys=[("flat", "key_gaps")]))
     keys = RAW + (PREDICTIVE if transforms else [])
     stack = [make_kddrl_transforms(seed=seed, weights=name)] if transforms else []
-    tail = [norm] if norm is not None else []
+    tail = [ObservationNorm(*(t.clone() for t in norm), in_keys=["observation"], standard_normal=True)] if norm else []
     return TransformedEnv(base, Compose(*stack, *flat, CatTensors(keys, "observation", del_keys=False), *tail))
 
 
-def observation_norm(like: ObservationNorm | None = None) -> ObservationNorm:
-    """Standardises ``"observation"``: (x - mean) / max(std, 1) per feature, the statistics of random steps
-    (``init_stats``) or those of ``like``. Positions (up to hundreds of metres) and speeds come to unit scale; a
-    feature that varies less than 1 (a presence flag, a probability) is only centred, never blown up."""
-    if like is None:
-        return ObservationNorm(in_keys=["observation"], standard_normal=True, eps=1.0)
-    return ObservationNorm(like.loc.clone(), like.scale.clone(), in_keys=["observation"], standard_normal=True)
+def observation_statistics(env, frames: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(loc, scale) of ``"observation"`` over ``frames`` random steps of ``env`` (all roads together): its mean, and
+    its standard deviation but at least 1 per feature, so that positions (up to hundreds of metres) and speeds come
+    to unit scale while a feature that varies less (a presence flag, a probability) is only centred, never blown
+    up. ``make_env(norm=...)`` standardises with them: training's statistics, in evaluation too."""
+    steps = max(1, -(-frames // env.batch_size.numel()))
+    obs = env.rollout(steps, break_when_any_done=False)["next", "observation"]
+    obs = obs.reshape(-1, obs.shape[-1])
+    return obs.mean(0), obs.std(0).clamp_min(1.0)
 
 
 def keep_lane() -> TensorDictModule:
@@ -104,7 +106,7 @@ def evaluate(policy, env_name, roads, seed, transforms, episodes, driver="agent"
     """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, and the
     share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates). ``norm``: training's
     ``ObservationNorm`` (its statistics, not new ones)."""
-    env = make_env(env_name, roads, seed, transforms, driver=driver, norm=norm and observation_norm(norm))
+    env = make_env(env_name, roads, seed, transforms, driver=driver, norm=norm)
     speed_sum, frames, speeds, collisions = torch.zeros(roads), torch.zeros(roads), [], 0
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
@@ -134,7 +136,7 @@ def main(argv=None) -> dict:
     p.add_argument("--eval-episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--reward", choices=["paper", "safe"], default="paper", help="the rewards' variant (HighwayConfig)")
-    p.add_argument("--no-obs-norm", dest="obs_norm", action="store_false", help="raw observation scales")
+    p.add_argument("--obs-norm", action="store_true", help="standardise the observation (observation_statistics)")
     p.add_argument("--norm-frames", type=int, default=2_000, help="random frames the normalisation is measured on")
     p.add_argument("--reference", action="store_true", help="no training: HighwayEnv's IDM drives, its lane kept")
     p.add_argument("--out", help="also write the result as JSON to this file")
@@ -145,12 +147,12 @@ def main(argv=None) -> dict:
     if args.reference:
         return report(args, reference(args))
 
-    norm = observation_norm() if args.obs_norm else None
+    norm = None
+    if args.obs_norm:  # measured on traffic of a seed of their own, neither training's nor evaluation's
+        stats_env = make_env(args.env, args.roads, args.seed + 2_000_000, args.transforms, args.reward)
+        norm = observation_statistics(stats_env, args.norm_frames)
+        stats_env.close()
     env = make_env(args.env, args.roads, args.seed, args.transforms, args.reward, norm=norm)
-    if norm is not None:
-        norm.init_stats(
-            num_iter=args.norm_frames, reduce_dim=(0, 1), cat_dim=1
-        )  # random steps: [roads, time, features]
     actor, keep, critic, spec = make_agent(env.observation_spec["observation"].shape[-1])
     explore = TensorDictSequential(
         actor, AdditiveGaussianModule(spec, sigma_init=0.5, sigma_end=0.5, action_key=ACTION)

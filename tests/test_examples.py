@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from torchrl.envs import ObservationNorm
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "transforms_in_torchrl_td3.py"
 
@@ -29,29 +30,36 @@ def test_transforms_in_a_torchrl_td3_loop(transforms, tmp_path):
         env.close()
     assert width == (3 + 24 + 6) + ((6 + 3 + 3) if transforms else 0)  # raw; + key gaps and both priors
     out = tmp_path / "result.json"
-    args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--norm-frames", "200"]
-    result = example.main([*args, "--out", str(out)] + ([] if transforms else ["--no-transforms"]))
+    args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--out", str(out)]
+    result = example.main(args if transforms else [*args, "--no-transforms"])
     assert 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1.0
     assert 2 <= result["episodes"] < 2 + 2 and result["train_episodes"] >= 2 and result["train_frames"] > 0
     assert json.loads(out.read_text()) == result and result["args"]["transforms"] == transforms
 
 
-def test_the_examples_observation_norm_scales_by_random_steps_and_evaluation_reuses_its_statistics():
-    """``observation_norm``: statistics of random steps, each feature's scale at least 1 (a presence flag is only
-    centred, never blown up); the evaluation env's copy holds training's statistics, not new ones."""
+def test_the_examples_observation_statistics_come_from_random_steps_and_scale_by_at_least_one():
+    """``observation_statistics``: mean and standard deviation of random steps, each feature's scale at least 1 (a
+    presence flag is only centred, never blown up); ``make_env(norm=...)`` standardises with them, and the whole
+    training loop runs with ``--obs-norm``."""
     example = _example()
-    norm = example.observation_norm()
-    env = example.make_env("sumo", 2, 0, False, norm=norm)
+    env = example.make_env("sumo", 2, 0, False)
     try:
-        norm.init_stats(num_iter=200, reduce_dim=(0, 1), cat_dim=1)
-        obs = env.rollout(30)["next", "observation"]
+        loc, scale = example.observation_statistics(env, 200)
     finally:
         env.close()
-    assert norm.loc.shape == norm.scale.shape == (3 + 24 + 6,) and bool((norm.scale >= 1.0).all())
-    assert bool(torch.isfinite(obs).all()) and float(obs.abs().max()) < 50.0
-    assert float(norm.scale.max()) > 5.0  # positions and speeds are scaled down: the raw ones span metres to 100s
-    copy = example.observation_norm(norm)
-    assert torch.equal(copy.loc, norm.loc) and torch.equal(copy.scale, norm.scale) and copy.loc is not norm.loc
+    assert loc.shape == scale.shape == (3 + 24 + 6,) and bool((scale >= 1.0).all())
+    assert float(scale.max()) > 5.0  # positions and speeds are scaled down: the raw ones span metres to 100s
+    env = example.make_env("sumo", 2, 0, False, norm=(loc, scale))
+    try:
+        standardised, norm = env.reset()["observation"], env.transform[-1]
+    finally:
+        env.close()
+    assert isinstance(norm, ObservationNorm) and torch.equal(norm.loc, loc) and torch.equal(norm.scale, scale)
+    assert norm.loc is not loc  # a copy: training's statistics stay as they were measured
+    assert bool(torch.isfinite(standardised).all()) and float(standardised.abs().max()) < 50.0
+    args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--norm-frames", "100"]
+    result = example.main([*args, "--no-transforms", "--obs-norm"])
+    assert result["args"]["obs_norm"] and result["episodes"] >= 2
 
 
 def test_the_examples_reference_is_highwayenvs_idm_in_its_lane(tmp_path):
