@@ -4,6 +4,12 @@ Only TorchRL parts do the learning (TransformedEnv, CatTensors, TD3Loss, SoftUpd
 from kddrl_trl come the env writing the raw keys and ``make_kddrl_transforms()``. The agent controls the
 acceleration; the lane is kept (a fixed lane policy), so one continuous agent is enough.
 
+The reward is the paper's TD3 reward (Eq. 32) with the ``safe`` efficiency term (``HighwayConfig.reward``): no -1
+per frame below 72 km/h. With the lane kept, the ego must follow whatever drives ahead, and under the paper's term
+(``--reward paper``) following a leader slower than 72 km/h costs about as much as crashing into it
+(``kddrl_trl/envs/rewards.py``), and HighwayEnv's traffic drives about 75-80 km/h. ``studies/reuse/README.md``
+measures both rewards against HighwayEnv's IDM in its lane (``--reference``).
+
     python examples/transforms_in_torchrl_td3.py                   # with the transforms (trajGAN key gaps, priors)
     python examples/transforms_in_torchrl_td3.py --no-transforms   # the control arm: raw observations only
     python examples/transforms_in_torchrl_td3.py --env highwayenv  # on HighwayEnv (the optional extra .[highway])
@@ -135,7 +141,7 @@ def main(argv=None) -> dict:
     p.add_argument("--warmup", type=int, default=2_000, help="frames collected before the first update")
     p.add_argument("--eval-episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--reward", choices=["paper", "safe"], default="paper", help="the rewards' variant (HighwayConfig)")
+    p.add_argument("--reward", choices=["paper", "safe"], default="safe", help="the rewards' variant (HighwayConfig)")
     p.add_argument("--obs-norm", action="store_true", help="standardise the observation (observation_statistics)")
     p.add_argument("--norm-frames", type=int, default=2_000, help="random frames the normalisation is measured on")
     p.add_argument("--reference", action="store_true", help="no training: HighwayEnv's IDM drives, its lane kept")

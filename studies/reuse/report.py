@@ -33,6 +33,9 @@ ARMS = {
     "e": "d3qn_td3 (no predictive states)",
     "f": "idm_mobil",
     "g": "HighwayEnv's own IDM/MOBIL as the ego",
+    "h": "example TD3 with the transforms, safe reward",
+    "i": "example TD3 without the transforms, safe reward",
+    "j": "HighwayEnv's IDM as the ego, lane kept (the example's reference)",
 }
 #: the paired comparisons: (arm, reference arm, what a positive speed difference would mean)
 PAIRS = [
@@ -41,7 +44,12 @@ PAIRS = [
     ("d", "e", "KDDRL's predictive states and priors"),
     ("c", "e", "KDDRL with the SUMO GANs"),
     ("g", "f", "HighwayEnv's own driver against our IDM+MOBIL policy"),
+    ("h", "i", "the transforms, in the example's TD3 with the safe reward"),
+    ("h", "j", "the example with the transforms against its reference"),
+    ("i", "j", "the example without the transforms against its reference"),
 ]
+#: folder of the example's results (under the runs folder) -> (arm with the transforms, without, the reference)
+EXAMPLE_ARMS = {"example": ("a", "b", None), "example_safe": ("h", "i", "j")}
 METRICS = ("mean_speed_kmh", "collision_rate")
 
 
@@ -58,7 +66,8 @@ ARM_OF_ROW = {
 
 def read_results(runs: Path) -> dict[str, dict[int, dict]]:
     """arm -> seed -> {metric: value, "episodes", "collisions", "commit"}: the training runs as the package's report
-    reads them (:func:`kddrl_trl.reporting.records.find_runs`), the example's JSON results under ``runs/example``."""
+    reads them (:func:`kddrl_trl.reporting.records.find_runs`), the example's JSON results under ``runs/example``
+    and ``runs/example_safe`` (:data:`EXAMPLE_ARMS`)."""
     out: dict[str, dict[int, dict]] = {arm: {} for arm in ARMS}
     records = find_runs([runs]) if any(runs.rglob("summary.json")) else []
     for rec in records:
@@ -71,14 +80,18 @@ def read_results(runs: Path) -> dict[str, dict[int, dict]]:
                 "collisions": int(s["outcomes"].get("collision", 0)),
                 "commit": s.get("commit"),
             }
-    for path in sorted((runs / "example").glob("*.json")):
-        r = json.loads(path.read_text())
-        out["a" if r["args"]["transforms"] else "b"][int(r["args"]["seed"])] = {
-            **{m: float(r[m]) for m in METRICS},
-            "episodes": int(r["episodes"]),
-            "collisions": round(r["collision_rate"] * r["episodes"]),
-            "commit": r.get("commit"),
-        }
+    for folder, (with_, without, reference) in EXAMPLE_ARMS.items():
+        for path in sorted((runs / folder).glob("*.json")):
+            r = json.loads(path.read_text())
+            arm = reference if r["args"].get("reference") else with_ if r["args"]["transforms"] else without
+            if arm is None:
+                raise ValueError(f"{path}: a reference result in {folder}/, which holds none")
+            out[arm][int(r["args"]["seed"])] = {
+                **{m: float(r[m]) for m in METRICS},
+                "episodes": int(r["episodes"]),
+                "collisions": round(r["collision_rate"] * r["episodes"]),
+                "commit": r.get("commit"),
+            }
     return out
 
 

@@ -10,6 +10,9 @@
 #   (e) d3qn_td3 (the same agents, no predictive states)
 #   (f) idm_mobil (our IDM+MOBIL policy through the adapter's action)
 #   (g) HighwayEnv's own IDM/MOBIL vehicle as the ego                 (env.highwayenv.ego_driver=highwayenv)
+# PART=example_safe: the example as it now stands, seeds 0-4 (OUT/example_safe), the same budget:
+#   (h) with the transforms, the safe reward (the example's default), (i) the same without the transforms,
+#   (j) the reference: HighwayEnv's IDM driving the ego with its lane kept (--reference; no training)
 # Run it from a checkout of one commit (studies/reuse/README.md); it resumes job by job (a finished run is skipped,
 # a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
 #   bash studies/reuse/study.sh [OUT_DIR]
@@ -23,6 +26,14 @@ COMMON="env=highwayenv episodes=$EPISODES eval_episodes=$EVAL train.eval_every=0
 
 jobs() {  # seed-major, so that every arm's seed 0 lands first
   local seed
+  if [ "${PART:-}" = example_safe ]; then
+    for seed in 0 1 2 3 4; do
+      echo "example $OUT/example_safe seed=$seed reference"
+      echo "example $OUT/example_safe seed=$seed no-transforms"
+      echo "example $OUT/example_safe seed=$seed transforms"
+    done
+    return
+  fi
   for seed in 0 1 2; do
     echo "train $OUT/highwayenv_gans seed=$seed algo=kddrl"
     echo "example $OUT/example seed=$seed transforms"
@@ -50,6 +61,9 @@ one() {
   fi
   local flag="" name="$1"
   [ "$name" = no-transforms ] && flag=--no-transforms
+  [ "$name" = reference ] && flag=--reference
+  [ "$dir" = "$OUT/example" ] && flag="$flag --reward paper"  # (a), (b): the paper's reward, as they ran
+  [ "$dir" = "$OUT/example_safe" ] && flag="$flag --reward safe"
   local out="$dir/${name}__$seed.json"
   [ -f "$out" ] && return
   mkdir -p "$dir"
