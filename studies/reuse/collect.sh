@@ -9,10 +9,11 @@ HERE=$(dirname "$0")
 for sweep in highwayenv_gans sumo_gans highwayenv_driver; do
   [ -d "$SRC/$sweep" ] && bash "$HERE/../paper/collect.sh" "$SRC/$sweep" "$HERE/runs/$sweep"
 done
-if [ -d "$SRC/example" ]; then
-  mkdir -p "$HERE/runs/example"
-  for f in "$SRC"/example/*.json; do [ -e "$f" ] && cp "$f" "$HERE/runs/example/"; done
-fi
+for example in example example_safe; do
+  [ -d "$SRC/$example" ] || continue
+  mkdir -p "$HERE/runs/$example"
+  for f in "$SRC/$example"/*.json; do [ -e "$f" ] && cp "$f" "$HERE/runs/$example/"; done
+done
 python "$HERE/report.py" "$HERE/runs" --out "$HERE"
 # Figs. 16-17 from the metrics of the lcGAN these runs used (HighwayEnv's)
 OMP_NUM_THREADS=1 python -m kddrl_trl.report "$HERE/runs" out="$HERE/report" title="Reuse on HighwayEnv report" \
