@@ -35,11 +35,11 @@ def _train_run(folder: Path, algo: str, seed: int, speed: float, collisions: int
     OmegaConf.save(config, folder / "config.yaml")
 
 
-def _example(folder: Path, transforms: bool, seed: int, speed: float, collisions: int) -> None:
+def _example(folder: Path, transforms: bool, seed: int, speed: float, collisions: int, reference=False) -> None:
     folder.mkdir(parents=True, exist_ok=True)
-    name = "transforms" if transforms else "no-transforms"
+    name = "reference" if reference else "transforms" if transforms else "no-transforms"
     result = {
-        "args": {"transforms": transforms, "seed": seed, "episodes": 300},
+        "args": {"transforms": transforms, "seed": seed, "episodes": 300, "reference": reference},
         "mean_speed_kmh": speed,
         "collision_rate": collisions / 100,
         "episodes": 100,
@@ -74,6 +74,9 @@ def runs(tmp_path):
         _example(base / "example", True, seed, 70.0 + seed, 10)
         if seed < 2:  # one seed missing: the paired difference uses the seeds both arms have
             _example(base / "example", False, seed, 60.0, 20)
+        _example(base / "example_safe", True, seed, 72.0 + seed, 5)
+        _example(base / "example_safe", False, seed, 71.0, 8)
+        _example(base / "example_safe", True, seed, 75.0, 0, reference=True)  # --reference keeps its args
     _train_run(tmp_path / "runs" / "other" / "baseline__kddrl__0", "kddrl", 0, 130.0, 1)  # not HighwayEnv
     (tmp_path / "runs" / "other" / "baseline__kddrl__0" / "summary.json").write_text(
         json.dumps(
@@ -96,8 +99,18 @@ def test_every_arm_is_recognised_with_its_seeds(runs):
         "e": [0, 1, 2],
         "f": [0, 1, 2],
         "g": [0, 1, 2],
+        "h": [0, 1, 2],
+        "i": [0, 1, 2],
+        "j": [0, 1, 2],
     }
     assert results["c"][1]["mean_speed_kmh"] == 92.0 and results["g"][2]["mean_speed_kmh"] == 81.0
+    assert results["j"][1]["mean_speed_kmh"] == 75.0 and results["h"][2]["mean_speed_kmh"] == 74.0
+
+
+def test_a_reference_result_where_none_belongs_is_refused(runs):
+    _example(runs / "example", True, 0, 75.0, 0, reference=True)
+    with pytest.raises(ValueError, match="example/reference__0.json: a reference result"):
+        report.read_results(runs)
 
 
 def test_intervals_pooled_collisions_and_paired_differences(runs, tmp_path):
@@ -120,7 +133,9 @@ def test_intervals_pooled_collisions_and_paired_differences(runs, tmp_path):
     for arm in out["arms"].values():  # an arm's rate interval stays within [0, 1]
         rate = arm["collision_rate"]
         assert rate["ci_low"] is None or 0.0 <= rate["ci_low"] <= rate["mean"] <= rate["ci_high"] <= 1.0
-    assert (tmp_path / "out" / "results.md").read_text().count("| (") == 7 + 5
+    hj = pairs[("h", "j")]
+    assert hj["seeds"] == [0, 1, 2] and hj["collision_rate"]["mean"] == pytest.approx(0.05)
+    assert (tmp_path / "out" / "results.md").read_text().count("| (") == 10 + 8
     assert json.loads((tmp_path / "out" / "results.json").read_text()) == json.loads(json.dumps(out))
 
 
