@@ -47,7 +47,7 @@ RAW = [("ego", "state"), ("flat", "rel"), ("flat", "mask")]  # ego y, v_y, v_x; 
 PREDICTIVE = [("flat", "key_gaps"), ("prior", "p_mobil"), ("prior", "p_lcgan")]  # what the transforms add
 
 
-def make_env(name: str, roads: int, seed: int, transforms: bool, reward="paper", driver="agent", norm=None):
+def make_env(name: str, roads: int, seed: int, transforms: bool, reward="safe", driver="agent", norm=None):
     """The env (raw keys; ``reward``: the rewards' variant, ``HighwayConfig.reward``) -> the KDDRL stack (optional;
     its GANs trained on the traffic of the env's simulator) -> the features flattened and concatenated into
     ``"observation"`` -> standardised by ``norm`` = (loc, scale) (optional). ``driver="highwayenv_idm"``:
@@ -111,7 +111,7 @@ def make_agent(obs_dim: int, hidden: int = 256):
 def evaluate(policy, env_name, roads, seed, transforms, episodes, driver="agent", norm=None) -> dict:
     """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, and the
     share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates). ``norm``: training's
-    ``ObservationNorm`` (its statistics, not new ones)."""
+    (loc, scale) of :func:`observation_statistics`, not new ones."""
     env = make_env(env_name, roads, seed, transforms, driver=driver, norm=norm)
     speed_sum, frames, speeds, collisions = torch.zeros(roads), torch.zeros(roads), [], 0
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
