@@ -1,0 +1,93 @@
+"""An arm of the braking study against its control, seed by seed (sections 2, 3 and 5 of studies/braking/README.md).
+
+    python studies/braking/paired.py <arm sweep folder> <control sweep folder>... [--out paired.json]
+
+Each run folder (``summary.json``) of the arm is paired with the controls' run of the same scenario, algo and
+seed (several control folders may hold the controls of different algos, never one run twice): the same commit, training seed and test traffic, so that the per-seed differences remove what the seeds
+share. Per algo, for the test collision rate (points) and mean speed (km/h): each side's mean over seeds with its
+95 % t interval, and the paired difference arm - control with its paired t interval and p-value
+(:func:`kddrl_trl.reporting.stats.difference_test`, the same code as the reports). A run of the arm without its
+control is an error naming it; the controls' other runs are left out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from kddrl_trl.reporting.stats import difference_test, mean_ci
+
+METRICS = {"collision_rate": ("test collisions (points)", 100.0), "mean_speed_kmh": ("test mean speed (km/h)", 1.0)}
+
+
+def runs(*sweeps: Path) -> dict:
+    """``{(scenario, algo, seed): summary}`` of every run folder directly under the ``sweeps``."""
+    out, where = {}, {}
+    for sweep in sweeps:
+        found = sorted(sweep.glob("*/summary.json"))
+        if not found:
+            raise SystemExit(f"paired.py: no run folder with a summary.json under {sweep}")
+        for path in found:
+            s = json.loads(path.read_text())
+            key = (s["scenario"], s["algo"], int(s["seed"]))
+            if key in out:
+                raise SystemExit(f"paired.py: {key} twice, in {where[key]} and {path.parent}")
+            out[key], where[key] = s, path.parent
+    return out
+
+
+def paired(arm: dict, control: dict) -> dict:
+    """``{"<scenario>/<algo>": {"seeds", metric: {"arm", "control", "difference"}}}`` over the runs both hold."""
+    lone = sorted(set(arm) - set(control))
+    if lone:
+        raise SystemExit(f"paired.py: runs of the arm without their control (scenario, algo, seed): {lone}")
+    out = {}
+    for scenario, algo in sorted({k[:2] for k in arm}):
+        seeds = sorted(k[2] for k in arm if k[:2] == (scenario, algo))
+        row = {"seeds": seeds}
+        for metric, (_, scale) in METRICS.items():
+            a = [scale * arm[(scenario, algo, s)][metric] for s in seeds]
+            c = [scale * control[(scenario, algo, s)][metric] for s in seeds]
+            row[metric] = {"arm": mean_ci(a), "control": mean_ci(c), "difference": difference_test(a, c, paired=True)}
+            row[metric]["per_seed"] = {"arm": a, "control": c}
+        out[f"{scenario}/{algo}"] = row
+    return out
+
+
+def _ci(d: dict, sign: str = "") -> str:
+    if d["ci_low"] is None:
+        return f"{d['mean']:{sign}.1f} (one seed)"
+    return f"{d['mean']:{sign}.1f} [{d['ci_low']:{sign}.1f}, {d['ci_high']:{sign}.1f}]"
+
+
+def table(result: dict) -> str:
+    """The markdown table of :func:`paired`: one row per algo and metric."""
+    lines = ["| runs | seeds | metric | arm | control | arm − control (paired) | p |", "|---|---|---|---|---|---|---|"]
+    for name, row in result.items():
+        for metric, (label, _) in METRICS.items():
+            m = row[metric]
+            p = "" if m["difference"]["p"] is None else f"{m['difference']['p']:.3f}"
+            seeds = ",".join(map(str, row["seeds"]))
+            lines.append(
+                f"| {name} | {seeds} | {label} | {_ci(m['arm'])} | {_ci(m['control'])} | {_ci(m['difference'], '+')} | {p} |"
+            )
+    return "\n".join(lines)
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("arm", type=Path)
+    p.add_argument("control", type=Path, nargs="+")
+    p.add_argument("--out", type=Path, help="also write the result as JSON")
+    args = p.parse_args(argv)
+    result = paired(runs(args.arm), runs(*args.control))
+    print(table(result))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=1) + "\n")
+    return result
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
