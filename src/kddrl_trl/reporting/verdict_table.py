@@ -27,10 +27,12 @@ VERBS |= {("collision_rate", "less"): "collides less than"}
 
 
 def _estimate(c: dict, value, ci) -> str:
-    scale, unit = (100.0, "pts") if c["metric"] == "collision_rate" else (1.0, "km/h")
+    """The difference and its interval in the claim's unit (km/h or points, as the paper's column), unit unnamed: the
+    claim's verb says which, and the rows stay within the README's 120 characters."""
+    scale = 100.0 if c["metric"] == "collision_rate" else 1.0
     if value is None:
         return "—"
-    return f"{scale * value:+.1f} {unit}" + ("" if ci is None else f" [{scale * ci[0]:+.1f}, {scale * ci[1]:+.1f}]")
+    return f"{scale * value:+.1f}" + ("" if ci is None else f" [{scale * ci[0]:+.1f}, {scale * ci[1]:+.1f}]")
 
 
 def table(report: dict) -> str:
