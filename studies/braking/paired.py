@@ -68,7 +68,8 @@ def table(result: dict) -> str:
     for name, row in result.items():
         for metric, (label, _) in METRICS.items():
             m = row[metric]
-            p = "" if m["difference"]["p"] is None else f"{m['difference']['p']:.3f}"
+            p = m["difference"]["p"]
+            p = "" if p is None else "< 0.001" if p < 0.001 else f"{p:.3f}"
             seeds = ",".join(map(str, row["seeds"]))
             lines.append(
                 f"| {name} | {seeds} | {label} | {_ci(m['arm'])} | {_ci(m['control'])} | {_ci(m['difference'], '+')} | {p} |"
