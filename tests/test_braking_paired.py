@@ -57,3 +57,11 @@ def test_refuses_one_run_in_two_control_folders(tmp_path):
     _run(tmp_path / "c2", "ni", 0, 0.3, 100.0)
     with pytest.raises(SystemExit, match="twice"):
         paired.main([str(tmp_path / "arm"), str(tmp_path / "c1"), str(tmp_path / "c2")])
+
+
+def test_a_rates_interval_stays_within_0_and_100_points(tmp_path):
+    for seed, rate in enumerate((0.0, 0.0, 0.06)):
+        _run(tmp_path / "arm", "peng", seed, rate, 100.0)
+        _run(tmp_path / "control", "peng", seed, 0.1, 100.0)
+    arm = paired.main([str(tmp_path / "arm"), str(tmp_path / "control")])["braking/peng"]["collision_rate"]["arm"]
+    assert arm["mean"] == pytest.approx(2.0) and arm["ci_low"] == 0.0 and arm["ci_high"] > 2.0

@@ -19,7 +19,11 @@ from pathlib import Path
 
 from kddrl_trl.reporting.stats import difference_test, mean_ci
 
-METRICS = {"collision_rate": ("test collisions (points)", 100.0), "mean_speed_kmh": ("test mean speed (km/h)", 1.0)}
+#: metric -> (label, scale, the scaled values' possible range: each side's interval is cut to it, as the reports do)
+METRICS = {
+    "collision_rate": ("test collisions (points)", 100.0, (0.0, 100.0)),
+    "mean_speed_kmh": ("test mean speed (km/h)", 1.0, None),
+}
 
 
 def runs(*sweeps: Path) -> dict:
@@ -47,11 +51,15 @@ def paired(arm: dict, control: dict) -> dict:
     for scenario, algo in sorted({k[:2] for k in arm}):
         seeds = sorted(k[2] for k in arm if k[:2] == (scenario, algo))
         row = {"seeds": seeds}
-        for metric, (_, scale) in METRICS.items():
+        for metric, (_, scale, within) in METRICS.items():
             a = [scale * arm[(scenario, algo, s)][metric] for s in seeds]
             c = [scale * control[(scenario, algo, s)][metric] for s in seeds]
-            row[metric] = {"arm": mean_ci(a), "control": mean_ci(c), "difference": difference_test(a, c, paired=True)}
-            row[metric]["per_seed"] = {"arm": a, "control": c}
+            row[metric] = {
+                "arm": mean_ci(a, within=within),
+                "control": mean_ci(c, within=within),
+                "difference": difference_test(a, c, paired=True),
+                "per_seed": {"arm": a, "control": c},
+            }
         out[f"{scenario}/{algo}"] = row
     return out
 
@@ -66,7 +74,7 @@ def table(result: dict) -> str:
     """The markdown table of :func:`paired`: one row per algo and metric."""
     lines = ["| runs | seeds | metric | arm | control | arm − control (paired) | p |", "|---|---|---|---|---|---|---|"]
     for name, row in result.items():
-        for metric, (label, _) in METRICS.items():
+        for metric, (label, *_) in METRICS.items():
             m = row[metric]
             p = m["difference"]["p"]
             p = "" if p is None else "< 0.001" if p < 0.001 else f"{p:.3f}"
