@@ -3,8 +3,8 @@
 # records leave the tree (kept in that commit, listed in studies/records.json), their configs are migrated to the
 # current schema, and that is committed too:
 #   bash studies/paper/land.sh <sweep dir> <destination, e.g. studies/paper/runs_5-14> [commit message]
-# From main's root. Only the runs new to the destination are added (the older ones stay in their own commits). The
-# study's report and the README's verdict table are regenerated in the second commit (its records restored first).
+# From main's root. Only the runs new to the destination are added (the older ones stay in their own commits). A
+# landing in studies/paper also regenerates the verdict report and the README's verdict table in the second commit.
 set -euo pipefail
 SRC=${1:?usage: land.sh <sweep dir> <destination> [message]}
 DST=${2:?usage: land.sh <sweep dir> <destination> [message]}
@@ -22,10 +22,16 @@ python -m kddrl_trl.devtools.records archive "$DST"
 # record in the commit above keeps it as the run wrote it)
 python -m kddrl_trl.devtools.migrate_configs "$DST" > /dev/null
 git add "$DST"
-# the study's report and the README's verdict table follow the runs it reads (every record of the study restored first)
-python -m kddrl_trl.devtools.records restore paper > /dev/null
-python -m kddrl_trl.report studies/paper/runs studies/paper/runs_5-14 out=studies/paper verdict=true \
-  title="Verdict report" verdict_table=[README.md,docs/index.md] > /dev/null
-git add studies/paper/report.md studies/paper/report.json studies/paper/fig*.png README.md docs/index.md
-git commit -q -m "$(basename "$DST"): the records of $(git rev-parse --short HEAD) leave the tree (studies/records.json); report and README table regenerated"
+# the verdict study's report and the README's verdict table follow the runs they read (every record of the study
+# restored first); another study's landing leaves them as they are
+note="the records of $(git rev-parse --short HEAD) leave the tree (studies/records.json)"
+case "$DST" in
+  studies/paper/*)
+    python -m kddrl_trl.devtools.records restore paper > /dev/null
+    python -m kddrl_trl.report studies/paper/runs studies/paper/runs_5-14 out=studies/paper verdict=true \
+      title="Verdict report" verdict_table=[README.md,docs/index.md] > /dev/null
+    git add studies/paper/report.md studies/paper/report.json studies/paper/fig*.png README.md docs/index.md
+    note="$note; report and README table regenerated";;
+esac
+git commit -q -m "$(basename "$DST"): $note"
 echo "land.sh: landed $(echo "$new" | wc -l) run(s): $(echo $new)"
