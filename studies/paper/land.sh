@@ -31,7 +31,10 @@ case "$DST" in
     python -m kddrl_trl.report studies/paper/runs studies/paper/runs_5-14 out=studies/paper verdict=true \
       title="Verdict report" verdict_table=[README.md,docs/index.md] > /dev/null
     git add studies/paper/report.md studies/paper/report.json studies/paper/fig*.png README.md docs/index.md
-    note="$note; report and README table regenerated";;
+    note="$note; report and README table regenerated"
+    # a regenerated table can break the README's own rules (its line lengths, its tables): say so now, not in CI
+    python -m pytest -q -p no:cacheprovider tests/test_readme.py > /dev/null \
+      || echo "land.sh: tests/test_readme.py fails after this landing; mend the README before you stop" >&2;;
 esac
 git commit -q -m "$(basename "$DST"): $note"
 echo "land.sh: landed $(echo "$new" | wc -l) run(s): $(echo $new)"
