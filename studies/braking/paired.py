@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from kddrl_trl.reporting.stats import difference_test, mean_ci
+from kddrl_trl.run_folder import RunFolder
 
 #: metric -> (label, scale, the scaled values' possible range: each side's interval is cut to it, as the reports do)
 METRICS = {
@@ -27,18 +28,22 @@ METRICS = {
 
 
 def runs(*sweeps: Path) -> dict:
-    """``{(scenario, algo, seed): summary}`` of every run folder directly under the ``sweeps``."""
+    """``{(scenario, algo, seed): summary}`` of every finished run folder (:class:`RunFolder`) directly under the
+    ``sweeps``."""
     out, where = {}, {}
     for sweep in sweeps:
-        found = sorted(sweep.glob("*/summary.json"))
+        found = [run for run in map(RunFolder, sorted(sweep.iterdir())) if run.is_finished()] if sweep.is_dir() else []
         if not found:
-            raise SystemExit(f"paired.py: no run folder with a summary.json under {sweep}")
-        for path in found:
-            s = json.loads(path.read_text())
-            key = (s["scenario"], s["algo"], int(s["seed"]))
+            raise SystemExit(f"paired.py: no finished run folder (with a summary.json) under {sweep}")
+        for run in found:
+            s = run.read_summary()
+            try:
+                key = (s["scenario"], s["algo"], int(s["seed"]))
+            except KeyError as err:
+                raise SystemExit(f"paired.py: {run.summary} lacks the key {err}") from err
             if key in out:
-                raise SystemExit(f"paired.py: {key} twice, in {where[key]} and {path.parent}")
-            out[key], where[key] = s, path.parent
+                raise SystemExit(f"paired.py: {key} twice, in {where[key]} and {run.path}")
+            out[key], where[key] = s, run.path
     return out
 
 
