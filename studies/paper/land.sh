@@ -9,6 +9,7 @@ set -euo pipefail
 SRC=${1:?usage: land.sh <sweep dir> <destination> [message]}
 DST=${2:?usage: land.sh <sweep dir> <destination> [message]}
 MSG=${3:-"$(basename "$DST"): runs landed"}
+DST=$(realpath -m --relative-to=. "$DST")  # ./studies/paper/… or an absolute path reads as studies/paper/…
 mkdir -p "$DST"
 before=$(find "$DST" -mindepth 1 -maxdepth 1 -type d -printf '%f\n' | sort)
 bash "$(dirname "$0")/collect.sh" "$SRC" "$DST" > /dev/null
