@@ -198,7 +198,7 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
 
 
 def _n_seeds(row: dict) -> str:
-    """"1 seed" or "n seeds" for a table row."""
+    """The row's seed count, as "1 seed" or "n seeds"."""
     n = len(row["seeds"])
     return f"{n} seed" if n == 1 else f"{n} seeds"
 
@@ -474,9 +474,7 @@ def build_report(
     md = [
         f"# {title or 'kddrl_trl report'}",
         "",
-        f"{len(runs)} runs: "
-        + ", ".join(f"{r['algo']} on {r['scenario']} ({_n_seeds(r)})" for r in table_rows)
-        + ".",
+        f"{len(runs)} runs: " + ", ".join(f"{r['algo']} on {r['scenario']} ({_n_seeds(r)})" for r in table_rows) + ".",
         "",
         "## Tables II-V: driving metrics in evaluation",
         "",
