@@ -197,12 +197,6 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
     return lines
 
 
-def _n_seeds(row: dict) -> str:
-    """The row's seed count, as "1 seed" or "n seeds"."""
-    n = len(row["seeds"])
-    return f"{n} seed" if n == 1 else f"{n} seeds"
-
-
 def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
     """Each other row against :data:`RULE_REFERENCE` on one scenario: its mean speed as a ratio of the rule
     baseline's and its collision rate minus the rule baseline's, with Welch's CIs over seeds (the safety goals:
@@ -213,7 +207,7 @@ def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
         return []
     shield = _shielded(table_rows)
     lines = [
-        f"### {scenario}: each algo against {RULE_REFERENCE} ({_n_seeds(ref)})",
+        f"### {scenario}: each algo against {RULE_REFERENCE} ({figures.seed_count(len(ref['seeds']))})",
         "",
         f"Mean speed ÷ {RULE_REFERENCE}'s and collision rate − {RULE_REFERENCE}'s (percentage points), "
         "Welch's 95 % CI over seeds (of the log-ratio for the speed).",
@@ -474,7 +468,9 @@ def build_report(
     md = [
         f"# {title or 'kddrl_trl report'}",
         "",
-        f"{len(runs)} runs: " + ", ".join(f"{r['algo']} on {r['scenario']} ({_n_seeds(r)})" for r in table_rows) + ".",
+        f"{len(runs)} runs: "
+        + ", ".join(f"{r['algo']} on {r['scenario']} ({figures.seed_count(len(r['seeds']))})" for r in table_rows)
+        + ".",
         "",
         "## Tables II-V: driving metrics in evaluation",
         "",

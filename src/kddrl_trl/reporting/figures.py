@@ -93,7 +93,8 @@ def _tight(fig) -> None:
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.4 / fig.get_figheight()))
 
 
-def _seeds(n: int) -> str:
+def seed_count(n: int) -> str:
+    """A count of seeds as the figures' legends and the report's rows write it: "1 seed", "n seeds"."""
     return f"{n} seed" if n == 1 else f"{n} seeds"
 
 
@@ -151,7 +152,7 @@ def training_curves(runs, path: Path, window: int = 50) -> Path | None:
                 curves = np.stack([r.training[key].rolling(window, min_periods=1).mean().to_numpy()[:n] for r in group])
                 x = np.arange(1, n + 1)
                 look = style(algo, labels)
-                ax.plot(x, curves.mean(0), label=f"{algo} ({_seeds(len(group))})", **look)
+                ax.plot(x, curves.mean(0), label=f"{algo} ({seed_count(len(group))})", **look)
                 if len(panel) <= MAX_BANDS:
                     ax.fill_between(x, curves.min(0), curves.max(0), color=look["color"], alpha=0.15, lw=0)
             ax.set_title(f"{scenario}: {title}", fontsize=10)
@@ -212,7 +213,7 @@ def distributions(runs, scenario: str, path: Path) -> Path | None:
                 group = groups[(algo,)]
                 dens = np.stack([np.histogram(r.episodes[key], bins=bins, density=True)[0] for r in group])
                 look = style(algo, labels)
-                ax.plot(centres, dens.mean(0), label=f"{algo} ({_seeds(len(group))})", **look)
+                ax.plot(centres, dens.mean(0), label=f"{algo} ({seed_count(len(group))})", **look)
                 if len(panel) <= MAX_BANDS:
                     ax.fill_between(centres, dens.min(0), dens.max(0), color=look["color"], alpha=0.15, lw=0)
             ax.set_xlabel(f"{label} of an episode")
