@@ -36,6 +36,9 @@ ARMS = {
     "h": "example TD3 with the transforms, safe reward",
     "i": "example TD3 without the transforms, safe reward",
     "j": "HighwayEnv's IDM as the ego, lane kept (the example's reference)",
+    "k": "example TD3 with the transforms, its default budget (1000 episodes, 8 roads)",
+    "l": "example TD3 without the transforms, its default budget",
+    "m": "HighwayEnv's IDM as the ego, lane kept, on (k)'s evaluation traffic",
 }
 #: the paired comparisons: (arm, reference arm, what a positive speed difference would mean)
 PAIRS = [
@@ -47,9 +50,12 @@ PAIRS = [
     ("h", "i", "the transforms, in the example's TD3 with the safe reward"),
     ("h", "j", "the example with the transforms against its reference"),
     ("i", "j", "the example without the transforms against its reference"),
+    ("k", "l", "the transforms, in the example at its default budget"),
+    ("k", "m", "the example at its default budget, with the transforms, against its reference"),
+    ("l", "m", "the example at its default budget, without the transforms, against its reference"),
 ]
 #: folder of the example's results (under the runs folder) -> (arm with the transforms, without, the reference)
-EXAMPLE_ARMS = {"example": ("a", "b", None), "example_safe": ("h", "i", "j")}
+EXAMPLE_ARMS = {"example": ("a", "b", None), "example_safe": ("h", "i", "j"), "example_default": ("k", "l", "m")}
 METRICS = ("mean_speed_kmh", "collision_rate")
 
 
@@ -66,8 +72,8 @@ ARM_OF_ROW = {
 
 def read_results(runs: Path) -> dict[str, dict[int, dict]]:
     """arm -> seed -> {metric: value, "episodes", "collisions", "commit"}: the training runs as the package's report
-    reads them (:func:`kddrl_trl.reporting.records.find_runs`), the example's JSON results under ``runs/example``
-    and ``runs/example_safe`` (:data:`EXAMPLE_ARMS`)."""
+    reads them (:func:`kddrl_trl.reporting.records.find_runs`), the example's JSON results under the folders of
+    :data:`EXAMPLE_ARMS`."""
     out: dict[str, dict[int, dict]] = {arm: {} for arm in ARMS}
     records = find_runs([runs]) if any(runs.rglob("summary.json")) else []
     for rec in records:
@@ -165,6 +171,8 @@ def markdown(report: dict) -> str:
         "|---|---|---|---|---|---|",
     ]
     for arm, row in report["arms"].items():
+        if not row["seeds"]:  # an arm not run yet
+            continue
         pooled = row["collision_rate"]["pooled"]
         cp = pooled.get("clopper_pearson")
         pooled_s = f"{pooled['collisions']} / {pooled['episodes']}" + (
@@ -182,6 +190,8 @@ def markdown(report: dict) -> str:
         "|---|---|---|---|---|",
     ]
     for p in report["paired_differences"]:
+        if not p["seeds"]:
+            continue
         lines.append(
             f"| ({p['arm']}) − ({p['reference']}) | {p['what']} | {len(p['seeds'])} | {_fmt(p['mean_speed_kmh'])} | "
             f"{_fmt(p['collision_rate'], 100.0)} |"

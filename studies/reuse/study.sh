@@ -13,6 +13,9 @@
 # PART=example_safe: the example as it now stands, seeds 0-4 (OUT/example_safe), the same budget:
 #   (h) with the transforms, the safe reward (the example's default), (i) the same without the transforms,
 #   (j) the reference: HighwayEnv's IDM driving the ego with its lane kept (--reference; no training)
+# PART=example_default: the same three arms at the example's own default budget, seeds 0-4 (OUT/example_default):
+#   1000 training episodes on 8 roads, 100 greedy episodes on the evaluation traffic of 8 roads:
+#   (k) with the transforms, (l) without, (m) the reference on that traffic
 # Run it from a checkout of one commit (studies/reuse/README.md); it resumes job by job (a finished run is skipped,
 # a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
 #   bash studies/reuse/study.sh [OUT_DIR]
@@ -21,16 +24,21 @@ set -euo pipefail
 OUT=${1:-runs/reuse}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 EPISODES=300
+ROADS=4
 EVAL=100
+if [ "${PART:-}" = example_default ]; then
+  EPISODES=1000  # the example's defaults (--episodes, --roads)
+  ROADS=8
+fi
 COMMON="env=highwayenv episodes=$EPISODES eval_episodes=$EVAL train.eval_every=0 progress=false"
 
 jobs() {  # seed-major, so that every arm's seed 0 lands first
   local seed
-  if [ "${PART:-}" = example_safe ]; then
+  if [ "${PART:-}" = example_safe ] || [ "${PART:-}" = example_default ]; then
     for seed in 0 1 2 3 4; do
-      echo "example $OUT/example_safe seed=$seed reference"
-      echo "example $OUT/example_safe seed=$seed no-transforms"
-      echo "example $OUT/example_safe seed=$seed transforms"
+      echo "example $OUT/$PART seed=$seed reference"
+      echo "example $OUT/$PART seed=$seed transforms"
+      echo "example $OUT/$PART seed=$seed no-transforms"
     done
     return
   fi
@@ -63,16 +71,16 @@ one() {
   [ "$name" = no-transforms ] && flag=--no-transforms
   [ "$name" = reference ] && flag=--reference
   [ "$dir" = "$OUT/example" ] && flag="$flag --reward paper"  # (a), (b): the paper's reward, as they ran
-  [ "$dir" = "$OUT/example_safe" ] && flag="$flag --reward safe"
+  [ "$dir" = "$OUT/example_safe" ] || [ "$dir" = "$OUT/example_default" ] && flag="$flag --reward safe"
   local out="$dir/${name}__$seed.json"
   [ -f "$out" ] && return
   mkdir -p "$dir"
-  python examples/transforms_in_torchrl_td3.py --env highwayenv $flag --seed "$seed" --roads 4 \
+  python examples/transforms_in_torchrl_td3.py --env highwayenv $flag --seed "$seed" --roads "$ROADS" \
     --episodes $EPISODES --eval-episodes $EVAL --out "$out.tmp" > "$dir/${name}__$seed.log" 2>&1 \
     && python -c 'import json, sys; d = json.load(open(sys.argv[1])); d["commit"] = sys.argv[2]
 json.dump(d, open(sys.argv[1], "w"), indent=1)' "$out.tmp" "$(git rev-parse --short HEAD)" \
     && mv "$out.tmp" "$out" || echo "study.sh: example failed: $name seed $seed" >&2
 }
 export -f one
-export OUT COMMON EPISODES EVAL
+export OUT COMMON EPISODES ROADS EVAL
 jobs | xargs -d '\n' -P "${JOBS:-1}" -I{} bash -c 'one "$1"' _ {}
