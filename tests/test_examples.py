@@ -31,10 +31,17 @@ def test_transforms_in_a_torchrl_td3_loop(transforms, tmp_path):
     assert width == (3 + 24 + 6) + ((6 + 3 + 3) if transforms else 0)  # raw; + key gaps and both priors
     out = tmp_path / "result.json"
     args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--out", str(out)]
+    args += ["--buffer", "200"]  # fills and cycles within the run: it keeps only the keys the loss reads
     result = example.main(args if transforms else [*args, "--no-transforms"])
     assert 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1.0
     assert 2 <= result["episodes"] < 2 + 2 and result["train_episodes"] >= 2 and result["train_frames"] > 0
     assert json.loads(out.read_text()) == result and result["args"]["transforms"] == transforms
+
+
+def test_a_buffer_smaller_than_the_warmup_is_refused(capsys):
+    with pytest.raises(SystemExit):
+        _example().main(["--buffer", "100", "--warmup", "160"])
+    assert "--buffer 100 is below --warmup 160" in capsys.readouterr().err
 
 
 def test_the_examples_observation_statistics_come_from_random_steps_and_scale_by_at_least_one():

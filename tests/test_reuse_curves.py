@@ -33,7 +33,7 @@ def test_unfinished_runs_are_named_and_left_out_and_arms_follow_their_folders(tm
     _log(tmp_path / "example_default" / "transforms__1.log", [(50, 10)], 50)
     _log(tmp_path / "example_default" / "no-transforms__1.log", [(20, 10)], 50, result=False)
     got = curves.read_curves(tmp_path, every=50)
-    assert got == {"h": {0: {50: 20.0}}, "i": {3: {50: 30.0}}, "k": {1: {50: 10.0}}}
+    assert got == {"h": {0: {50: 20.0}}, "i": {3: {50: 30.0}}, "n": {1: {50: 10.0}}}
     assert "no-transforms__1.log: no result beside it" in capsys.readouterr().err
 
 

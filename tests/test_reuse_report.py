@@ -78,8 +78,11 @@ def runs(tmp_path):
         _example(base / "example_safe", False, seed, 71.0, 8)
         _example(base / "example_safe", True, seed, 75.0, 0, reference=True)  # --reference keeps its args
         if seed < 2:
-            _example(base / "example_default", True, seed, 74.0, 1)
-            _example(base / "example_default", False, seed, 73.0, 3)
+            _example(base / "example_default_100k", True, seed, 74.0, 1)
+            _example(base / "example_default_100k", False, seed, 73.0, 3)
+            _example(base / "example_default_100k", True, seed, 76.0, 0, reference=True)
+        if seed == 0:
+            _example(base / "example_default", True, seed, 77.0, 2)
             _example(base / "example_default", True, seed, 76.0, 0, reference=True)
     _train_run(tmp_path / "runs" / "other" / "baseline__kddrl__0", "kddrl", 0, 130.0, 1)  # not HighwayEnv
     (tmp_path / "runs" / "other" / "baseline__kddrl__0" / "summary.json").write_text(
@@ -109,6 +112,9 @@ def test_every_arm_is_recognised_with_its_seeds(runs):
         "k": [0, 1],
         "l": [0, 1],
         "m": [0, 1],
+        "n": [0],
+        "o": [],
+        "p": [0],
     }
     assert results["c"][1]["mean_speed_kmh"] == 92.0 and results["g"][2]["mean_speed_kmh"] == 81.0
     assert results["j"][1]["mean_speed_kmh"] == 75.0 and results["h"][2]["mean_speed_kmh"] == 74.0
@@ -143,7 +149,8 @@ def test_intervals_pooled_collisions_and_paired_differences(runs, tmp_path):
     hj = pairs[("h", "j")]
     assert hj["seeds"] == [0, 1, 2] and hj["collision_rate"]["mean"] == pytest.approx(0.05)
     assert pairs[("k", "m")]["seeds"] == [0, 1] and pairs[("k", "m")]["collision_rate"]["mean"] == 0.01
-    assert (tmp_path / "out" / "results.md").read_text().count("| (") == 13 + 11
+    assert pairs[("n", "p")]["seeds"] == [0] and pairs[("n", "o")]["seeds"] == []
+    assert (tmp_path / "out" / "results.md").read_text().count("| (") == 15 + 12  # (o) and its pairs not run yet
     assert json.loads((tmp_path / "out" / "results.json").read_text()) == json.loads(json.dumps(out))
 
 
@@ -168,8 +175,9 @@ def test_a_difference_of_collision_rates_is_cut_to_the_range_it_can_take():
 
 
 def test_an_arm_not_run_yet_has_no_row(runs, tmp_path):
-    for path in (runs / "example_default").glob("*.json"):
-        path.unlink()
+    for folder in ("example_default_100k", "example_default"):
+        for path in (runs / folder).glob("*.json"):
+            path.unlink()
     out = report.main([str(runs), "--out", str(tmp_path / "out")])
     assert out["arms"]["k"]["seeds"] == [] and out["arms"]["k"]["mean_speed_kmh"]["mean"] is None
     md = (tmp_path / "out" / "results.md").read_text()

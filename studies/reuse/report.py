@@ -36,9 +36,12 @@ ARMS = {
     "h": "example TD3 with the transforms, safe reward",
     "i": "example TD3 without the transforms, safe reward",
     "j": "HighwayEnv's IDM as the ego, lane kept (the example's reference)",
-    "k": "example TD3 with the transforms, its default budget (1000 episodes, 8 roads)",
-    "l": "example TD3 without the transforms, its default budget",
+    "k": "example TD3 with the transforms, its default budget (1000 episodes, 8 roads), a 100k-frame buffer",
+    "l": "example TD3 without the transforms, its default budget, a 100k-frame buffer",
     "m": "HighwayEnv's IDM as the ego, lane kept, on (k)'s evaluation traffic",
+    "n": "example TD3 with the transforms, its default budget and 1M-frame buffer",
+    "o": "example TD3 without the transforms, its default budget and 1M-frame buffer",
+    "p": "HighwayEnv's IDM as the ego, lane kept, on (n)'s evaluation traffic",
 }
 #: the paired comparisons: (arm, reference arm, what a positive speed difference would mean)
 PAIRS = [
@@ -50,12 +53,20 @@ PAIRS = [
     ("h", "i", "the transforms, in the example's TD3 with the safe reward"),
     ("h", "j", "the example with the transforms against its reference"),
     ("i", "j", "the example without the transforms against its reference"),
-    ("k", "l", "the transforms, in the example at its default budget"),
-    ("k", "m", "the example at its default budget, with the transforms, against its reference"),
-    ("l", "m", "the example at its default budget, without the transforms, against its reference"),
+    ("k", "l", "the transforms, in the example at its default budget, a 100k-frame buffer"),
+    ("k", "m", "the example at its default budget, a 100k-frame buffer, with the transforms, against its reference"),
+    ("l", "m", "the example at its default budget, a 100k-frame buffer, without the transforms, against its reference"),
+    ("n", "o", "the transforms, in the example at its default budget and buffer"),
+    ("n", "p", "the example at its default budget and buffer, with the transforms, against its reference"),
+    ("o", "p", "the example at its default budget and buffer, without the transforms, against its reference"),
 ]
 #: folder of the example's results (under the runs folder) -> (arm with the transforms, without, the reference)
-EXAMPLE_ARMS = {"example": ("a", "b", None), "example_safe": ("h", "i", "j"), "example_default": ("k", "l", "m")}
+EXAMPLE_ARMS = {
+    "example": ("a", "b", None),
+    "example_safe": ("h", "i", "j"),
+    "example_default_100k": ("k", "l", "m"),
+    "example_default": ("n", "o", "p"),
+}
 METRICS = ("mean_speed_kmh", "collision_rate")
 
 

@@ -15,7 +15,9 @@
 #   (j) the reference: HighwayEnv's IDM driving the ego with its lane kept (--reference; no training)
 # PART=example_default: the same three arms at the example's own default budget, seeds 0-4 (OUT/example_default):
 #   1000 training episodes on 8 roads, 100 greedy episodes on the evaluation traffic of 8 roads:
-#   (k) with the transforms, (l) without, (m) the reference on that traffic
+#   (n) with the transforms, (o) without, (p) the reference on that traffic
+# PART=example_default_100k: the same with the 100,000-frame replay buffer the example first had (--buffer 100000;
+#   OUT/example_default_100k): (k) with the transforms, (l) without, (m) the reference
 # Run it from a checkout of one commit (studies/reuse/README.md); it resumes job by job (a finished run is skipped,
 # a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
 #   bash studies/reuse/study.sh [OUT_DIR]
@@ -26,7 +28,7 @@ export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 EPISODES=300
 ROADS=4
 EVAL=100
-if [ "${PART:-}" = example_default ]; then
+if [ "${PART:-}" = example_default ] || [ "${PART:-}" = example_default_100k ]; then
   EPISODES=1000  # the example's defaults (--episodes, --roads)
   ROADS=8
 fi
@@ -34,7 +36,7 @@ COMMON="env=highwayenv episodes=$EPISODES eval_episodes=$EVAL train.eval_every=0
 
 jobs() {  # seed-major, so that every arm's seed 0 lands first
   local seed
-  if [ "${PART:-}" = example_safe ] || [ "${PART:-}" = example_default ]; then
+  if [ "${PART:-}" = example_safe ] || [ "${PART:-}" = example_default ] || [ "${PART:-}" = example_default_100k ]; then
     for seed in 0 1 2 3 4; do
       echo "example $OUT/$PART seed=$seed reference"
       echo "example $OUT/$PART seed=$seed transforms"
@@ -71,7 +73,8 @@ one() {
   [ "$name" = no-transforms ] && flag=--no-transforms
   [ "$name" = reference ] && flag=--reference
   [ "$dir" = "$OUT/example" ] && flag="$flag --reward paper"  # (a), (b): the paper's reward, as they ran
-  [ "$dir" = "$OUT/example_safe" ] || [ "$dir" = "$OUT/example_default" ] && flag="$flag --reward safe"
+  [ "$dir" = "$OUT/example" ] || flag="$flag --reward safe"
+  [ "$dir" = "$OUT/example_default_100k" ] && flag="$flag --buffer 100000"
   local out="$dir/${name}__$seed.json"
   [ -f "$out" ] && return
   mkdir -p "$dir"
