@@ -58,3 +58,16 @@ def test_markdown_caps_the_columns_and_writes_both_files(tmp_path):
     assert "| seed | 100 | 200 | 300 | 400 | 500 | 600 | 700 | 800 | 900 | 1000 |" in md
     assert "| mean | 0.5 | 0.5 |" in md
     assert '"1000": 1.0' in (tmp_path / "out" / "curves.json").read_text()
+
+
+def test_compressed_logs_read_as_plain_ones_and_a_second_log_of_a_run_is_refused(tmp_path):
+    import lzma
+
+    _log(tmp_path / "example_safe" / "transforms__0.log", [(50, 20), (100, 10)], 100)
+    plain = curves.read_curves(tmp_path, every=50)
+    packed = tmp_path / "example_safe" / "transforms__0.log.xz"
+    packed.write_bytes(lzma.compress((tmp_path / "example_safe" / "transforms__0.log").read_bytes()))
+    with pytest.raises(ValueError, match="a second log of example_safe/transforms__0"):
+        curves.read_curves(tmp_path, every=50)
+    (tmp_path / "example_safe" / "transforms__0.log").unlink()
+    assert curves.read_curves(tmp_path, every=50) == plain == {"h": {0: {50: 20.0, 100: 10.0}}}

@@ -1,10 +1,11 @@
 """The example's training curves (studies/reuse/README.md): the share of collisions over the last 50 training
 episodes (exploration on), as the example's progress bar printed it, every ``--every`` episodes, per arm and seed.
 
-    python studies/reuse/curves.py <study output dir, e.g. ../reuse/runs/reuse> [--out studies/reuse]
+    python studies/reuse/curves.py [studies/reuse/runs] [--out studies/reuse]
 
 Reads the logs ``<folder>/<arm>__<seed>.log`` that ``study.sh`` writes beside each finished result
-``<arm>__<seed>.json``, for the folders of ``report.EXAMPLE_ARMS``, and writes ``curves.json`` and ``curves.md``.
+``<arm>__<seed>.json`` (or ``.log.xz``, as ``collect.sh`` copies them), for the folders of ``report.EXAMPLE_ARMS``,
+and writes ``curves.json`` and ``curves.md``.
 A log without its result (a run not finished) is named and left out; a finished run's log without a progress line
 is an error. The bar prints the collisions of the last 50 episodes with its episode count; the value at episode E
 is the last one printed at the first count >= E, which may lag by one collector batch (20 frames per road).
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import lzma
 import re
 import sys
 from pathlib import Path
@@ -33,7 +35,8 @@ PROGRESS = re.compile(r"(\d+)/(\d+) \[[^\]]*collisions_last_50=(\d+)%\]")
 
 def read_curve(log: Path, every: int) -> dict[int, float]:
     """episode -> % of collisions over the last 50 training episodes, at every ``every`` episodes up to the total."""
-    lines = [(int(n), int(total), float(p)) for n, total, p in PROGRESS.findall(log.read_text(errors="replace"))]
+    text = lzma.open(log, "rt", errors="replace").read() if log.suffix == ".xz" else log.read_text(errors="replace")
+    lines = [(int(n), int(total), float(p)) for n, total, p in PROGRESS.findall(text)]
     if not lines:
         raise ValueError(f"{log}: no progress line ('<count>/<total> [..., collisions_last_50=<p>%]')")
     total = lines[-1][1]
@@ -52,11 +55,15 @@ def read_curves(src: Path, every: int) -> dict[str, dict[int, dict[int, float]]]
     out: dict[str, dict[int, dict[int, float]]] = {}
     for folder, (with_, without, _) in EXAMPLE_ARMS.items():
         for name, arm in (("transforms", with_), ("no-transforms", without)):
-            for log in sorted((src / folder).glob(f"{name}__*.log")):
-                if not log.with_suffix(".json").exists():
+            logs = sorted((src / folder).glob(f"{name}__*.log")) + sorted((src / folder).glob(f"{name}__*.log.xz"))
+            for log in logs:
+                stem = log.name.split(".")[0]  # <arm>__<seed>
+                if not (log.parent / f"{stem}.json").exists():
                     print(f"{log}: no result beside it (a run not finished): left out", file=sys.stderr)
                     continue
-                seed = int(log.stem.split("__")[1])
+                seed = int(stem.split("__")[1])
+                if seed in out.get(arm, {}):
+                    raise ValueError(f"{log}: a second log of {folder}/{stem}")
                 out.setdefault(arm, {})[seed] = read_curve(log, every)
     return out
 
@@ -87,7 +94,9 @@ def markdown(curves: dict[str, dict[int, dict[int, float]]], every: int) -> str:
 
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("src", help="the study's output folder (study.sh's OUT_DIR)")
+    p.add_argument(
+        "src", nargs="?", default=str(HERE / "runs"), help="the runs (collect.sh's copy, or study.sh's OUT_DIR)"
+    )
     p.add_argument("--out", default=str(HERE))
     p.add_argument("--every", type=int, default=50, help="episodes between two points of a curve")
     args = p.parse_args(argv)
