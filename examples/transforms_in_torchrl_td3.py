@@ -8,9 +8,9 @@ The reward is the paper's TD3 reward (Eq. 32) with the ``safe`` efficiency term 
 per frame below 72 km/h. With the lane kept, the ego must follow whatever drives ahead, and under the paper's term
 (``--reward paper``) following a leader slower than 72 km/h costs about as much as crashing into it
 (``kddrl_trl/envs/rewards.py``), and HighwayEnv's traffic drives about 75-80 km/h. ``studies/reuse/README.md``
-measures both rewards against HighwayEnv's IDM in its lane (``--reference``). The replay buffer keeps the whole run
-(``--buffer``: 1M frames, TorchRL's sota TD3; a default run collects 190-280k) of the keys the loss reads, so that
-the crashes of the first episodes stay in it: a buffer that forgets them can let the policy drift back to crashing.
+measures both rewards against HighwayEnv's IDM in its lane (``--reference``). The replay buffer (``--buffer``: 1M frames,
+TorchRL's sota TD3) holds the whole of a default run (160-275k frames), and of each frame only the keys the loss
+reads.
 
     python examples/transforms_in_torchrl_td3.py                   # with the transforms (trajGAN key gaps, priors)
     python examples/transforms_in_torchrl_td3.py --no-transforms   # the control arm: raw observations only

@@ -28,22 +28,23 @@ export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 EPISODES=300
 ROADS=4
 EVAL=100
-if [ "${PART:-}" = example_default ] || [ "${PART:-}" = example_default_100k ]; then
-  EPISODES=1000  # the example's defaults (--episodes, --roads)
-  ROADS=8
-fi
+case "${PART:-}" in
+  example_default | example_default_100k) EPISODES=1000 ROADS=8 ;;  # the example's defaults (--episodes, --roads)
+esac
 COMMON="env=highwayenv episodes=$EPISODES eval_episodes=$EVAL train.eval_every=0 progress=false"
 
 jobs() {  # seed-major, so that every arm's seed 0 lands first
   local seed
-  if [ "${PART:-}" = example_safe ] || [ "${PART:-}" = example_default ] || [ "${PART:-}" = example_default_100k ]; then
-    for seed in 0 1 2 3 4; do
-      echo "example $OUT/$PART seed=$seed reference"
-      echo "example $OUT/$PART seed=$seed transforms"
-      echo "example $OUT/$PART seed=$seed no-transforms"
-    done
-    return
-  fi
+  case "${PART:-}" in
+    example_safe | example_default | example_default_100k)
+      for seed in 0 1 2 3 4; do
+        echo "example $OUT/$PART seed=$seed reference"
+        echo "example $OUT/$PART seed=$seed transforms"
+        echo "example $OUT/$PART seed=$seed no-transforms"
+      done
+      return
+      ;;
+  esac
   for seed in 0 1 2; do
     echo "train $OUT/highwayenv_gans seed=$seed algo=kddrl"
     echo "example $OUT/example seed=$seed transforms"
@@ -72,8 +73,11 @@ one() {
   local flag="" name="$1"
   [ "$name" = no-transforms ] && flag=--no-transforms
   [ "$name" = reference ] && flag=--reference
-  [ "$dir" = "$OUT/example" ] && flag="$flag --reward paper"  # (a), (b): the paper's reward, as they ran
-  [ "$dir" = "$OUT/example" ] || flag="$flag --reward safe"
+  if [ "$dir" = "$OUT/example" ]; then
+    flag="$flag --reward paper"  # (a), (b): the paper's reward, as they ran
+  else
+    flag="$flag --reward safe"
+  fi
   [ "$dir" = "$OUT/example_default_100k" ] && flag="$flag --buffer 100000"
   local out="$dir/${name}__$seed.json"
   [ -f "$out" ] && return
