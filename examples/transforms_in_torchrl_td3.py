@@ -17,12 +17,15 @@ reads.
     python examples/transforms_in_torchrl_td3.py --env highwayenv  # on HighwayEnv (the optional extra .[highway])
 
 Trains for ``--episodes`` episodes, then prints (and with ``--out``, writes as JSON) the greedy policy's mean speed
-and collision rate over ``--eval-episodes`` episodes on evaluation seeds that training never saw.
+and collision rate over ``--eval-episodes`` episodes on evaluation seeds that training never saw. With
+``--validate-every N``, the greedy policy is validated every N training episodes on traffic of its own, and the one
+of the highest mean return is kept and evaluated, the last one beside it (as the package's ``checkpoints/best.pt``).
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 
 import torch
@@ -110,26 +113,31 @@ def make_agent(obs_dim: int, hidden: int = 256):
     return actor, keep, critic, spec
 
 
-def evaluate(policy, env_name, roads, seed, transforms, episodes, driver="agent", norm=None) -> dict:
-    """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, and the
-    share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates). ``norm``: training's
-    (loc, scale) of :func:`observation_statistics`, not new ones."""
-    env = make_env(env_name, roads, seed, transforms, driver=driver, norm=norm)
-    speed_sum, frames, speeds, collisions = torch.zeros(roads), torch.zeros(roads), [], 0
+def evaluate(policy, env_name, roads, seed, transforms, episodes, driver="agent", norm=None, reward="safe") -> dict:
+    """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, the
+    share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates) and the mean episode
+    return of the TD3 reward (Eq. 32, variant ``reward``). ``norm``: training's (loc, scale) of
+    :func:`observation_statistics`, not new ones."""
+    env = make_env(env_name, roads, seed, transforms, reward, driver=driver, norm=norm)
+    speed_sum, frames, returns = torch.zeros(roads), torch.zeros(roads), torch.zeros(roads)
+    speeds, ended_returns, collisions = [], [], 0
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
         while len(speeds) < episodes:
             td, root = env.step_and_maybe_reset(policy(td))
             speed_sum += td["next", "ego", "state"][..., 1]
+            returns += td["next", *REWARD].reshape(roads)
             frames += 1
             done = td["next", "done"].reshape(roads)
             speeds += (3.6 * speed_sum[done] / frames[done]).tolist()
+            ended_returns += returns[done].tolist()
             collisions += int(td["next", "collision"].reshape(roads)[done].sum())
-            speed_sum[done], frames[done], td = 0.0, 0.0, root
+            speed_sum[done], frames[done], returns[done], td = 0.0, 0.0, 0.0, root
     env.close()
     return {
         "mean_speed_kmh": sum(speeds) / len(speeds),
         "collision_rate": collisions / len(speeds),
+        "mean_return": sum(ended_returns) / len(ended_returns),
         "episodes": len(speeds),
     }
 
@@ -143,6 +151,8 @@ def main(argv=None) -> dict:
     p.add_argument("--warmup", type=int, default=2_000, help="frames collected before the first update")
     p.add_argument("--buffer", type=int, default=1_000_000, help="replay buffer capacity, frames (TorchRL's sota TD3)")
     p.add_argument("--eval-episodes", type=int, default=100)
+    p.add_argument("--validate-every", type=int, default=0, help="training episodes between validations (0: none)")
+    p.add_argument("--validate-episodes", type=int, default=24, help="greedy episodes per validation")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--reward", choices=["paper", "safe"], default="safe", help="the rewards' variant (HighwayConfig)")
     p.add_argument("--obs-norm", action="store_true", help="standardise the observation (observation_statistics)")
@@ -180,6 +190,7 @@ def main(argv=None) -> dict:
 
     collector, episodes, frames = Collector(env, policy, frames_per_batch=20 * args.roads, total_frames=-1), 0, 0
     bar, crashes = tqdm(total=args.episodes, desc="training episodes", unit="ep"), []
+    validations, best = [], None
     for batch in collector:
         buffer.extend(batch.reshape(-1).select(*loss.in_keys))  # what the loss reads, no more
         done = batch["next", "done"].reshape(-1)
@@ -187,6 +198,11 @@ def main(argv=None) -> dict:
         episodes, frames = episodes + int(done.sum()), frames + batch.numel()
         bar.update(min(int(done.sum()), args.episodes - bar.n))
         bar.set_postfix(collisions_last_50=f"{sum(crashes[-50:]) / max(len(crashes[-50:]), 1):.0%}", refresh=False)
+        if args.validate_every and episodes // args.validate_every > len(validations):
+            validations.append({"episode": episodes, "frames": frames, **validate(actor, keep, args, norm)})
+            bar.write(f"validation at episode {episodes}: {validations[-1]}")
+            if best is None or validations[-1]["mean_return"] > best[0]["mean_return"]:
+                best = validations[-1], copy.deepcopy(actor)
         if episodes >= args.episodes:
             break
         if len(buffer) < args.warmup:
@@ -206,10 +222,30 @@ def main(argv=None) -> dict:
     collector.shutdown()
     env.close()
 
+    tested = (args.env, args.roads, args.seed + 1_000_000, args.transforms)  # evaluation traffic training never saw
+    last = evaluate(TensorDictSequential(keep, actor), *tested, args.eval_episodes, norm=norm, reward=args.reward)
+    result = {**last, "train_episodes": episodes, "train_frames": frames}  # episodes: evaluated
+    if best is not None:  # the kept policy is the result; the last one is reported beside it
+        kept = (
+            last
+            if best[0]["episode"] == episodes
+            else evaluate(
+                TensorDictSequential(keep, best[1]), *tested, args.eval_episodes, norm=norm, reward=args.reward
+            )
+        )
+        result = {**result, **kept, "kept_episode": best[0]["episode"], "last": last, "validations": validations}
+    return report(args, result)
+
+
+def validate(actor, keep, args, norm) -> dict:
+    """The greedy policy of ``actor`` as it is now, ``args.validate_episodes`` episodes on validation traffic
+    (seed + 500,000: neither training's nor the evaluation's, as ``kddrl_trl.eval.protocol``). The kept policy is
+    the one of the highest mean return, the reward it is trained on (as the package's ``train.best_metric``)."""
+    seed = args.seed + 500_000
     greedy = TensorDictSequential(keep, actor)
-    seed = args.seed + 1_000_000
-    result = evaluate(greedy, args.env, args.roads, seed, args.transforms, args.eval_episodes, norm=norm)
-    return report(args, {**result, "train_episodes": episodes, "train_frames": frames})  # episodes: evaluated
+    return evaluate(
+        greedy, args.env, args.roads, seed, args.transforms, args.validate_episodes, norm=norm, reward=args.reward
+    )
 
 
 def reference(args) -> dict:

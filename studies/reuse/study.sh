@@ -18,6 +18,10 @@
 #   (n) with the transforms, (o) without, (p) the reference on that traffic
 # PART=example_default_100k: the same with the 100,000-frame replay buffer the example first had (--buffer 100000;
 #   OUT/example_default_100k): (k) with the transforms, (l) without, (m) the reference
+# PART=example_best: the example_default arms keeping the greedy policy of the best validation (--validate-every 100
+#   --validate-episodes 24; OUT/example_best), each JSON with the last policy's evaluation beside the kept one's:
+#   (q) with the transforms, (r) without, (s) the reference; (t) and (u): the last policies of (q) and (r)
+# SEEDS (default 0 1 2 3 4): the seeds of an example part, e.g. SEEDS=0 for a first look
 # Run it from a checkout of one commit (studies/reuse/README.md); it resumes job by job (a finished run is skipped,
 # a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
 #   bash studies/reuse/study.sh [OUT_DIR]
@@ -29,15 +33,15 @@ EPISODES=300
 ROADS=4
 EVAL=100
 case "${PART:-}" in
-  example_default | example_default_100k) EPISODES=1000 ROADS=8 ;;  # the example's defaults (--episodes, --roads)
+  example_default | example_default_100k | example_best) EPISODES=1000 ROADS=8 ;;  # the example's defaults
 esac
 COMMON="env=highwayenv episodes=$EPISODES eval_episodes=$EVAL train.eval_every=0 progress=false"
 
 jobs() {  # seed-major, so that every arm's seed 0 lands first
   local seed
   case "${PART:-}" in
-    example_safe | example_default | example_default_100k)
-      for seed in 0 1 2 3 4; do
+    example_safe | example_default | example_default_100k | example_best)
+      for seed in ${SEEDS:-0 1 2 3 4}; do
         echo "example $OUT/$PART seed=$seed reference"
         echo "example $OUT/$PART seed=$seed transforms"
         echo "example $OUT/$PART seed=$seed no-transforms"
@@ -79,6 +83,7 @@ one() {
     flag="$flag --reward safe"
   fi
   [ "$dir" = "$OUT/example_default_100k" ] && flag="$flag --buffer 100000"
+  [ "$dir" = "$OUT/example_best" ] && flag="$flag --validate-every 100 --validate-episodes 24"
   local out="$dir/${name}__$seed.json"
   [ -f "$out" ] && return
   mkdir -p "$dir"
