@@ -35,7 +35,8 @@ def _train_run(folder: Path, algo: str, seed: int, speed: float, collisions: int
     OmegaConf.save(config, folder / "config.yaml")
 
 
-def _example(folder: Path, transforms: bool, seed: int, speed: float, collisions: int, reference=False) -> None:
+def _example(folder: Path, transforms: bool, seed: int, speed: float, collisions: int, reference=False, last=None):
+    """The example's JSON; ``last`` = (speed, collisions) of the last policy, beside the kept one's (--validate-every)."""
     folder.mkdir(parents=True, exist_ok=True)
     name = "reference" if reference else "transforms" if transforms else "no-transforms"
     result = {
@@ -45,6 +46,8 @@ def _example(folder: Path, transforms: bool, seed: int, speed: float, collisions
         "episodes": 100,
         "commit": "abc1234",
     }
+    if last is not None:
+        result["last"] = {"mean_speed_kmh": last[0], "collision_rate": last[1] / 100, "episodes": 100}
     (folder / f"{name}__{seed}.json").write_text(json.dumps(result))
 
 
@@ -84,6 +87,9 @@ def runs(tmp_path):
         if seed == 0:
             _example(base / "example_default", True, seed, 77.0, 2)
             _example(base / "example_default", True, seed, 76.0, 0, reference=True)
+            _example(base / "example_best", True, seed, 74.0, 1, last=(80.0, 30))
+            _example(base / "example_best", False, seed, 73.0, 4, last=(85.0, 40))
+            _example(base / "example_best", False, seed, 76.0, 0, reference=True)
     _train_run(tmp_path / "runs" / "other" / "baseline__kddrl__0", "kddrl", 0, 130.0, 1)  # not HighwayEnv
     (tmp_path / "runs" / "other" / "baseline__kddrl__0" / "summary.json").write_text(
         json.dumps(
@@ -115,9 +121,28 @@ def test_every_arm_is_recognised_with_its_seeds(runs):
         "n": [0],
         "o": [],
         "p": [0],
+        "q": [0],
+        "r": [0],
+        "s": [0],
+        "t": [0],
+        "u": [0],
     }
     assert results["c"][1]["mean_speed_kmh"] == 92.0 and results["g"][2]["mean_speed_kmh"] == 81.0
     assert results["j"][1]["mean_speed_kmh"] == 75.0 and results["h"][2]["mean_speed_kmh"] == 74.0
+    assert results["q"][0]["collisions"] == 1 and results["t"][0] == {
+        **results["q"][0],
+        "collisions": 30,
+        "mean_speed_kmh": 80.0,
+        "collision_rate": 0.3,
+    }
+    assert results["r"][0]["collisions"] == 4 and results["u"][0]["mean_speed_kmh"] == 85.0
+
+
+def test_a_kept_policy_without_its_last_evaluation_is_refused(runs):
+    path = runs / "example_best" / "transforms__0.json"
+    path.write_text(json.dumps({k: v for k, v in json.loads(path.read_text()).items() if k != "last"}))
+    with pytest.raises(ValueError, match='example_best/transforms__0.json: no "last" evaluation'):
+        report.read_results(runs)
 
 
 def test_a_reference_result_where_none_belongs_is_refused(runs):
@@ -150,7 +175,8 @@ def test_intervals_pooled_collisions_and_paired_differences(runs, tmp_path):
     assert hj["seeds"] == [0, 1, 2] and hj["collision_rate"]["mean"] == pytest.approx(0.05)
     assert pairs[("k", "m")]["seeds"] == [0, 1] and pairs[("k", "m")]["collision_rate"]["mean"] == 0.01
     assert pairs[("n", "p")]["seeds"] == [0] and pairs[("n", "o")]["seeds"] == []
-    assert (tmp_path / "out" / "results.md").read_text().count("| (") == 15 + 12  # (o) and its pairs not run yet
+    assert pairs[("r", "u")]["collision_rate"]["mean"] == pytest.approx(-0.36)
+    assert (tmp_path / "out" / "results.md").read_text().count("| (") == 20 + 17  # (o) and its pairs not run yet
     assert json.loads((tmp_path / "out" / "results.json").read_text()) == json.loads(json.dumps(out))
 
 
@@ -181,4 +207,4 @@ def test_an_arm_not_run_yet_has_no_row(runs, tmp_path):
     out = report.main([str(runs), "--out", str(tmp_path / "out")])
     assert out["arms"]["k"]["seeds"] == [] and out["arms"]["k"]["mean_speed_kmh"]["mean"] is None
     md = (tmp_path / "out" / "results.md").read_text()
-    assert "| (k)" not in md and "| (k) − (m)" not in md and md.count("| (") == 10 + 8
+    assert "| (k)" not in md and "| (k) − (m)" not in md and md.count("| (") == 15 + 13

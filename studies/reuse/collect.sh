@@ -10,8 +10,9 @@ HERE=$(dirname "$0")
 for sweep in highwayenv_gans sumo_gans highwayenv_driver; do
   [ -d "$SRC/$sweep" ] && bash "$HERE/../paper/collect.sh" "$SRC/$sweep" "$HERE/runs/$sweep"
 done
-for example in example example_safe example_default_100k example_default; do
-  [ -d "$SRC/$example" ] || continue
+for dir in "$SRC"/example*/; do  # every part of the example (study.sh: PART)
+  [ -d "$dir" ] || continue
+  example=$(basename "$dir")
   mkdir -p "$HERE/runs/$example"
   for f in "$SRC/$example"/*.json; do
     [ -e "$f" ] || continue

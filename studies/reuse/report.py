@@ -42,6 +42,11 @@ ARMS = {
     "n": "example TD3 with the transforms, its default budget and 1M-frame buffer",
     "o": "example TD3 without the transforms, its default budget and 1M-frame buffer",
     "p": "HighwayEnv's IDM as the ego, lane kept, on (n)'s evaluation traffic",
+    "q": "example TD3 with the transforms, its default budget, the best validated policy kept",
+    "r": "example TD3 without the transforms, its default budget, the best validated policy kept",
+    "s": "HighwayEnv's IDM as the ego, lane kept, on (q)'s evaluation traffic",
+    "t": "the last policy of (q)'s runs",
+    "u": "the last policy of (r)'s runs",
 }
 #: the paired comparisons: (arm, reference arm, what a positive speed difference would mean)
 PAIRS = [
@@ -59,6 +64,11 @@ PAIRS = [
     ("n", "o", "the transforms, in the example at its default budget and buffer"),
     ("n", "p", "the example at its default budget and buffer, with the transforms, against its reference"),
     ("o", "p", "the example at its default budget and buffer, without the transforms, against its reference"),
+    ("q", "r", "the transforms, in the example keeping its best validated policy"),
+    ("q", "s", "the example keeping its best validated policy, with the transforms, against its reference"),
+    ("r", "s", "the example keeping its best validated policy, without the transforms, against its reference"),
+    ("q", "t", "keeping the best validated policy instead of the last, with the transforms (the same runs)"),
+    ("r", "u", "keeping the best validated policy instead of the last, without the transforms (the same runs)"),
 ]
 #: folder of the example's results (under the runs folder) -> (arm with the transforms, without, the reference)
 EXAMPLE_ARMS = {
@@ -66,7 +76,11 @@ EXAMPLE_ARMS = {
     "example_safe": ("h", "i", "j"),
     "example_default_100k": ("k", "l", "m"),
     "example_default": ("n", "o", "p"),
+    "example_best": ("q", "r", "s"),
 }
+#: folder of results that keep the best validated policy -> (arm of the last policy with the transforms, without):
+#: the ``"last"`` evaluation each such JSON holds beside the kept one's
+LAST_ARMS = {"example_best": ("t", "u")}
 METRICS = ("mean_speed_kmh", "collision_rate")
 
 
@@ -103,13 +117,23 @@ def read_results(runs: Path) -> dict[str, dict[int, dict]]:
             arm = reference if r["args"].get("reference") else with_ if r["args"]["transforms"] else without
             if arm is None:
                 raise ValueError(f"{path}: a reference result in {folder}/, which holds none")
-            out[arm][int(r["args"]["seed"])] = {
-                **{m: float(r[m]) for m in METRICS},
-                "episodes": int(r["episodes"]),
-                "collisions": round(r["collision_rate"] * r["episodes"]),
-                "commit": r.get("commit"),
-            }
+            out[arm][int(r["args"]["seed"])] = _example_result(r, r.get("commit"))
+            if folder in LAST_ARMS and not r["args"].get("reference"):
+                if "last" not in r:
+                    raise ValueError(f'{path}: no "last" evaluation beside the kept policy\'s (--validate-every)')
+                last = LAST_ARMS[folder][0 if r["args"]["transforms"] else 1]
+                out[last][int(r["args"]["seed"])] = _example_result(r["last"], r.get("commit"))
     return out
+
+
+def _example_result(r: dict, commit) -> dict:
+    """An evaluation of the example's JSON (its own result or its ``"last"``) as :func:`read_results` holds it."""
+    return {
+        **{m: float(r[m]) for m in METRICS},
+        "episodes": int(r["episodes"]),
+        "collisions": round(r["collision_rate"] * r["episodes"]),
+        "commit": commit,
+    }
 
 
 #: the range a metric can take (a difference of it between two arms: [low - high, high - low]); an interval over
