@@ -8,9 +8,10 @@ The reward is the paper's TD3 reward (Eq. 32) with the ``safe`` efficiency term 
 per frame below 72 km/h. With the lane kept, the ego must follow whatever drives ahead, and under the paper's term
 (``--reward paper``) following a leader slower than 72 km/h costs about as much as crashing into it
 (``kddrl_trl/envs/rewards.py``), and HighwayEnv's traffic drives about 75-80 km/h. ``studies/reuse/README.md``
-measures both rewards against HighwayEnv's IDM in its lane (``--reference``). The replay buffer (``--buffer``: 1M frames,
-TorchRL's sota TD3) holds the whole of a default run (160-275k frames), and of each frame only the keys the loss
-reads.
+measures both rewards against HighwayEnv's IDM in its lane (``--reference``). The replay buffer (``--buffer``: 1M
+frames, TorchRL's sota TD3) holds the whole of a default run (160-275k frames), and of each frame only the keys the
+loss reads. ``--obs-scale`` divides the observation by the fixed physical scales the package's own agents use
+(:data:`SCALES`): the raw one holds the ego's position along the road, hundreds of metres.
 
     python examples/transforms_in_torchrl_td3.py                   # with the transforms (trajGAN key gaps, priors)
     python examples/transforms_in_torchrl_td3.py --no-transforms   # the control arm: raw observations only
@@ -27,6 +28,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+from functools import partial
 
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
@@ -34,10 +36,12 @@ from torchrl.collectors import Collector
 from torchrl.data import Bounded, LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import (
     CatTensors,
+    ClipTransform,
     Compose,
     DTypeCastTransform,
     FlattenObservation,
     ObservationNorm,
+    ParallelEnv,
     TransformedEnv,
 )
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -45,18 +49,33 @@ from torchrl.modules import MLP, AdditiveGaussianModule, TanhModule, ValueOperat
 from torchrl.objectives import SoftUpdate, TD3Loss
 from tqdm import tqdm
 
+from kddrl_trl.modules.embedding import KEY_GAP_SCALE
+from kddrl_trl.modules.state import StateScale
 from kddrl_trl.transforms import make_kddrl_transforms
 
 ACTION, LANE, REWARD = ("cf", "action"), ("lc", "action"), ("cf", "reward")
 RAW = [("ego", "state"), ("flat", "rel"), ("flat", "mask")]  # ego y, v_y, v_x; a..f relative states and presence
 PREDICTIVE = [("flat", "key_gaps"), ("prior", "p_mobil"), ("prior", "p_lcgan")]  # what the transforms add
+_S = StateScale()
+#: SI units per unit of feature, per key (a pattern repeated over the key's features): the fixed scales of the
+#: package's agent states (``kddrl_trl.modules.state``: positions 100 m, speeds 50 m/s, lateral 10 m and 5 m/s)
+#: and key gaps (``KEY_GAP_SCALE``); flags and probabilities are left as they are
+SCALES = {
+    ("ego", "state"): (_S.position, _S.speed, _S.lateral_speed),  # y, v_y, v_x
+    ("flat", "rel"): (_S.lateral_position, _S.position, _S.lateral_speed, _S.speed),  # Δx, Δy, Δv_x, Δv_y per slot
+    ("flat", "mask"): (1.0,),
+    ("flat", "key_gaps"): (KEY_GAP_SCALE,),
+    ("prior", "p_mobil"): (1.0,),
+    ("prior", "p_lcgan"): (1.0,),
+}
 
 
-def make_env(name: str, roads: int, seed: int, transforms: bool, reward="safe", driver="agent", norm=None):
+def make_env(name: str, roads: int, seed: int, transforms: bool, reward="safe", driver="agent", norm=None, scale=False):
     """The env (raw keys; ``reward``: the rewards' variant, ``HighwayConfig.reward``) -> the KDDRL stack (optional;
     its GANs trained on the traffic of the env's simulator) -> the features flattened and concatenated into
-    ``"observation"`` -> standardised by ``norm`` = (loc, scale) (optional). ``driver="highwayenv_idm"``:
-    HighwayEnv's IDM drives the ego in its lane (the reference)."""
+    ``"observation"`` -> standardised by ``norm`` = (loc, scale) (optional), or with ``scale`` divided by the fixed
+    scales of :data:`SCALES` and clipped to ±``StateScale.clip``, as the package's agents read their states.
+    ``driver="highwayenv_idm"``: HighwayEnv's IDM drives the ego in its lane (the reference)."""
     if name == "sumo":
         from kddrl_trl.envs import HighwayConfig, SumoHighwayEnv
 
@@ -76,7 +95,16 @@ def make_env(name: str, roads: int, seed: int, transforms: bool, reward="safe", 
     keys = RAW + (PREDICTIVE if transforms else [])
     stack = [make_kddrl_transforms(seed=seed, weights=name)] if transforms else []
     tail = [ObservationNorm(*(t.clone() for t in norm), in_keys=["observation"], standard_normal=True)] if norm else []
-    return TransformedEnv(base, Compose(*stack, *flat, CatTensors(keys, "observation", del_keys=False), *tail))
+    cat = CatTensors(keys, "observation", del_keys=False)
+    env = TransformedEnv(base, Compose(*stack, *flat, cat, *tail))
+    if scale:  # in the order CatTensors concatenates (its in_keys, sorted)
+        units = [
+            torch.tensor(SCALES[k]).repeat(env.observation_spec[k].shape[-1] // len(SCALES[k])) for k in cat.in_keys
+        ]
+        units = torch.cat(units)
+        env.append_transform(ObservationNorm(torch.zeros_like(units), units, ["observation"], standard_normal=True))
+        env.append_transform(ClipTransform(["observation"], low=-_S.clip, high=_S.clip))
+    return env
 
 
 def observation_statistics(env, frames: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -113,19 +141,24 @@ def make_agent(obs_dim: int, hidden: int = 256):
     return actor, keep, critic, spec
 
 
-def evaluate(policy, env_name, roads, seed, transforms, episodes, driver="agent", norm=None, reward="safe") -> dict:
+def evaluate(
+    policy, env_name, roads, seed, transforms, episodes, driver="agent", reward="safe", isolated=False, **view
+) -> dict:
     """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, the
     share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates) and the mean episode
-    return of the TD3 reward (Eq. 32, variant ``reward``). ``norm``: training's (loc, scale) of
-    :func:`observation_statistics`, not new ones."""
-    env = make_env(env_name, roads, seed, transforms, reward, driver=driver, norm=norm)
+    return of the TD3 reward (Eq. 32, variant ``reward``). ``view``: :func:`make_env`'s ``norm`` and ``scale`` as
+    in training (``norm``: training's (loc, scale) of :func:`observation_statistics`, not new ones).
+    ``isolated``: the env runs in a process of its own (TorchRL's ``ParallelEnv``), beside a training env that is
+    still open (libsumo runs one simulation per process); the policy stays in this one."""
+    make = partial(make_env, env_name, roads, seed, transforms, reward, driver=driver, **view)
+    env = ParallelEnv(1, make, mp_start_method="spawn", metadata_from_workers=True) if isolated else make()
     speed_sum, frames, returns = torch.zeros(roads), torch.zeros(roads), torch.zeros(roads)
     speeds, ended_returns, collisions = [], [], 0
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
         while len(speeds) < episodes:
             td, root = env.step_and_maybe_reset(policy(td))
-            speed_sum += td["next", "ego", "state"][..., 1]
+            speed_sum += td["next", "ego", "state"][..., 1].reshape(roads)
             returns += td["next", *REWARD].reshape(roads)
             frames += 1
             done = td["next", "done"].reshape(roads)
@@ -157,11 +190,19 @@ def main(argv=None) -> dict:
     p.add_argument("--reward", choices=["paper", "safe"], default="safe", help="the rewards' variant (HighwayConfig)")
     p.add_argument("--obs-norm", action="store_true", help="standardise the observation (observation_statistics)")
     p.add_argument("--norm-frames", type=int, default=2_000, help="random frames the normalisation is measured on")
+    p.add_argument(
+        "--obs-scale",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="divide the observation by fixed physical scales and clip it (SCALES), as the package's agents",
+    )
     p.add_argument("--reference", action="store_true", help="no training: HighwayEnv's IDM drives, its lane kept")
     p.add_argument("--out", help="also write the result as JSON to this file")
     args = p.parse_args(argv)
     if args.reference and args.env != "highwayenv":
         p.error("--reference drives with HighwayEnv's IDM: it needs --env highwayenv")
+    if args.obs_norm and args.obs_scale:
+        p.error("--obs-norm and --obs-scale are two ways to scale the observation: choose one")
     if args.buffer < args.warmup:
         p.error(f"--buffer {args.buffer} is below --warmup {args.warmup}: the buffer would never hold enough to update")
     torch.manual_seed(args.seed)
@@ -173,7 +214,8 @@ def main(argv=None) -> dict:
         stats_env = make_env(args.env, args.roads, args.seed + 2_000_000, args.transforms, args.reward)
         norm = observation_statistics(stats_env, args.norm_frames)
         stats_env.close()
-    env = make_env(args.env, args.roads, args.seed, args.transforms, args.reward, norm=norm)
+    view = {"norm": norm, "scale": args.obs_scale}  # how the observation reaches the networks, the same everywhere
+    env = make_env(args.env, args.roads, args.seed, args.transforms, args.reward, **view)
     actor, keep, critic, spec = make_agent(env.observation_spec["observation"].shape[-1])
     explore = TensorDictSequential(
         actor, AdditiveGaussianModule(spec, sigma_init=0.5, sigma_end=0.5, action_key=ACTION)
@@ -199,7 +241,7 @@ def main(argv=None) -> dict:
         bar.update(min(int(done.sum()), args.episodes - bar.n))
         bar.set_postfix(collisions_last_50=f"{sum(crashes[-50:]) / max(len(crashes[-50:]), 1):.0%}", refresh=False)
         if args.validate_every and episodes // args.validate_every > len(validations):
-            validations.append({"episode": episodes, "frames": frames, **validate(actor, keep, args, norm)})
+            validations.append({"episode": episodes, "frames": frames, **validate(actor, keep, args, view)})
             bar.write(f"validation at episode {episodes}: {validations[-1]}")
             if best is None or validations[-1]["mean_return"] > best[0]["mean_return"]:
                 best = validations[-1], copy.deepcopy(actor)
@@ -223,28 +265,35 @@ def main(argv=None) -> dict:
     env.close()
 
     tested = (args.env, args.roads, args.seed + 1_000_000, args.transforms)  # evaluation traffic training never saw
-    last = evaluate(TensorDictSequential(keep, actor), *tested, args.eval_episodes, norm=norm, reward=args.reward)
+    last = evaluate(TensorDictSequential(keep, actor), *tested, args.eval_episodes, reward=args.reward, **view)
     result = {**last, "train_episodes": episodes, "train_frames": frames}  # episodes: evaluated
     if best is not None:  # the kept policy is the result; the last one is reported beside it
         kept = (
             last
             if best[0]["episode"] == episodes
-            else evaluate(
-                TensorDictSequential(keep, best[1]), *tested, args.eval_episodes, norm=norm, reward=args.reward
-            )
+            else evaluate(TensorDictSequential(keep, best[1]), *tested, args.eval_episodes, reward=args.reward, **view)
         )
         result = {**result, **kept, "kept_episode": best[0]["episode"], "last": last, "validations": validations}
     return report(args, result)
 
 
-def validate(actor, keep, args, norm) -> dict:
+def validate(actor, keep, args, view: dict) -> dict:
     """The greedy policy of ``actor`` as it is now, ``args.validate_episodes`` episodes on validation traffic
-    (seed + 500,000: neither training's nor the evaluation's, as ``kddrl_trl.eval.protocol``). The kept policy is
-    the one of the highest mean return, the reward it is trained on (as the package's ``train.best_metric``)."""
+    (seed + 500,000: neither training's nor the evaluation's, as ``kddrl_trl.eval.protocol``), in an env of its
+    own process beside the training env. The kept policy is the one of the highest mean return, the reward it is
+    trained on (as the package's ``train.best_metric``)."""
     seed = args.seed + 500_000
     greedy = TensorDictSequential(keep, actor)
     return evaluate(
-        greedy, args.env, args.roads, seed, args.transforms, args.validate_episodes, norm=norm, reward=args.reward
+        greedy,
+        args.env,
+        args.roads,
+        seed,
+        args.transforms,
+        args.validate_episodes,
+        reward=args.reward,
+        isolated=True,
+        **view,
     )
 
 

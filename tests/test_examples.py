@@ -119,3 +119,41 @@ def test_sb3_ppo_example_learns_and_evaluates(tmp_path):
     result = example.main(["--steps", "128", "--n-steps", "64", "--eval-episodes", "2", "--out", str(out)])
     assert result["episodes"] == 2 and 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1
     assert json.loads(out.read_text()) == result and result["args"]["envs"] == 2
+
+
+@pytest.mark.parametrize("transforms", [True, False])
+def test_the_examples_fixed_scales_divide_each_feature_in_concatenation_order(transforms):
+    """``make_env(scale=True)``: the observation is the raw features (in the order CatTensors concatenates them,
+    its sorted in_keys) divided by the fixed scales of ``SCALES`` and clipped to ±5; a wrong order would divide a
+    position by a flag's 1 and a flag by 100 m."""
+    example = _example()
+    env = example.make_env("sumo", 2, 0, transforms, scale=True)
+    try:
+        td = env.rollout(30, break_when_any_done=False)["next"]
+    finally:
+        env.close()
+    keys = sorted(example.RAW + (example.PREDICTIVE if transforms else []))
+    units = [torch.tensor(example.SCALES[k]).repeat(td[k].shape[-1] // len(example.SCALES[k])) for k in keys]
+    expected = torch.cat([td[k] / u for k, u in zip(keys, units)], -1).clamp(-5.0, 5.0)
+    assert torch.allclose(td["observation"], expected, atol=1e-5)
+    assert float(td[("ego", "state")][..., 0].abs().max()) > 20.0  # the raw position is far from unit scale
+    assert float(td["observation"].abs().max()) <= 5.0
+
+
+def test_the_example_keeps_its_best_validated_policy_and_reports_the_last_beside_it(tmp_path, capsys):
+    """``--validate-every``: greedy validations on traffic of their own; the kept policy is the one of the highest
+    mean return, evaluated as the result, the last one's evaluation beside it. ``--obs-scale`` and ``--obs-norm``
+    are exclusive."""
+    example = _example()
+    with pytest.raises(SystemExit):
+        example.main(["--obs-scale", "--obs-norm"])
+    assert "choose one" in capsys.readouterr().err
+    args = ["--episodes", "4", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--no-transforms"]
+    result = example.main([*args, "--validate-every", "2", "--validate-episodes", "2", "--obs-scale"])
+    validations = result["validations"]
+    assert len(validations) >= 2 and [v["episode"] for v in validations] == sorted(v["episode"] for v in validations)
+    best = max(validations, key=lambda v: v["mean_return"])
+    assert result["kept_episode"] == best["episode"] and result["last"]["episodes"] >= 2
+    assert {"mean_speed_kmh", "collision_rate", "mean_return"} <= set(result["last"]) and result["args"]["obs_scale"]
+    if best["episode"] == result["train_episodes"]:  # the last policy is the kept one: one evaluation serves
+        assert result["last"]["collision_rate"] == result["collision_rate"]

@@ -90,6 +90,7 @@ def runs(tmp_path):
             _example(base / "example_best", True, seed, 74.0, 1, last=(80.0, 30))
             _example(base / "example_best", False, seed, 73.0, 4, last=(85.0, 40))
             _example(base / "example_best", False, seed, 76.0, 0, reference=True)
+            _example(base / "example_scaled", False, seed, 75.0, 2, last=(78.0, 6))  # (v) and (x) not run yet
     _train_run(tmp_path / "runs" / "other" / "baseline__kddrl__0", "kddrl", 0, 130.0, 1)  # not HighwayEnv
     (tmp_path / "runs" / "other" / "baseline__kddrl__0" / "summary.json").write_text(
         json.dumps(
@@ -126,6 +127,11 @@ def test_every_arm_is_recognised_with_its_seeds(runs):
         "s": [0],
         "t": [0],
         "u": [0],
+        "v": [],
+        "w": [0],
+        "x": [],
+        "y": [],
+        "z": [0],
     }
     assert results["c"][1]["mean_speed_kmh"] == 92.0 and results["g"][2]["mean_speed_kmh"] == 81.0
     assert results["j"][1]["mean_speed_kmh"] == 75.0 and results["h"][2]["mean_speed_kmh"] == 74.0
@@ -136,6 +142,7 @@ def test_every_arm_is_recognised_with_its_seeds(runs):
         "collision_rate": 0.3,
     }
     assert results["r"][0]["collisions"] == 4 and results["u"][0]["mean_speed_kmh"] == 85.0
+    assert results["w"][0]["collisions"] == 2 and results["z"][0]["collisions"] == 6
 
 
 def test_a_kept_policy_without_its_last_evaluation_is_refused(runs):
@@ -176,7 +183,9 @@ def test_intervals_pooled_collisions_and_paired_differences(runs, tmp_path):
     assert pairs[("k", "m")]["seeds"] == [0, 1] and pairs[("k", "m")]["collision_rate"]["mean"] == 0.01
     assert pairs[("n", "p")]["seeds"] == [0] and pairs[("n", "o")]["seeds"] == []
     assert pairs[("r", "u")]["collision_rate"]["mean"] == pytest.approx(-0.36)
-    assert (tmp_path / "out" / "results.md").read_text().count("| (") == 20 + 17  # (o) and its pairs not run yet
+    assert pairs[("w", "r")]["collision_rate"]["mean"] == pytest.approx(-0.02) and pairs[("v", "w")]["seeds"] == []
+    md = (tmp_path / "out" / "results.md").read_text()
+    assert md.count("| (") == 22 + 19  # (o), (v), (x), (y) and their pairs not run yet
     assert json.loads((tmp_path / "out" / "results.json").read_text()) == json.loads(json.dumps(out))
 
 
@@ -207,4 +216,4 @@ def test_an_arm_not_run_yet_has_no_row(runs, tmp_path):
     out = report.main([str(runs), "--out", str(tmp_path / "out")])
     assert out["arms"]["k"]["seeds"] == [] and out["arms"]["k"]["mean_speed_kmh"]["mean"] is None
     md = (tmp_path / "out" / "results.md").read_text()
-    assert "| (k)" not in md and "| (k) − (m)" not in md and md.count("| (") == 15 + 13
+    assert "| (k)" not in md and "| (k) − (m)" not in md and md.count("| (") == 17 + 15

@@ -47,6 +47,11 @@ ARMS = {
     "s": "HighwayEnv's IDM as the ego, lane kept, on (q)'s evaluation traffic",
     "t": "the last policy of (q)'s runs",
     "u": "the last policy of (r)'s runs",
+    "v": "example TD3 with the transforms, its default budget, the best validated policy, fixed observation scales",
+    "w": "example TD3 without the transforms, its default budget, the best validated policy, fixed observation scales",
+    "x": "HighwayEnv's IDM as the ego, lane kept, on (v)'s evaluation traffic",
+    "y": "the last policy of (v)'s runs",
+    "z": "the last policy of (w)'s runs",
 }
 #: the paired comparisons: (arm, reference arm, what a positive speed difference would mean)
 PAIRS = [
@@ -69,6 +74,13 @@ PAIRS = [
     ("r", "s", "the example keeping its best validated policy, without the transforms, against its reference"),
     ("q", "t", "keeping the best validated policy instead of the last, with the transforms (the same runs)"),
     ("r", "u", "keeping the best validated policy instead of the last, without the transforms (the same runs)"),
+    ("v", "w", "the transforms, in the example with fixed observation scales, its best validated policy kept"),
+    ("v", "x", "the example with fixed observation scales, with the transforms, against its reference"),
+    ("w", "x", "the example with fixed observation scales, without the transforms, against its reference"),
+    ("v", "q", "fixed observation scales instead of raw SI values, with the transforms (best policies kept)"),
+    ("w", "r", "fixed observation scales instead of raw SI values, without the transforms (best policies kept)"),
+    ("v", "y", "keeping the best validated policy instead of the last, with the transforms, fixed scales"),
+    ("w", "z", "keeping the best validated policy instead of the last, without the transforms, fixed scales"),
 ]
 #: folder of the example's results (under the runs folder) -> (arm with the transforms, without, the reference)
 EXAMPLE_ARMS = {
@@ -77,10 +89,11 @@ EXAMPLE_ARMS = {
     "example_default_100k": ("k", "l", "m"),
     "example_default": ("n", "o", "p"),
     "example_best": ("q", "r", "s"),
+    "example_scaled": ("v", "w", "x"),
 }
 #: folder of results that keep the best validated policy -> (arm of the last policy with the transforms, without):
 #: the ``"last"`` evaluation each such JSON holds beside the kept one's
-LAST_ARMS = {"example_best": ("t", "u")}
+LAST_ARMS = {"example_best": ("t", "u"), "example_scaled": ("y", "z")}
 METRICS = ("mean_speed_kmh", "collision_rate")
 
 

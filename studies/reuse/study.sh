@@ -21,6 +21,8 @@
 # PART=example_best: the example_default arms keeping the greedy policy of the best validation (--validate-every 100
 #   --validate-episodes 24; OUT/example_best), each JSON with the last policy's evaluation beside the kept one's:
 #   (q) with the transforms, (r) without, (s) the reference; (t) and (u): the last policies of (q) and (r)
+# PART=example_scaled: as example_best, the observation divided by fixed physical scales (--obs-scale;
+#   OUT/example_scaled): (v) with the transforms, (w) without, (x) the reference; (y) and (z) the last policies
 # SEEDS (default 0 1 2 3 4): the seeds of an example part, e.g. SEEDS=0 for a first look
 # Run it from a checkout of one commit (studies/reuse/README.md); it resumes job by job (a finished run is skipped,
 # a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
@@ -33,14 +35,14 @@ EPISODES=300
 ROADS=4
 EVAL=100
 case "${PART:-}" in
-  example_default | example_default_100k | example_best) EPISODES=1000 ROADS=8 ;;  # the example's defaults
+  example_default | example_default_100k | example_best | example_scaled) EPISODES=1000 ROADS=8 ;;  # its defaults
 esac
 COMMON="env=highwayenv episodes=$EPISODES eval_episodes=$EVAL train.eval_every=0 progress=false"
 
 jobs() {  # seed-major, so that every arm's seed 0 lands first
   local seed
   case "${PART:-}" in
-    example_safe | example_default | example_default_100k | example_best)
+    example_safe | example_default | example_default_100k | example_best | example_scaled)
       for seed in ${SEEDS:-0 1 2 3 4}; do
         echo "example $OUT/$PART seed=$seed reference"
         echo "example $OUT/$PART seed=$seed transforms"
@@ -83,7 +85,10 @@ one() {
     flag="$flag --reward safe"
   fi
   [ "$dir" = "$OUT/example_default_100k" ] && flag="$flag --buffer 100000"
-  [ "$dir" = "$OUT/example_best" ] && flag="$flag --validate-every 100 --validate-episodes 24"
+  case "$dir" in
+    "$OUT/example_best") flag="$flag --validate-every 100 --validate-episodes 24" ;;
+    "$OUT/example_scaled") flag="$flag --validate-every 100 --validate-episodes 24 --obs-scale" ;;
+  esac
   local out="$dir/${name}__$seed.json"
   [ -f "$out" ] && return
   mkdir -p "$dir"
