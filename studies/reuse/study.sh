@@ -23,7 +23,8 @@
 #   (q) with the transforms, (r) without, (s) the reference; (t) and (u): the last policies of (q) and (r)
 # PART=example_scaled: as example_best, the observation divided by fixed physical scales (--obs-scale;
 #   OUT/example_scaled): (v) with the transforms, (w) without, (x) the reference; (y) and (z) the last policies
-# SEEDS (default 0 1 2 3 4): the seeds of an example part, e.g. SEEDS=0 for a first look
+# SEEDS (default 0 1 2 3 4) and ARMS (default "reference transforms no-transforms"): the seeds and arms of an
+#   example part, e.g. SEEDS=0 ARMS=no-transforms for a first look
 # Run it from a checkout of one commit (studies/reuse/README.md); it resumes job by job (a finished run is skipped,
 # a killed one continues from its newest checkpoint; an example arm with its JSON is skipped):
 #   bash studies/reuse/study.sh [OUT_DIR]
@@ -44,9 +45,9 @@ jobs() {  # seed-major, so that every arm's seed 0 lands first
   case "${PART:-}" in
     example_safe | example_default | example_default_100k | example_best | example_scaled)
       for seed in ${SEEDS:-0 1 2 3 4}; do
-        echo "example $OUT/$PART seed=$seed reference"
-        echo "example $OUT/$PART seed=$seed transforms"
-        echo "example $OUT/$PART seed=$seed no-transforms"
+        for arm in ${ARMS:-reference transforms no-transforms}; do
+          echo "example $OUT/$PART seed=$seed $arm"
+        done
       done
       return
       ;;
