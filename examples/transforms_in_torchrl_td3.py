@@ -146,18 +146,21 @@ def evaluate(
 ) -> dict:
     """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, the
     share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates) and the mean episode
-    return of the TD3 reward (Eq. 32, variant ``reward``). ``view``: :func:`make_env`'s ``norm`` and ``scale`` as
+    return of the TD3 reward (Eq. 32, variant ``reward``), and the share of frames whose commanded acceleration
+    lies at the bound (within 1 % of ±5 m/s²: a saturated tanh, whose gradient has vanished). ``view``: :func:`make_env`'s ``norm`` and ``scale`` as
     in training (``norm``: training's (loc, scale) of :func:`observation_statistics`, not new ones).
     ``isolated``: the env runs in a process of its own (TorchRL's ``ParallelEnv``), beside a training env that is
     still open (libsumo runs one simulation per process); the policy stays in this one."""
     make = partial(make_env, env_name, roads, seed, transforms, reward, driver=driver, **view)
     env = ParallelEnv(1, make, mp_start_method="spawn", metadata_from_workers=True) if isolated else make()
     speed_sum, frames, returns = torch.zeros(roads), torch.zeros(roads), torch.zeros(roads)
-    speeds, ended_returns, collisions = [], [], 0
+    speeds, ended_returns, collisions, at_bound, steps = [], [], 0, 0, 0
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.reset()
         while len(speeds) < episodes:
             td, root = env.step_and_maybe_reset(policy(td))
+            at_bound += int((td[ACTION].abs() >= 0.99 * 5.0).sum())
+            steps += roads
             speed_sum += td["next", "ego", "state"][..., 1].reshape(roads)
             returns += td["next", *REWARD].reshape(roads)
             frames += 1
@@ -171,6 +174,7 @@ def evaluate(
         "mean_speed_kmh": sum(speeds) / len(speeds),
         "collision_rate": collisions / len(speeds),
         "mean_return": sum(ended_returns) / len(ended_returns),
+        "accel_at_bound": at_bound / steps,
         "episodes": len(speeds),
     }
 

@@ -155,5 +155,21 @@ def test_the_example_keeps_its_best_validated_policy_and_reports_the_last_beside
     best = max(validations, key=lambda v: v["mean_return"])
     assert result["kept_episode"] == best["episode"] and result["last"]["episodes"] >= 2
     assert {"mean_speed_kmh", "collision_rate", "mean_return"} <= set(result["last"]) and result["args"]["obs_scale"]
+    assert all(0.0 <= v["accel_at_bound"] <= 1.0 for v in [*validations, result["last"]])
     if best["episode"] == result["train_episodes"]:  # the last policy is the kept one: one evaluation serves
         assert result["last"]["collision_rate"] == result["collision_rate"]
+
+
+def test_the_examples_evaluation_counts_commands_at_the_bound():
+    """``accel_at_bound``: the share of frames whose command lies at ±5 m/s² (a saturated actor), 1 for a policy
+    that always floors it, 0 for one that always coasts."""
+    from tensordict.nn import TensorDictModule, TensorDictSequential
+
+    example = _example()
+    for value, share in ((5.0, 1.0), (0.0, 0.0)):
+        const = TensorDictModule(
+            lambda o, v=value: torch.full((*o.shape[:-1], 1), v), ["observation"], [example.ACTION]
+        )
+        policy = TensorDictSequential(example.keep_lane(), const)
+        result = example.evaluate(policy, "sumo", 2, 0, False, 2)
+        assert result["accel_at_bound"] == share and result["episodes"] >= 2
