@@ -87,8 +87,9 @@ one() {
   fi
   [ "$dir" = "$OUT/example_default_100k" ] && flag="$flag --buffer 100000"
   case "$dir" in
-    "$OUT/example_best") flag="$flag --validate-every 100 --validate-episodes 24" ;;
+    "$OUT/example_best") flag="$flag --validate-every 100 --validate-episodes 24 --no-obs-scale" ;;
     "$OUT/example_scaled") flag="$flag --validate-every 100 --validate-episodes 24 --obs-scale" ;;
+    *) flag="$flag --validate-every 0 --no-obs-scale" ;;  # every part's whole recipe, whatever the defaults
   esac
   local out="$dir/${name}__$seed.json"
   [ -f "$out" ] && return
