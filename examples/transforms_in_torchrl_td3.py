@@ -10,17 +10,18 @@ per frame below 72 km/h. With the lane kept, the ego must follow whatever drives
 (``kddrl_trl/envs/rewards.py``), and HighwayEnv's traffic drives about 75-80 km/h. ``studies/reuse/README.md``
 measures both rewards against HighwayEnv's IDM in its lane (``--reference``). The replay buffer (``--buffer``: 1M
 frames, TorchRL's sota TD3) holds the whole of a default run (160-275k frames), and of each frame only the keys the
-loss reads. ``--obs-scale`` divides the observation by the fixed physical scales the package's own agents use
-(:data:`SCALES`): the raw one holds the ego's position along the road, hundreds of metres.
+loss reads. The observation is divided by the fixed physical scales the package's own agents use (:data:`SCALES`;
+``--no-obs-scale``: raw SI values): the raw one holds the ego's position along the road, hundreds of metres, and on
+it this TD3 did not settle (``studies/reuse/README.md``).
 
     python examples/transforms_in_torchrl_td3.py                   # with the transforms (trajGAN key gaps, priors)
     python examples/transforms_in_torchrl_td3.py --no-transforms   # the control arm: raw observations only
     python examples/transforms_in_torchrl_td3.py --env highwayenv  # on HighwayEnv (the optional extra .[highway])
 
 Trains for ``--episodes`` episodes, then prints (and with ``--out``, writes as JSON) the greedy policy's mean speed
-and collision rate over ``--eval-episodes`` episodes on evaluation seeds that training never saw. With
-``--validate-every N``, the greedy policy is validated every N training episodes on traffic of its own, and the one
-of the highest mean return is kept and evaluated, the last one beside it (as the package's ``checkpoints/best.pt``).
+and collision rate over ``--eval-episodes`` episodes on evaluation seeds that training never saw. Every
+``--validate-every`` training episodes (100; 0: never) the greedy policy is validated on traffic of its own, and the
+one of the highest mean return is kept and evaluated, the last one beside it (as the package's ``checkpoints/best.pt``).
 """
 
 from __future__ import annotations
@@ -147,8 +148,9 @@ def evaluate(
     """Greedy episodes until ``episodes`` have ended: the mean over episodes of each episode's mean speed, the
     share of episodes that ended in a collision (as ``python -m kddrl_trl.train`` evaluates) and the mean episode
     return of the TD3 reward (Eq. 32, variant ``reward``), and the share of frames whose commanded acceleration
-    lies at the bound (within 1 % of ±5 m/s²: a saturated tanh, whose gradient has vanished). ``view``: :func:`make_env`'s ``norm`` and ``scale`` as
-    in training (``norm``: training's (loc, scale) of :func:`observation_statistics`, not new ones).
+    lies at the bound (within 1 % of ±5 m/s²: a saturated tanh, whose gradient has vanished). ``view``:
+    :func:`make_env`'s ``norm`` and ``scale`` as in training (``norm``: training's (loc, scale) of
+    :func:`observation_statistics`, not new ones).
     ``isolated``: the env runs in a process of its own (TorchRL's ``ParallelEnv``), beside a training env that is
     still open (libsumo runs one simulation per process); the policy stays in this one."""
     make = partial(make_env, env_name, roads, seed, transforms, reward, driver=driver, **view)
@@ -188,7 +190,7 @@ def main(argv=None) -> dict:
     p.add_argument("--warmup", type=int, default=2_000, help="frames collected before the first update")
     p.add_argument("--buffer", type=int, default=1_000_000, help="replay buffer capacity, frames (TorchRL's sota TD3)")
     p.add_argument("--eval-episodes", type=int, default=100)
-    p.add_argument("--validate-every", type=int, default=0, help="training episodes between validations (0: none)")
+    p.add_argument("--validate-every", type=int, default=100, help="training episodes between validations (0: none)")
     p.add_argument("--validate-episodes", type=int, default=24, help="greedy episodes per validation")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--reward", choices=["paper", "safe"], default="safe", help="the rewards' variant (HighwayConfig)")
@@ -197,7 +199,7 @@ def main(argv=None) -> dict:
     p.add_argument(
         "--obs-scale",
         action=argparse.BooleanOptionalAction,
-        default=False,
+        default=True,
         help="divide the observation by fixed physical scales and clip it (SCALES), as the package's agents",
     )
     p.add_argument("--reference", action="store_true", help="no training: HighwayEnv's IDM drives, its lane kept")
@@ -206,7 +208,7 @@ def main(argv=None) -> dict:
     if args.reference and args.env != "highwayenv":
         p.error("--reference drives with HighwayEnv's IDM: it needs --env highwayenv")
     if args.obs_norm and args.obs_scale:
-        p.error("--obs-norm and --obs-scale are two ways to scale the observation: choose one")
+        p.error("--obs-norm standardises the observation instead of its fixed scales (--obs-scale): add --no-obs-scale")
     if args.buffer < args.warmup:
         p.error(f"--buffer {args.buffer} is below --warmup {args.warmup}: the buffer would never hold enough to update")
     torch.manual_seed(args.seed)

@@ -65,7 +65,7 @@ def test_the_examples_observation_statistics_come_from_random_steps_and_scale_by
     assert norm.loc is not loc  # a copy: training's statistics stay as they were measured
     assert bool(torch.isfinite(standardised).all()) and float(standardised.abs().max()) < 50.0
     args = ["--episodes", "2", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--norm-frames", "100"]
-    result = example.main([*args, "--no-transforms", "--obs-norm"])
+    result = example.main([*args, "--no-transforms", "--obs-norm", "--no-obs-scale"])
     assert result["args"]["obs_norm"] and result["episodes"] >= 2
 
 
@@ -146,10 +146,10 @@ def test_the_example_keeps_its_best_validated_policy_and_reports_the_last_beside
     are exclusive."""
     example = _example()
     with pytest.raises(SystemExit):
-        example.main(["--obs-scale", "--obs-norm"])
-    assert "choose one" in capsys.readouterr().err
+        example.main(["--obs-norm"])  # the fixed scales are the default
+    assert "add --no-obs-scale" in capsys.readouterr().err
     args = ["--episodes", "4", "--warmup", "160", "--roads", "2", "--eval-episodes", "2", "--no-transforms"]
-    result = example.main([*args, "--validate-every", "2", "--validate-episodes", "2", "--obs-scale"])
+    result = example.main([*args, "--validate-every", "2", "--validate-episodes", "2"])
     validations = result["validations"]
     assert len(validations) >= 2 and [v["episode"] for v in validations] == sorted(v["episode"] for v in validations)
     best = max(validations, key=lambda v: v["mean_return"])
