@@ -55,6 +55,7 @@ from kddrl_trl.modules.state import StateScale
 from kddrl_trl.transforms import make_kddrl_transforms
 
 ACTION, LANE, REWARD = ("cf", "action"), ("lc", "action"), ("cf", "reward")
+ACCEL_BOUND = 5.0  # m/s², the acceleration command's bound (the paper's Eq. 31)
 RAW = [("ego", "state"), ("flat", "rel"), ("flat", "mask")]  # ego y, v_y, v_x; a..f relative states and presence
 PREDICTIVE = [("flat", "key_gaps"), ("prior", "p_mobil"), ("prior", "p_lcgan")]  # what the transforms add
 _S = StateScale()
@@ -62,8 +63,8 @@ _S = StateScale()
 #: package's agent states (``kddrl_trl.modules.state``: positions 100 m, speeds 50 m/s, lateral 10 m and 5 m/s)
 #: and key gaps (``KEY_GAP_SCALE``); flags and probabilities are left as they are
 SCALES = {
-    ("ego", "state"): (_S.position, _S.speed, _S.lateral_speed),  # y, v_y, v_x
-    ("flat", "rel"): (_S.lateral_position, _S.position, _S.lateral_speed, _S.speed),  # Δx, Δy, Δv_x, Δv_y per slot
+    ("ego", "state"): _S.ego_units,  # y, v_y, v_x
+    ("flat", "rel"): _S.rel_units,  # Δx, Δy, Δv_x, Δv_y per slot
     ("flat", "mask"): (1.0,),
     ("flat", "key_gaps"): (KEY_GAP_SCALE,),
     ("prior", "p_mobil"): (1.0,),
@@ -128,7 +129,7 @@ def keep_lane() -> TensorDictModule:
 
 def make_agent(obs_dim: int, hidden: int = 256):
     """TD3's actor (tanh-bounded to [-5, 5] m/s², as the paper's Eq. 31), twin critics, and the fixed lane policy."""
-    spec = Bounded(-5.0, 5.0, (1,))
+    spec = Bounded(-ACCEL_BOUND, ACCEL_BOUND, (1,))
     actor = TensorDictSequential(
         TensorDictModule(MLP(obs_dim, 1, num_cells=[hidden, hidden]), ["observation"], ["param"]),
         TanhModule(["param"], [ACTION], spec=spec),
@@ -161,7 +162,7 @@ def evaluate(
         td = env.reset()
         while len(speeds) < episodes:
             td, root = env.step_and_maybe_reset(policy(td))
-            at_bound += int((td[ACTION].abs() >= 0.99 * 5.0).sum())
+            at_bound += int((td[ACTION].abs() >= 0.99 * ACCEL_BOUND).sum())
             steps += roads
             speed_sum += td["next", "ego", "state"][..., 1].reshape(roads)
             returns += td["next", *REWARD].reshape(roads)

@@ -84,6 +84,16 @@ class StateScale:
     vehicle_length: float = 5.0  # m, leader length in the extras' bumper-to-bumper gap (HighwayConfig default)
     clip: float = 5.0  # every scaled feature is clipped to ±clip
 
+    @property
+    def ego_units(self) -> tuple[float, float, float]:
+        """Units of ``keys.EGO_STATE``'s features (y, v_y, v_x)."""
+        return (self.position, self.speed, self.lateral_speed)
+
+    @property
+    def rel_units(self) -> tuple[float, float, float, float]:
+        """Units of one slot of ``keys.NEIGHBORS_REL`` (REL_FEATURES order: Δx lateral, Δy, Δv_x lateral, Δv_y)."""
+        return (self.lateral_position, self.position, self.lateral_speed, self.speed)
+
 
 #: the optional state features of ``algo.state_extras`` (not in the paper), in state order
 STATE_EXTRAS = ("thw", "ttc")
@@ -154,11 +164,8 @@ class _StateNet(nn.Module):
         self.scale, self.embed, self.detach_s_e, self.actions, self.mobil = scale, embed, detach_s_e, actions, mobil
         self.extras = check_extras(extras)
         s = scale
-        self.register_buffer("ego_scale", torch.tensor([s.position, s.speed, s.lateral_speed]), persistent=False)
-        # REL_FEATURES order: dx (lateral), dy (longitudinal), dvx (lateral), dvy (longitudinal)
-        self.register_buffer(
-            "rel_scale", torch.tensor([s.lateral_position, s.position, s.lateral_speed, s.speed]), persistent=False
-        )
+        self.register_buffer("ego_scale", torch.tensor(s.ego_units), persistent=False)
+        self.register_buffer("rel_scale", torch.tensor(s.rel_units), persistent=False)
 
     def forward(self, ego: torch.Tensor, rel: torch.Tensor, mask: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
         c = self.scale.clip
