@@ -21,6 +21,8 @@ for dir in "$SRC"/example*/; do  # every part of the example (study.sh: PART)
     [ -f "$log" ] && xz -c "$log" > "$HERE/runs/$example/$(basename "$log").xz"
   done
 done
+# the records of the runs landed earlier, which main keeps in its history (kddrl_trl.devtools.records)
+(cd "$HERE" && python -m kddrl_trl.devtools.records restore reuse > /dev/null)
 python "$HERE/report.py" "$HERE/runs" --out "$HERE"
 python "$HERE/curves.py" "$HERE/runs" --out "$HERE"  # the example's training curves, from its logs
 # Figs. 16-17 from the metrics of the lcGAN these runs used (HighwayEnv's)
