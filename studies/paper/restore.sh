@@ -10,5 +10,9 @@ for run in "$SRC"/*/; do
   name=$(basename "$run")
   [ -f "$run/summary.json" ] && [ ! -e "$DST/$name" ] || continue
   cp -r "$run" "$DST/$name"
+  # main keeps each run's config.yaml migrated to the current schema, and the study's pinned commit refuses a run
+  # folder whose config differs from its own: the run gets back the config it wrote (the commit that landed it)
+  landed=$(git -C "$run" log --diff-filter=A --format=%H -1 -- config.yaml)
+  [ -n "$landed" ] && git -C "$run" show "$landed:./config.yaml" > "$DST/$name/config.yaml"
   echo "restored $name"
 done
