@@ -128,6 +128,18 @@ def test_the_test_reads_the_confirmatory_seeds_only_and_waits_for_all_of_them():
     assert pending["description"] is not None
 
 
+def test_no_verdict_until_the_whole_primary_family_is_in():
+    a = {s: 140.0 + e for s, e in zip(SEEDS, NOISE)}
+    b = {s: 120.0 + e for s, e in zip(SEEDS, NOISE[::-1])}
+    braking = Claim("P9", "IV", "braking", "mean_speed_kmh", "kddrl", "ni", "greater", "primary")
+    ready, waiting = judge([P, braking], _rows(a, b) + _rows({5: 130.0}, {5: 120.0}, scenario="braking"))
+    assert waiting["direction"] == "pending" and waiting["p_direction"] is None
+    # P's cells are all in, and its test on them would hold alone, but Holm's family is the plan's whole family
+    assert ready["direction"] == "pending" and ready["size"] == "pending" and ready["p_direction_adjusted"] is None
+    assert ready["n"] == 10 and ready["p_direction"] < 0.05 and ready["difference"] == pytest.approx(20.0, abs=1.0)
+    assert judge([P], _rows(a, b))[0]["direction"] == "holds"
+
+
 def test_holm_is_applied_over_the_primary_family_only():
     one = _judge(121.2, 120.0)[0]
     assert one["p_direction"] < 0.05

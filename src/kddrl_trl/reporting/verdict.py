@@ -13,7 +13,8 @@
 
   Where the direction is inconclusive and the paper's Δ would need more than :data:`REALISTIC_SEEDS` seeds per
   system for 80 % power at 0.05 / 17 (the spread of all seeds), ``reading`` says that the claim is not testable at
-  a realistic n. Until every cell has all :data:`TEST_SEEDS`, both verdicts read ``pending``: the test runs once.
+  a realistic n. Until every cell of the family has all :data:`TEST_SEEDS`, every verdict reads ``pending``: the
+  test runs once, over the whole family.
   Every claim also carries its ``description``: the estimate and 95 % interval over all its seeds (0-14).
 * **Secondary claims** (:data:`SECONDARY`): every other comparative statement of the paper (lane changes,
   accelerations, the unified systems, the rest of Table V), exploratory: the estimate over all seeds, its
@@ -233,8 +234,15 @@ def _seeds_needed(c: Claim, a: dict, b: dict, paper: float, alpha: float) -> flo
 
 
 def _adjust(entries: list[dict]) -> None:
-    """Holm over the primary claims that were tested, the direction and the size each a family; the verdicts."""
-    tested = [e for e in entries if e["family"] == "primary" and e["p_direction"] is not None]
+    """Holm over the primary family, the direction and the size each a family; the verdicts. The test runs once, on
+    the whole family: while any primary claim waits for its confirmatory seeds, every primary claim reads pending
+    (Holm over the claims that are in would be a smaller family than the plan's, and its verdicts could not stand)."""
+    primary = [e for e in entries if e["family"] == "primary"]
+    if any(e.get("direction") == "pending" for e in primary):
+        for e in primary:
+            e["direction"] = e["size"] = "pending"
+        return
+    tested = [e for e in primary if e["p_direction"] is not None]
     for e, p in zip(tested, holm([e["p_direction"] for e in tested]), strict=True):
         e["p_direction_adjusted"] = p
         toward = e["difference"] > 0 if e["claimed"] == "greater" else e["difference"] < 0
