@@ -374,9 +374,9 @@ def _claims_section(claims: list[dict], table_rows: list[dict], exact: dict, rat
         f"Holm-corrected over the {len(primary)}: **direction** (H0: no difference; *holds* / *contradicted* at an "
         "adjusted p < 0.05 in / against the claimed direction, else *inconclusive*) and **size** (H0: the paper's "
         "difference; *excluded, smaller* or *larger* along the claimed direction, else *compatible*). Until every "
-        f"cell of the {len(primary)} has all its confirmatory seeds, every verdict reads *pending*: the test runs once, over the "
-        "whole family (a pending claim whose cells are in shows its difference on those seeds, unadjusted). "
-        "*described* is the estimate over all seeds "
+        f"cell of the {len(primary)} has all its confirmatory seeds, every verdict reads *pending*: the test runs "
+        "once, over the whole family (a pending claim whose cells are in shows its difference on those seeds, "
+        "unadjusted). *described* is the estimate over all seeds "
         "(0-14, the pilot's included) with its 95 % interval. Collision differences in percentage points, speeds in "
         "km/h, lane changes per episode; `paper`: the same difference in the paper's tables.",
         "",
