@@ -5,6 +5,7 @@ numbers."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -47,6 +48,15 @@ def test_welch_and_paired_differences_and_a_null_other_than_zero():
     assert p["test"] == "paired" and p["p"] == pytest.approx(sps.ttest_rel([1, 2, 3, 4], [0.9, 2.1, 2.8, 3.9]).pvalue)
     with pytest.raises(ValueError, match="same seeds"):
         difference_test([1.0, 2.0], [1.0], paired=True)
+
+
+def test_a_side_without_spread_against_a_nonzero_null_is_welch_on_the_other_side_without_a_warning():
+    # the rule baseline's collision rate is 0 at every seed; the size test shifts it by the paper's difference
+    zero, y = [0.0] * 10, [0.012, 0.009, 0.028, 0.012, 0.016, 0.017, 0.003, 0.011, 0.015, 0.002]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        d = difference_test(zero, y, null=-0.034)
+    assert d["p"] == pytest.approx(sps.ttest_1samp(y, 0.034).pvalue, rel=1e-9)
 
 
 def test_ratio_interval_stays_positive_and_holds_the_ratio():
