@@ -75,11 +75,12 @@ def difference_test(values, reference, null: float = 0.0, paired: bool = False, 
     out["n"] = [int(x.size), int(y.size)]
     if min(x.size, y.size) < 2:
         return out
-    spread = np.ptp(x - y) if paired else max(np.ptp(x), np.ptp(y))
+    sides = (np.ptp(x), np.ptp(y))
+    spread = np.ptp(x - y) if paired else max(sides)
     if spread == 0:
         return {**out, "ci_low": value, "ci_high": value, "p": 1.0}
     with warnings.catch_warnings():
-        if min(np.ptp(x), np.ptp(y)) == 0:
+        if not paired and min(sides) == 0:
             # a side without spread (no collision at any seed) has variance 0 exactly; shifted by a null, scipy's
             # rounding of its mean reads as "nearly identical data", a warning about a value known exactly
             warnings.filterwarnings("ignore", "Precision loss", RuntimeWarning)
