@@ -6,7 +6,9 @@ report's ``report.json`` (:mod:`kddrl_trl.reporting.verdict`).
 a − b is the claim's first system minus its second; speeds in km/h, collision rates in percentage points; ``paper``:
 the same difference in the paper's tables. "ours" is the confirmatory test's estimate on seeds 5-14 once every cell
 has them; until then the verdicts read pending and "ours" is the estimate over all the seeds run so far (the pilot's
-0-4 included), marked "so far". The p-values are in the report."""
+0-4 included), marked "so far". An inconclusive direction whose claim is not testable at a realistic n (plan §4)
+reads "untestable", with the seeds per system that 80 % power on the paper's difference would need. The p-values
+are in the report."""
 
 from __future__ import annotations
 
@@ -48,9 +50,8 @@ def table(report: dict) -> str:
             ours = "—" if d is None else f"{_estimate(c, d['difference'], d['ci'])}, n={min(d['n'])} so far"
         else:
             ours = _estimate(c, c["difference"], c["ci"])
-        lines.append(
-            f"| {c['id']} | {claim} | {ours} | {scale * c['paper']:+.1f} | {c['direction']} | {c['size'] or '—'} |"
-        )
+        direction = f"untestable ({c['seeds_needed']:.0f} seeds)" if c.get("reading") else c["direction"]
+        lines.append(f"| {c['id']} | {claim} | {ours} | {scale * c['paper']:+.1f} | {direction} | {c['size'] or '—'} |")
     return "\n".join(lines)
 
 
