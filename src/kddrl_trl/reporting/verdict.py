@@ -185,7 +185,8 @@ def _interval(test: dict) -> list[float] | None:
 def judge(claims, rows: list[dict], test_seeds=TEST_SEEDS) -> list[dict]:
     """Every claim of ``claims`` on the per-seed values of ``rows`` (``report.json`` rows: ``seeds`` and
     ``per_seed`` in the same order): the primary ones tested as the plan says (Holm over those that could be
-    tested, each question its own family), the secondary ones described."""
+    tested, each question its own family), the secondary ones described (their verdicts and adjusted p-values
+    null, so that every claim has the same keys)."""
     out, primary = [], [c for c in claims if c.family == "primary"]
     m = len(primary)
     for c in claims:
@@ -196,7 +197,7 @@ def judge(claims, rows: list[dict], test_seeds=TEST_SEEDS) -> list[dict]:
             d = desc or {}
             n = min(d["n"]) if desc else None
             entry |= {"difference": d.get("difference"), "ci": d.get("ci"), "n": n, "p": d.get("p")}
-            out.append(entry | {"direction": None, "size": None})
+            out.append(entry | dict.fromkeys(("direction", "size", "p_direction_adjusted", "p_size_adjusted")))
             continue
         have = (set(a) & set(test_seeds), set(b) & set(test_seeds))
         entry |= {"seeds": sorted(have[0] & have[1]), "n": min(len(have[0]), len(have[1]))}
