@@ -49,6 +49,7 @@ def test_a_record_without_a_kept_column_is_refused_by_name(tmp_path):
         raise AssertionError("a record without return_cf was compacted")
 
 
+@pytest.mark.records
 def test_every_committed_training_record_is_compact(tmp_path):
     studies = study_records(tmp_path, "studies/")
     records = sorted(studies.rglob("train_episodes.csv*"))

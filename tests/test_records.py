@@ -121,6 +121,7 @@ def test_archive_wants_the_records_committed_and_the_manifest_well_formed(repo):
         records.restore(repo, [])
 
 
+@pytest.mark.records
 def test_the_verdict_report_regenerates_byte_identical_from_history(tmp_path):
     studies = study_records(tmp_path, "studies/paper/runs", "studies/paper/runs_5-14")
     out, runs = tmp_path / "report", [str(studies / "paper" / f) for f in ("runs", "runs_5-14")]
