@@ -65,3 +65,18 @@ def test_a_rates_interval_stays_within_0_and_100_points(tmp_path):
         _run(tmp_path / "control", "peng", seed, 0.1, 100.0)
     arm = paired.main([str(tmp_path / "arm"), str(tmp_path / "control")])["braking/peng"]["collision_rate"]["arm"]
     assert arm["mean"] == pytest.approx(2.0) and arm["ci_low"] == 0.0 and arm["ci_high"] > 2.0
+
+
+def test_validation_reads_each_runs_last_validations(tmp_path, capsys):
+    for sweep, rates in (("arm", (0.30, 0.04, 0.06)), ("control", (0.30, 0.14, 0.16))):
+        for seed in (0, 1):
+            _run(tmp_path / sweep, "kddrl", seed, 0.99, 100.0)  # the test rates: not read with --validation
+            rows = "".join(f"{rate + 0.01 * seed},{100.0 + i}\n" for i, rate in enumerate(rates))
+            (tmp_path / sweep / f"braking__kddrl__{seed}" / "validation.csv").write_text(
+                "collision_rate,mean_speed_kmh\n" + rows
+            )
+    out = paired.main([str(tmp_path / "arm"), str(tmp_path / "control"), "--validation", "2"])
+    assert out["braking/kddrl"]["collision_rate"]["difference"]["mean"] == pytest.approx(-10.0)
+    assert "| validation collisions (points) |" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="holds 3 validations, --validation asks for 4"):
+        paired.main([str(tmp_path / "arm"), str(tmp_path / "control"), "--validation", "4"])

@@ -103,7 +103,9 @@ def test_the_preset_confirmation_tables_are_the_runs(tmp_path):
 
     from testkit import study_records
 
-    studies = study_records(tmp_path, "studies/paper/runs", "studies/ablation/runs", "studies/reproduction/runs")
+    studies = study_records(
+        tmp_path, "studies/paper/runs", "studies/paper/runs_5-14", "studies/ablation/runs", "studies/reproduction/runs"
+    )
     confirmation = runpy.run_path(str(ROOT / "studies" / "paper" / "confirmation.py"))
     assert confirmation["safety_table"](studies) in README.read_text()
     assert confirmation["table"](studies) in (ROOT / "studies" / "paper" / "README.md").read_text()

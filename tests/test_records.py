@@ -57,6 +57,34 @@ def test_archived_records_leave_the_tree_and_come_back(repo):
     assert records.restore(repo, ["other"]) == 0
 
 
+def test_a_superseded_run_moves_with_its_archived_records_and_a_rerun_takes_its_place(repo):
+    records.archive(repo, ["studies/x/runs"])
+    _git(repo, "commit", "-qm", "out of the tree")
+    old, new = "studies/x/runs/baseline__kddrl__0", "studies/x/superseded/baseline__kddrl__0"
+    assert records.move(repo, old, new) == 3  # summary, config and the restored record
+    _git(repo, "commit", "-qm", "superseded")
+    rerun = repo / old
+    rerun.mkdir(parents=True)
+    (rerun / "summary.json").write_text('{"seed": 0, "rerun": true}\n')
+    (rerun / "config.yaml").write_text("seed: 0\n")
+    (rerun / "eval_episodes.csv.xz").write_bytes(b"\xfd7zXZ rerun")
+    _git(repo, "add", "-f", "studies")
+    _git(repo, "commit", "-qm", "the rerun")
+    records.archive(repo, ["studies/x/runs"])
+    _git(repo, "commit", "-qm", "the rerun out of the tree")
+    for f in (repo / "studies").rglob("*.xz"):
+        f.unlink()
+    # the first archive's files come back under the superseded folder, the rerun's in the run's own folder: no
+    # record of the first run collides with the rerun's tracked summary
+    assert records.restore(repo, []) == 2
+    assert (repo / new / "eval_episodes.csv.xz").read_bytes() == b"\xfd7zXZ records"
+    assert (repo / old / "eval_episodes.csv.xz").read_bytes() == b"\xfd7zXZ rerun"
+    assert json.loads((repo / new / "summary.json").read_text()) == {"seed": 0}
+    assert records.restore(repo, ["x/superseded"]) == 1
+    with pytest.raises(SystemExit, match="exists already"):
+        records.move(repo, old, new)
+
+
 def test_a_tracked_file_that_disagrees_with_its_record_is_refused(repo):
     records.archive(repo, ["studies/x/runs"])
     _git(repo, "commit", "-qm", "out of the tree")

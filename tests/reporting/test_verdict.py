@@ -18,8 +18,11 @@ from kddrl_trl.reporting.stats import (
     holm,
     mean_ci,
     mean_test,
+    noisy_reference_test,
+    permutation_p,
     ratio_ci,
     seeds_for_power,
+    t_power,
 )
 from kddrl_trl.reporting.verdict import CLAIMS, PRIMARY, TEST_SEEDS, Claim, judge, paper_difference
 
@@ -118,12 +121,87 @@ def test_size_excluded_smaller_larger_or_compatible():
     assert far["direction"] == "holds" and far["size"] == "excluded, larger"
 
 
-def test_a_paper_difference_too_small_for_any_realistic_n_says_so():
-    entry = _judge(120.2, 120.0, sd=4)[0]  # the paper's +1.7 km/h at an SD of 4: about 90 seeds per system
+def test_an_underpowered_direction_names_the_seeds_it_would_need():
+    entry = _judge(120.2, 120.0, sd=4, claims=[P] * 17)[0]  # the paper's +1.7 km/h at an SD of 4, in a family of 17
     assert entry["direction"] == "inconclusive" and entry["seeds_needed"] > 50
-    assert entry["reading"].startswith("not testable at a realistic n")
+    assert entry["reading"].startswith(f"underpowered: needs {entry['seeds_needed']:.0f} seeds per system")
+    assert entry["reading"].endswith(f"at 0.05/17 ({entry['seeds_needed_alpha']:.0f} at 0.05)")
+    assert entry["seeds_needed_alpha"] < entry["seeds_needed"]  # at 0.05 rather than 0.05 / 17
+    assert 0 < entry["power"]["family"] < entry["power"]["alpha"] < 0.8 and entry["power"]["n"] == 10
     decided = _judge(140, 120)[0]
-    assert decided["reading"] is None
+    assert decided["reading"] is None and decided["power"]["family"] > 0.99
+
+
+def _simulated_power(d: float, n: int, alpha: float, paired: bool, draws: int = 40_000) -> float:
+    """The share of simulated studies whose two-sided t-test rejects at ``alpha`` (normal values, SD 1)."""
+    rng = np.random.default_rng(n)
+    if paired:
+        p = sps.ttest_1samp(rng.normal(d, 1.0, (draws, n)), 0.0, axis=1).pvalue
+    else:
+        p = sps.ttest_ind(rng.normal(d, 1.0, (draws, n)), rng.normal(0.0, 1.0, (draws, n)), axis=1).pvalue
+    return float((p < alpha).mean())
+
+
+@pytest.mark.parametrize(
+    ("d", "alpha", "paired"),
+    [(7.6, 0.05 / 17, True), (4.0, 0.05 / 17, True), (2.5, 0.05 / 17, False), (1.5, 0.05, True), (1.0, 0.05, False)],
+)
+def test_seeds_for_power_matches_simulation_at_small_n(d, alpha, paired):
+    # at n of 3-6 statsmodels' noncentral t returns NaN, which the power code once read as power 1
+    n = seeds_for_power(d, 1.0, alpha, paired)
+    simulated = next(k for k in range(2, 60) if _simulated_power(d, k, alpha, paired) >= 0.8)
+    assert abs(n - simulated) <= 1, (n, simulated)
+    assert t_power(d, 1.0, int(n), alpha, paired) >= 0.8 > t_power(d, 1.0, int(n) - 1, alpha, paired)
+
+
+def test_power_is_a_number_where_the_noncentral_t_gives_nan():
+    from statsmodels.stats.power import TTestPower
+
+    assert np.isnan(TTestPower().power(7.6, nobs=4, alpha=0.05 / 17))  # the library's NaN, far out
+    assert t_power(7.6, 1.0, 4, 0.05 / 17, paired=True) == pytest.approx(
+        _simulated_power(7.6, 4, 0.05 / 17, True), abs=0.01
+    )
+    assert t_power(1.0, 1.0, 10, 0.05, paired=False) == pytest.approx(0.5620, abs=1e-3)  # textbook: d = 1, n = 10
+
+
+def test_permutation_check_exact_where_paired_and_resampled_otherwise():
+    up = [1.0 + 0.1 * i for i in range(10)]
+    assert permutation_p(up, [0.0] * 10, paired=True) == pytest.approx(2 / 1024)  # all signs up: 2 of 1024
+    x, y = RNG.normal(1.0, 1.0, 10), RNG.normal(0.0, 1.0, 10)
+    assert permutation_p(x, y, paired=False) == permutation_p(x, y, paired=False)  # seeded: a report regenerates
+    assert permutation_p(x, y, paired=False) == pytest.approx(difference_test(x, y)["p"], abs=0.03)
+    assert permutation_p([1.0, 1.0], [1.0, 1.0], paired=False) is None
+
+
+def test_the_paper_difference_read_as_an_estimate_widens_the_size_test():
+    x, y = RNG.normal(5.0, 3.0, 10), RNG.normal(0.0, 3.0, 10)
+    exact = difference_test(x, y, null=15.0)["p"]
+    one, three = (noisy_reference_test(x, y, 15.0, runs, paired=False) for runs in (1, 3))
+    assert exact < three < one  # a noisier reference is harder to exclude
+    assert noisy_reference_test(x, y, 15.0, 10**9, paired=False) == pytest.approx(exact, rel=1e-3)
+    d = RNG.normal(1.0, 1.0, 10)
+    assert noisy_reference_test(d, np.zeros(10), 4.0, 10**9, paired=True) == pytest.approx(
+        difference_test(d, np.zeros(10), null=4.0, paired=True)["p"], rel=1e-6
+    )
+
+
+def test_the_interval_beside_each_verdict_agrees_with_it():
+    # a family where Holm decides some claims only at later steps: there the Bonferroni interval holds the null
+    claims, rows = [], []
+    cells = [(sc, b) for sc in ("baseline", "congested", "braking") for b in ("ni", "peng")]
+    for i, ((scenario, other), gap) in enumerate(zip(cells, (6.0, 2.0, 1.9, 1.6, 1.0, 0.2), strict=True)):
+        claims.append(Claim(f"P{i + 1}", "II", scenario, "mean_speed_kmh", "kddrl", other, "greater", "primary"))
+        a = {s: 120.0 + gap + e for s, e in zip(SEEDS, NOISE, strict=True)}
+        b = {s: 120.0 + e for s, e in zip(SEEDS, NOISE[::-1], strict=True)}
+        rows += _rows(a, b, scenario=scenario, algo_b=other)
+    entries = judge(claims, rows)
+    step_down = 0
+    for e in entries:
+        assert (e["ci_direction"][0] > 0 or e["ci_direction"][1] < 0) == (e["p_direction_adjusted"] < 0.05)
+        assert (e["ci_size"][0] > e["paper"] or e["ci_size"][1] < e["paper"]) == (e["p_size_adjusted"] < 0.05)
+        sim_excludes = e["ci_simultaneous"][0] > 0 or e["ci_simultaneous"][1] < 0
+        step_down += e["p_direction_adjusted"] < 0.05 and not sim_excludes
+    assert step_down >= 1  # the case the interval mends: decided by the step-down, not by Bonferroni
 
 
 def test_the_test_reads_the_confirmatory_seeds_only_and_waits_for_all_of_them():

@@ -11,12 +11,12 @@ def _claim(i: int, **extra) -> dict:
     return claim | {"direction": "holds", "size": "compatible", "reading": None, "seeds_needed": None} | extra
 
 
-def test_each_row_carries_the_claims_verdicts_and_the_untestable_reading():
+def test_each_row_carries_the_claims_verdicts_and_the_underpowered_reading():
     claims = [_claim(i) for i in range(1, 17)]
-    claims.append(_claim(17, direction="inconclusive", size="compatible", reading="not testable", seeds_needed=156.0))
+    claims.append(_claim(17, direction="inconclusive", size="compatible", reading="underpowered", seeds_needed=156.0))
     rows = table({"claims": claims}).splitlines()
     assert rows[2] == "| P1 | baseline: KDDRL collides less than Ni | -2.0 [-3.0, -1.0] | -1.3 | holds | compatible |"
-    assert rows[-1].endswith("| untestable (156 seeds) | compatible |")
+    assert rows[-1].endswith("| inconclusive (156) | compatible |")
 
 
 def test_pending_rows_show_the_estimate_so_far():

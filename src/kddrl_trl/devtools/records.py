@@ -10,6 +10,8 @@ files (``.gitignore``). From the repository's root:
     python -m kddrl_trl.devtools.records restore [STUDY ...]    # the records back into studies/<name>/
     python -m kddrl_trl.devtools.records archive PATH [PATH ...] # PATHs, committed whole at HEAD, leave the tree;
                                                                   # commit the result
+    python -m kddrl_trl.devtools.records move OLD NEW            # a run's records move (a superseded run, say):
+                                                                  # the archives before it restore OLD's files as NEW's
 
 ``collect`` copies each finished run (it has its summary) that DEST lacks, without its checkpoints, TorchRL logs or
 curve images (the report redraws them), its CSVs and logs xz-compressed (the reports read them so), and its training
@@ -136,9 +138,27 @@ def manifest(root: Path) -> list[dict]:
     except (json.JSONDecodeError, KeyError, TypeError) as err:
         raise SystemExit(f"records: {MANIFEST} is malformed ({err}); it must be {{'archives': [...]}}") from None
     for i, e in enumerate(entries):
+        if isinstance(e, dict) and isinstance(e.get("moved"), dict):
+            continue
         if not isinstance(e, dict) or not isinstance(e.get("commit"), str) or not isinstance(e.get("paths"), list):
-            raise SystemExit(f"records: {MANIFEST} archives[{i}] needs a 'commit' and a list of 'paths'")
+            raise SystemExit(
+                f"records: {MANIFEST} archives[{i}] needs a 'commit' and a list of 'paths' (or a 'moved' mapping)"
+            )
     return entries
+
+
+def _renamer(later: list[dict]):
+    """The path an archived file has now: the ``moved`` entries after its archive, applied in order (``OLD/x`` is
+    ``NEW/x`` after ``{"moved": {OLD: NEW}}``)."""
+    moves = [(old.rstrip("/"), new.rstrip("/")) for e in later for old, new in e.get("moved", {}).items()]
+
+    def rename(name: str) -> str:
+        for old, new in moves:
+            if _under(name, old):
+                name = new + name[len(old) :]
+        return name
+
+    return rename if moves else None
 
 
 def _under(path: str, folder: str) -> bool:
@@ -152,8 +172,11 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
     and main keeps in its tree must be byte-identical to its record in the form main keeps (:func:`current`: a run's
     config migrated; archives taken after the migration hold it migrated, earlier ones as the run wrote it), and ends
     in that form. Returns the number of files written."""
-    written = 0
-    for entry in manifest(root):
+    written, entries = 0, manifest(root)
+    wanted = [x.rstrip("/") for x in prefixes]
+    for i, entry in enumerate(entries):
+        if "moved" in entry:
+            continue
         commit = entry["commit"]
         probe = subprocess.run(["git", "-C", str(root), "cat-file", "-e", f"{commit}^{{commit}}"], capture_output=True)
         if probe.returncode != 0:
@@ -161,9 +184,9 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
                 f"records: commit {commit} ({MANIFEST}) is not in this clone; a shallow clone lacks it: "
                 "git fetch --unshallow"
             )
+        rename = _renamer(entries[i + 1 :])
         paths = entry["paths"]
-        if prefixes:  # the narrower of each overlapping pair: one run of a study is archived alone
-            wanted = [x.rstrip("/") for x in prefixes]
+        if prefixes and rename is None:  # the narrower of each overlapping pair: one run of a study is archived alone
             paths = sorted(
                 {x for x in wanted for p in paths if _under(x, p)} | {p for p in paths for x in wanted if _under(p, x)}
             )
@@ -171,16 +194,17 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
             continue
         with tarfile.open(fileobj=io.BytesIO(_git(root, "archive", commit, "--", *paths, binary=True))) as tar:
             for member in tar.getmembers():
-                if not member.isfile() or (prefixes and not any(_under(member.name, x) for x in wanted)):
+                name = member.name if rename is None else rename(member.name)
+                if not member.isfile() or (prefixes and not any(_under(name, x) for x in wanted)):
                     continue
-                target, data = dest / member.name, tar.extractfile(member).read()
-                if kept_in_tree(member.name) and target.exists():
+                target, data = dest / name, tar.extractfile(member).read()
+                if kept_in_tree(name) and target.exists():
                     have = target.read_bytes()
-                    if have != data and current(member.name, have) != current(member.name, data):
+                    if have != data and current(name, have) != current(name, data):
                         raise SystemExit(f"records: {target} differs from its record in {commit}")
-                    if current(member.name, have) == have:  # the current form (main's, or migrated already)
+                    if current(name, have) == have:  # the current form (main's, or migrated already)
                         continue
-                    data = current(member.name, data)  # an older form written by an earlier archive: migrated
+                    data = current(name, data)  # an older form written by an earlier archive: migrated
                 target.parent.mkdir(parents=True, exist_ok=True)
                 target.write_bytes(data)
                 written += 1
@@ -224,6 +248,32 @@ def archive(root: Path, paths: list[str]) -> int:
     return len(leaving)
 
 
+def move(root: Path, old: str, new: str) -> int:
+    """A run's (or a folder's) records move from ``old`` to ``new``: its files in main's tree by ``git mv``, its
+    restored records on disk with them, and a ``moved`` entry in the manifest, so that the archives taken before it
+    restore ``old``'s files under ``new`` (a run rerun in ``old``'s place gets ``old`` for its own records). Returns
+    the number of files moved on disk. Commit the result."""
+    src, dst = root / old, root / new
+    if not src.is_dir():
+        raise SystemExit(f"records move: {old}: no such folder")
+    if dst.exists():
+        raise SystemExit(f"records move: {new} exists already")
+    tracked = [f for f in _git(root, "ls-files", "--", old).splitlines() if f]
+    files = [p for p in src.rglob("*") if p.is_file()]
+    for f in files:
+        target = dst / f.relative_to(src)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if str(f.relative_to(root)) in tracked:
+            _git(root, "mv", str(f.relative_to(root)), str(target.relative_to(root)))
+        else:
+            f.replace(target)
+    shutil.rmtree(src)
+    entries = manifest(root) + [{"moved": {old.rstrip("/"): new.rstrip("/")}}]
+    (root / MANIFEST).write_text(json.dumps({"archives": entries}, indent=1) + "\n")
+    _git(root, "add", str(MANIFEST))
+    return len(files)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m kddrl_trl.devtools.records", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -232,6 +282,9 @@ def main(argv: list[str] | None = None) -> None:
     collecting.add_argument("dest", type=Path)
     sub.add_parser("restore", help="the records back into the studies' folders").add_argument("studies", nargs="*")
     sub.add_parser("archive", help="records committed whole leave the tree").add_argument("paths", nargs="+")
+    moving = sub.add_parser("move", help="a run's records move (a superseded run), with its archived history")
+    moving.add_argument("old")
+    moving.add_argument("new")
     args = ap.parse_args(argv)
     if args.command == "collect":
         names = collect(args.sweep, args.dest)
@@ -240,6 +293,8 @@ def main(argv: list[str] | None = None) -> None:
     root = repo_root()
     if args.command == "restore":
         print(f"records: {restore(root, args.studies)} files restored")
+    elif args.command == "move":
+        print(f"records: {move(root, args.old, args.new)} files moved to {args.new}; commit the change")
     else:
         print(f"records: {archive(root, args.paths)} files leave the tree; commit the change")
 

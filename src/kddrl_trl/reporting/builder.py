@@ -357,6 +357,21 @@ def _p(p) -> str:
     return "—" if p is None else ("1" if p >= 1 else f"{p:.2g}")
 
 
+def _sensitivity(c: dict) -> str:
+    """The size reading with the paper's difference read as a 1-run and a 3-run estimate: ``excluded / compatible``."""
+    rows = c.get("size_if_estimate")
+    if not rows:
+        return "—"
+    return " / ".join(r["size"] or "—" for r in rows.values())
+
+
+def _power_cell(c: dict) -> str:
+    power = c.get("power")
+    if not power or power["family"] is None:
+        return "—"
+    return f"{power['family']:.2f} / {power['alpha']:.2f}"
+
+
 def _claims_section(claims: list[dict], table_rows: list[dict], exact: dict, ratios: dict) -> list[str]:
     """The verdict of the analysis plan (``studies/paper/plan.md``): the primary claims with both readings and
     their description over all seeds, the secondary claims as exploratory estimates, and, per row, the pooled
@@ -380,25 +395,42 @@ def _claims_section(claims: list[dict], table_rows: list[dict], exact: dict, rat
         "(0-14, the pilot's included) with its 95 % interval. Collision differences in percentage points, speeds in "
         "km/h, lane changes per episode; `paper`: the same difference in the paper's tables.",
         "",
+        "Beside each verdict stands the interval that agrees with it: the test's interval at the level at which "
+        "Holm's step-down decides the claim (1 − 0.05 · p / p_Holm), which excludes 0 (for the size, the paper's "
+        "difference) exactly when the adjusted p is below 0.05. The unadjusted 95 % interval and the simultaneous "
+        f"one (Bonferroni, 1 − 0.05 / {len(primary)}) can disagree with a verdict: a claim that Holm decides at a "
+        "later step can have a simultaneous interval that holds the null. *compatible* is a failure to reject the "
+        "paper's difference, not a finding that ours equals it. *if 1 / 3 runs*: the size question again with the "
+        "paper's difference read as one study's estimate from 1 or 3 runs per system at our spread, not as an "
+        "exact constant (Holm over the family each). *p perm.*: the plan's permutation check (Welch's statistic "
+        "over 99,999 reassignments of the seeds; exact sign flips where paired), Holm-adjusted; it decides nothing. "
+        f"*power*: on the paper's difference at n = {len(TEST_SEEDS)}, at 0.05 / {len(primary)} "
+        "and at 0.05, at the spread of all seeds; an inconclusive direction that this n could not decide names the "
+        "seeds that 80 % power would need.",
+        "",
         "**Direction:** "
         + ", ".join(f"{k} {v}" for k, v in sorted(directions.items()))
         + ". **Size:** "
         + ", ".join(f"{k} {v}" for k, v in sorted(sizes.items(), key=lambda kv: str(kv[0])))
         + f" (of {len(primary)} primary claims).",
         "",
-        f"| # | claim | n ({seeds}) | a − b [95 % CI] | simultaneous CI | paper | p direction (Holm) | direction "
-        "| p size (Holm) | size | described: a − b [95 % CI], seeds |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        f"| # | claim | n ({seeds}) | a − b [95 % CI] | simultaneous CI | paper | p direction (Holm) | p perm. (Holm) "
+        "| direction [Holm CI] | p size (Holm) | size [Holm CI] | size if 1 / 3 runs | power | "
+        "described: a − b [95 % CI], seeds |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c in primary:
         m, d = c["metric"], c["description"]
-        direction = f"**{c['direction']}**" + ("" if c["reading"] is None else f"; {c['reading']}")
+        direction = f"**{c['direction']}** {_interval(m, c.get('ci_direction'))}".strip()
+        direction += "" if c["reading"] is None else f"; {c['reading']}"
+        size = "—" if c["size"] is None else f"{c['size']} {_interval(m, c.get('ci_size'))}".strip()
         described = "—" if d is None else f"{_estimate(m, d['difference'], d['ci'])}, {min(d['n'])}"
         md.append(
             f"| {c['id']} | {c['claim']}{' (paired)' if c['test'] == 'paired' else ''} | {c['n']} | "
             f"{_estimate(m, c['difference'], c['ci'])} | {_interval(m, c['ci_simultaneous']) or '—'} | "
-            f"{_num(m, c['paper'])} | {_p(c['p_direction_adjusted'])} | {direction} | "
-            f"{_p(c['p_size_adjusted'])} | {c['size'] or '—'} | {described} |"
+            f"{_num(m, c['paper'])} | {_p(c['p_direction_adjusted'])} | {_p(c.get('p_permutation_adjusted'))} | "
+            f"{direction} | {_p(c['p_size_adjusted'])} | {size} | {_sensitivity(c)} | {_power_cell(c)} | "
+            f"{described} |"
         )
     md += [
         "",

@@ -20,6 +20,7 @@ way), never 0.
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -141,21 +142,43 @@ def holm(pvalues) -> list[float]:
     return [] if p.size == 0 else multipletests(p, method="holm")[1].tolist()
 
 
-def seeds_for_power(effect: float, sd: float, alpha: float, paired: bool, power: float = 0.8) -> float:
-    """Seeds per system a two-sided t-test at ``alpha`` needs to find a true difference ``effect`` with
-    probability ``power`` (statsmodels' power classes; Welch read as the equal-variance test at the pooled
-    ``sd``; ``paired``: ``sd`` of the differences). ``inf`` when there is no spread to measure against."""
-    from statsmodels.stats.power import TTestIndPower, TTestPower
+def t_power(effect: float, sd: float, n: int, alpha: float, paired: bool) -> float:
+    """Power of the two-sided t-test at ``alpha`` with ``n`` seeds per system against a true difference ``effect``
+    (``paired``: the one-sample test of the differences, ``sd`` theirs; else the two-sample test at the common
+    ``sd``, Welch's read as the equal-variance test): P(|T| > t_crit) for T noncentral t. It is integrated over the
+    χ² of the spread, T = (Z + δ) / sqrt(V / df), because the noncentral t's own tail (scipy's ``nct``, behind
+    statsmodels' power classes) returns NaN far out at small n, and a NaN read as power 1 overstates it there."""
+    from scipy.stats import chi2, norm, t
 
+    df = n - 1 if paired else 2 * n - 2
+    if df < 1:
+        return float("nan")
+    if sd <= 0:
+        return 1.0 if effect != 0 else alpha
+    delta = abs(effect) / sd * math.sqrt(n if paired else n / 2)
+    crit = float(t.ppf(1 - alpha / 2, df))
+    # Gauss-Legendre over the χ²'s quantile u in (0, 1), where the integrand is bounded and smooth (within 1e-6 of
+    # adaptive quadrature from n = 2 to 1000)
+    u, w = _legendre()
+    scale = crit * np.sqrt(chi2.ppf((u + 1) / 2, df) / df)
+    return float(min(1.0, np.dot(w / 2, norm.cdf(delta - scale) + norm.cdf(-delta - scale))))
+
+
+@functools.cache
+def _legendre(nodes: int = 512) -> tuple[np.ndarray, np.ndarray]:
+    return np.polynomial.legendre.leggauss(nodes)
+
+
+def seeds_for_power(effect: float, sd: float, alpha: float, paired: bool, power: float = 0.8) -> float:
+    """The smallest number of seeds per system at which :func:`t_power` reaches ``power`` (at least 2). ``inf`` when
+    there is no spread to measure against, or past 10**7 seeds."""
     if sd <= 0 or effect == 0:
         return math.inf
-    solver, key = (TTestPower(), "nobs") if paired else (TTestIndPower(), "nobs1")
 
     def enough(n: int) -> bool:
-        p = solver.power(abs(effect) / sd, alpha=alpha, **{key: n})
-        return bool(np.isnan(p) or p >= power)  # NaN: statsmodels' noncentral t far out, where the power is 1
+        return t_power(effect, sd, n, alpha, paired) >= power
 
-    low, high = 2, 4
+    low, high = 1, 2
     while not enough(high):
         low, high = high, high * 2
         if high > 10**7:
@@ -164,3 +187,61 @@ def seeds_for_power(effect: float, sd: float, alpha: float, paired: bool, power:
         mid = (low + high) // 2
         low, high = (low, mid) if enough(mid) else (mid, high)
     return float(high)
+
+
+def permutation_p(values, reference, paired: bool, resamples: int = 99_999, seed: int = 0) -> float | None:
+    """Two-sided permutation p-value of H0: no difference between ``values`` and ``reference``
+    (``scipy.stats.permutation_test``), a sensitivity check beside the t-tests that assumes no normality.
+
+    * ``paired``: the signs of the per-seed differences flipped, every arrangement (2^n, exact at n = 10) and the
+      mean difference as the statistic;
+    * else the seeds' labels reassigned at random ``resamples`` times (``seed`` fixes them, so that a report
+      regenerates identically), Welch's t as the statistic (the spreads differ by system).
+
+    None with fewer than two seeds a side, or no spread at all."""
+    from scipy.stats import permutation_test
+
+    x, y = _finite(values, "permutation_p"), _finite(reference, "permutation_p")
+    if min(x.size, y.size) < 2 or (np.ptp(x - y) if paired else max(np.ptp(x), np.ptp(y))) == 0:
+        return None
+    if paired:
+        if x.size != y.size:
+            raise ValueError(f"permutation_p: paired values need the same seeds, got {x.size} and {y.size}")
+
+        def mean_difference(a, b, axis):
+            return np.mean(a - b, axis=axis)
+
+        res = permutation_test(
+            (x, y), mean_difference, permutation_type="samples", n_resamples=2**x.size, vectorized=True
+        )
+        return float(res.pvalue)
+
+    def welch(a, b, axis):
+        va, vb = np.var(a, axis=axis, ddof=1) / a.shape[axis], np.var(b, axis=axis, ddof=1) / b.shape[axis]
+        return (np.mean(a, axis=axis) - np.mean(b, axis=axis)) / np.sqrt(va + vb)
+
+    res = permutation_test((x, y), welch, n_resamples=resamples, vectorized=True, rng=np.random.default_rng(seed))
+    return float(res.pvalue)
+
+
+def noisy_reference_test(values, reference, target: float, runs: int, paired: bool) -> float | None:
+    """Two-sided p-value of H0: our true difference equals the true difference behind ``target``, read as one
+    study's estimate from ``runs`` seeds per system with our spread (so the paper's single-run Δ is no exact
+    constant): (ours − target) / sqrt(se_ours² + se_target²), se_target² = (s_x² + s_y²) / runs (``paired``: the
+    differences' s² / runs), Welch-Satterthwaite degrees of freedom (``paired``: n − 1). None without spread."""
+    from scipy.stats import t
+
+    x, y = _finite(values, "noisy_reference_test"), _finite(reference, "noisy_reference_test")
+    if min(x.size, y.size) < 2:
+        return None
+    gap = float(x.mean() - y.mean() - target)
+    if paired:
+        var = float(np.var(x - y, ddof=1)) * (1 / x.size + 1 / runs)
+        df = x.size - 1.0
+    else:
+        cx, cy = x.var(ddof=1) * (1 / x.size + 1 / runs), y.var(ddof=1) * (1 / y.size + 1 / runs)
+        var = float(cx + cy)
+        df = var**2 / (cx**2 / (x.size - 1) + cy**2 / (y.size - 1)) if var > 0 else 0.0
+    if var <= 0:
+        return None
+    return float(2 * t.sf(abs(gap) / math.sqrt(var), df))

@@ -6,9 +6,10 @@ report's ``report.json`` (:mod:`kddrl_trl.reporting.verdict`).
 a − b is the claim's first system minus its second; speeds in km/h, collision rates in percentage points; ``paper``:
 the same difference in the paper's tables. "ours" is the confirmatory test's estimate on seeds 5-14 once every cell
 has them; until then the verdicts read pending and "ours" is the estimate over all the seeds run so far (the pilot's
-0-4 included), marked "so far". An inconclusive direction whose claim is not testable at a realistic n (plan §4)
-reads "untestable", with the seeds per system that 80 % power on the paper's difference would need. The p-values
-are in the report."""
+0-4 included), marked "so far". An inconclusive direction that the study's 10 seeds could not decide reads
+"inconclusive (N)": N is the number of seeds per system that 80 % power on the paper's difference would need at the
+family's level 0.05 / 17. The p-values, the intervals that agree with each verdict and the power are in the
+report."""
 
 from __future__ import annotations
 
@@ -41,7 +42,10 @@ def table(report: dict) -> str:
     primary = [c for c in report["claims"] if c.get("family") == "primary"]
     if len(primary) != 17:
         raise ValueError(f"report.json holds {len(primary)} primary claims, the plan has 17")
-    lines = ["| # | claim | ours: a − b [95 % CI] | paper | direction | size |", "|---|---|---|---|---|---|"]
+    lines = [
+        "| # | claim | ours: a − b [95 % CI] | paper | direction (seeds needed) | size |",
+        "|---|---|---|---|---|---|",
+    ]
     for c in primary:
         scale = 100.0 if c["metric"] == "collision_rate" else 1.0
         claim = f"{c['scenario']}: {NAMES[c['a']]} {VERBS[(c['metric'], c['claimed'])]} {NAMES[c['b']]}"
@@ -50,7 +54,7 @@ def table(report: dict) -> str:
             ours = "—" if d is None else f"{_estimate(c, d['difference'], d['ci'])}, n={min(d['n'])} so far"
         else:
             ours = _estimate(c, c["difference"], c["ci"])
-        direction = f"untestable ({c['seeds_needed']:.0f} seeds)" if c.get("reading") else c["direction"]
+        direction = c["direction"] + (f" ({c['seeds_needed']:.0f})" if c.get("reading") else "")
         lines.append(f"| {c['id']} | {claim} | {ours} | {scale * c['paper']:+.1f} | {direction} | {c['size'] or '—'} |")
     return "\n".join(lines)
 
