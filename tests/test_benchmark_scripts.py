@@ -315,3 +315,18 @@ def test_every_benchmark_imports_as_a_package_module_and_answers_help(name, caps
     assert done.value.code == 0 and "usage" in capsys.readouterr().out
     src = Path(module.__file__).read_text()
     assert "sys.path" not in src
+
+
+def test_threads_runs_the_job_alone_and_beside_a_copy_of_itself_at_its_smallest_size(tmp_path):
+    """``benchmarks/threads.py`` for real at its smallest size (two episodes, tiny networks): each arm's job alone,
+    then two copies at once, without ``OMP_NUM_THREADS``; the ratios and the threads each job chose are recorded."""
+    from testkit import TINY
+
+    bench = load_benchmark("threads")
+    out = tmp_path / "threads.json"
+    result = bench.main(["--out", str(out), "--episodes", "2", "--eval-episodes", "1", *TINY])
+    assert json.loads(out.read_text())["ratios"] == result["ratios"] and len(result["runs"]) == 2
+    auto, fixed = result["runs"]
+    assert auto["torch_threads"] == "auto" and auto["threads_chosen"]["alone"]["reason"] == "free cores"
+    assert fixed["threads_chosen"]["alone"]["reason"] == "torch_threads" and len(fixed["beside_s"]) == 2
+    assert all(r["slowdown"] > 0 for r in result["runs"])

@@ -73,6 +73,7 @@ from .eval.protocol import test_seed, validation_seed, worker_seed
 from .generative import shipped_traffic
 from .loggers import MultiLogger
 from .physics import IDMParams, MOBILParams
+from .physics.rss import RSSParams
 from .process_settings import TorchSettings
 from .run_folder import (
     RunFolder,
@@ -83,6 +84,7 @@ from .run_folder import (
     resume_requested,
     trained_run,
 )
+from .threads import ThreadGovernor
 from .training import (
     HierarchicalLearner,
     JointD3QNLearner,
@@ -92,7 +94,14 @@ from .training import (
     load_training_checkpoint,
     make_buffer,
 )
-from .transforms import DecisionClock, MOBILCriteria, MOBILSafetyMask, SafetyShield, make_kddrl_transforms
+from .transforms import (
+    DecisionClock,
+    MOBILCriteria,
+    MOBILSafetyMask,
+    RSSLaneMask,
+    SafetyShield,
+    make_kddrl_transforms,
+)
 
 #: the learner of each learning ``algo.kind`` (:data:`kddrl_trl.conf.schema.ALGO_SCHEMAS`)
 LEARNERS = {"hierarchical": HierarchicalLearner, "joint_d3qn": JointD3QNLearner, "pasac": PASACLearner}
@@ -120,7 +129,7 @@ def make_job(cfg: DictConfig):
     (:func:`make_device`, so ``device=cuda`` without a GPU stops at once; as ``job.torch_device``), ``compile``
     and ``cudagraphs`` (bools, :func:`kddrl_trl.compiling.resolve_compile` / ``resolve_cudagraphs``); and
     ``matmul_precision`` and ``flush_denormal`` are applied to this process (:func:`make_torch_settings`; process-wide:
-    set by every job, so none inherits another's)."""
+    set by every job, so none inherits another's), and ``torch_threads`` (:func:`make_threads`, as ``job.threads``)."""
     with no_folder_if_refused():
         job = OmegaConf.to_object(cfg)
         unknown = unknown_keys(cfg, job)
@@ -137,7 +146,17 @@ def make_job(cfg: DictConfig):
             job.cudagraphs = resolve_cudagraphs(job.cudagraphs, job.torch_device)
         if hasattr(job, "matmul_precision"):
             make_torch_settings(job).apply()
+        if hasattr(job, "torch_threads"):
+            job.threads = make_threads(job)
         return job
+
+
+def make_threads(job: Job) -> ThreadGovernor:
+    """The job's torch threads (``torch_threads``, :mod:`kddrl_trl.threads`), applied now and followed while it
+    trains; a collection worker that runs beside the updates (``collector.sync=false``) counts as busy."""
+    collector = getattr(job, "collector", None)
+    overlapped = collector is not None and not collector.sync
+    return ThreadGovernor(job.torch_threads, workers=int(overlapped))
 
 
 def make_torch_settings(job: Job) -> TorchSettings:
@@ -180,7 +199,8 @@ def make_transforms(
     ``algo.transforms`` (none with ``enabled: false``; ``weights: auto`` takes the GAN weights trained on the traffic of
     ``simulator``, :func:`kddrl_trl.generative.shipped_traffic`) and MOBIL's criteria (``mobil_criteria: true``,
     :class:`~kddrl_trl.transforms.MOBILCriteria`); MOBIL's safety mask where ``algo.mobil_safety_mask``
-    (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); a learning algo's
+    (:class:`~kddrl_trl.transforms.MOBILSafetyMask`, any algo schema with the key); with ``algo.shield=rss`` the
+    lane-change gap check of RSS (:class:`~kddrl_trl.transforms.RSSLaneMask`); a learning algo's
     :class:`DecisionClock` of ``algo.lc_period``; the car-following shield of ``algo.shield``
     (:class:`~kddrl_trl.transforms.SafetyShield`, every algo)."""
     stack = []
@@ -195,10 +215,15 @@ def make_transforms(
             stack.append(MOBILCriteria(num_lanes=highway.num_lanes))
     if getattr(algo, "mobil_safety_mask", False):  # any algo schema that has the option
         stack.append(MOBILSafetyMask(num_lanes=highway.num_lanes))
+    if getattr(algo, "shield", "none") == "rss":  # the worst-case layer's lateral half: the lane-change gap check
+        stack.append(RSSLaneMask(RSSParams(horizon=highway.sensing_range), length=highway.vehicle_length))
     if learning:
         stack.append(DecisionClock(algo.lc_period))
     if getattr(algo, "shield", "none") != "none":
-        stack.append(SafetyShield(algo.shield, low=highway.accel_low, high=highway.accel_high, ttc=algo.shield_ttc))
+        rss = RSSParams(horizon=highway.sensing_range)
+        stack.append(
+            SafetyShield(algo.shield, low=highway.accel_low, high=highway.accel_high, ttc=algo.shield_ttc, rss=rss)
+        )
     return Compose(*stack)
 
 

@@ -70,6 +70,7 @@ def train(job: TrainJob, run: RunFolder, logger, resuming: bool):
         episodes=job.episodes,
         progress=job.progress,
         evaluator=make_evaluator(job),
+        threads=job.threads,
     )
     done = trainer.load(run.path) if resuming else 0
     if done:
@@ -177,6 +178,7 @@ def evaluate_run(
         "final_evaluations": finals,
         "protocol": seeds,
         "compile": job.compile,
+        "torch_threads": job.threads.record(),
         "run_dir": str(run.path),
         "wall_s": time.perf_counter() - started,
         **extra,

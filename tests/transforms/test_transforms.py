@@ -851,7 +851,7 @@ def test_safety_bounds():
     assert safe_acceleration(left, "ttc", **kw).item() < -5.0
 
 
-@pytest.mark.parametrize("kind", ["idm", "ttc"])
+@pytest.mark.parametrize("kind", ["idm", "ttc", "rss"])
 def test_shield_executes_and_records_the_bounded_action_and_counts_interventions(kind):
     """The env executes min(a_agent, a_safe); the collected frame holds the executed action (buffer L learns the
     transition that happened); ("next", "cf", "shield") flags the frames; the tracker counts them per episode."""

@@ -285,9 +285,9 @@ PASACLearnerConfig = _node(
 )
 
 
-#: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound
-#: (:class:`~kddrl_trl.transforms.SafetyShield`)
-SHIELDS = ("none", "idm", "ttc")
+#: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound, RSS's worst-case bound with its
+#: lane-change gap check (:class:`~kddrl_trl.transforms.SafetyShield`, :class:`~kddrl_trl.transforms.RSSLaneMask`)
+SHIELDS = ("none", "idm", "ttc", "rss")
 #: ``algo.lc_reward`` values (:class:`~kddrl_trl.collectors.MacroTransitionWriter`): Algorithm 1 lines 26/35 sum
 #: the per-frame r_D3QN over the interval; §III.G computes it once "at each 2-second decision step"
 LC_REWARDS = ("frames", "decision")
@@ -298,7 +298,7 @@ class SafetyOptions:
     """Options every algo has, learning or rule-based. Schema defaults = how runs saved before these keys
     existed behaved; the algo YAMLs set the project's defaults (README, "Safety and learning-signal options")."""
 
-    shield: str = "none"  # car-following shield: none | idm | ttc (a_exec = min(a_agent, a_safe))
+    shield: str = "none"  # car-following shield: none | idm | ttc | rss (a_exec = min(a_agent, a_safe))
     shield_ttc: float = 3.0  # s, time-to-collision below which the ttc shield bounds the acceleration
 
     def _check_safety(self) -> None:
@@ -458,9 +458,14 @@ class Job:
     cudagraphs: Any = "auto"  # true | false | auto (on with a CUDA learner): CudaGraphModule around the updates
     matmul_precision: str = "highest"  # torch.set_float32_matmul_precision: highest | high (TF32) | medium
     flush_denormal: bool = True  # torch.set_flush_denormal: CPU float32 values under 1.18e-38 taken as zero
+    torch_threads: Any = "auto"  # auto | N: torch's CPU threads (auto: the free cores, followed while training)
 
     def __post_init__(self) -> None:
         _at_least("", self, 1, "eval_episodes", "video_episodes")
+        if str(self.torch_threads) != "auto" and not (
+            isinstance(self.torch_threads, int) and not isinstance(self.torch_threads, bool) and self.torch_threads >= 1
+        ):
+            raise ValueError(f"torch_threads must be auto or a positive integer, got {self.torch_threads!r}")
         if self.video_select not in VIDEO_SELECTS:
             raise ValueError(f"video_select={self.video_select!r}: known values are {', '.join(VIDEO_SELECTS)}")
         if self.matmul_precision not in MATMUL_PRECISIONS:

@@ -105,6 +105,8 @@ def final_evaluation(
     summary_fields = dict(
         scenario=job.env.scenario, algo=algo, env_stats=stats, flow_vph=job.env.flow, compile=job.compile, **fields
     )
+    if getattr(job, "threads", None) is not None:  # the torch threads it ran on, and why (kddrl_trl.threads)
+        summary_fields["torch_threads"] = job.threads.record()
     return FinalEvaluation(Path(out_dir), episodes, title, reference, summary_fields)
 
 

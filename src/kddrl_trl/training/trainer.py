@@ -183,8 +183,10 @@ class Trainer:
         episodes: int,
         progress: bool = True,
         evaluator=None,
+        threads=None,
     ):
         self.learner, self.cfg, self.episodes, self.evaluator = learner, cfg, int(episodes), evaluator
+        self.threads = threads  # a ThreadGovernor (kddrl_trl.threads): told of every batch, it follows the machine
         self.validations: list[dict] = []  # per periodic evaluation: episodes trained, summary
         self.buffer_cf, self.buffer_lc = buffers
         self.run_dir, self.logger, self.progress = Path(run_dir), logger, progress
@@ -410,6 +412,8 @@ class Trainer:
                     self.finish()
                 return self.history
             for batch in self.collector:
+                if self.threads is not None:
+                    self.threads.tick()
                 frames = batch.frames.numel()
                 decisions = int(batch.frames.get(self.collector.writer.decide_key).sum())
                 self.counters["frames"] += frames

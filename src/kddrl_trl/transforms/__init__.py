@@ -14,6 +14,7 @@ transform              writes                               paper
 :class:`MOBILSafetyMask`  ``("lc", "action_mask")`` [3]      MOBIL's safety check as a hard mask, Eq. 20-21
 :class:`SafetyShield`   ``("cf", "action")`` (executed),     car-following shield (not in the paper)
                         ``("next", "cf", "shield")`` [1]
+:class:`RSSLaneMask`    ``("lc", "action_mask")`` [3]      RSS's lane-change gap check (``algo.shield=rss``)
 :class:`LeaderHistory`  ``("leaders", "history")`` [3, H, 2] the leaders' last H (y, v), for envs without it
 :class:`MOBILCriteria`  ``("prior", "mobil_incentive")`` [3], MOBIL utilities (Eq. 21-22) and safety flags
                         ``("prior", "mobil_safe")`` [3]       (Eq. 20-21): the state of Peng et al. (``algo=peng``)
@@ -36,6 +37,7 @@ from .key_gaps import KEY_STEPS, KeyGapsFromPrior, key_step_gaps
 from .lcgan import LCGANPrior
 from .leader_history import LeaderHistory
 from .mobil_prior import MOBILCriteria, MOBILPrior, MOBILSafetyMask
+from .rss_lane_mask import RSSLaneMask
 from .shield import SafetyShield
 from .stack import PredictiveStack
 from .trajgan import TrajGANPrediction
@@ -52,6 +54,7 @@ __all__ = [
     "MOBILPrior",
     "MOBILSafetyMask",
     "PredictiveStack",
+    "RSSLaneMask",
     "SafetyShield",
     "TrajGANPrediction",
     "key_step_gaps",

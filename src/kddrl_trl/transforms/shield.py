@@ -7,7 +7,13 @@ default. The bound ``a_safe`` comes from the raw keys of the frame the action is
   free-road speed): ``a_safe = a_max [1 - (s*/gap)^2]``, Table A.1 parameters;
 * ``ttc``: when the time to collision ``gap / (v - v_lead)`` is below ``ttc`` seconds, the constant deceleration
   that brings the closing speed to zero before the gap shrinks to ``min_gap`` (plus the leader's own braking):
-  ``a_safe = min(a_lead, 0) - (v - v_lead)^2 / (2 (gap - min_gap))``; no bound otherwise.
+  ``a_safe = min(a_lead, 0) - (v - v_lead)^2 / (2 (gap - min_gap))``; no bound otherwise;
+* ``rss``: the worst-case bound of Responsibility-Sensitive Safety (:func:`kddrl_trl.physics.rss.longitudinal_bound`):
+  the largest command after which, one frame later, the ego can still stop behind a leader that brakes at up to
+  9 m/s² from now (:class:`~kddrl_trl.physics.rss.RSSParams`); where the lane it must watch shows no car, a standing
+  one is assumed just beyond the sensing range (``horizon``), which bounds the ego's speed to what it can stop
+  from within it (about 160 km/h at 200 m). Its lateral half, the gap check before a lane change
+  starts, is :class:`~kddrl_trl.transforms.rss_lane_mask.RSSLaneMask`.
 
 The leaders checked are the current lane's (slot b) and, during a lane change, the target lane's (a to the left,
 c to the right, from the sign of the lateral speed).
@@ -36,9 +42,10 @@ from torchrl.envs.transforms import Transform
 
 from .. import keys as K
 from ..physics import IDMParams, idm_acceleration
+from ..physics.rss import RSSParams, longitudinal_bound
 
 #: ``algo.shield`` kinds this transform implements (``none`` adds no transform)
-SHIELD_KINDS = ("idm", "ttc")
+SHIELD_KINDS = ("idm", "ttc", "rss")
 _FLAG = "_shield_intervened"  # carries the intervention flag from the inverse path to ``_step``
 
 
@@ -61,7 +68,15 @@ def ttc_bound(
 
 
 def safe_acceleration(
-    obs: TensorDictBase, kind: str, *, idm: IDMParams, ttc: float, min_gap: float, high: float
+    obs: TensorDictBase,
+    kind: str,
+    *,
+    idm: IDMParams,
+    ttc: float,
+    min_gap: float,
+    high: float,
+    low: float = -5.0,
+    rss: RSSParams | None = None,
 ) -> torch.Tensor:
     """``a_safe`` ``[*B, 1]`` (m/s², at most ``high``) of shield ``kind`` from the raw keys of ``obs``."""
     ego = obs.get(K.EGO_STATE).to(torch.float32)
@@ -76,6 +91,15 @@ def safe_acceleration(
     present[..., 2:3] &= active & (vx < 0)  # the right leader only while moving right
     if kind == "idm":
         bound = idm_acceleration(v, leaders[..., 1], gap, idm, has_leader=present).clamp(max=high)
+    elif kind == "rss":  # a lane it must watch and sees no car in: a standing one may wait past the sensing range
+        p = rss or RSSParams()
+        watched = torch.ones_like(present)
+        watched[..., 0:1], watched[..., 2:3] = active & (vx > 0), active & (vx < 0)
+        unseen = watched & ~present
+        gap = torch.where(unseen, torch.full_like(gap, p.horizon - idm.length), gap)
+        speed = torch.where(unseen, torch.zeros_like(gap), leaders[..., 1])
+        bound = longitudinal_bound(v, speed, gap, p, low, high)
+        present = watched
     else:
         bound = ttc_bound(v, leaders[..., 1], leaders[..., 2], gap, ttc, min_gap, high)
     bound = torch.where(present, bound, torch.full_like(bound, high))
@@ -91,6 +115,7 @@ class SafetyShield(Transform):
         ttc: s, the ``ttc`` shield's threshold. Defaults to 3 s.
         min_gap: m, the gap the ``ttc`` shield keeps. Defaults to 2 m.
         idm: IDM parameters of the ``idm`` shield (default Table A.1; ``v0`` is ignored: always ``inf``).
+        rss: the worst case of the ``rss`` shield (default :class:`~kddrl_trl.physics.rss.RSSParams`).
     """
 
     def __init__(
@@ -102,6 +127,7 @@ class SafetyShield(Transform):
         ttc: float = 3.0,
         min_gap: float = 2.0,
         idm: IDMParams | None = None,
+        rss: RSSParams | None = None,
     ):
         if kind not in SHIELD_KINDS:
             raise ValueError(f"SafetyShield: kind must be one of {', '.join(SHIELD_KINDS)}, got {kind!r}")
@@ -110,12 +136,22 @@ class SafetyShield(Transform):
         self.ttc, self.min_gap = float(ttc), float(min_gap)
         base = idm if idm is not None else IDMParams()
         self.idm = IDMParams(**{**base.__dict__, "v0": math.inf})
+        self.rss = rss if rss is not None else RSSParams()
 
     def shielded(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """(executed action, intervened) ``[*B, 1]`` for the command and raw keys at the root of ``tensordict``."""
         action = tensordict.get(K.CF_ACTION)
         bound = (
-            safe_acceleration(tensordict, self.kind, idm=self.idm, ttc=self.ttc, min_gap=self.min_gap, high=self.high)
+            safe_acceleration(
+                tensordict,
+                self.kind,
+                idm=self.idm,
+                ttc=self.ttc,
+                min_gap=self.min_gap,
+                high=self.high,
+                low=self.low,
+                rss=self.rss,
+            )
             .to(action.dtype)
             .reshape(action.shape)
         )
