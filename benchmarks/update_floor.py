@@ -110,7 +110,7 @@ def update_parts(seed: int, buffers: tuple, updates: int = 400, passes: int = 3)
     ``buffers``. With :func:`gemm_in_update` this bounds the update as it is built: the products at their speed inside
     it, the optimiser steps and the soft updates (each reads and writes all of its tensors) take
     ``*_bound_over_floor`` of the floor before the graphs' other kernels and the rest add anything."""
-    from kddrl_trl.training import base
+    from kddrl_trl.training import learner as base  # the module whose step_all the learner calls
 
     torch.manual_seed(seed)
     learner = HierarchicalLearner(**learner_kwargs(True)[0])

@@ -317,6 +317,7 @@ def test_every_benchmark_imports_as_a_package_module_and_answers_help(name, caps
     assert "sys.path" not in src
 
 
+@pytest.mark.benchmarks
 def test_threads_runs_the_job_alone_and_beside_a_copy_of_itself_at_its_smallest_size(tmp_path):
     """``benchmarks/threads.py`` for real at its smallest size (two episodes, tiny networks): each arm's job alone,
     then two copies at once, without ``OMP_NUM_THREADS``; the ratios and the threads each job chose are recorded."""
@@ -330,3 +331,15 @@ def test_threads_runs_the_job_alone_and_beside_a_copy_of_itself_at_its_smallest_
     assert auto["torch_threads"] == "auto" and auto["threads_chosen"]["alone"]["reason"] == "free cores"
     assert fixed["threads_chosen"]["alone"]["reason"] == "torch_threads" and len(fixed["beside_s"]) == 2
     assert all(r["slowdown"] > 0 for r in result["runs"])
+
+
+@pytest.mark.benchmarks
+def test_update_floor_runs_at_its_smallest_size(tmp_path):
+    """``benchmarks/update_floor.py`` for real at its smallest size: the update eager and compiled, the floor and the
+    update's parts (whose import of the learner's module once broke with a rename, unseen by ``--help``)."""
+    bench = load_benchmark("update_floor")
+    out = tmp_path / "update_floor.json"
+    assert bench.main(["--updates", "2", "--repeats", "1", "--floor-threads", "1", "--update-threads", "1",
+                       "--out", str(out)]) == 0  # fmt: skip
+    result = json.loads(out.read_text())
+    assert result["floor"] and result["update"]["torch_threads"] == 1

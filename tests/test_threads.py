@@ -105,7 +105,7 @@ def test_a_runs_records_are_the_same_at_one_and_two_threads(tmp_path):
     records = {}
     for n in (1, 2):
         out = tmp_path / f"t{n}"
-        cmd = [sys.executable, "-m", "kddrl_trl.train", "episodes=3", "eval_episodes=2", f"torch_threads={n}"]
+        cmd = [sys.executable, "-m", "kddrl_trl.train", "episodes=2", "eval_episodes=1", f"torch_threads={n}"]
         budget = [o for o in TINY_BUDGET if not o.startswith("train.batch_size_cf")]  # the default batch of 128
         done = subprocess.run(
             [*cmd, *budget, f"hydra.run.dir={out}"], cwd=tmp_path, capture_output=True, text=True, timeout=600

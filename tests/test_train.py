@@ -63,6 +63,8 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
     assert (run / "train_episodes.csv").read_text().count("\n") == 4
     assert (run / "training_curves.png").read_bytes()[:4] == b"\x89PNG"
     assert (run / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
+    assert "wiring check, not a result" in done.stdout and f"python -m kddrl_trl.evaluate run={run}" in done.stdout
+    assert f"training curves: {run / 'training_curves.png'}" in done.stdout  # the run says what it made
     for name in ("train/return_lc", "train/return_cf", "train/loss_qvalue", "time/frames_per_s", "test/mean_speed_kmh"):
         assert (run / "logs" / "scalars" / f"{name}.csv").is_file(), name
 
@@ -76,12 +78,17 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
         "eval_episodes=2",
         "env.num_roads=2",
         "progress=false",
+        "video=true",
+        "video_episodes=1",
     ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     (ev,) = list(run.glob("eval__congested__0__*"))
+    (video,) = list((ev / "videos").glob("*.mp4"))
+    assert f"video: {video}" in done.stdout and "trace: " in done.stdout  # it names what it made
     summary = json.loads((ev / "summary.json").read_text())
     assert summary["episodes"] == 2 and summary["trained_on"] == "braking" and summary["scenario"] == "congested"
+    assert summary["compile"] is False and summary["compile_s"] == 0.0  # compile=auto: 2 episodes do not pay for it
     assert summary["checkpoint"].endswith("ep000003.pt")
 
 
@@ -119,6 +126,8 @@ def test_the_new_systems_train_and_evaluate_on_sumo_as_typed(algo, small, tmp_pa
     assert (training["lc_updates"] > 0) == (algo == "peng")
     assert (run / "eval_episodes.csv").read_text().count("\n") == 3
     assert (run / "checkpoints" / "latest").read_text().strip() == "ep000003.pt"
+    assert "wiring check, not a result" in done.stdout and f"python -m kddrl_trl.evaluate run={run}" in done.stdout
+    assert f"training curves: {run / 'training_curves.png'}" in done.stdout  # the run says what it made
 
 
 @pytest.mark.parametrize(

@@ -41,15 +41,16 @@ SHORT_RUN_EPISODES = 100
 
 def resolve_compile(compile: bool | str, episodes: int | None = None) -> bool:
     """A ``compile`` option -> bool. ``"auto"`` compiles when a C++ compiler is on the PATH (the CPU backend of
-    ``torch.compile`` needs one) and the job trains at least :data:`SHORT_RUN_EPISODES` episodes (``episodes``; None:
-    not a training job), and logs which way it went; anything else must be a bool."""
+    ``torch.compile`` needs one) and the job runs at least :data:`SHORT_RUN_EPISODES` episodes (``episodes``: a
+    training job's training episodes, an evaluation's episodes; None: not known), below which the compile does not
+    pay for itself, and logs which way it went; anything else must be a bool."""
     if isinstance(compile, str):
         if compile.lower() in ("true", "false"):
             return compile.lower() == "true"
         if compile.lower() != "auto":
             raise ValueError(f"compile must be true, false or 'auto', got {compile!r}")
         if episodes is not None and episodes < SHORT_RUN_EPISODES:
-            log.info("compile=auto: %d training episodes (< %d), eager", episodes, SHORT_RUN_EPISODES)
+            log.info("compile=auto: %d episodes (< %d), eager", episodes, SHORT_RUN_EPISODES)
             return False
         return _compiler_found()
     if not isinstance(compile, bool):

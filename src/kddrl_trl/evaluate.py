@@ -19,6 +19,7 @@ from . import conf as _conf  # noqa: F401  (registers the typed schemas and the 
 from .compiling import fresh_compiler
 from .conf.schema import EvaluateJob
 from .eval.final import final_evaluation
+from .eval.metrics import paper_reference
 from .eval.protocol import check_disjoint, test_seed
 from .factories import make_job, make_logger, make_policy, make_test_env, make_trained_learner
 from .process_settings import seed_everything
@@ -53,6 +54,8 @@ def _evaluate(cfg: DictConfig) -> dict:
         title=f"{algo.name} trained on {trained_on}, evaluated on {job.env.scenario}, "
         f"seed {job.seed}, exploration off ({ckpt.name})",
         trained_on=trained_on,
+        # the paper's figures where they compare: a policy on the traffic it was trained on
+        reference=paper_reference(job.env.scenario, algo.name) if trained_on == job.env.scenario else None,
         checkpoint=str(ckpt),
         seed=job.seed,
         eval_seed=env_seed,

@@ -141,7 +141,9 @@ def make_job(cfg: DictConfig):
         if hasattr(job, "device"):
             job.torch_device = make_device(job.device)
         if hasattr(job, "compile"):
-            job.compile = resolve_compile(job.compile, getattr(job, "episodes", None))
+            # the episodes it compiles for: a training job's training episodes, an evaluation's test episodes
+            episodes = getattr(job, "episodes", getattr(job, "eval_episodes", None))
+            job.compile = resolve_compile(job.compile, episodes)
         if hasattr(job, "cudagraphs"):
             job.cudagraphs = resolve_cudagraphs(job.cudagraphs, job.torch_device)
         if hasattr(job, "matmul_precision"):

@@ -28,7 +28,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
-from .compiling import fresh_compiler
+from .compiling import SHORT_RUN_EPISODES, fresh_compiler
 from .conf.schema import LearningAlgo, TrainJob
 from .eval.final import FinalEvaluation
 from .eval.final import final_evaluation as run_final_evaluation
@@ -131,10 +131,29 @@ def main(cfg: DictConfig) -> dict:
     if isinstance(job.algo, LearningAlgo):
         learner, extra["training"], trainer = train(job, run, logger, resuming)
     try:
-        return evaluate_run(job, learner, trainer, logger, run, started, extra)
+        summary = evaluate_run(job, learner, trainer, logger, run, started, extra)
     finally:
         if trainer is not None:
             trainer.close()
+    print("\n".join(next_steps(job, run.path, learning=learner is not None)))
+    return summary
+
+
+def next_steps(job: TrainJob, run_dir, learning: bool) -> list[str]:
+    """What a user may run next on this run, and, for a short training, that its numbers are a wiring check."""
+    lines = []
+    if learning and job.episodes < SHORT_RUN_EPISODES:
+        lines.append(
+            f"note: {job.episodes} training episodes make a wiring check, not a result (the paper, and this job's "
+            "default, train 1000)"
+        )
+    lines.append("next:")
+    if learning:
+        lines.append(
+            f"  python -m kddrl_trl.evaluate run={run_dir} +scenario=braking video=true  # other traffic, filmed"
+        )
+    lines.append(f"  python -m kddrl_trl.report {run_dir} out={run_dir}/report  # its tables with 95 % CIs, figures")
+    return lines
 
 
 def evaluate_run(

@@ -132,4 +132,21 @@ def write_results(
     print(f"\n{title}")
     print(format_summary(summary, reference))
     print(f"results in {out_dir}")
+    for line in made(Path(out_dir)):
+        print(line)
     return summary
+
+
+#: what a run folder holds for a reader, in the order :func:`made` names it
+MADE = (
+    ("videos/*.mp4", "video"),
+    ("traces/*.json", "trace"),
+    ("training_curves.png", "training curves"),
+    ("validation.csv", "validations"),
+    ("eval_episodes.csv", "test episodes"),
+)
+
+
+def made(out_dir: Path) -> list[str]:
+    """One line per file of :data:`MADE` in ``out_dir`` (its videos, traces, curves, records), with its path."""
+    return [f"  {what}: {f}" for pattern, what in MADE for f in sorted(out_dir.glob(pattern))]
