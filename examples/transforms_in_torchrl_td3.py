@@ -183,7 +183,9 @@ def evaluate(
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
     p.add_argument("--env", choices=["sumo", "highwayenv"], default="sumo")
     p.add_argument("--no-transforms", dest="transforms", action="store_false")
     p.add_argument("--episodes", type=int, default=1000, help="training episodes (all roads together)")

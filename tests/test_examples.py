@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -115,10 +117,16 @@ def test_sb3_ppo_example_learns_and_evaluates(tmp_path):
     spec = importlib.util.spec_from_file_location("sb3_ppo", EXAMPLE.with_name("sb3_ppo.py"))
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
-    out = tmp_path / "ppo.json"
-    result = example.main(["--steps", "128", "--n-steps", "64", "--eval-episodes", "2", "--out", str(out)])
+    out, saved = tmp_path / "ppo.json", tmp_path / "ppo.zip"
+    args = ["--steps", "128", "--n-steps", "64", "--eval-episodes", "2", "--out", str(out), "--save", str(saved)]
+    result = example.main(args)
     assert result["episodes"] == 2 and 0.0 < result["mean_speed_kmh"] < 250.0 and 0.0 <= result["collision_rate"] <= 1
     assert json.loads(out.read_text()) == result and result["args"]["envs"] == 2
+    assert saved.is_file()  # SB3's own save; the result above is the model loaded back from it
+    again = example.main(["--load", str(saved), "--steps", "0", "--eval-episodes", "2"])
+    assert {k: again[k] for k in ("mean_speed_kmh", "collision_rate")} == {
+        k: result[k] for k in ("mean_speed_kmh", "collision_rate")
+    }  # the same greedy policy on the same evaluation traffic
 
 
 @pytest.mark.parametrize("transforms", [True, False])
@@ -173,3 +181,12 @@ def test_the_examples_evaluation_counts_commands_at_the_bound():
         policy = TensorDictSequential(example.keep_lane(), const)
         result = example.evaluate(policy, "sumo", 2, 0, False, 2)
         assert result["accel_at_bound"] == share and result["episodes"] >= 2
+
+
+@pytest.mark.parametrize("script", ["transforms_in_torchrl_td3.py", "sb3_ppo.py"])
+def test_the_examples_help_shows_their_defaults(script):
+    done = subprocess.run([sys.executable, str(EXAMPLE.with_name(script)), "--help"], capture_output=True, text=True)
+    if done.returncode != 0 and "No module named 'stable_baselines3'" in done.stderr:
+        pytest.skip("the optional extra .[sb3] is not installed")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "(default: " in done.stdout
