@@ -21,17 +21,15 @@ from pathlib import Path
 
 from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.jobs import started_train_jobs
+from kddrl_trl.threads import cores
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def arms() -> list[tuple[str, str]]:
     """(name, torch_threads) of the two arms: the default, and torch's own default of a thread per core."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:
-        cores = os.cpu_count() or 1
-    return [("auto", "auto"), (f"{cores} threads (torch's default)", str(cores))]
+    n = cores()
+    return [("auto", "auto"), (f"{n} threads (torch's default)", str(n))]
 
 
 def main(argv: list[str] | None = None) -> dict:

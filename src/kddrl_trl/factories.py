@@ -217,12 +217,13 @@ def make_transforms(
             stack.append(MOBILCriteria(num_lanes=highway.num_lanes))
     if getattr(algo, "mobil_safety_mask", False):  # any algo schema that has the option
         stack.append(MOBILSafetyMask(num_lanes=highway.num_lanes))
-    if getattr(algo, "shield", "none") == "rss":  # the worst-case layer's lateral half: the lane-change gap check
-        stack.append(RSSLaneMask(RSSParams(horizon=highway.sensing_range), length=highway.vehicle_length))
+    shield = getattr(algo, "shield", "none")
+    rss = RSSParams(horizon=highway.sensing_range)  # the rss layer's worst case: nothing seen beyond the sensing range
+    if shield == "rss":  # the worst-case layer's lateral half: the lane-change gap check
+        stack.append(RSSLaneMask(rss, length=highway.vehicle_length))
     if learning:
         stack.append(DecisionClock(algo.lc_period))
-    if getattr(algo, "shield", "none") != "none":
-        rss = RSSParams(horizon=highway.sensing_range)
+    if shield != "none":
         stack.append(
             SafetyShield(algo.shield, low=highway.accel_low, high=highway.accel_high, ttc=algo.shield_ttc, rss=rss)
         )

@@ -147,18 +147,22 @@ def manifest(root: Path) -> list[dict]:
     return entries
 
 
-def _renamer(later: list[dict]):
-    """The path an archived file has now: the ``moved`` entries after its archive, applied in order (``OLD/x`` is
-    ``NEW/x`` after ``{"moved": {OLD: NEW}}``)."""
-    moves = [(old.rstrip("/"), new.rstrip("/")) for e in later for old, new in e.get("moved", {}).items()]
+def _moves(later: list[dict]) -> list[tuple[str, str]]:
+    """The ``(OLD, NEW)`` of the ``moved`` entries after an archive, in order."""
+    return [(old.rstrip("/"), new.rstrip("/")) for e in later for old, new in e.get("moved", {}).items()]
 
-    def rename(name: str) -> str:
-        for old, new in moves:
-            if _under(name, old):
-                name = new + name[len(old) :]
-        return name
 
-    return rename if moves else None
+def _renamed(name: str, moves: list[tuple[str, str]]) -> str:
+    """The path an archived file has now (``OLD/x`` is ``NEW/x`` after ``{"moved": {OLD: NEW}}``)."""
+    for old, new in moves:
+        if _under(name, old):
+            name = new + name[len(old) :]
+    return name
+
+
+def _moved_from(wanted: list[str], moves: list[tuple[str, str]]) -> list[str]:
+    """The archive paths (OLD of each move) whose files are now under, or hold, one of ``wanted``."""
+    return [old for old, new in moves if any(_under(x, new) or _under(new, x) for x in wanted)]
 
 
 def _under(path: str, folder: str) -> bool:
@@ -184,17 +188,21 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
                 f"records: commit {commit} ({MANIFEST}) is not in this clone; a shallow clone lacks it: "
                 "git fetch --unshallow"
             )
-        rename = _renamer(entries[i + 1 :])
+        moves = _moves(entries[i + 1 :])
         paths = entry["paths"]
-        if prefixes and rename is None:  # the narrower of each overlapping pair: one run of a study is archived alone
+        if prefixes:  # the narrower of each overlapping pair: one run of a study is archived alone; and an archive
+            # path holding a moved folder's old place whole (its files are filtered by their new names below)
+            olds = _moved_from(wanted, moves)
             paths = sorted(
-                {x for x in wanted for p in paths if _under(x, p)} | {p for p in paths for x in wanted if _under(p, x)}
+                {x for x in wanted for p in paths if _under(x, p)}
+                | {p for p in paths for x in wanted if _under(p, x)}
+                | {p for p in paths for x in olds if _under(x, p) or _under(p, x)}
             )
         if not paths:
             continue
         with tarfile.open(fileobj=io.BytesIO(_git(root, "archive", commit, "--", *paths, binary=True))) as tar:
             for member in tar.getmembers():
-                name = member.name if rename is None else rename(member.name)
+                name = _renamed(member.name, moves)
                 if not member.isfile() or (prefixes and not any(_under(name, x) for x in wanted)):
                     continue
                 target, data = dest / name, tar.extractfile(member).read()

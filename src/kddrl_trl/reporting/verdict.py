@@ -340,18 +340,14 @@ def _adjust(entries: list[dict]) -> None:
                 f"0.05/{len(primary)} ({e['seeds_needed_alpha']:.0f} at 0.05)"
             )
     _holm_into(tested, lambda e: e["p_permutation"], lambda e, p: e.update(p_permutation_adjusted=p))
-    for r in PAPER_RUNS:
-        rows = [e for e in tested if e["size_if_estimate"] is not None]
-
-        def put(e, p, r=r):
-            row = e["size_if_estimate"][str(r)]
-            row |= {"p_adjusted": p, "size": _size_claim(e, p)}
-
-        _holm_into(rows, lambda e, r=r: e["size_if_estimate"][str(r)]["p"], put)
-    sized = [e for e in tested if e["p_size"] is not None]
-    for e, p in zip(sized, holm([e["p_size"] for e in sized]), strict=True):
-        e["p_size_adjusted"] = p
-        e["size"] = _size_claim(e, p)
+    _holm_into(tested, lambda e: e["p_size"], lambda e, p: e.update(p_size_adjusted=p, size=_size_claim(e, p)))
+    estimated = [e for e in tested if e["size_if_estimate"] is not None]
+    for r in map(str, PAPER_RUNS):  # each sensitivity row its own family (the lambdas run within the iteration)
+        _holm_into(
+            estimated,
+            lambda e: e["size_if_estimate"][r]["p"],
+            lambda e, p: e["size_if_estimate"][r].update(p_adjusted=p, size=_size_claim(e, p)),
+        )
     for e in tested:
         if e["p_size"] is None:
             e["size"] = None

@@ -85,16 +85,15 @@ def safe_acceleration(
     y, v, vx = ego[..., 0:1], ego[..., 1:2], ego[..., 2:3]
     leaders = kin[..., :3, :]  # a, b, c
     gap = leaders[..., 0] - y - idm.length  # [*B, 3] bumper to bumper
-    present = mask[..., :3].clone()
     active = obs.get(K.LC_ACTIVE, torch.zeros_like(vx, dtype=torch.bool)).bool()
-    present[..., 0:1] &= active & (vx > 0)  # the left leader only while moving left
-    present[..., 2:3] &= active & (vx < 0)  # the right leader only while moving right
+    watched = torch.ones_like(mask[..., :3])  # the current lane's leader always
+    watched[..., 0:1] = active & (vx > 0)  # the left leader only while moving left
+    watched[..., 2:3] = active & (vx < 0)  # the right leader only while moving right
+    present = mask[..., :3] & watched
     if kind == "idm":
         bound = idm_acceleration(v, leaders[..., 1], gap, idm, has_leader=present).clamp(max=high)
     elif kind == "rss":  # a lane it must watch and sees no car in: a standing one may wait past the sensing range
         p = rss or RSSParams()
-        watched = torch.ones_like(present)
-        watched[..., 0:1], watched[..., 2:3] = active & (vx > 0), active & (vx < 0)
         unseen = watched & ~present
         gap = torch.where(unseen, torch.full_like(gap, p.horizon - idm.length), gap)
         speed = torch.where(unseen, torch.zeros_like(gap), leaders[..., 1])
