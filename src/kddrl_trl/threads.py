@@ -131,7 +131,8 @@ class ThreadGovernor:
     """Keeps a job's torch threads at :func:`choose_threads` while it runs: :meth:`tick` (called once per collected
     batch) reads the machine again every :data:`RECHECK_S` seconds under ``auto``; a fixed setting, or
     ``OMP_NUM_THREADS``, is applied once. The first busy reading logs one warning with the fix. ``choice`` is the
-    latest; ``changes`` counts how often the count moved."""
+    latest; ``changes`` counts how often the count moved (each change logged at debug level: a job beside a
+    periodic validation worker changes it at every validation, and summary.json keeps the count)."""
 
     def __init__(self, setting, workers: int = 0, clock=time.monotonic):
         self.setting, self.workers, self.clock = setting, workers, clock
@@ -160,7 +161,7 @@ class ThreadGovernor:
         choice = choose_threads(self.setting, self.workers)
         if choice.threads != self.choice.threads:
             self.changes += 1
-            log.info("torch_threads=auto: %d -> %d thread(s) (%.1f runnable elsewhere)", self.choice.threads,
+            log.debug("torch_threads=auto: %d -> %d thread(s) (%.1f runnable elsewhere)", self.choice.threads,
                      choice.threads, choice.elsewhere)  # fmt: skip
         self.choice = choice
         apply_threads(choice)
