@@ -194,6 +194,29 @@ def test_ab_records_says_identical_only_when_every_record_log_and_bit_is(tmp_pat
     assert json.loads(out.read_text())["scalar_logs_differing"] == ["train/loss.csv"]
 
 
+def test_ab_records_cuts_out_a_declared_new_column_and_nothing_else(tmp_path):
+    """A record with one more column matches only through ``--new-columns`` naming it, and only when the rest of
+    each line is the same text; the before side may not hold the column already."""
+    import pandas as pd
+
+    from kddrl_trl.devtools import ab_records as ab
+
+    before, after = ab_run(tmp_path / "before"), ab_run(tmp_path / "after")
+    episodes = pd.read_csv(before / "eval_episodes.csv")
+    added = episodes.assign(collision_fault=["ego" if c else "" for c in episodes["collision"]])
+    (after / "eval_episodes.csv").write_text(added.to_csv(index=False))
+    out = tmp_path / "ab.json"
+    assert ab.main([str(before), str(after), "--out", str(out)]) == 1
+    assert ab.main([str(before), str(after), "--out", str(out), "--new-columns", "collision_fault"]) == 0
+    assert json.loads(out.read_text())["new_columns"] == ["collision_fault"]
+    changed = added.copy()
+    changed.loc[0, "mean_speed_kmh"] += 0.001
+    (after / "eval_episodes.csv").write_text(changed.to_csv(index=False))
+    assert ab.main([str(before), str(after), "--out", str(out), "--new-columns", "collision_fault"]) == 1
+    with pytest.raises(SystemExit, match="already has collision_fault"):
+        ab.main([str(after), str(after), "--out", str(out), "--new-columns", "collision_fault"])
+
+
 def torch_nextafter_one() -> float:
     """The float32 just above 1.0: one bit off."""
     import torch

@@ -40,7 +40,7 @@ def _evaluate(cfg: DictConfig) -> dict:
     job: EvaluateJob = make_job(cfg)  # typed, ranges checked before any simulator starts
     fresh_compiler()  # a launcher's reused worker holds earlier jobs' graphs
     out_dir = Path(HydraConfig.get().runtime.output_dir)
-    algo, learner, ckpt, saved = make_trained_learner(Path(job.run), job.checkpoint, job.torch_device)
+    algo, learner, ckpt, saved = make_trained_learner(Path(job.run), job.checkpoint, job.torch_device, job.shield)
     env_seed, trained_on = test_seed(job.seed, job.eval_seed), str(saved.env.scenario)
     check_disjoint("eval_seed", env_seed, int(saved.seed), int(saved.episodes))  # the run's own training traffic
     seed_everything(job.seed)
@@ -52,7 +52,10 @@ def _evaluate(cfg: DictConfig) -> dict:
         make_logger(job.logger, out_dir),
         out_dir,
         title=f"{algo.name} trained on {trained_on}, evaluated on {job.env.scenario}, "
-        f"seed {job.seed}, exploration off ({ckpt.name})",
+        f"seed {job.seed}, exploration off ({ckpt.name})"
+        + (
+            f", shield {job.shield} (trained with {saved.algo.get('shield', 'none')})" if job.shield is not None else ""
+        ),
         trained_on=trained_on,
         # the paper's figures where they compare: a policy on the traffic it was trained on
         reference=paper_reference(job.env.scenario, algo.name) if trained_on == job.env.scenario else None,

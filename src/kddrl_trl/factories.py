@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import importlib.util
 import logging
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
 
@@ -225,7 +225,14 @@ def make_transforms(
         stack.append(DecisionClock(algo.lc_period))
     if shield != "none":
         stack.append(
-            SafetyShield(algo.shield, low=highway.accel_low, high=highway.accel_high, ttc=algo.shield_ttc, rss=rss)
+            SafetyShield(
+                algo.shield,
+                low=highway.accel_low,
+                high=highway.accel_high,
+                ttc=algo.shield_ttc,
+                rss=rss,
+                penalty=algo.shield_penalty,
+            )
         )
     return Compose(*stack)
 
@@ -367,13 +374,16 @@ def make_evaluator(job: TrainJob):
 
 
 def make_trained_learner(
-    run: Path, checkpoint: str = "latest", device: torch.device | str | None = None
+    run: Path, checkpoint: str = "latest", device: torch.device | str | None = None, shield: str | None = None
 ) -> tuple[LearningAlgo, Learner, Path, DictConfig]:
     """(algo, learner on ``device`` with the weights of its ``latest`` or ``best`` checkpoint, that checkpoint,
     the run's saved config) of a training run folder. The learner only acts: it is not compiled. Checkpoints are
-    read onto the CPU and then copied to the learner's device, so a run trained on either loads on either."""
+    read onto the CPU and then copied to the learner's device, so a run trained on either loads on either.
+    ``shield`` (not None) replaces the run's ``algo.shield`` (its penalty, a training signal, then 0)."""
     saved = OmegaConf.load(RunFolder(trained_run(run)).config)
     algo = algo_from_node(saved.algo)
+    if shield is not None and isinstance(algo, LearningAlgo):
+        algo = replace(algo, shield=shield, shield_penalty=0.0 if shield == "none" else algo.shield_penalty)
     if not isinstance(algo, LearningAlgo):
         raise ValueError(
             f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "

@@ -120,7 +120,7 @@ class SumoHighwayGymEnv(gym.Env):
         self.sim = None  # a RoadSim, here or in a worker process, from the first reset()
         self._frame: dict | None = None  # the last frame the simulation returned
         self._drawn: dict | None = None  # the renderer's frame
-        self.tracker = EpisodeTracker()
+        self.tracker = EpisodeTracker(self.config)
         spec = observation_spec(self.config, ())
         sensed = {key: _leaf_space(spec[key]) for key in K.SENSED_KEYS}
         self.dict_observation_space = _dict_space(sensed)
@@ -187,7 +187,7 @@ class SumoHighwayGymEnv(gym.Env):
             self.sim = open_road_sim(self.config, self._seed if seed is None else seed, self.process)
             seed = None  # just started with it
         self._frame = self.sim.reset(seed)
-        finished, self.tracker = self.tracker.finished, EpisodeTracker()  # a running episode is dropped
+        finished, self.tracker = self.tracker.finished, EpisodeTracker(self.config)  # a running episode is dropped
         self.tracker.finished = finished
         self._draw(first=True)
         return self._obs(), {"ego": self._frame[EGO], "labels": self._labels()}

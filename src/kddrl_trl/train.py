@@ -71,6 +71,7 @@ def train(job: TrainJob, run: RunFolder, logger, resuming: bool):
         progress=job.progress,
         evaluator=make_evaluator(job),
         threads=job.threads,
+        highway=job.env.highway(),
     )
     done = trainer.load(run.path) if resuming else 0
     if done:

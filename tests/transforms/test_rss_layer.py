@@ -9,11 +9,10 @@ from testkit import compose_job
 from torchrl.envs import TransformedEnv
 
 from kddrl_trl import keys as K
-from kddrl_trl.envs import SumoHighwayEnv
+from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv
 from kddrl_trl.eval import EpisodeTracker
-from kddrl_trl.physics.rss import RSSParams
+from kddrl_trl.physics.rss import RSSParams, lane_safe
 from kddrl_trl.transforms import RSSLaneMask, SafetyShield
-from kddrl_trl.transforms.rss_lane_mask import rss_lane_safe
 
 
 def test_the_factory_wires_the_gap_check_and_the_bound_for_every_algo():
@@ -37,7 +36,7 @@ def test_the_gap_check_masks_the_side_whose_new_follower_is_too_close():
     kin[0, K.SLOT["c"]] = torch.tensor([200.0, 30.0, 0.0])  # right leader 95 m ahead: safe
     mask = torch.zeros(1, 6, dtype=torch.bool)
     mask[0, K.SLOT["d"]] = mask[0, K.SLOT["c"]] = True
-    assert rss_lane_safe(ego, kin, mask, RSSParams(), 5.0).tolist() == [[False, True, True]]
+    assert lane_safe(ego, kin, mask, RSSParams(), 5.0).tolist() == [[False, True, True]]
 
 
 def _full_throttle(td):
@@ -70,3 +69,26 @@ def test_full_throttle_under_the_layer_never_runs_into_a_car_ahead_on_braking():
     assert ahead == [], [(e["collision_with"], e["crash_speed"]) for e in ahead]
     assert any(e["collision"] and e["collision_with"] == "b" for e in wild)  # without it the same policy crashes
     assert sum(e["shield_interventions"] for e in safe) > 0
+    # RSS's blame: under the layer the ego keeps its proper response, so no collision is its fault; without it the
+    # same policy's crashes into the braking car are
+    assert all(e["collision_fault"] in ("other", "unknown") for e in safe if e["collision"])
+    assert any(e["collision_fault"] == "ego" for e in wild if e["collision_with"] == "b")
+
+
+def test_the_correction_signal_costs_the_reward_its_correction():
+    """``penalty`` per m/s²: each frame's car-following reward loses penalty x (a_agent - a_exec); the actions, the
+    executed commands and every other entry stay those of the shield without it."""
+    rolls = {}
+    for penalty in (0.0, 0.1):
+        env = TransformedEnv(
+            FakeHighwayEnv(num_roads=4, seed=0, ego_start="window"), SafetyShield("rss", penalty=penalty)
+        )
+        rolls[penalty] = env.rollout(60, _full_throttle, break_when_any_done=False)[:, :-1]
+    plain, told = rolls[0.0], rolls[0.1]
+    executed = plain[K.CF_ACTION][..., 0]
+    flag = plain["next", *K.CF_SHIELD][..., 0]
+    assert flag.any() and torch.equal(executed, told[K.CF_ACTION][..., 0])
+    cost = plain["next", *K.CF_REWARD][..., 0] - told["next", *K.CF_REWARD][..., 0]
+    assert torch.allclose(cost, 0.1 * (5.0 - executed), atol=1e-5)
+    assert (cost[~flag] == 0).all() and (cost[flag] > 0).all()
+    assert torch.equal(plain["next", *K.LC_REWARD], told["next", *K.LC_REWARD])

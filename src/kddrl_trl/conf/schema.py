@@ -300,12 +300,21 @@ class SafetyOptions:
 
     shield: str = "none"  # car-following shield: none | idm | ttc | rss (a_exec = min(a_agent, a_safe))
     shield_ttc: float = 3.0  # s, time-to-collision below which the ttc shield bounds the acceleration
+    shield_penalty: float = 0.0  # per m/s²: the car-following reward loses penalty x (a_agent - a_exec) (0: none)
 
     def _check_safety(self) -> None:
         if self.shield not in SHIELDS:
             raise ValueError(f"algo.shield={self.shield!r}: known shields are {', '.join(SHIELDS)}")
         if not self.shield_ttc > 0:
             raise ValueError(f"algo.shield_ttc must be > 0 (s), got {self.shield_ttc!r}")
+        if not self.shield_penalty >= 0:
+            raise ValueError(
+                f"algo.shield_penalty must be >= 0 (reward per m/s² of correction), got {self.shield_penalty!r}"
+            )
+        if self.shield_penalty and self.shield == "none":
+            raise ValueError(
+                "algo.shield_penalty > 0 needs a shield (algo.shield=idm|ttc|rss): nothing corrects the command"
+            )
 
 
 @dataclass
@@ -558,8 +567,11 @@ class EvaluateJob(Job):
 
     run: str = MISSING
     checkpoint: str = "latest"  # latest | best (the best validation score during training)
+    shield: str | None = None  # null: the run's own shield | none | idm | ttc | rss: the trained policy under it
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.checkpoint not in ("latest", "best"):
             raise ValueError(f"checkpoint must be latest or best, got {self.checkpoint!r}")
+        if self.shield is not None and self.shield not in SHIELDS:
+            raise ValueError(f"shield={self.shield!r}: known shields are {', '.join(SHIELDS)} (null: the run's own)")

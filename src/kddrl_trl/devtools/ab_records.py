@@ -14,13 +14,19 @@ they part.
         train.eval_every=50 train.eval_episodes=20 hydra.run.dir=/tmp/ab/after; wait
     python -m kddrl_trl.devtools.ab_records /tmp/ab/before /tmp/ab/after --change "what changed" --before-rev <commit>
 
+A change that adds a column to the records (a new per-episode field) names it with ``--new-columns``: the before side
+must lack it, and the after side's records, with just those columns cut out of each line, must match the before
+side's byte for byte (both read and written again by the ``csv`` module, which keeps every field's text).
+
 Prints a table and writes ``benchmarks/results/ab_records.json`` (or ``--out``); exits 1 when anything differs.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import hashlib
+import io
 import json
 from pathlib import Path
 
@@ -40,14 +46,37 @@ def digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def records(folder: Path) -> dict[str, str | None]:
-    """Record name -> the first 16 hex digits of its SHA-256 (decompressed), None where the run has none."""
+def without_columns(data: bytes, columns: tuple[str, ...], name: str) -> bytes:
+    """The CSV ``data`` with ``columns`` cut out of every line; each must be in its header."""
+    rows = list(csv.reader(io.StringIO(data.decode())))
+    if not rows:
+        return data
+    missing = [c for c in columns if c not in rows[0]]
+    if missing:
+        raise SystemExit(f"{name}: no column {', '.join(missing)} to leave out (--new-columns)")
+    keep = [i for i, c in enumerate(rows[0]) if c not in columns]
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerows([[row[i] for i in keep] for row in rows])
+    return out.getvalue().encode()
+
+
+def records(folder: Path, new_columns: tuple[str, ...] = (), side: str = "after") -> dict[str, str | None]:
+    """Record name -> the first 16 hex digits of its SHA-256 (decompressed), None where the run has none. With
+    ``new_columns``, every record goes through the ``csv`` module (the same reading and writing on both sides); the
+    after side has them cut out, and the before side must not hold them."""
     out = {}
     for name in RECORDS:
         try:
-            out[name] = digest(record_bytes(folder, name))
+            data = record_bytes(folder, name)
         except FileNotFoundError:
             out[name] = None
+            continue
+        if new_columns:
+            header = next(csv.reader(io.StringIO(data.decode())), [])
+            if side == "before" and any(c in header for c in new_columns):
+                raise SystemExit(f"{folder / name}: already has {', '.join(new_columns)}: not a new column")
+            data = without_columns(data, new_columns if side == "after" else (), str(folder / name))
+        out[name] = digest(data)
     return out
 
 
@@ -88,16 +117,17 @@ def counts(folder: Path) -> dict:
     return {k: training.get(k) for k in COUNTS}
 
 
-def compare(before: Path, after: Path) -> dict:
+def compare(before: Path, after: Path, new_columns: tuple[str, ...] = ()) -> dict:
     for folder in (before, after):
         if not (folder / "summary.json").is_file():
             raise SystemExit(f"{folder}: no summary.json (not a finished run folder)")
-    rec = {"before": records(before), "after": records(after)}
+    rec = {"before": records(before, new_columns, "before"), "after": records(after, new_columns, "after")}
     logs = scalar_logs(before), scalar_logs(after)
     differing_logs = sorted(k for k in logs[0].keys() | logs[1].keys() if logs[0].get(k) != logs[1].get(k))
     result = {
         "records_sha256_16": rec,
         "records_identical": rec["before"] == rec["after"],
+        "new_columns": list(new_columns),
         "scalar_logs_compared": len(logs[0].keys() | logs[1].keys()),
         "scalar_logs_identical": len(logs[0].keys() | logs[1].keys()) - len(differing_logs),
         "scalar_logs_differing": differing_logs,
@@ -127,13 +157,16 @@ def main(argv=None) -> int:
     parser.add_argument("--change", default="", help="what the change is, for the record")
     parser.add_argument("--before-rev", default="", help="the commit of the code before")
     parser.add_argument("--command", default="", help="the job both ran, for the record")
+    parser.add_argument(
+        "--new-columns", default="", help="comma-separated columns the after side adds to its records (cut out there)"
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks") / "results" / "ab_records.json")
     args = parser.parse_args(argv)
     result = {
         "change": args.change,
         "before": args.before_rev,
         "command": args.command,
-        **compare(args.before, args.after),
+        **compare(args.before, args.after, tuple(c for c in args.new_columns.split(",") if c)),
         "timing_note": "not a timing: the two ran side by side; speed is measured by the benchmarks",
     }
     rows = [

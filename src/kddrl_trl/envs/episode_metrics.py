@@ -14,6 +14,9 @@ import torch
 from tensordict import TensorDictBase
 
 from .. import keys as K
+from ..physics.rss import RSSParams
+from .config import HighwayConfig
+from .fault import breaches, fault, held
 from .specs import lc_command
 
 #: running sums per row, in column order
@@ -66,6 +69,9 @@ IN_KEYS = tuple(
         K.BRAKING_DISTANCE,
     )
 )
+#: the observation the frame's action was taken in, at the frames' root: what the collision's fault class reads
+#: (:mod:`kddrl_trl.envs.fault`; ``collision_fault`` is ``unknown`` where the frames lack any of them)
+FAULT_KEYS = (K.EGO_STATE, K.NEIGHBORS_KIN, K.NEIGHBORS_MASK, K.LC_ACTIVE)
 #: entries read when present (0 where absent): the car-following shield's interventions (``keys.CF_SHIELD``), the
 #: braking event's car (gap, speed, lane changes, contact: envs without the event need not write them), the
 #: neighbours' states (the other vehicle of a crash), and the
@@ -80,6 +86,7 @@ OPTIONAL_KEYS = (
     ("next", *K.NEIGHBORS_KIN),
     K.LC_ACTION,
     K.CF_ACTION,
+    *FAULT_KEYS,
 )
 #: the onset and crash fields of an episode (empty: NaN, or "" for the lane command and the event-car contact, where
 #: the episode had no braking event or no crash)
@@ -140,10 +147,19 @@ class EpisodeTracker:
       braking event's car), ``crash_event_gap`` and ``crash_event_speed`` (that car's, NaN without an event),
       ``crash_other_dy`` (m, the other vehicle's longitudinal offset from the ego), ``crash_other_speed`` and
       ``crash_other_accel`` (m/s, m/s²) in the last observation (NaN when it was not a neighbour). The commands are
-      read from the frames' root (``keys.LC_ACTION``, ``CF_ACTION``) when there.
+      read from the frames' root (``keys.LC_ACTION``, ``CF_ACTION``) when there;
+    - ``collision_fault``: who is at fault under RSS's proper response (:mod:`kddrl_trl.envs.fault`: ``ego``,
+      ``other``, ``unknown``; ``""`` without a collision), from the observations at the frames' root
+      (:data:`FAULT_KEYS`) and the executed accelerations.
+
+    ``highway``: the env's config, for the vehicles' length and the hardest braking the fault class assumes
+    (default: Table A.1's).
     """
 
-    def __init__(self):
+    def __init__(self, highway: HighwayConfig | None = None):
+        highway = highway if highway is not None else HighwayConfig()
+        self.length, self.low = float(highway.vehicle_length), float(highway.accel_low)
+        self.rss = RSSParams(horizon=highway.sensing_range)
         self.finished = 0  # episodes returned so far (a resumed training run sets it)
         self.started = 0
         self._carry: torch.Tensor | None = None  # [B, len(SUMS)] sums of the open episodes before this batch
@@ -156,6 +172,47 @@ class EpisodeTracker:
         self._last_lc: torch.Tensor | None = None
         self._last_cmd_change: torch.Tensor | None = None
         self._last_cmd: torch.Tensor | None = None
+        # [B, 4] per row: the (doubled) frame numbers of the last longitudinal breach, its last clearing, the last
+        # lateral breach and its last clearing (:func:`kddrl_trl.envs.fault.held`; an episode start clears both)
+        self._fault: torch.Tensor | None = None
+        self._last_done: torch.Tensor | None = None  # [B] the last frame of the previous batch ended its episode
+
+    def _breaches(self, frames: TensorDictBase, nxt: TensorDictBase, cmd: torch.Tensor, number: torch.Tensor):
+        """``[B, T]`` each: whether a longitudinal and a lateral breach of the proper response is held at each
+        frame (None where the frames lack :data:`FAULT_KEYS`)."""
+        obs = [frames.get(key, None) for key in FAULT_KEYS]
+        if any(x is None for x in obs):
+            return None
+        b, t = frames.batch_size
+        ego, kin, mask, active = (x.reshape(b, t, *x.shape[len(frames.batch_size) :]).cpu() for x in obs)
+        col = self._column
+        out = breaches(
+            ego,
+            kin,
+            mask,
+            active.reshape(b, t, 1),
+            col(nxt, K.EGO_ACCEL),
+            col(nxt, K.EGO_STATE, 1),
+            col(nxt, K.LC_STARTED).bool(),
+            cmd,
+            col(nxt, K.LC_ACTIVE).bool(),
+            self.rss,
+            self.length,
+            self.low,
+        )
+        # doubled numbers: an episode's start clears at 2n - 1, so a breach in its first frame (2n) still counts
+        done = col(nxt, "done").bool()
+        first = torch.cat([self._last_done[:, None], done[:, :-1]], 1)
+        two, zero = 2 * number, torch.zeros_like(number)
+        result = []
+        for i, kind in enumerate(("lon", "lat")):
+            breach = torch.where(out[kind], two, zero)
+            clear = torch.where(out[f"{kind}_clear"], two, torch.where(first, two - 1, zero))
+            on, self._fault[:, 2 * i], self._fault[:, 2 * i + 1] = held(
+                breach, clear, self._fault[:, 2 * i], self._fault[:, 2 * i + 1]
+            )
+            result.append(on)
+        return result
 
     @staticmethod
     def _column(nxt: TensorDictBase, key, index: int = 0, optional: bool = False, fill: float = 0.0) -> torch.Tensor:
@@ -224,6 +281,8 @@ class EpisodeTracker:
             self._last_lc = torch.zeros(b, dtype=torch.long)
             self._last_cmd_change = torch.zeros(b, dtype=torch.long)
             self._last_cmd = torch.full((b,), -1, dtype=torch.long)
+            self._fault = torch.zeros(b, 4, dtype=torch.long)
+            self._last_done = torch.ones(b, dtype=torch.bool)
         elif self._carry.shape[0] != b:
             raise ValueError(f"EpisodeTracker: the batch has {b} rows, earlier batches had {self._carry.shape[0]}")
         # frame numbers of the row (1 = its first frame ever), and per frame the number of the last lane-change start
@@ -236,6 +295,7 @@ class EpisodeTracker:
         last_cmd = torch.maximum(
             torch.where(cmd_changed, number, zero).cummax(1).values, self._last_cmd_change[:, None]
         )
+        held_breaches = self._breaches(frames, nxt, cmd, number)
         # a braking phase change within an episode (a new episode starts from phase "none")
         before = torch.cat([self._phase[:, None], phase[:, :-1]], 1)
         before[:, 1:][done[:, :-1]] = K.BRAKE_NONE
@@ -268,6 +328,11 @@ class EpisodeTracker:
                             crash_event_gap=float(at_end["gap"]), crash_event_speed=float(at_end["speed"])
                         )
                     slot = int(codes[r, j, 2])
+                    self._events[r]["collision_fault"] = (
+                        "unknown"
+                        if held_breaches is None
+                        else fault(slot, bool(held_breaches[0][r, j]), bool(held_breaches[1][r, j]))
+                    )
                     if slot >= 0:
                         self._events[r].update(
                             {
@@ -283,6 +348,7 @@ class EpisodeTracker:
         self._carry = csum[:, -1] - base
         self._phase = torch.where(done[:, -1], K.BRAKE_NONE, phase[:, -1])
         self._seen += t
+        self._last_done = done[:, -1].clone()
         self._last_lc, self._last_cmd_change, self._last_cmd = last_lc[:, -1], last_cmd[:, -1], cmd[:, -1]
         return out
 
@@ -327,6 +393,7 @@ class EpisodeTracker:
             "outcome": label,
             "collision_kind": K.COLLISION_KINDS[kind],
             "collision_with": K.NEIGHBOR_SLOTS[slot] if slot >= 0 else "",
+            "collision_fault": events.pop("collision_fault", ""),
             "ended_changing_lane": bool(changing),
             "return_lc": total["return_lc"],
             "return_cf": total["return_cf"],

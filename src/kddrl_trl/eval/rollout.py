@@ -65,7 +65,7 @@ def evaluate_policy(
     env.set_seed(int(seed))
     restart_noise(env)
     td = env.reset()
-    tracker = EpisodeTracker()
+    tracker = EpisodeTracker(getattr(unwrap_env(env), "config", None))
     wanted: dict[int, dict] = {}
     pending = []  # frames since the last done: the tracker runs once per frame that ends an episode
     bar = tqdm(total=episodes, desc="episodes", disable=not progress, unit="ep")

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .. import keys as K
+
 Num = float | Tensor
 
 
@@ -105,3 +107,58 @@ def lane_change_safe(
     if follow_present is not None:
         ok_follow = ok_follow | ~follow_present.bool()
     return ok_lead & ok_follow
+
+
+def watched_leaders(
+    ego: Tensor, kin: Tensor, mask: Tensor, active: Tensor, length: float
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """The leaders a car-following bound must watch, from raw observation tensors (``keys.EGO_STATE``,
+    ``NEIGHBORS_KIN``, ``NEIGHBORS_MASK``, ``LC_ACTIVE``; batch dims ``[*B]``): the current lane's (slot b) always,
+    and during a lane change the target lane's (a while moving left, c while moving right, from the sign of the
+    lateral speed). Returns ``(gap, speed, watched, present)``, each ``[*B, 3]`` over slots a, b, c: bumper-to-bumper
+    gaps (m), the leaders' speeds (m/s), which slots are watched, and which watched slots hold a car."""
+    ego, kin, mask = ego.to(torch.float32), kin.to(torch.float32), mask.bool()
+    y, vx = ego[..., 0:1], ego[..., 2:3]
+    leaders = kin[..., :3, :]
+    gap = leaders[..., 0] - y - length
+    active = active.bool().reshape(vx.shape)
+    watched = torch.ones_like(mask[..., :3])
+    watched[..., 0:1] = active & (vx > 0)
+    watched[..., 2:3] = active & (vx < 0)
+    return gap, leaders[..., 1], watched, mask[..., :3] & watched
+
+
+def lane_safe(ego: Tensor, kin: Tensor, mask: Tensor, p: RSSParams, length: float) -> Tensor:
+    """``[*B, 3]`` over ``keys.LC_ACTIONS`` (left, keep, right): :func:`lane_change_safe` for a lane change to each
+    side, the new leader a (c) and follower d (f) read from raw observation tensors (``EGO_STATE``,
+    ``NEIGHBORS_KIN``, ``NEIGHBORS_MASK``); keep is always True."""
+    y, v = ego[..., 0:1].to(torch.float32), ego[..., 1:2].to(torch.float32)
+    kin, present = kin.to(torch.float32), mask.bool()
+    out = []
+    for leader, follower in ((K.SLOT["a"], K.SLOT["d"]), (None, None), (K.SLOT["c"], K.SLOT["f"])):
+        if leader is None:
+            out.append(torch.ones_like(v, dtype=torch.bool))
+            continue
+        lead, follow = kin[..., leader, :], kin[..., follower, :]
+        out.append(
+            lane_change_safe(
+                v,
+                lead[..., 0:1] - y - length,
+                lead[..., 1:2],
+                y - follow[..., 0:1] - length,
+                follow[..., 1:2],
+                p,
+                lead_present=present[..., leader : leader + 1],
+                follow_present=present[..., follower : follower + 1],
+            )
+        )
+    return torch.cat(out, dim=-1)
+
+
+def follower_safe(ego: Tensor, kin: Tensor, mask: Tensor, p: RSSParams, length: float) -> Tensor:
+    """``[*B]``: the current lane's follower (slot e) is at least its safe distance behind the ego (the follower as
+    the rear car, as in :func:`lane_change_safe`), or there is none."""
+    y, v = ego[..., 0].to(torch.float32), ego[..., 1].to(torch.float32)
+    follow = kin[..., K.SLOT["e"], :].to(torch.float32)
+    need = safe_distance(follow[..., 1], v, p.other_response, p.other_accel, p.other_brake_min, p.ego_brake)
+    return (y - follow[..., 0] - length - p.margin >= need) | ~mask[..., K.SLOT["e"]].bool()

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import keys as K
+from ..envs.fault import FAULTS
 from ..eval.paper import PAPER_NAMES, TABLES, paper_value
 from ..provenance import commit, machine, versions
 from . import figures
@@ -241,14 +242,16 @@ def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
 
 
 def collision_breakdown(runs: list[RunRecord]) -> list[str]:
-    """Per (scenario, algo): collisions by kind, by the other vehicle's role, during the ego's lane change, and
-    how the other episodes ended."""
+    """Per (scenario, algo): collisions by kind, by the other vehicle's role, during the ego's lane change, by who
+    is at fault under RSS (:mod:`kddrl_trl.envs.fault`; "n/a" for records made before the class), and how the other
+    episodes ended."""
     lines = [
         "| scenario | algo | episodes | collisions | "
         + " | ".join(K.COLLISION_KINDS[1:])
         + " | with a leader (a/b/c) | with a follower (d/e/f) | other vehicle unknown | ego changing lane | "
-        "other endings |",
-        "|" + "---|" * (9 + len(K.COLLISION_KINDS) - 1),
+        + " | ".join(f"fault: {f}" for f in FAULTS)
+        + " | other endings |",
+        "|" + "---|" * (9 + len(K.COLLISION_KINDS) - 1 + len(FAULTS)),
     ]
     for (scenario, algo), group in _groups(runs).items():
         eps = [e for r in group for e in r.episodes.to_dict("records")]
@@ -264,10 +267,14 @@ def collision_breakdown(runs: list[RunRecord]) -> list[str]:
             else "n/a"
         )
         endings = Counter(e["outcome"] for e in eps if not e["collision"])
+        classed = all("collision_fault" in r.episodes.columns for r in group)
+        faults = Counter(e["collision_fault"] for e in hits) if classed else None
         lines.append(
             f"| {scenario} | {algo} | {len(eps)} | {len(hits)} | "
             + " | ".join(str(kinds.get(k, 0)) for k in K.COLLISION_KINDS[1:])
             + f" | {roles['leader']} | {roles['follower']} | {roles['unknown']} | {changing} | "
+            + " | ".join(str(faults.get(f, 0)) if faults is not None else "n/a" for f in FAULTS)
+            + " | "
             + ", ".join(f"{k} {v}" for k, v in sorted(endings.items()))
             + " |"
         )

@@ -23,6 +23,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..envs.episode_metrics import METRIC_FIELDS
+from ..envs.fault import FAULTS
 from ..eval.metrics import summarize
 from ..run_folder import RunFolder
 
@@ -127,6 +128,17 @@ def load_run(path: str | Path) -> RunRecord:
     episodes["collision_with"] = (
         episodes["collision_with"].astype(object).where(episodes["collision_with"].notna(), "").astype(str)
     )
+    if "collision_fault" in episodes.columns:  # records made before the fault class lack the column
+        fault = episodes["collision_fault"].astype(object).where(episodes["collision_fault"].notna(), "").astype(str)
+        odd = sorted(set(fault[episodes["collision"]]) - set(FAULTS)) + sorted(
+            set(fault[~episodes["collision"]]) - {""}
+        )
+        if odd:
+            raise ValueError(
+                f"{episodes_path}: column collision_fault holds {', '.join(map(repr, odd))} (a collision's class is "
+                f"one of {', '.join(FAULTS)}; an episode without one has none)"
+            )
+        episodes["collision_fault"] = fault
     trained = path.parent if summary.get("final") else path  # a final__<scenario> folder: its run's training
     training_path = record_file(trained, RunFolder.TRAIN_EPISODES)
     validation_path = record_file(trained, RunFolder.VALIDATION)
@@ -194,6 +206,7 @@ OPTION_KEYS = (
     "algo.lc_reward",
     "algo.shield",
     "algo.shield_ttc",
+    "algo.shield_penalty",
     "algo.state_extras",
     "algo.transforms.weights",
     "algo.transforms.event_oracle",

@@ -184,13 +184,14 @@ class Trainer:
         progress: bool = True,
         evaluator=None,
         threads=None,
+        highway=None,
     ):
         self.learner, self.cfg, self.episodes, self.evaluator = learner, cfg, int(episodes), evaluator
         self.threads = threads  # a ThreadGovernor (kddrl_trl.threads): told of every batch, it follows the machine
         self.validations: list[dict] = []  # per periodic evaluation: episodes trained, summary
         self.buffer_cf, self.buffer_lc = buffers
         self.run_dir, self.logger, self.progress = Path(run_dir), logger, progress
-        self.tracker = EpisodeTracker()
+        self.tracker = EpisodeTracker(highway)
         self.history: list[dict] = []
         # elapsed_s: training wall time; update_s: its share spent in the learner's updates (losses read included,
         # so a GPU learner's queued work is counted where it is waited for)

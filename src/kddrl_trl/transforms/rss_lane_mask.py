@@ -1,7 +1,7 @@
 """``RSSLaneMask``: the lateral half of the worst-case safety layer (``algo.shield=rss``; not in the paper).
 
 A lane change starts only into a gap that Responsibility-Sensitive Safety calls safe for both new neighbours
-(:func:`kddrl_trl.physics.rss.lane_change_safe`): the target lane's leader at least its safe distance ahead of the ego,
+(:func:`kddrl_trl.physics.rss.lane_safe`): the target lane's leader at least its safe distance ahead of the ego,
 and the ego at least the target lane's follower's safe distance ahead of it, under the layer's worst case
 (:class:`~kddrl_trl.physics.rss.RSSParams`). The transform rewrites the env's command mask (``keys.LC_ACTION_MASK``)
 as ``mask & safe``, as :class:`~kddrl_trl.transforms.MOBILSafetyMask` does with MOBIL's check, so the lane agent
@@ -20,38 +20,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import torch
-from torch import Tensor
 from torchrl.data import Categorical
 
 from .. import keys as K
-from ..physics.rss import RSSParams, lane_change_safe
+from ..physics.rss import RSSParams, lane_safe
 from .predictive import PredictiveTransform
-
-
-def rss_lane_safe(ego: Tensor, kin: Tensor, mask: Tensor, p: RSSParams, length: float) -> Tensor:
-    """``[*B, 3]`` (left, keep, right): the RSS gap check for a lane change to each side from raw observation
-    tensors (``EGO_STATE``, ``NEIGHBORS_KIN``, ``NEIGHBORS_MASK``; keep always True)."""
-    y, v = ego[..., 0:1].to(torch.float32), ego[..., 1:2].to(torch.float32)
-    kin, present = kin.to(torch.float32), mask.bool()
-    out = []
-    for leader, follower in ((K.SLOT["a"], K.SLOT["d"]), (None, None), (K.SLOT["c"], K.SLOT["f"])):
-        if leader is None:
-            out.append(torch.ones_like(v, dtype=torch.bool))
-            continue
-        lead, follow = kin[..., leader, :], kin[..., follower, :]
-        out.append(
-            lane_change_safe(
-                v,
-                lead[..., 0:1] - y - length,
-                lead[..., 1:2],
-                y - follow[..., 0:1] - length,
-                follow[..., 1:2],
-                p,
-                lead_present=present[..., leader : leader + 1],
-                follow_present=present[..., follower : follower + 1],
-            )
-        )
-    return torch.cat(out, dim=-1)
 
 
 class RSSLaneMask(PredictiveTransform):
@@ -70,8 +43,7 @@ class RSSLaneMask(PredictiveTransform):
         self.length = float(length)
 
     def frame(self, values, noise=None) -> dict:
-        safe = rss_lane_safe(values[K.EGO_STATE], values[K.NEIGHBORS_KIN], values[K.NEIGHBORS_MASK], self.rss,
-                             self.length)  # fmt: skip
+        safe = lane_safe(values[K.EGO_STATE], values[K.NEIGHBORS_KIN], values[K.NEIGHBORS_MASK], self.rss, self.length)
         return {K.LC_ACTION_MASK: values[K.LC_ACTION_MASK].bool() & safe}
 
     def out_specs(self, batch, device) -> dict:

@@ -42,11 +42,12 @@ from torchrl.envs.transforms import Transform
 
 from .. import keys as K
 from ..physics import IDMParams, idm_acceleration
-from ..physics.rss import RSSParams, longitudinal_bound
+from ..physics.rss import RSSParams, longitudinal_bound, watched_leaders
 
 #: ``algo.shield`` kinds this transform implements (``none`` adds no transform)
 SHIELD_KINDS = ("idm", "ttc", "rss")
 _FLAG = "_shield_intervened"  # carries the intervention flag from the inverse path to ``_step``
+_CORRECTION = "_shield_correction"  # and the correction a_agent - a_exec (m/s², >= 0), for ``penalty``
 
 
 def ttc_bound(
@@ -79,28 +80,23 @@ def safe_acceleration(
     rss: RSSParams | None = None,
 ) -> torch.Tensor:
     """``a_safe`` ``[*B, 1]`` (m/s², at most ``high``) of shield ``kind`` from the raw keys of ``obs``."""
-    ego = obs.get(K.EGO_STATE).to(torch.float32)
-    kin = obs.get(K.NEIGHBORS_KIN).to(torch.float32)
-    mask = obs.get(K.NEIGHBORS_MASK).bool()
-    y, v, vx = ego[..., 0:1], ego[..., 1:2], ego[..., 2:3]
-    leaders = kin[..., :3, :]  # a, b, c
-    gap = leaders[..., 0] - y - idm.length  # [*B, 3] bumper to bumper
-    active = obs.get(K.LC_ACTIVE, torch.zeros_like(vx, dtype=torch.bool)).bool()
-    watched = torch.ones_like(mask[..., :3])  # the current lane's leader always
-    watched[..., 0:1] = active & (vx > 0)  # the left leader only while moving left
-    watched[..., 2:3] = active & (vx < 0)  # the right leader only while moving right
-    present = mask[..., :3] & watched
+    v = obs.get(K.EGO_STATE).to(torch.float32)[..., 1:2]
+    active = obs.get(K.LC_ACTIVE, torch.zeros_like(v, dtype=torch.bool))
+    gap, speed, watched, present = watched_leaders(
+        obs.get(K.EGO_STATE), obs.get(K.NEIGHBORS_KIN), obs.get(K.NEIGHBORS_MASK), active, idm.length
+    )
     if kind == "idm":
-        bound = idm_acceleration(v, leaders[..., 1], gap, idm, has_leader=present).clamp(max=high)
+        bound = idm_acceleration(v, speed, gap, idm, has_leader=present).clamp(max=high)
     elif kind == "rss":  # a lane it must watch and sees no car in: a standing one may wait past the sensing range
         p = rss or RSSParams()
         unseen = watched & ~present
         gap = torch.where(unseen, torch.full_like(gap, p.horizon - idm.length), gap)
-        speed = torch.where(unseen, torch.zeros_like(gap), leaders[..., 1])
+        speed = torch.where(unseen, torch.zeros_like(gap), speed)
         bound = longitudinal_bound(v, speed, gap, p, low, high)
         present = watched
     else:
-        bound = ttc_bound(v, leaders[..., 1], leaders[..., 2], gap, ttc, min_gap, high)
+        accel = obs.get(K.NEIGHBORS_KIN).to(torch.float32)[..., :3, 2]
+        bound = ttc_bound(v, speed, accel, gap, ttc, min_gap, high)
     bound = torch.where(present, bound, torch.full_like(bound, high))
     return bound.amin(-1, keepdim=True)
 
@@ -115,6 +111,10 @@ class SafetyShield(Transform):
         min_gap: m, the gap the ``ttc`` shield keeps. Defaults to 2 m.
         idm: IDM parameters of the ``idm`` shield (default Table A.1; ``v0`` is ignored: always ``inf``).
         rss: the worst case of the ``rss`` shield (default :class:`~kddrl_trl.physics.rss.RSSParams`).
+        penalty: per m/s², the correction signal (``algo.shield_penalty``; not in the paper): the car-following
+            reward of each frame (``keys.CF_REWARD``, Eq. 32) loses ``penalty * (a_agent - a_exec)``, so the learner
+            is told how far the shield moved its command, not only overridden. 0 (default) leaves the reward as
+            the env wrote it. The episode's ``return_cf`` then sums the penalised reward: what the learner got.
     """
 
     def __init__(
@@ -127,6 +127,7 @@ class SafetyShield(Transform):
         min_gap: float = 2.0,
         idm: IDMParams | None = None,
         rss: RSSParams | None = None,
+        penalty: float = 0.0,
     ):
         if kind not in SHIELD_KINDS:
             raise ValueError(f"SafetyShield: kind must be one of {', '.join(SHIELD_KINDS)}, got {kind!r}")
@@ -136,6 +137,9 @@ class SafetyShield(Transform):
         base = idm if idm is not None else IDMParams()
         self.idm = IDMParams(**{**base.__dict__, "v0": math.inf})
         self.rss = rss if rss is not None else RSSParams()
+        if not penalty >= 0:
+            raise ValueError(f"SafetyShield: penalty must be >= 0 (reward per m/s² of correction), got {penalty!r}")
+        self.penalty = float(penalty)
 
     def shielded(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """(executed action, intervened) ``[*B, 1]`` for the command and raw keys at the root of ``tensordict``."""
@@ -161,6 +165,9 @@ class SafetyShield(Transform):
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
         with torch.no_grad():
             executed, flag = self.shielded(tensordict)
+            if self.penalty:  # the agent's command within the bounds, less what is executed
+                command = tensordict.get(K.CF_ACTION).clamp(self.low, self.high)
+                tensordict.set(_CORRECTION, (command - executed).clamp(min=0.0))
         tensordict.set(K.CF_ACTION, executed)  # what the env receives (``inv`` works on a copy of the root)
         tensordict.set(_FLAG, flag)  # read (and removed) by _step
         return tensordict
@@ -170,6 +177,11 @@ class SafetyShield(Transform):
         if flag is None:
             flag = torch.zeros(*next_tensordict.batch_size, 1, dtype=torch.bool)
         next_tensordict.set(K.CF_SHIELD, flag.reshape(*next_tensordict.batch_size, 1).to(next_tensordict.device))
+        correction = tensordict.pop(_CORRECTION, None)
+        if correction is not None:
+            reward = next_tensordict.get(K.CF_REWARD)
+            cost = self.penalty * correction.reshape(reward.shape).to(device=reward.device, dtype=reward.dtype)
+            next_tensordict.set(K.CF_REWARD, reward - cost)
         return next_tensordict
 
     def _post_step_mdp_hooks(self, tensordict: TensorDictBase, tensordict_: TensorDictBase):
@@ -197,4 +209,6 @@ class SafetyShield(Transform):
         return observation_spec
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(kind={self.kind!r}, ttc={self.ttc}, min_gap={self.min_gap})"
+        return (
+            f"{type(self).__name__}(kind={self.kind!r}, ttc={self.ttc}, min_gap={self.min_gap}, penalty={self.penalty})"
+        )
