@@ -90,6 +90,16 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
     assert summary["episodes"] == 2 and summary["trained_on"] == "braking" and summary["scenario"] == "congested"
     assert summary["compile"] is False and summary["compile_s"] == 0.0  # compile=auto: 2 episodes do not pay for it
     assert summary["checkpoint"].endswith("ep000003.pt")
+    # evaluate shield=<kind>: the trained policy under another shield (the run's own otherwise)
+    from kddrl_trl.factories import make_trained_learner, make_transforms
+    from kddrl_trl.transforms import SafetyShield
+
+    assert make_trained_learner(run)[0].shield == "none"
+    algo = make_trained_learner(run, shield="rss")[0]
+    shields = [
+        t for t in make_transforms(algo, 0, compose_job().env.highway()).transforms if isinstance(t, SafetyShield)
+    ]
+    assert algo.shield == "rss" and [s.kind for s in shields] == ["rss"]
 
 
 @pytest.mark.slow
@@ -137,6 +147,7 @@ def test_the_new_systems_train_and_evaluate_on_sumo_as_typed(algo, small, tmp_pa
         (["run=elsewhere/deep/nope"], "error: run=elsewhere/deep/nope: no config.yaml there"),
         (["run=runs/r", "eval_episodes=-3"], "error: eval_episodes must be >= 1, got -3"),
         (["run=runs/r", "+eval_episods=3"], "error: unknown config key(s) eval_episods"),
+        (["run=runs/r", "shield=wall"], "error: shield='wall': known shields are none, idm, ttc, rss"),
         (["run=runs/r"], "error: no checkpoint in runs/r/checkpoints"),  # fails after Hydra made the eval folder
     ],
 )
@@ -379,6 +390,8 @@ def test_a_typo_or_wrong_type_in_algo_or_train_is_refused_naming_the_key(overrid
         ("episodes=0", "episodes must be >= 1"),
         ("algo.lc_period=0", "algo.lc_period must be >= 1"),
         ("compile=sometimes", "compile must be true, false or auto"),
+        ("algo.shield_penalty=-1", "algo.shield_penalty must be >= 0"),
+        ("algo.shield_penalty=0.1", "algo.shield_penalty > 0 needs a shield"),
     ],
 )
 def test_out_of_range_values_are_refused_by_the_schema(override, match):

@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # The safety study (studies/safety/plan.md): KDDRL and D3QN+TD3 under +preset=safe, and IDM+MOBIL, on baseline,
 # congested and braking at seeds 100-109, seed-major; then (PHASE=unshielded) every learning run's final policy
-# evaluated again without the layer on the same test traffic. Run it from a checkout of the plan's pinned commit:
+# evaluated again without the layer on the same test traffic, each into <SWEEP_DIR>_unshielded/<run name>/. Run it
+# with the plan's pinned commit on the path (a checkout of it, its venv active):
 #   bash studies/safety/study.sh [SWEEP_DIR]                      # default runs/safety
 #   PHASE=unshielded bash studies/safety/study.sh [SWEEP_DIR]
 # It resumes job by job: a finished run (summary.json) is skipped, a killed one continues from its newest checkpoint;
-# an unshielded evaluation already made (an eval__*/summary.json with shield: none) is skipped. JOBS (default 2) at
-# a time, one torch thread each.
+# an unshielded evaluation already made (its summary.json) is skipped. JOBS (default 2) at a time, one torch thread
+# each.
 set -euo pipefail
 SWEEP=${1:-runs/safety}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} SWEEP
@@ -27,14 +28,13 @@ one() {  # a single-job sweep into the shared folder: its subdir is named as in 
 }
 
 unshielded() {  # the final policy of each finished learning run, on its own scenario's test traffic, no layer
-  local run sc seed
+  local run name sc seed
   for run in "$SWEEP"/*__kddrl__* "$SWEEP"/*__d3qn_td3__*; do
     [ -f "$run/summary.json" ] || continue
-    for made in "$run"/eval__*/; do  # an unshielded evaluation that finished: nothing to do
-      [ -f "$made/summary.json" ] && grep -q "^shield: none" "$made/.hydra/config.yaml" 2>/dev/null && continue 2
-    done
-    sc=$(basename "$run" | cut -d_ -f1); seed=$(basename "$run" | sed 's/.*__//')
-    echo "run=$run +scenario=$sc seed=$seed shield=none"
+    name=$(basename "$run")
+    [ -f "${SWEEP}_unshielded/$name/summary.json" ] && continue
+    sc=${name%%__*}; seed=${name##*__}
+    echo "run=$run +scenario=$sc seed=$seed shield=none hydra.run.dir=${SWEEP}_unshielded/$name"
   done
 }
 

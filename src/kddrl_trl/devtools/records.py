@@ -47,22 +47,34 @@ MANIFEST = PurePosixPath("studies/records.json")
 #: for a reader who asks how driving changed while learning (evaluation records are kept whole: the reports read
 #: every column)
 KEPT_TRAINING = ("index", "return_lc", "return_cf", "mean_speed_kmh", "collision")
+#: kept too where the record has them (after the columns above, in this order): the frames and the shield's
+#: interventions (a shield's rate while learning), and the collision's fault class
+KEPT_WHERE_PRESENT = ("frames", "shield_interventions", "collision_fault")
+
+
+def kept_columns(header: list[str]) -> list[str]:
+    """The columns a compact training record of ``header`` holds: :data:`KEPT_TRAINING`, then those of
+    :data:`KEPT_WHERE_PRESENT` it has."""
+    return [*KEPT_TRAINING, *(c for c in KEPT_WHERE_PRESENT if c in header)]
+
+
 #: what a study does not keep of a run folder: its checkpoints and TorchRL logs (top level), its curve images
 NOT_COLLECTED = ("checkpoints", "logs")
 
 
 def compact(path: Path) -> int:
-    """Rewrites one training record as ``train_episodes.csv.xz`` with the :data:`KEPT_TRAINING` columns, every kept
-    value's text as it was; returns the bytes saved (0 for a record compact already)."""
+    """Rewrites one training record as ``train_episodes.csv.xz`` with the :func:`kept_columns`, every kept value's
+    text as it was; returns the bytes saved (0 for a record compact already)."""
     raw = lzma.decompress(path.read_bytes()) if path.suffix == ".xz" else path.read_bytes()
     rows = list(csv.reader(io.StringIO(raw.decode())))
     header = rows[0]
     missing = [k for k in KEPT_TRAINING if k not in header]
     if missing:
         raise ValueError(f"{path}: no column(s) {', '.join(missing)}")
-    if header == list(KEPT_TRAINING) and path.suffix == ".xz":
+    kept = kept_columns(header)
+    if header == kept and path.suffix == ".xz":
         return 0
-    at = [header.index(k) for k in KEPT_TRAINING]
+    at = [header.index(k) for k in kept]
     out = io.StringIO()
     csv.writer(out, lineterminator="\n").writerows([[row[i] for i in at] for row in rows])
     target = path.with_name(RunFolder.TRAIN_EPISODES + ".xz")
