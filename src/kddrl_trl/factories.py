@@ -238,7 +238,12 @@ def make_transforms(
 
 
 def make_env(
-    env: EnvNode, algo: LearningAlgo | RuleAlgo, seed: int, compile: bool = False, fake: bool = False
+    env: EnvNode,
+    algo: LearningAlgo | RuleAlgo,
+    seed: int,
+    compile: bool = False,
+    fake: bool = False,
+    gui: bool = False,
 ) -> EnvBase:
     """The env of ``env.simulator`` with ``env.num_roads`` roads on the composed highway config: ``SumoHighwayEnv``
     (``sumo``; ``FakeHighwayEnv`` with ``fake=True``) or ``HighwayEnvAdapter`` (``highwayenv``, the optional extra
@@ -251,7 +256,7 @@ def make_env(
     elif env.simulator == "highwayenv":
         base = HighwayEnvAdapter(highway, num_roads=env.num_roads, seed=seed, options=env.highwayenv)
     else:
-        base = SumoHighwayEnv(highway, num_roads=env.num_roads, seed=seed)
+        base = SumoHighwayEnv(highway, num_roads=env.num_roads, seed=seed, gui=gui)
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
 
 
@@ -406,4 +411,4 @@ def make_trained_learner(
 def make_test_env(job: Job, algo: LearningAlgo | RuleAlgo, env_cfg) -> EnvBase:
     """The env of a final evaluation: ``env_cfg`` 's traffic (an ``env`` node) with ``algo`` 's transforms, from the
     test seed of ``job`` (:func:`kddrl_trl.eval.protocol.test_seed`: never a training or validation seed)."""
-    return make_env(env_cfg, algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile)
+    return make_env(env_cfg, algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile, gui=job.gui)

@@ -94,7 +94,7 @@ def _flat_bounds(space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
 class SumoHighwayGymEnv(gym.Env):
     """One ego on one road of the SUMO highway, as a Gymnasium environment (same simulator as the TorchRL env)."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
 
     def __init__(
         self,
@@ -108,8 +108,8 @@ class SumoHighwayGymEnv(gym.Env):
     ):
         if reward not in ("sum", "lc", "cf"):
             raise ValueError(f"reward must be 'sum', 'lc' or 'cf', got {reward!r}")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if render_mode not in (None, "rgb_array", "human"):
+            raise ValueError(f"render_mode must be None, 'rgb_array' or 'human', got {render_mode!r}")
         if not isinstance(flatten, bool):
             raise ValueError(f"flatten must be True or False, got {flatten!r}")
         check_process(process)  # before any simulator starts
@@ -184,7 +184,9 @@ class SumoHighwayGymEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         if self.sim is None:
-            self.sim = open_road_sim(self.config, self._seed if seed is None else seed, self.process)
+            self.sim = open_road_sim(
+                self.config, self._seed if seed is None else seed, self.process, gui=self.render_mode == "human"
+            )
             seed = None  # just started with it
         self._frame = self.sim.reset(seed)
         finished, self.tracker = self.tracker.finished, EpisodeTracker(self.config)  # a running episode is dropped
@@ -197,7 +199,7 @@ class SumoHighwayGymEnv(gym.Env):
 
     def _draw(self, first: bool) -> None:
         """Keep the current frame for :meth:`render` (the renderer of ``kddrl_trl.eval.render``)."""
-        if self.render_mode is None:
+        if self.render_mode != "rgb_array":
             return
         from .eval.trace import TraceRecorder
 
@@ -216,8 +218,10 @@ class SumoHighwayGymEnv(gym.Env):
         self._drawn = self._recorder.frame(frame, 0, 0 if first else self._drawn["t"] + 1, first)
 
     def render(self):
-        """``rgb_array``: the current frame seen from above (ego and its six neighbours), ``uint8 [H, W, 3]``."""
-        if self.render_mode is None:
+        """``rgb_array``: the current frame seen from above (ego and its six neighbours), ``uint8 [H, W, 3]``.
+        ``human``: None; the simulation runs in ``sumo-gui``, whose window follows the ego in real time (it needs a
+        display: ``xvfb-run`` on a headless machine)."""
+        if self.render_mode != "rgb_array":
             return None
         if self._drawn is None:
             raise RuntimeError("call reset() before render()")

@@ -169,7 +169,7 @@ def find_sweep_dir(resume, prefix: str, stamp: str) -> Path:
 
 
 #: options that do not change what a run computes (a sweep may be resumed with other values)
-NON_RESULT_KEYS = ("resume", "progress", "torch_threads")
+NON_RESULT_KEYS = ("resume", "progress", "torch_threads", "gui")
 
 
 def config_differences(saved: dict, current: dict, prefix: str = "") -> list[str]:

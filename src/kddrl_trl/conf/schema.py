@@ -27,6 +27,7 @@ algo. The schemas are stored outside the groups, so ``--help`` offers only the o
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass, field, fields, is_dataclass, make_dataclass
 from typing import Any, Optional
@@ -468,9 +469,19 @@ class Job:
     matmul_precision: str = "highest"  # torch.set_float32_matmul_precision: highest | high (TF32) | medium
     flush_denormal: bool = True  # torch.set_flush_denormal: CPU float32 values under 1.18e-38 taken as zero
     torch_threads: Any = "auto"  # auto | N: torch's CPU threads (auto: the free cores, followed while training)
+    gui: bool = False  # the final evaluation in sumo-gui: a live view of road 0's ego in real time (needs a display)
 
     def __post_init__(self) -> None:
         _at_least("", self, 1, "eval_episodes", "video_episodes")
+        if self.gui and getattr(self.env, "simulator", "sumo") != "sumo":
+            raise ValueError(
+                f"gui=true drives sumo-gui: env=highway (SUMO) only, got env.simulator={self.env.simulator}"
+            )
+        if self.gui and not os.environ.get("DISPLAY"):
+            raise ValueError(
+                "gui=true: sumo-gui needs a display and DISPLAY is not set; on a machine without one, run the "
+                "command under a virtual display: xvfb-run -a python -m ... (Debian's xvfb package)"
+            )
         if str(self.torch_threads) != "auto" and not (
             isinstance(self.torch_threads, int) and not isinstance(self.torch_threads, bool) and self.torch_threads >= 1
         ):

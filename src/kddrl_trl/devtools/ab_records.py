@@ -46,25 +46,24 @@ def digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def without_columns(data: bytes, columns: tuple[str, ...], name: str) -> bytes:
-    """The CSV ``data`` with ``columns`` cut out of every line; each must be in its header."""
+def without_columns(data: bytes, columns: tuple[str, ...]) -> tuple[bytes, set[str]]:
+    """The CSV ``data`` with those of ``columns`` its header has cut out of every line, and which they were."""
     rows = list(csv.reader(io.StringIO(data.decode())))
     if not rows:
-        return data
-    missing = [c for c in columns if c not in rows[0]]
-    if missing:
-        raise SystemExit(f"{name}: no column {', '.join(missing)} to leave out (--new-columns)")
-    keep = [i for i, c in enumerate(rows[0]) if c not in columns]
+        return data, set()
+    cut = {c for c in columns if c in rows[0]}
+    keep = [i for i, c in enumerate(rows[0]) if c not in cut]
     out = io.StringIO()
     csv.writer(out, lineterminator="\n").writerows([[row[i] for i in keep] for row in rows])
-    return out.getvalue().encode()
+    return out.getvalue().encode(), cut
 
 
 def records(folder: Path, new_columns: tuple[str, ...] = (), side: str = "after") -> dict[str, str | None]:
     """Record name -> the first 16 hex digits of its SHA-256 (decompressed), None where the run has none. With
     ``new_columns``, every record goes through the ``csv`` module (the same reading and writing on both sides); the
-    after side has them cut out, and the before side must not hold them."""
-    out = {}
+    after side has them cut out where a record holds them (each must be in one at least), and the before side must
+    not hold them."""
+    out, found = {}, set()
     for name in RECORDS:
         try:
             data = record_bytes(folder, name)
@@ -72,11 +71,14 @@ def records(folder: Path, new_columns: tuple[str, ...] = (), side: str = "after"
             out[name] = None
             continue
         if new_columns:
-            header = next(csv.reader(io.StringIO(data.decode())), [])
-            if side == "before" and any(c in header for c in new_columns):
-                raise SystemExit(f"{folder / name}: already has {', '.join(new_columns)}: not a new column")
-            data = without_columns(data, new_columns if side == "after" else (), str(folder / name))
+            data, cut = without_columns(data, new_columns)
+            if side == "before" and cut:
+                raise SystemExit(f"{folder / name}: already has {', '.join(sorted(cut))}: not a new column")
+            found |= cut
         out[name] = digest(data)
+    missing = [c for c in new_columns if c not in found]
+    if side == "after" and missing:
+        raise SystemExit(f"{folder}: no record has {', '.join(missing)} to leave out (--new-columns)")
     return out
 
 

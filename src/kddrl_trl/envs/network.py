@@ -165,3 +165,28 @@ def sumo_args(cfg: HighwayConfig, files: RoadFiles, seed: int) -> list[str]:
         "--xml-validation",
         "never",
     ]
+
+
+#: the view sumo-gui opens, which the live view follows
+GUI_VIEW = "View #0"
+
+
+def gui_args(args: list[str], cfg: HighwayConfig) -> list[str]:
+    """:func:`sumo_args` for ``sumo-gui``: the simulation starts at once, without the GUI's own delay (the warm-up
+    runs at full speed; :class:`~kddrl_trl.envs.sim.HighwaySim` paces the episodes' frames to real time), and the
+    window closes with the simulation. sumo-gui needs a display: where ``DISPLAY`` is unset (a headless machine) it
+    is refused here, naming ``xvfb-run``."""
+    import os
+
+    if not os.environ.get("DISPLAY"):
+        raise RuntimeError(
+            "gui=true: sumo-gui needs a display and DISPLAY is not set; on a machine without one, run the command "
+            "under a virtual display: xvfb-run -a python -m ... (Debian's xvfb package)"
+        )
+    return [
+        sumo_binary("sumo-gui"), *args[1:], "--start", "--quit-on-end", "--delay", "0", "--window-size", "1200,500",
+    ]  # fmt: skip
+
+
+#: the live view's zoom (percent of the whole network's fit): about 170 m of road around the ego across the window
+GUI_ZOOM = 500.0

@@ -21,11 +21,26 @@ from .config import HighwayConfig
 from .network import road_y
 from .specs import observation_spec
 
+#: whether the simulation runs in sumo-gui over TraCI (:func:`use_traci`) instead of libsumo
+_TRACI = False
+
 
 def _libsumo():
+    """The SUMO client of this process: libsumo (in-process, fast), or TraCI while a live view runs sumo-gui
+    (libsumo can start sumo-gui but not reload or close it). Both have the same API."""
+    if _TRACI:
+        import traci
+
+        return traci
     import libsumo
 
     return libsumo
+
+
+def use_traci(on: bool) -> None:
+    """Route this process's SUMO calls through TraCI (``on``, the live view) or libsumo."""
+    global _TRACI
+    _TRACI = bool(on)
 
 
 def longitudinal(vid: str, cfg: HighwayConfig) -> float:

@@ -26,8 +26,8 @@ class RoadSim:
     every raw key of ``kddrl_trl.keys`` without the road dimension, ``terminated``, ``truncated`` (and after a step
     the two rewards and their terms), plus :data:`EGO`."""
 
-    def __init__(self, cfg: HighwayConfig, seed: int):
-        self.sim = HighwaySim(cfg, 1, seed=seed)
+    def __init__(self, cfg: HighwayConfig, seed: int, gui: bool = False):
+        self.sim = HighwaySim(cfg, 1, seed=seed, gui=gui)
 
     def reset(self, seed: int | None = None) -> dict:
         """A new episode; ``seed`` restarts the simulation with that seed first (warm-up included)."""
@@ -50,10 +50,10 @@ class RoadSim:
         self.sim.close()
 
 
-def _serve(conn, cfg: HighwayConfig, seed: int) -> None:
+def _serve(conn, cfg: HighwayConfig, seed: int, gui: bool = False) -> None:
     """The worker's loop: build the road, then answer ``(method, args)`` with ``("ok", result)`` or ``("error", e)``."""
     try:
-        road = RoadSim(cfg, seed)
+        road = RoadSim(cfg, seed, gui)
     except BaseException as error:  # noqa: BLE001  (sent to the parent, raised there)
         conn.send(("error", error))
         return
@@ -75,11 +75,13 @@ def _serve(conn, cfg: HighwayConfig, seed: int) -> None:
 class RoadSimProcess:
     """A :class:`RoadSim` in a spawned worker process (never forked: a fork would copy this process's SUMO)."""
 
-    def __init__(self, cfg: HighwayConfig, seed: int):
+    def __init__(self, cfg: HighwayConfig, seed: int, gui: bool = False):
         require_main_guard("a second SUMO env in one process (its simulation runs in a worker process)")
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
-        self._process = ctx.Process(target=_serve, args=(child, cfg, int(seed)), daemon=True, name="kddrl_trl-road")
+        self._process = ctx.Process(
+            target=_serve, args=(child, cfg, int(seed), bool(gui)), daemon=True, name="kddrl_trl-road"
+        )
         self._process.start()
         child.close()
         self._answer()
@@ -129,8 +131,8 @@ def check_process(process: str) -> str:
     return process
 
 
-def open_road_sim(cfg: HighwayConfig, seed: int, process: str = "auto") -> RoadSim | RoadSimProcess:
-    """One road's simulation, where ``process`` says (:func:`check_process`)."""
+def open_road_sim(cfg: HighwayConfig, seed: int, process: str = "auto", gui: bool = False) -> RoadSim | RoadSimProcess:
+    """One road's simulation, where ``process`` says (:func:`check_process`); ``gui``: in ``sumo-gui``."""
     if check_process(process) == "worker" or (process == "auto" and simulation_open()):
-        return RoadSimProcess(cfg, seed)
-    return RoadSim(cfg, seed)
+        return RoadSimProcess(cfg, seed, gui)
+    return RoadSim(cfg, seed, gui)

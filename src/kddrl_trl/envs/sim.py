@@ -32,14 +32,24 @@ Ego control (paper §III.G, Eq. 25 and 31):
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 
 from .. import keys as K
 from .braking import BrakingEvents
 from .config import HighwayConfig
-from .network import LC_MODE_DEFAULT, SPEED_MODE_DEFAULT, build_road_files, edge_ids, sumo_args
-from .observe import Observer, _libsumo, longitudinal, observation_arrays
+from .network import (
+    GUI_VIEW,
+    GUI_ZOOM,
+    LC_MODE_DEFAULT,
+    SPEED_MODE_DEFAULT,
+    build_road_files,
+    edge_ids,
+    gui_args,
+    sumo_args,
+)
+from .observe import Observer, _libsumo, longitudinal, observation_arrays, use_traci
 from .rewards import car_following_total, lane_change_total, reward_terms
 
 log = logging.getLogger(__name__)
@@ -60,16 +70,18 @@ class HighwaySim:
         num_roads: K >= 1.
         seed: seeds SUMO (traffic arrivals, driver classes) and the numpy generator (per-vehicle
             parameter draws, ego designation, braking events). Same seed -> identical rollouts.
+        gui: run the simulation in ``sumo-gui`` (a live view that follows road 0's ego, in real time;
+            :func:`~kddrl_trl.envs.network.gui_args`): the same simulation, watched.
 
     Outputs of a frame (:meth:`outputs`): ``obs`` (every raw key of ``kddrl_trl.keys``), ``reward_lc``,
     ``reward_cf`` and their named ``terms``, ``terminated``, ``truncated``. A road whose episode ended keeps the outputs
     of its final frame until it is reset.
     """
 
-    def __init__(self, cfg: HighwayConfig, num_roads: int, seed: int = 0):
+    def __init__(self, cfg: HighwayConfig, num_roads: int, seed: int = 0, gui: bool = False):
         if not isinstance(num_roads, (int, np.integer)) or num_roads < 1:
             raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
-        self.cfg, self.num_roads = cfg, int(num_roads)
+        self.cfg, self.num_roads, self.gui = cfg, int(num_roads), bool(gui)
         self.dt = cfg.step_length
         self.lc_frames = int(round(cfg.lc_duration / cfg.step_length))
         self.files = build_road_files(cfg, self.num_roads)
@@ -107,6 +119,10 @@ class HighwaySim:
 
     def _start(self, seed: int) -> None:
         global _ACTIVE
+        if not self._started:
+            use_traci(self.gui)  # the live view: sumo-gui over TraCI
+            if self.gui:
+                log.info("gui: sumo-gui (over TraCI) follows road 0's ego in real time")
         ls = _libsumo()
         if _ACTIVE is not None and _ACTIVE is not self:
             raise RuntimeError(
@@ -115,6 +131,8 @@ class HighwaySim:
                 "(torchrl ParallelEnv) or as roads of one env (num_roads=K)"
             )
         args = sumo_args(self.cfg, self.files, seed)
+        if self.gui:
+            args = gui_args(args, self.cfg)
         if self._started:
             ls.load(args[1:])
         else:
@@ -132,6 +150,15 @@ class HighwaySim:
         self._released: set[str] = set()
         for _ in range(int(round(self.cfg.warmup_s / self.dt))):
             self._sim_step()
+        self._next_frame = time.monotonic()  # the live view paces the frames from here (:meth:`_pace`)
+
+    def _pace(self) -> None:
+        """The live view in real time: each frame waits until ``step_length`` after the one before (a slow frame
+        is not made up for)."""
+        wait = self._next_frame - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        self._next_frame = max(self._next_frame, time.monotonic() - self.dt) + self.dt
 
     def reseed(self, seed: int) -> None:
         """Restart the simulation from scratch with a new seed (warm-up included)."""
@@ -143,6 +170,7 @@ class HighwaySim:
         if self._started:
             _libsumo().close()
             self._started = False
+            use_traci(False)
         if _ACTIVE is self:
             _ACTIVE = None
 
@@ -306,6 +334,9 @@ class HighwaySim:
         ls.vehicle.setLaneChangeMode(vid, 0)
         ls.vehicle.setColor(vid, (255, 0, 0, 255))
         self.ego[r] = vid
+        if self.gui and r == 0:  # the live view follows the first road's ego
+            ls.gui.trackVehicle(GUI_VIEW, vid)
+            ls.gui.setZoom(GUI_VIEW, GUI_ZOOM)
         self.speed[r] = ls.vehicle.getSpeed(vid)
         ls.vehicle.setSpeed(vid, self.speed[r])
         self.frame[r] = 0
@@ -386,6 +417,8 @@ class HighwaySim:
             except ls.TraCIException as err:
                 lost[r] = str(err)
         contacts = self._sim_step()
+        if self.gui:
+            self._pace()
         for r, why in lost.items():
             self._lose(r, why)
         self.speed = new_speed

@@ -38,6 +38,7 @@ class SumoHighwayEnv(HighwayEnvBase):
         num_roads: K >= 1, the batch size.
         seed: seeds SUMO and the env's own generator; same seed -> identical rollouts.
         device: torch device of the output tensors (the simulator itself is CPU).
+        gui: drive ``sumo-gui`` (a live view of road 0's ego, in real time; needs a display, e.g. ``xvfb-run``).
         **overrides: any field of :class:`~kddrl_trl.envs.config.HighwayConfig` (e.g. ``flow_vph=2658``,
             ``braking={"stand_time": 5}``); unknown keys or bad values raise ``ValueError`` naming the key
             before SUMO starts.
@@ -60,9 +61,11 @@ class SumoHighwayEnv(HighwayEnvBase):
             (those of vehicles that left are dropped every 200 steps).
     """
 
-    def __init__(self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, **overrides):
+    def __init__(
+        self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, gui: bool = False, **overrides
+    ):
         super().__init__(scenario, num_roads, seed, device, **overrides)
-        self.sim = HighwaySim(self.config, num_roads, seed=seed)
+        self.sim = HighwaySim(self.config, num_roads, seed=seed, gui=gui)
         self._seed = seed
         self._bind()
 
