@@ -232,6 +232,7 @@ def make_transforms(
                 ttc=algo.shield_ttc,
                 rss=rss,
                 penalty=algo.shield_penalty,
+                record=algo.shield_buffer,
             )
         )
     return Compose(*stack)
@@ -388,7 +389,13 @@ def make_trained_learner(
     saved = OmegaConf.load(RunFolder(trained_run(run)).config)
     algo = algo_from_node(saved.algo)
     if shield is not None and isinstance(algo, LearningAlgo):
-        algo = replace(algo, shield=shield, shield_penalty=0.0 if shield == "none" else algo.shield_penalty)
+        kept = shield != "none"  # the penalty and the buffer's choice are training signals of a shield
+        algo = replace(
+            algo,
+            shield=shield,
+            shield_penalty=algo.shield_penalty if kept else 0.0,
+            shield_buffer=algo.shield_buffer if kept else "executed",
+        )
     if not isinstance(algo, LearningAlgo):
         raise ValueError(
             f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "

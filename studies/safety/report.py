@@ -5,8 +5,8 @@ the predictions buy, and the learner's sanity check, from the landed records.
 
 Reads ``studies/safety/runs`` (the arms and IDM+MOBIL), ``studies/safety/runs_unshielded`` (the learning runs' final
 policies without the layer) and ``studies/safety/sanity/<reward>`` (the sanity check), each where present, and writes
-``report.md`` and ``report.json``. Only runs of the plan's pinned commit (the commit that added ``plan.md``) are
-read; another commit is refused, naming the run.
+``report.md`` and ``report.json``. Only runs of the plan's pinned commit (the last commit that changed ``plan.md``)
+are read; another commit is refused, naming the run.
 """
 
 from __future__ import annotations
@@ -35,14 +35,12 @@ SANITY_WINDOW, SANITY_LEVEL = 50, 0.05
 
 
 def pinned_commit(root: Path = HERE) -> str:
-    """The short hash of the commit that added ``plan.md``."""
-    out = subprocess.run(
-        ["git", "log", "--diff-filter=A", "--format=%h", "--", "plan.md"], cwd=root, capture_output=True, text=True
-    )
+    """The short hash of the last commit that changed ``plan.md`` (the plan, "The safety study's plan")."""
+    out = subprocess.run(["git", "log", "-1", "--format=%h", "--", "plan.md"], cwd=root, capture_output=True, text=True)
     hashes = out.stdout.split()
     if out.returncode != 0 or not hashes:
         raise SystemExit(f"{root / 'plan.md'}: not committed (the study reads only runs of the plan's commit)")
-    return hashes[-1]
+    return hashes[0]
 
 
 def read(folder: Path, commit: str | None) -> list[RunRecord]:

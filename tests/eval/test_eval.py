@@ -184,3 +184,35 @@ def test_trace_recorder_can_keep_only_the_crashes(collisions_only):
         assert outcomes == ["collision", "collision"] and recorder.done
     else:
         assert len(outcomes) == 2 and "collision" in {t["outcome"] for t in recorder.traces} != {"collision"}
+
+
+def test_a_crash_trace_labels_its_last_frame_and_the_frame_explains_itself():
+    """The recorder marks the collision frame (kind, other slot) and each frame's braking car; the drawn frame has
+    the colour legend, the braking car in its colour with the event's phase, and the collision's label."""
+    import numpy as np
+    from matplotlib.colors import to_rgb
+
+    from kddrl_trl.baselines import RandomDrivingPolicy
+    from kddrl_trl.eval.render import BRAKING_COLOR, LEGEND, _plt, draw_frame, frame_rgb
+    from kddrl_trl.eval.trace import TraceRecorder
+
+    env = FakeHighwayEnv("braking", num_roads=4, seed=0)
+    policy, recorder, td = RandomDrivingPolicy(), TraceRecorder(1, collisions_only=True), env.reset()
+    while not recorder.done:
+        full, td = env.step_and_maybe_reset(policy(td))
+        recorder(full)
+    (trace,) = recorder.chosen()
+    last = trace["frames"][-1]
+    assert last["collision"] == trace["collision_kind"] != "none" and "collision" not in trace["frames"][-2]
+    assert all("braking_slot" in f for f in trace["frames"])
+    frame = {**last, "braking_phase": "standing", "braking_slot": "b", "neighbours": {"b": [last["y"] + 8, last["x"]]}}
+    frame["collision_with"] = "b"
+    fig = _plt().figure()
+    ax = fig.add_subplot(1, 1, 1)
+    draw_frame(ax, frame, trace)
+    texts = [t.get_text() for t in ax.texts]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [label for _, label in LEGEND]
+    assert "standing" in texts and any(t.startswith("COLLISION: ") and t.endswith("with b") for t in texts)
+    rgb = frame_rgb(frame, trace).astype(int)
+    orange = (np.abs(rgb - 255 * np.array(to_rgb(BRAKING_COLOR))).sum(-1) < 30).sum()
+    assert rgb.shape[1] >= 1000 and orange > 50  # legible width; the braking car (and its legend patch) drawn

@@ -92,3 +92,24 @@ def test_the_correction_signal_costs_the_reward_its_correction():
     assert torch.allclose(cost, 0.1 * (5.0 - executed), atol=1e-5)
     assert (cost[~flag] == 0).all() and (cost[flag] > 0).all()
     assert torch.equal(plain["next", *K.LC_REWARD], told["next", *K.LC_REWARD])
+
+
+def test_record_command_keeps_the_agents_command_in_the_frame_and_executes_the_bound():
+    """``record="command"`` (``algo.shield_buffer=command``): the env executes the same bounded commands, the frame
+    (what buffer L stores) keeps the agent's +5 m/s², and the flag and the penalty are those of the default."""
+    from torchrl.collectors import Collector
+
+    rolls = {}
+    for record in ("executed", "command"):
+        env = TransformedEnv(
+            FakeHighwayEnv(num_roads=4, seed=0, ego_start="window"), SafetyShield("rss", penalty=0.1, record=record)
+        )
+        collector = Collector(env, _full_throttle, frames_per_batch=160, total_frames=160, trust_policy=True)
+        rolls[record] = next(iter(collector))
+        collector.shutdown()
+    executed, command = rolls["executed"], rolls["command"]
+    flag = executed["next", *K.CF_SHIELD][..., 0]
+    assert flag.any() and torch.equal(flag, command["next", *K.CF_SHIELD][..., 0])
+    assert (command[K.CF_ACTION][..., 0] == 5.0).all() and (executed[K.CF_ACTION][..., 0][flag] < 5.0).all()
+    assert torch.equal(executed["next", *K.EGO_ACCEL], command["next", *K.EGO_ACCEL])  # the same driving
+    assert torch.equal(executed["next", *K.CF_REWARD], command["next", *K.CF_REWARD])

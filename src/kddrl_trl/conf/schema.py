@@ -289,6 +289,9 @@ PASACLearnerConfig = _node(
 #: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound, RSS's worst-case bound with its
 #: lane-change gap check (:class:`~kddrl_trl.transforms.SafetyShield`, :class:`~kddrl_trl.transforms.RSSLaneMask`)
 SHIELDS = ("none", "idm", "ttc", "rss")
+#: ``algo.shield_buffer`` values: buffer L stores the executed action, or the agent's own command (the shield as
+#: part of the env; what the correction signal ``algo.shield_penalty`` needs to reach the actor)
+SHIELD_BUFFERS = ("executed", "command")
 #: ``algo.lc_reward`` values (:class:`~kddrl_trl.collectors.MacroTransitionWriter`): Algorithm 1 lines 26/35 sum
 #: the per-frame r_D3QN over the interval; §III.G computes it once "at each 2-second decision step"
 LC_REWARDS = ("frames", "decision")
@@ -302,6 +305,7 @@ class SafetyOptions:
     shield: str = "none"  # car-following shield: none | idm | ttc | rss (a_exec = min(a_agent, a_safe))
     shield_ttc: float = 3.0  # s, time-to-collision below which the ttc shield bounds the acceleration
     shield_penalty: float = 0.0  # per m/s²: the car-following reward loses penalty x (a_agent - a_exec) (0: none)
+    shield_buffer: str = "executed"  # what buffer L stores as the action: executed (a_exec) | command (a_agent)
 
     def _check_safety(self) -> None:
         if self.shield not in SHIELDS:
@@ -312,6 +316,8 @@ class SafetyOptions:
             raise ValueError(
                 f"algo.shield_penalty must be >= 0 (reward per m/s² of correction), got {self.shield_penalty!r}"
             )
+        if self.shield_buffer not in SHIELD_BUFFERS:
+            raise ValueError(f"algo.shield_buffer={self.shield_buffer!r}: known values are {', '.join(SHIELD_BUFFERS)}")
         if self.shield_penalty and self.shield == "none":
             raise ValueError(
                 "algo.shield_penalty > 0 needs a shield (algo.shield=idm|ttc|rss): nothing corrects the command"

@@ -12,12 +12,19 @@ import numpy as np
 
 from .. import keys as K
 
-EGO_COLOR, NEIGHBOUR_COLOR, LEADER_COLOR = "tab:red", "tab:gray", "tab:blue"
+EGO_COLOR, NEIGHBOUR_COLOR, LEADER_COLOR, BRAKING_COLOR = "tab:red", "tab:gray", "tab:blue", "tab:orange"
+#: what each colour is, in the frame's legend
+LEGEND = (
+    (EGO_COLOR, "ego"),
+    (LEADER_COLOR, "leaders a, b, c"),
+    (NEIGHBOUR_COLOR, "followers d, e, f"),
+    (BRAKING_COLOR, "the braking event's car"),
+)
 VEHICLE_LENGTH, VEHICLE_WIDTH = 4.5, 1.8
 #: metres shown behind and ahead of the ego in a frame
 BEHIND, AHEAD = 60.0, 140.0
-#: frame size (inches) and resolution: 800 x 176 pixels, ~1-2 MB per 1000-frame episode in H.264
-FIGSIZE, DPI = (10, 2.2), 80
+#: frame size (inches) and resolution: 1200 x 330 pixels, ~2-3 MB per 1000-frame episode in H.264
+FIGSIZE, DPI = (12, 3.3), 100
 
 
 def _plt():
@@ -30,9 +37,10 @@ def _plt():
 
 
 def draw_frame(ax, frame: dict, trace: dict) -> None:
-    """One frame seen from above: lanes, the ego (red), leaders a-c (blue), followers d-f (grey); the view follows
-    the ego (``BEHIND`` / ``AHEAD`` metres)."""
-    from matplotlib.patches import Rectangle
+    """One frame seen from above: lanes, the ego (red), leaders a-c (blue), followers d-f (grey), the braking event's
+    car (orange, with the event's phase), a colour legend, and on the collision frame a red cross and the collision's
+    kind; the view follows the ego (``BEHIND`` / ``AHEAD`` metres)."""
+    from matplotlib.patches import Patch, Rectangle
 
     lanes, width = int(trace.get("num_lanes", 3)), float(trace.get("lane_width", 3.2))
     y0 = frame["y"] - BEHIND
@@ -44,27 +52,39 @@ def draw_frame(ax, frame: dict, trace: dict) -> None:
     for edge in (0.0, section):
         if y0 <= edge <= y0 + BEHIND + AHEAD:
             ax.axvline(edge, color="k", lw=0.8, zorder=1)
+    phase, braking = frame.get("braking_phase", "none"), frame.get("braking_slot", "")
     cars = [(frame["y"], frame["x"], EGO_COLOR, "ego")]
-    cars += [
-        (y, x, LEADER_COLOR if slot in K.LEADER_SLOTS else NEIGHBOUR_COLOR, slot)
-        for slot, (y, x) in frame["neighbours"].items()
-    ]
+    for slot, (y, x) in frame["neighbours"].items():
+        color = BRAKING_COLOR if slot == braking else LEADER_COLOR if slot in K.LEADER_SLOTS else NEIGHBOUR_COLOR
+        cars.append((y, x, color, slot))
     for y, x, color, label in cars:
         ax.add_patch(
             Rectangle((y - VEHICLE_LENGTH, x - VEHICLE_WIDTH / 2), VEHICLE_LENGTH, VEHICLE_WIDTH, color=color, zorder=3)
         )
-        ax.text(y - VEHICLE_LENGTH / 2, x, label, ha="center", va="center", fontsize=6, color="white", zorder=4)
+        ax.text(y - VEHICLE_LENGTH / 2, x, label, ha="center", va="center", fontsize=8, color="white", zorder=4)
+        if label == braking and phase != "none":
+            ax.text(y - VEHICLE_LENGTH / 2, x + VEHICLE_WIDTH, phase, ha="center", va="bottom", fontsize=9,
+                    color=BRAKING_COLOR, fontweight="bold", zorder=4)  # fmt: skip
+    hit = frame.get("collision")
+    if hit:
+        ax.plot([frame["y"] - VEHICLE_LENGTH / 2], [frame["x"]], marker="x", color="red", ms=22, mew=4, zorder=5)
+        other = frame.get("collision_with", "")
+        ax.text(0.99, 0.93, f"COLLISION: {hit.replace('_', ' ')}" + (f" with {other}" if other else ""),
+                transform=ax.transAxes, ha="right", va="top", fontsize=16, color="red", fontweight="bold",
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "red"}, zorder=6)  # fmt: skip
     ax.set_xlim(y0, y0 + BEHIND + AHEAD)
     ax.set_ylim(-0.5, lanes * width + 0.5)
     ax.set_yticks([])  # lateral scale stretched (about 2.5x) so that three lanes stay readable
-    ax.set_xlabel("longitudinal position y (m from the study section's start)")
-    phase = frame.get("braking_phase", "none")
+    ax.set_xlabel("longitudinal position y (m from the study section's start)", fontsize=9)
+    ax.tick_params(labelsize=8)
+    ax.legend(handles=[Patch(color=c, label=t) for c, t in LEGEND], loc="upper center", bbox_to_anchor=(0.5, -0.3),
+              ncol=len(LEGEND), fontsize=8, frameon=False)  # fmt: skip
     ax.set_title(
         f"{trace.get('algo', '')} on {trace.get('scenario', '')}  t = {frame['t'] * trace.get('step_length', 0.1):.1f} s"
         f"  v = {3.6 * frame['v']:.0f} km/h  a = {frame['accel']:+.1f} m/s²"
         + ("  lane change" if frame.get("lc_active") else "")
         + ("" if phase == "none" else f"  braking event: {phase}"),
-        fontsize=8,
+        fontsize=11,
     )
 
 
@@ -75,7 +95,7 @@ def frame_rgb(frame: dict, trace: dict, fig=None) -> np.ndarray:
     fig = fig or plt.figure(figsize=FIGSIZE, dpi=DPI)
     ax = fig.axes[0] if fig.axes else fig.add_subplot(1, 1, 1)
     draw_frame(ax, frame, trace)
-    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.3, top=0.86)
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.33, top=0.88)
     fig.canvas.draw()
     rgb = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
     if own:

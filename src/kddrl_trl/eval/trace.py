@@ -29,6 +29,14 @@ TRACE_KEYS = (
 )
 
 
+def _slot(value, r: int) -> str:
+    """The neighbour slot (``keys.NEIGHBOR_SLOTS``) a slot code of row ``r`` names; ``""`` for -1 or no key."""
+    if value is None:
+        return ""
+    code = int(value[r].reshape(-1)[0])
+    return K.NEIGHBOR_SLOTS[code] if 0 <= code < len(K.NEIGHBOR_SLOTS) else ""
+
+
 class TraceRecorder:
     """Records the first ``episodes`` episodes to finish on any row, going on (up to ``4 * episodes``) until it
     holds at least one episode with a lane change and one without, when the env gives both. ``collisions_only``:
@@ -83,6 +91,8 @@ class TraceRecorder:
             "lc_started": bool(td.get(K.LC_STARTED)[r].reshape(-1)[0]),
             "lc_active": active,
             "braking_phase": K.BRAKING_PHASES[int(td.get(K.BRAKING_PHASE)[r].reshape(-1)[0])],
+            # the braking event's car: its leader slot in this observation ("" where it is none of them)
+            "braking_slot": _slot(td.get(K.BRAKING_SLOT, None), r),
             "neighbours": neighbours,
         }
 
@@ -102,6 +112,9 @@ class TraceRecorder:
                 outcome = int(nxt.get(K.OUTCOME)[r].reshape(-1)[0])
                 trace["outcome"] = K.OUTCOMES[outcome]
                 trace["collision_kind"] = K.COLLISION_KINDS[int(nxt.get(K.COLLISION_KIND)[r].reshape(-1)[0])]
+                if outcome == K.COLLIDED:  # the last frame says so, with the other vehicle's slot
+                    trace["frames"][-1]["collision"] = trace["collision_kind"]
+                    trace["frames"][-1]["collision_with"] = _slot(nxt.get(K.COLLISION_SLOT, None), r)
                 trace["lane_changes"] = sum(f["lc_started"] for f in trace["frames"])
                 if self.collisions_only and outcome != K.COLLIDED:
                     continue

@@ -207,6 +207,7 @@ OPTION_KEYS = (
     "algo.shield",
     "algo.shield_ttc",
     "algo.shield_penalty",
+    "algo.shield_buffer",
     "algo.state_extras",
     "algo.transforms.weights",
     "algo.transforms.event_oracle",

@@ -32,13 +32,15 @@ def plot_training_curves(history: list[dict], path: str | Path, window: int = 50
     for ax, (key, label) in zip(axes.flat, panels):
         y = np.asarray([float(h[key]) for h in history])
         if key != "collision":
-            ax.plot(ep, y, color="tab:blue", alpha=0.2, lw=0.8)
-        ax.plot(ep, pd.Series(y).rolling(window, min_periods=1).mean(), color="tab:red", lw=1.6)
+            ax.plot(ep, y, color="tab:blue", alpha=0.2, lw=0.8, label="each episode")
+        mean = f"trailing mean over {window} episodes" + (" (the share that collided)" if key == "collision" else "")
+        ax.plot(ep, pd.Series(y).rolling(window, min_periods=1).mean(), color="tab:red", lw=1.6, label=mean)
         ax.set_title(label, fontsize=10)
+        ax.legend(fontsize=8, loc="best")
         ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel("training episode")
-    fig.suptitle(title or f"training curves (trailing mean over {window} episodes)")
+    fig.suptitle(f"{title or 'training curves'} (red: trailing mean over {window} episodes)")
     fig.tight_layout()
     path = Path(path)
     write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=110), binary=True)

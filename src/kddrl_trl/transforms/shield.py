@@ -29,6 +29,11 @@ TensorDicts are locked shared buffers) the executed action is written in place, 
 receive the flag (its frame may keep the agent's command). Each frame carries
 ``("next", "cf", "shield")`` (``keys.CF_SHIELD``): True when the shield lowered the command, which the episode
 tracker counts (``shield_interventions``, ``shield_rate``).
+
+``record="command"`` (``algo.shield_buffer=command``) leaves the agent's own command in the recorded frame: buffer L
+then stores ``(s, a_agent, r, s')``, the shield being part of the env the agent acts in. That is the transition the
+correction signal (``penalty``) speaks of: with the executed action in the buffer, the critic never sees the command
+the penalty was for, and cannot teach the actor to keep within the bound.
 """
 
 from __future__ import annotations
@@ -46,6 +51,8 @@ from ..physics.rss import RSSParams, longitudinal_bound, watched_leaders
 
 #: ``algo.shield`` kinds this transform implements (``none`` adds no transform)
 SHIELD_KINDS = ("idm", "ttc", "rss")
+#: what the recorded frame holds as the car-following action (``algo.shield_buffer``)
+SHIELD_RECORDS = ("executed", "command")
 _FLAG = "_shield_intervened"  # carries the intervention flag from the inverse path to ``_step``
 _CORRECTION = "_shield_correction"  # and the correction a_agent - a_exec (m/s², >= 0), for ``penalty``
 
@@ -111,6 +118,8 @@ class SafetyShield(Transform):
         min_gap: m, the gap the ``ttc`` shield keeps. Defaults to 2 m.
         idm: IDM parameters of the ``idm`` shield (default Table A.1; ``v0`` is ignored: always ``inf``).
         rss: the worst case of the ``rss`` shield (default :class:`~kddrl_trl.physics.rss.RSSParams`).
+        record: what the recorded frame holds as ``keys.CF_ACTION``: ``"executed"`` (default, the transition that
+            happened) or ``"command"`` (the agent's own; module docstring).
         penalty: per m/s², the correction signal (``algo.shield_penalty``; not in the paper): the car-following
             reward of each frame (``keys.CF_REWARD``, Eq. 32) loses ``penalty * (a_agent - a_exec)``, so the learner
             is told how far the shield moved its command, not only overridden. 0 (default) leaves the reward as
@@ -128,6 +137,7 @@ class SafetyShield(Transform):
         idm: IDMParams | None = None,
         rss: RSSParams | None = None,
         penalty: float = 0.0,
+        record: str = "executed",
     ):
         if kind not in SHIELD_KINDS:
             raise ValueError(f"SafetyShield: kind must be one of {', '.join(SHIELD_KINDS)}, got {kind!r}")
@@ -140,6 +150,9 @@ class SafetyShield(Transform):
         if not penalty >= 0:
             raise ValueError(f"SafetyShield: penalty must be >= 0 (reward per m/s² of correction), got {penalty!r}")
         self.penalty = float(penalty)
+        if record not in SHIELD_RECORDS:
+            raise ValueError(f"SafetyShield: record must be one of {', '.join(SHIELD_RECORDS)}, got {record!r}")
+        self.record = record
 
     def shielded(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """(executed action, intervened) ``[*B, 1]`` for the command and raw keys at the root of ``tensordict``."""
@@ -185,7 +198,10 @@ class SafetyShield(Transform):
         return next_tensordict
 
     def _post_step_mdp_hooks(self, tensordict: TensorDictBase, tensordict_: TensorDictBase):
-        # the frame that is recorded holds the executed action (recomputed from its root: stateless)
+        # the frame that is recorded holds the executed action (recomputed from its root: stateless), or keeps the
+        # agent's command
+        if self.record == "command":
+            return tensordict, tensordict_
         with torch.no_grad():
             executed = self.shielded(tensordict)[0]
         if tensordict.get(K.CF_ACTION[:-1]).is_locked:  # a ParallelEnv worker's shared buffers: written in place
