@@ -57,6 +57,16 @@ def test_archived_records_leave_the_tree_and_come_back(repo):
     assert records.restore(repo, ["other"]) == 0
 
 
+def test_a_shallow_clone_says_in_one_line_why_it_cannot_restore_and_what_to_run(repo, tmp_path):
+    records.archive(repo, ["studies/x/runs"])
+    _git(repo, "commit", "-qm", "out of the tree")
+    shallow = tmp_path / "shallow"
+    subprocess.run(["git", "clone", "-q", "--depth", "1", f"file://{repo}", str(shallow)], check=True)
+    with pytest.raises(SystemExit, match=r"it is shallow \(git clone --depth\).*git fetch --unshallow") as err:
+        records.restore(shallow, [])
+    assert "\n" not in str(err.value)
+
+
 def test_a_superseded_run_moves_with_its_archived_records_and_a_rerun_takes_its_place(repo):
     records.archive(repo, ["studies/x/runs"])
     _git(repo, "commit", "-qm", "out of the tree")

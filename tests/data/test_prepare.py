@@ -6,7 +6,6 @@ import json
 import subprocess
 import sys
 
-import pytest
 from omegaconf import OmegaConf
 
 from kddrl_trl.envs import make_config
@@ -68,11 +67,3 @@ def test_data_too_short_to_calibrate_gives_datasets_and_a_warning_unless_strict(
     assert strict.returncode != 0 and "no car-following segment of at least 5.0 s" in strict.stderr
     assert "dataset (cached)" in strict.stdout  # the datasets came first, as before
     assert "calibrate must be" in run(["calibrate=maybe"], tmp_path).stderr  # checked before recording
-
-
-@pytest.mark.parametrize("module", ["kddrl_trl.data.prepare", "kddrl_trl.data.record"])
-def test_the_former_entry_point_paths_still_run(module):
-    """``kddrl_trl.prepare`` and ``kddrl_trl.record`` sit with the other entry points; their former paths under
-    ``data/`` still start them."""
-    done = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0 and "powered by Hydra" in done.stdout, done.stderr[-2000:]

@@ -39,8 +39,6 @@ LAYERS: tuple[tuple[str, ...], ...] = (
         "report",
         "prepare",
         "record",
-        "data.prepare",
-        "data.record",
         "devtools",
     ),
     (PACKAGE,),  # the package's ``__init__``: its public names
@@ -97,7 +95,7 @@ def graph() -> dict[str, set[str]]:
 
 
 def part(module: str) -> str:
-    """A module's part: its subpackage or top-level module, or the entry point it is (``data.prepare``)."""
+    """A module's part: its subpackage or top-level module, or the entry point it is (``prepare``)."""
     inner = module.split(".", 1)[1] if "." in module else module
     entry = next((e for e in ENTRY_POINTS if inner == e or inner.startswith(e + ".")), None)
     return entry or inner.split(".")[0]

@@ -196,9 +196,15 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
         commit = entry["commit"]
         probe = subprocess.run(["git", "-C", str(root), "cat-file", "-e", f"{commit}^{{commit}}"], capture_output=True)
         if probe.returncode != 0:
+            shallow = _git(root, "rev-parse", "--is-shallow-repository").strip() == "true"
             raise SystemExit(
-                f"records: commit {commit} ({MANIFEST}) is not in this clone; a shallow clone lacks it: "
-                "git fetch --unshallow"
+                f"records: commit {commit} ({MANIFEST}) is not in this clone"
+                + (
+                    ": it is shallow (git clone --depth), and the records live in main's history; run "
+                    "git fetch --unshallow, then restore again"
+                    if shallow
+                    else "; fetch main's full history (git fetch origin main), then restore again"
+                )
             )
         moves = _moves(entries[i + 1 :])
         paths = entry["paths"]

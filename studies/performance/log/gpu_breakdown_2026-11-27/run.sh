@@ -3,7 +3,7 @@
 # the update without CudaGraphModule's synchronize, the host's time alone, kernels per update from the profiler;
 # then the same with TorchInductor's combo kernels (horizontal fusion) at minibatch 256.
 # No TorchRL on the device machine: its wheels (cp312) travel in the carry (.gpu/c2/whl); SUMO is not needed.
-. benchmarks/device_setup.sh  # the wheels installed, PYTHONPATH set (these lines were inline when it ran)
+. studies/performance/log/device_setup.sh  # the wheels installed, PYTHONPATH set (these lines were inline when it ran)
 nproc
 python3 -c "import torch, torchrl, tensordict; print(torch.__version__, torchrl.__version__, tensordict.__version__, \
 torch.cuda.get_device_name())" 2>&1 | tail -1 || exit 5

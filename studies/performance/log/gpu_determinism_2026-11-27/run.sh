@@ -2,7 +2,7 @@
 # Device check: do the learner's CUDA-graphed updates repeat bit for bit? (benchmarks/gpu_determinism.py)
 # Four processes at once on one GPU: two with float32 matmuls (the default), two with TF32 (matmul_precision=high);
 # then each pair compared. No TorchRL on the device machine: its wheels travel in the carry (.gpu/c2/whl).
-. benchmarks/device_setup.sh  # the wheels installed, PYTHONPATH set (these lines were inline when it ran)
+. studies/performance/log/device_setup.sh  # the wheels installed, PYTHONPATH set (these lines were inline when it ran)
 B=benchmarks/gpu_determinism.py
 for p in highest high; do
   for r in a b; do

@@ -2,7 +2,7 @@
 # Device check: what separates our CUDA-graphed TD3 update from TorchRL's own (benchmarks/gpu_update_gap.py), with
 # torch.compile's default mode at minibatches 128 and 256, then max-autotune-no-cudagraphs at 128.
 # No TorchRL on the device machine: its wheels (cp312) travel in the carry (.gpu/c2/whl); SUMO is not needed.
-. benchmarks/device_setup.sh  # the wheels installed, PYTHONPATH set (these lines were inline when it ran)
+. studies/performance/log/device_setup.sh  # the wheels installed, PYTHONPATH set (these lines were inline when it ran)
 nproc
 python3 -c "import torch, torchrl, tensordict; print(torch.__version__, torchrl.__version__, tensordict.__version__, \
 torch.cuda.get_device_name())" 2>&1 | tail -1 || exit 5

@@ -1,4 +1,5 @@
-# Sourced first by a device script (benchmarks/results/*/run.sh), from the repository root on the lent GPU machine:
+# Sourced first by a device script of the lab log (studies/performance/log/*/run.sh), from the repository root
+# on the lent GPU machine:
 # its image has torch but no TorchRL, so TorchRL, tensordict and their pure-Python needs are installed from the
 # cp312 wheels carried in .gpu/c2/whl (run's carry), and put on PYTHONPATH with src/. No SUMO: the scripts that
 # source this need none.
