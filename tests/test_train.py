@@ -100,6 +100,21 @@ def test_kddrl_trains_end_to_end_as_typed(tmp_path):
         t for t in make_transforms(algo, 0, compose_job().env.highway()).transforms if isinstance(t, SafetyShield)
     ]
     assert algo.shield == "rss" and [s.kind for s in shields] == ["rss"]
+    # a shipped policy (kddrl_trl.policies): the run's networks, no optimiser or buffer, read as a run folder
+    import torch
+
+    from kddrl_trl.devtools.ship_policy import ship
+    from kddrl_trl.policies import output_folder, shipped_policy
+
+    shipped = ship(run, "tiny", why="a test", dest=tmp_path / "policies")
+    assert sorted(p.name for p in shipped.iterdir()) == ["card.json", "config.yaml", "policy.pt"]
+    assert shipped.joinpath("policy.pt").stat().st_size < (run / "checkpoints" / "ep000003.pt").stat().st_size / 4
+    mine, theirs = make_trained_learner(shipped)[1].state_dict(), make_trained_learner(run)[1].state_dict()
+    assert mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
+    assert json.loads((shipped / "card.json").read_text())["checkpoint"] == "ep000003.pt"
+    assert output_folder("shipped:tiny") == "runs/shipped__tiny" and output_folder(run) == str(run)
+    with pytest.raises(FileNotFoundError, match="run=shipped:nope: no such shipped policy"):
+        shipped_policy("shipped:nope")
 
 
 @pytest.mark.slow

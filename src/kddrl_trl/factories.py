@@ -74,6 +74,7 @@ from .generative import shipped_traffic
 from .loggers import MultiLogger
 from .physics import IDMParams, MOBILParams
 from .physics.rss import RSSParams
+from .policies import POLICY_FILE
 from .process_settings import TorchSettings
 from .run_folder import (
     RunFolder,
@@ -91,6 +92,7 @@ from .training import (
     Learner,
     PASACLearner,
     load_latest_training_checkpoint,
+    load_policy,
     load_training_checkpoint,
     make_buffer,
 )
@@ -386,7 +388,7 @@ def make_trained_learner(
     the run's saved config) of a training run folder. The learner only acts: it is not compiled. Checkpoints are
     read onto the CPU and then copied to the learner's device, so a run trained on either loads on either.
     ``shield`` (not None) replaces the run's ``algo.shield`` (its penalty, a training signal, then 0)."""
-    saved = OmegaConf.load(RunFolder(trained_run(run)).config)
+    saved = OmegaConf.load(RunFolder(trained_run(run)).config)  # a shipped policy's folder reads the same way
     algo = algo_from_node(saved.algo)
     if shield is not None and isinstance(algo, LearningAlgo):
         kept = shield != "none"  # the penalty and the buffer's choice are training signals of a shield
@@ -401,6 +403,11 @@ def make_trained_learner(
             f"run={run} is algo={algo.name} ({algo.kind}): nothing was trained; evaluate it with "
             f"python -m kddrl_trl.train algo={algo.name} +scenario=..."
         )
+    shipped = trained_run(run) / POLICY_FILE
+    if shipped.is_file():  # a shipped policy: its networks only (kddrl_trl.policies)
+        learner = make_learner(algo, compile=False, device=device)
+        learner.load_state_dict(load_policy(shipped)["modules"])
+        return algo, learner, shipped, saved
     if checkpoint == "latest":  # the newest that loads (a damaged one falls back to the previous, with a warning)
         path, payload = load_latest_training_checkpoint(run)
     else:

@@ -188,7 +188,12 @@ def config_differences(saved: dict, current: dict, prefix: str = "") -> list[str
 
 
 def trained_run(run) -> Path:
-    """``run``, if it is a folder made by ``kddrl_trl.train`` (it holds ``config.yaml``)."""
+    """``run``, if it is a folder made by ``kddrl_trl.train`` (it holds ``config.yaml``), or the folder of a shipped
+    policy (``shipped:<name>``, :mod:`kddrl_trl.policies`)."""
+    from .policies import is_shipped, shipped_policy
+
+    if is_shipped(run):
+        return shipped_policy(run)
     if not RunFolder(str(run)).config.is_file():
         raise FileNotFoundError(f"run={run}: no config.yaml there (is it a directory made by kddrl_trl.train?)")
     return Path(str(run))

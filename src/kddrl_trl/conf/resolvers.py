@@ -23,6 +23,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from ..envs.config import scenario_label
+from ..policies import output_folder
 from ..run_folder import find_resume_dir, find_sweep_dir, output_parent
 
 
@@ -36,7 +37,7 @@ def register() -> None:
     """Register the resolvers (idempotent; cached so a config resolves them once)."""
     for name, fn in (
         ("kddrl_train_dir", train_dir),
-        ("kddrl_trained_run", lambda run: str(output_parent(run))),
+        ("kddrl_trained_run", lambda run: str(output_parent(output_folder(run)))),
         ("kddrl_sweep_dir", lambda resume, prefix, stamp: str(find_sweep_dir(resume, prefix, stamp))),
         ("kddrl_scenario", scenario_label),
     ):

@@ -19,7 +19,17 @@ PACKAGE = "kddrl_trl"
 #: the layers, lowest first: each part may import only its own layer and the ones below it
 LAYERS: tuple[tuple[str, ...], ...] = (
     # shared names and helpers, no project imports
-    ("keys", "atomic_files", "provenance", "compiling", "process_settings", "threads", "run_folder", "main_guard"),
+    (
+        "keys",
+        "atomic_files",
+        "provenance",
+        "compiling",
+        "process_settings",
+        "threads",
+        "run_folder",
+        "main_guard",
+        "policies",
+    ),
     ("physics", "gan_inputs"),  # IDM and MOBIL (Eqs. 1-2); what the generative models read
     ("envs",),  # the simulator env, its config and its episode metrics
     ("generative", "data"),  # the GANs and the offline data code

@@ -6,7 +6,9 @@ systems, :class:`JointD3QNLearner` and :class:`PASACLearner` of the unified ones
 from .checkpoint import (
     CheckpointError,
     load_latest_training_checkpoint,
+    load_policy,
     load_training_checkpoint,
+    save_policy,
     save_training_checkpoint,
 )
 from .curves import plot_training_curves
@@ -24,8 +26,10 @@ __all__ = [
     "PASACLearner",
     "Trainer",
     "load_latest_training_checkpoint",
+    "load_policy",
     "load_training_checkpoint",
     "make_buffer",
     "plot_training_curves",
+    "save_policy",
     "save_training_checkpoint",
 ]

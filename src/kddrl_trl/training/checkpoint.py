@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from ..atomic_files import CheckpointError, remove_killed_writes, torch_save_atomic, write_text_atomic
+from ..policies import POLICY_FORMAT
 from ..run_folder import LATEST, best_checkpoint, checkpoint_candidates, checkpoint_dir
 
 log = logging.getLogger(__name__)
@@ -80,3 +81,22 @@ def load_latest_training_checkpoint(run_dir: str | Path) -> tuple[Path, dict]:
             log.warning("resuming from %s instead: the %d newer checkpoint(s) did not load", path, len(errors))
         return path, payload
     raise CheckpointError(f"no checkpoint of {checkpoint_dir(run_dir)} loads:\n  " + "\n  ".join(errors))
+
+
+def save_policy(path: str | Path, modules: dict) -> Path:
+    """A shipped policy's ``policy.pt``: the learner's network parameters (``modules`` of its full state dict), with
+    the format tag :data:`~kddrl_trl.policies.POLICY_FORMAT`; written atomically."""
+    torch_save_atomic(path, {"format": POLICY_FORMAT, "modules": modules})
+    return Path(path)
+
+
+def load_policy(path: str | Path) -> dict:
+    """A ``policy.pt`` written by :func:`save_policy`; one that does not load, or of another format, raises
+    :class:`CheckpointError` naming it."""
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:
+        raise CheckpointError(f"{path}: cannot be loaded ({type(err).__name__}: {err})") from err
+    if not isinstance(payload, dict) or payload.get("format") != POLICY_FORMAT:
+        raise CheckpointError(f"{path}: not a kddrl_trl policy (format {POLICY_FORMAT!r})")
+    return payload
