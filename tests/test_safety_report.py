@@ -81,6 +81,7 @@ def test_the_goals_the_cost_and_the_sanity_check(tmp_path):
     text = report.markdown(report._clean(result))
     assert "| KDDRL safe | braking | 3 (100-102) | 0 / 60 [" in text
     json.dumps(report._clean(result))
+    assert report.fault_figure(report._clean(result), tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def test_a_run_of_another_commit_is_refused(tmp_path):

@@ -184,6 +184,36 @@ def sanity(runs: list[RunRecord]) -> list[dict]:
     return out
 
 
+def fault_figure(result: dict, path: Path) -> Path | None:
+    """Collisions per 10,000 test episodes by fault class, per system and scenario (stacked bars): the crash figure
+    of the study. None where no collision was classed."""
+    rows = result["faults"]
+    if not rows:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    episodes = {(r["algo"], r["scenario"]): sum(s["episodes"] for s in result["per_seed"][f"{r['algo']} {r['scenario']}"])
+                for r in rows}  # fmt: skip
+    labels = [f"{r['algo']}\n{r['scenario']}" for r in rows]
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(rows)), 4.0))
+    bottom = np.zeros(len(rows))
+    for fault, color in (("ego", "tab:red"), ("other", "tab:blue"), ("unknown", "tab:gray")):
+        per = np.array([1e4 * r[fault] / episodes[(r["algo"], r["scenario"])] for r in rows])
+        ax.bar(labels, per, bottom=bottom, color=color, label=f"fault: {fault}")
+        bottom += per
+    ax.set_ylabel("collisions per 10,000 test episodes")
+    ax.set_title("Who is at fault (RSS's proper response, envs/fault.py)", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.tick_params(axis="x", labelsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _pct(x, digits: int = 2) -> str:
     return "n/a" if x is None else f"{100 * x:.{digits}f} %"
 
@@ -226,7 +256,7 @@ def markdown(result: dict) -> str:
             f"- {arm}: {pooled['ego_fault']} ego-fault collisions in {pooled['episodes']} test episodes "
             f"(95 % upper bound {_pct(pooled['upper95'], 3)})"
         )
-    lines += ["", "Fault classes of every arm's collisions (and IDM+MOBIL's):", ""]
+    lines += ["", "Fault classes of every arm's collisions (and IDM+MOBIL's; `fig_faults.png`):", ""]
     lines += ["| algo | scenario | collisions | ego | other | unknown |", "|---|---|---|---|---|---|"]
     for row in result["faults"]:
         lines.append(
@@ -334,6 +364,7 @@ def main(argv=None) -> int:
     result = _clean(build(args.root, args.commit))
     write_json_atomic(out / "report.json", result)
     write_text_atomic(out / "report.md", markdown(result))
+    fault_figure(result, out / "fig_faults.png")
     print(markdown(result))
     return 0
 
