@@ -55,6 +55,8 @@ def study(tmp_path: Path) -> Path:
             run(root / "runs" / f"{sc}__idm_mobil__{seed}", "idm_mobil", sc, seed, 110.0 - seed % 2, ["other"])
             run(root / "runs_unshielded" / f"{sc}__kddrl__{seed}", "kddrl", sc, seed, 140.0, ["ego", "ego"])
     run(root / "sanity" / "paper" / "braking__d3qn_td3__0", "d3qn_td3", "braking", 0, 140.0, ["ego"] * 10)
+    for seed in (5, 6):  # the paper's method without the layer, from the verdict study (another commit)
+        run(tmp_path / "paper" / "runs_5-14" / f"braking__kddrl__{seed}", "kddrl", "braking", seed, 120.0, ["ego"] * 4)
     return root
 
 
@@ -74,6 +76,9 @@ def test_the_goals_the_cost_and_the_sanity_check(tmp_path):
     assert cost["collision_rate"]["mean"] == pytest.approx(-0.1)
     faults = {(f["algo"], f["scenario"]): f for f in result["faults"]}
     assert faults[("idm_mobil", "baseline")]["other"] == 3 and faults[("idm_mobil", "baseline")]["ego"] == 0
+    (paper,) = result["against_paper"]
+    assert paper["scenario"] == "braking" and paper["speed"]["mean"] == pytest.approx(131.0 - 120.0)
+    assert paper["collision_rate"]["mean"] == pytest.approx(-0.2)
     (sane,) = result["sanity"]
     assert sane["reward"] == "paper" and sane["test_collision_rate"] == pytest.approx(0.5)
     # crashes in episodes 1-60: the last 50-episode window with 3 of them (>= 5 %) ends at episode 107

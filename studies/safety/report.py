@@ -4,7 +4,8 @@ the predictions buy, and the learner's sanity check, from the landed records.
     python studies/safety/report.py [--out studies/safety]
 
 Reads ``studies/safety/runs`` (the arms and IDM+MOBIL), ``studies/safety/runs_unshielded`` (the learning runs' final
-policies without the layer) and ``studies/safety/sanity/<reward>`` (the sanity check), each where present, and writes
+policies without the layer), ``studies/safety/sanity/<reward>`` (the sanity check) and ``studies/paper/runs_5-14`` (the
+paper's method without the layer, its records restored), each where present, and writes
 ``report.md`` and ``report.json``. Only runs of the plan's pinned commit (the last commit that changed ``plan.md``)
 are read; another commit is refused, naming the run.
 """
@@ -277,6 +278,22 @@ def markdown(result: dict) -> str:
         )
     if not result["layer_cost"]:
         lines.append("| (no unshielded evaluation landed yet) | | | | | | |")
+    lines += [
+        "",
+        "## Against the paper's method without the layer (studies/paper, seeds 5-14 at b88a84a; Welch; exploratory)",
+        "",
+        "| arm | scenario | seeds | speed, arm - the paper's method (km/h) | collision rate, arm - the paper's method |",
+        "|---|---|---|---|---|",
+    ]
+    for row in result.get("against_paper", []):
+        lines.append(
+            f"| {row['arm']} | {row['scenario']} | {row['n']} | {_ci(row['speed'], digits=1)} | "
+            f"{_ci(row['collision_rate'], 100, 2, ' pts')} |"
+        )
+    if not result.get("against_paper"):
+        lines.append(
+            "| (the paper study's records not restored: python -m kddrl_trl.devtools.records restore paper) | | | | |"
+        )
     lines += ["", "## Do the predictions buy speed? KDDRL safe - D3QN+TD3 safe (Welch; exploratory)", ""]
     lines += ["| scenario | seeds | speed difference (km/h) | p |", "|---|---|---|---|"]
     for row in result["predictions"]:
@@ -330,6 +347,23 @@ def build(root: Path = HERE, commit: str | None = None) -> dict:
                     **{k: sum(s[f"{k}_fault"] for s in seeds) for k in ("ego", "other", "unknown")},
                 }
             )
+    paper = cells(read(root.parent / "paper" / "runs_5-14", None))  # the paper's method, another commit (b88a84a)
+    result["against_paper"] = []
+    for algo, arm in ARMS.items():
+        for sc in SCENARIOS:
+            mine, theirs = study.get((algo, sc)), paper.get((algo, sc))
+            if mine and theirs and min(len(mine), len(theirs)) >= 2:
+                result["against_paper"].append(
+                    {
+                        "arm": arm,
+                        "scenario": sc,
+                        "n": f"{len(mine)} / {len(theirs)}",
+                        "speed": difference_ci(_values(mine, "mean_speed_kmh"), _values(theirs, "mean_speed_kmh")),
+                        "collision_rate": difference_ci(
+                            _values(mine, "collision_rate"), _values(theirs, "collision_rate")
+                        ),
+                    }
+                )
     for sc in SCENARIOS:
         a, b = study.get(("kddrl", sc)), study.get(("d3qn_td3", sc))
         if a and b and min(len(a), len(b)) >= 2:
