@@ -29,6 +29,9 @@ and ``"worker"`` force either. Its frames are the same either way.
 
 from __future__ import annotations
 
+import logging
+import os
+
 import gymnasium as gym
 import numpy as np
 import torch
@@ -184,15 +187,26 @@ class SumoHighwayGymEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         if self.sim is None:
-            self.sim = open_road_sim(
-                self.config, self._seed if seed is None else seed, self.process, gui=self.render_mode == "human"
-            )
+            self.sim = open_road_sim(self.config, self._seed if seed is None else seed, self.process, gui=self._gui())
             seed = None  # just started with it
         self._frame = self.sim.reset(seed)
         finished, self.tracker = self.tracker.finished, EpisodeTracker(self.config)  # a running episode is dropped
         self.tracker.finished = finished
         self._draw(first=True)
         return self._obs(), {"ego": self._frame[EGO], "labels": self._labels()}
+
+    def _gui(self) -> bool:
+        """Whether this env's road runs in sumo-gui: ``render_mode="human"`` with a display. Without one (a headless
+        machine, or Gymnasium's ``check_env`` making one env per render mode) it runs headless, and says so in the log."""
+        if self.render_mode != "human":
+            return False
+        if os.environ.get("DISPLAY"):
+            return True
+        logging.getLogger(__name__).warning(
+            "render_mode='human' needs a display for sumo-gui and DISPLAY is not set: this env runs without a window "
+            "(xvfb-run -a python ... gives it a virtual one)"
+        )
+        return False
 
     def _batch(self, keys) -> TensorDict:
         return TensorDict({key: torch.from_numpy(np.asarray(self._frame[key]))[None] for key in keys}, batch_size=[1])

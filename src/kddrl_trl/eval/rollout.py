@@ -9,6 +9,7 @@ from torchrl.envs.transforms import Compose, TransformedEnv
 from tqdm.auto import tqdm
 
 from ..envs.episode_metrics import IN_KEYS, OPTIONAL_KEYS, EpisodeTracker
+from ..envs.specs import HighwayEnvBase
 
 
 def unwrap_env(env):
@@ -65,7 +66,10 @@ def evaluate_policy(
     env.set_seed(int(seed))
     restart_noise(env)
     td = env.reset()
-    tracker = EpisodeTracker(getattr(unwrap_env(env), "config", None))
+    base = env
+    while isinstance(base, TransformedEnv):  # not into a batched env: it forwards unknown names to its workers
+        base = base.base_env
+    tracker = EpisodeTracker(base.config if isinstance(base, HighwayEnvBase) else None)
     wanted: dict[int, dict] = {}
     pending = []  # frames since the last done: the tracker runs once per frame that ends an episode
     bar = tqdm(total=episodes, desc="episodes", disable=not progress, unit="ep")
