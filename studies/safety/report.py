@@ -176,6 +176,7 @@ def sanity(runs: list[RunRecord]) -> list[dict]:
             {
                 "reward": reward,
                 "seed": r.seed,
+                "commit": r.commit,
                 "test_collision_rate": float(r.episodes["collision"].mean()),
                 "test_mean_speed_kmh": float(r.episodes["mean_speed_kmh"].mean()),
                 "first_safe_episode": first_safe_episode(r),
@@ -369,7 +370,7 @@ def build(root: Path = HERE, commit: str | None = None) -> dict:
         if a and b and min(len(a), len(b)) >= 2:
             d = difference_ci(_values(a, "mean_speed_kmh"), _values(b, "mean_speed_kmh"))
             result["predictions"].append({"scenario": sc, "n": f"{len(a)} / {len(b)}", "difference": d})
-    result["sanity"] = sanity(read(root / "sanity", commit))
+    result["sanity"] = sanity(read(root / "sanity", None))  # before the study, at the plan's first commit
     result["seeds"] = {f"{algo} {sc}": [s["seed"] for s in v] for (algo, sc), v in sorted(study.items())}
     result["per_seed"] = {f"{algo} {sc}": v for (algo, sc), v in sorted(study.items())}
     return result
