@@ -188,3 +188,14 @@ def study_records(dest, *prefixes: str):
 
     extract(repo_root(Path(__file__).parent), Path(dest), prefixes)
     return Path(dest) / "studies"
+
+
+def rollout(env, policy, steps: int):
+    """``steps`` frames [B, steps] with auto-reset of done rows (what evaluate_policy and collectors do)."""
+    import torch
+
+    td, out = env.reset(), []
+    for _ in range(steps):
+        full, td = env.step_and_maybe_reset(policy(td))
+        out.append(full)
+    return torch.stack(out, 1)

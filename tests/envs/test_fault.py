@@ -4,7 +4,7 @@ each class, the breaches of the proper response on hand-made states, and the hel
 from __future__ import annotations
 
 import torch
-from testkit import command
+from testkit import command, rollout
 
 from kddrl_trl import keys as K
 from kddrl_trl.envs import FakeHighwayEnv
@@ -12,14 +12,6 @@ from kddrl_trl.envs.episode_metrics import FAULT_KEYS
 from kddrl_trl.envs.fault import breaches, fault
 from kddrl_trl.eval import EpisodeTracker
 from kddrl_trl.physics.rss import RSSParams
-
-
-def rollout(env, policy, steps: int):
-    td, out = env.reset(), []
-    for _ in range(steps):
-        full, td = env.step_and_maybe_reset(policy(td))
-        out.append(full)
-    return torch.stack(out, 1)
 
 
 def crashes(episodes) -> set[tuple[str, str, str]]:

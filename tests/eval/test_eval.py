@@ -6,23 +6,13 @@ from __future__ import annotations
 import math
 
 import pytest
-import torch
-from testkit import command
+from testkit import command, rollout
 from torchrl.envs import StepCounter, TransformedEnv
 
 from kddrl_trl import keys as K
 from kddrl_trl.baselines import IDMMobilPolicy
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv
 from kddrl_trl.eval import EpisodeTracker, evaluate_policy, summarize
-
-
-def rollout(env, policy, steps: int):
-    """``steps`` frames [B, steps] with auto-reset of done rows (what evaluate_policy and collectors do)."""
-    td, out = env.reset(), []
-    for _ in range(steps):
-        full, td = env.step_and_maybe_reset(policy(td))
-        out.append(full)
-    return torch.stack(out, 1)
 
 
 def implied_episodes(frames) -> list[dict]:

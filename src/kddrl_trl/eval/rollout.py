@@ -13,8 +13,9 @@ from ..envs.specs import HighwayEnvBase
 
 
 def unwrap_env(env):
-    """The innermost env of ``env`` (through ``TransformedEnv`` s), e.g. the ``SumoHighwayEnv``."""
-    while hasattr(env, "base_env"):
+    """The innermost env of ``env`` (through ``TransformedEnv`` s), e.g. the ``SumoHighwayEnv``; a batched env
+    (``ParallelEnv``) is returned as it is: it forwards unknown names to its workers, so it is not asked for any."""
+    while isinstance(env, TransformedEnv):
         env = env.base_env
     return env
 
@@ -66,9 +67,7 @@ def evaluate_policy(
     env.set_seed(int(seed))
     restart_noise(env)
     td = env.reset()
-    base = env
-    while isinstance(base, TransformedEnv):  # not into a batched env: it forwards unknown names to its workers
-        base = base.base_env
+    base = unwrap_env(env)
     tracker = EpisodeTracker(base.config if isinstance(base, HighwayEnvBase) else None)
     wanted: dict[int, dict] = {}
     pending = []  # frames since the last done: the tracker runs once per frame that ends an episode
