@@ -38,6 +38,9 @@ class MultiRatePolicy(TensorDictModuleBase):
         cf_policy: reads ``lc_action_key``, writes ``cf_action_key`` (e.g. TD3's actor + Gaussian noise).
         shared: module run once before both (its outputs are visible to both policies only).
         extra_out_keys: further keys of the policies to write back (e.g. Q values for logging).
+        every_row: the lane-change policy runs on every row and its action is kept on the decision rows (for
+            policies whose batch dimensions carry structure that a sub-batch of rows would break: N seeds' networks,
+            :mod:`kddrl_trl.modules.seed_batch`).
     """
 
     def __init__(
@@ -51,8 +54,10 @@ class MultiRatePolicy(TensorDictModuleBase):
         lc_action_key: NestedKey = K.LC_ACTION,
         cf_action_key: NestedKey = K.CF_ACTION,
         extra_out_keys: tuple = (),
+        every_row: bool = False,
     ):
         super().__init__()
+        self.every_row = bool(every_row)
         self.lc_policy, self.cf_policy, self.shared = lc_policy, cf_policy, shared
         self.decide_key, self.held_key = decide_key, held_key
         self.lc_action_key, self.cf_action_key = lc_action_key, cf_action_key
@@ -74,6 +79,9 @@ class MultiRatePolicy(TensorDictModuleBase):
         held = work.get(self.held_key)
         if bool(decide.all()):
             action = self.lc_policy(work.clone(False)).get(self.lc_action_key).to(held.dtype)
+        elif self.every_row and bool(decide.any()):
+            action = self.lc_policy(work.clone(False)).get(self.lc_action_key).to(held.dtype)
+            action = torch.where(decide.reshape(*batch, *([1] * (held.dim() - len(batch)))), action, held)
         elif bool(decide.any()):  # only the lane-change policy's inputs, by integer index: less to index and copy
             rows = decide.nonzero(as_tuple=True)
             sub = self.lc_policy(work.select(*self.lc_in_keys, strict=False)[rows])

@@ -30,6 +30,7 @@ from ..modules import (
     make_shared_embedding,
     make_target_embedding,
 )
+from ..modules.seed_batch import SeedRows, stack_seeds
 from ..objectives import (
     PolyakUpdate,
     make_d3qn,
@@ -71,6 +72,8 @@ class HierarchicalLearner(Learner):
             ``benchmarks/results/update_speed.json`` (``python -m benchmarks.update_speed``).
         device: where the networks, the sampled batches and the updates live (None: the CPU).
         cudagraphs: wrap the update functions in ``CudaGraphModule`` (CUDA only; refused on the CPU).
+        seeds: N independent learners stacked on a leading seed dimension (:mod:`kddrl_trl.modules.seed_batch`):
+            every sample is ``[N, B]``, every loss ``[N]``; None: one learner.
 
     Updates (one call = one gradient step), three update functions (:meth:`update_functions`):
 
@@ -103,6 +106,7 @@ class HierarchicalLearner(Learner):
         device: torch.device | str | None = None,
         cudagraphs: bool = False,
         state_extras=(),
+        seeds: int | None = None,
     ):
         super().__init__()
         if cf_agent not in CF_AGENTS:
@@ -131,6 +135,9 @@ class HierarchicalLearner(Learner):
         # lc actor's, already registered)
         self.__dict__["next_lc_policy"] = TensorDictSequential(self.lc_state, self.lc_actor)
         self.register_buffer("counters", torch.zeros(3, dtype=torch.long))  # lc updates, cf updates, actor updates
+        if seeds is not None:  # N learners in one (modules/seed_batch.py): each loss reduced per seed by the base
+            stack_seeds(self, seeds, scalars=["lc_explore.eps"])  # each seed's ε, annealed by its own decisions
+            self.lc_loss.reduction = self.cf_loss.reduction = "none"
         dev = self._place(device)  # then the optimisers and target updates, on the moved tensors
         self.opt_lc = adam(self.lc_loss.parameters(), self.lr_lc, dev)
         self.opt_critic = adam(self.td3.critic_params().flatten_keys().values(), self.lr_critic, dev)
@@ -157,7 +164,13 @@ class HierarchicalLearner(Learner):
         ``set_exploration_type(ExplorationType.DETERMINISTIC)``."""
         lc = [self.lc_state, self.lc_actor] + ([self.lc_explore] if explore else [])
         cf = [self.cf_state, self.cf_actor] + ([self.cf_explore] if explore else [])
-        return MultiRatePolicy(TensorDictSequential(*lc), TensorDictSequential(*cf), shared=self.embedding)
+        policy = MultiRatePolicy(
+            TensorDictSequential(*lc),
+            TensorDictSequential(*cf),
+            shared=self.embedding,
+            every_row=self.seeds is not None,
+        )
+        return policy if self.seeds is None else SeedRows(policy, self.seeds)
 
     def buffer_keys(self) -> list:
         """Keys a replay-buffer entry must keep for the updates (root and under ``"next"``)."""
@@ -165,15 +178,24 @@ class HierarchicalLearner(Learner):
         mobil = [K.MOBIL_INCENTIVE, K.MOBIL_SAFE] if self.mobil_criteria else []
         return transition_keys([*HIERARCHICAL_STATE_KEYS, *emb, *mobil], [K.LC_ACTION, K.CF_ACTION])
 
-    def explore_step(self, decisions: int, frames: int) -> None:
-        """Advances ε (per decision) and the Gaussian σ schedule (per frame)."""
-        if decisions:
+    def explore_step(self, decisions, frames: int) -> None:
+        """Advances ε (per decision) and the Gaussian σ schedule (per frame). A batch of seeds: ``decisions`` per
+        seed, each seed's ε stepped as TorchRL's ``EGreedyModule.step`` steps it, one decision at a time."""
+        if self.seeds is not None:
+            e = self.lc_explore
+            delta = (e.eps_init - e.eps_end) / e.annealing_num_steps
+            for i, n in enumerate(decisions):
+                for _ in range(int(n)):
+                    e.eps.data[i].copy_(torch.maximum(e.eps_end, e.eps[i] - delta))
+        elif decisions:
             self.lc_explore.step(decisions)
         if frames:
             self.cf_explore.step(frames)
 
     def exploration(self) -> dict[str, float]:
-        return {"epsilon": float(self.lc_explore.eps)}
+        """ε (a batch of seeds: seed by seed, a list)."""
+        eps = self.lc_explore.eps
+        return {"epsilon": eps.reshape(-1).tolist() if self.seeds is not None else float(eps)}
 
     # ---------------------------------------------------------------------------------- updates
     def loss(self, name: str, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -213,7 +235,7 @@ class HierarchicalLearner(Learner):
     def _step_cf_value(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """TD3 critic step (Eq. 6-7): the critics and the embedding (its own optimiser, ``modules/sharing.py``)."""
         value_loss, priority = self._descend("cf_value", batch, self.opt_critic, self.opt_embed)
-        return value_loss.reshape(1), priority
+        return value_loss.reshape(1, *value_loss.shape), priority
 
     def _step_cf_full(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """The critic step, then the delayed actor step (Eq. 8, on detached s_e, after the critic moved) and the
@@ -221,13 +243,13 @@ class HierarchicalLearner(Learner):
         value_loss, priority = self._step_cf_value(batch)
         actor_loss, _ = self._descend("cf_actor", batch, self.opt_actor)
         self._soft_cf()
-        return torch.cat([value_loss, actor_loss.reshape(1)]), priority
+        return torch.cat([value_loss, actor_loss.reshape(1, *actor_loss.shape)]), priority
 
     def _step_lc(self, batch: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """D3QN step (Eq. 4, the embedding trained too), then the soft target updates (Eq. 5 and the embedding)."""
         loss, priority = self._descend("lc", batch, self.opt_lc, self.opt_embed)
         self._soft_lc()
-        return loss.reshape(1), priority
+        return loss.reshape(1, *loss.shape), priority
 
     def update_cf(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         """One TD3 step on a buffer-L sample (Algorithm 1 lines 38-43)."""

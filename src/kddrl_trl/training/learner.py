@@ -51,6 +51,7 @@ from torch import nn
 from .. import keys as K
 from ..collectors import PolicySnapshot
 from ..compiling import GraphedUpdate, WarmCompiled, inductor_options, resolve_cudagraphs, resolved
+from ..modules.seed_batch import seed_means
 from .adam import FusedAdam, step_all
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
@@ -97,6 +98,9 @@ class Learner(nn.Module):
     learns_from_decisions: bool = False
     #: the attribute holding the TorchRL loss that learns from buffer L (frames)
     frame_loss_name: str = ""
+    #: None: one learner; N: N independent learners stacked on a leading seed dimension
+    #: (:mod:`kddrl_trl.modules.seed_batch`), each loss reduced per seed and its step descending their sum
+    seeds: int | None = None
 
     @property
     def frame_gamma(self) -> float:
@@ -151,7 +155,7 @@ class Learner(nn.Module):
         ``update_tensordict_priority`` reads; a graph's outputs come back cloned)."""
         on_device = batch if batch.device == self.device else batch.to(self.device, non_blocking=True)
         losses, priority = self._update_fns[name](on_device)
-        batch.set(K.PRIORITY, priority)
+        batch.set(K.PRIORITY, priority.reshape(batch.shape))
         return losses
 
     def policy(self, explore: bool = True) -> TensorDictModuleBase:
@@ -212,8 +216,12 @@ class Learner(nn.Module):
         parameter it does not reach). ``torch.autograd.grad`` computes the same gradients as ``backward``; what
         ``compile`` compiles, forward and backward in one graph (:meth:`_compile`)."""
         losses, priority = self.loss(name, batch)
+        objective = self._objective(name, losses)
+        if self.seeds is not None:  # each seed's own mean; the sum's gradient for seed n is seed n's loss's
+            losses = seed_means(losses, batch)
+            objective = seed_means(objective, batch).sum()
         params = self._trained[name]
-        grads = torch.autograd.grad(self._objective(name, losses), params, allow_unused=True)
+        grads = torch.autograd.grad(objective, params, allow_unused=True)
         return losses.detach(), priority, tuple(map(_param_layout, grads, params))
 
     def _descend(self, name: str, batch: TensorDictBase, *optimizers: torch.optim.Optimizer | None):

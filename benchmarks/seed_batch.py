@@ -1,0 +1,121 @@
+"""Per-seed cost of the learner's update when N seeds train as one batch (``seeds=N``,
+:mod:`kddrl_trl.modules.seed_batch`), against one seed's learner alone and against the GEMM floor, measured in one
+run: for each N, the TD3 and D3QN updates of the default KDDRL learner on N independent minibatches at once, eager
+and compiled, the arms taking turns ``repeats`` times (medians over the turns).
+
+    python -m benchmarks.seed_batch [--seeds 1 2 4 8 16] [--updates 200] [--repeats 3] [--threads 2]
+
+Prints a table and writes ``benchmarks/results/seed_batch.json``. ``per_seed_over_single``: seconds per update per
+seed over the single learner's (``seeds`` unset) in the same arm; ``per_seed_over_floor``: over one seed's update
+FLOPs at the machine's GEMM rate (:mod:`benchmarks.update_floor`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+from pathlib import Path
+
+import torch
+
+from benchmarks.env_throughput import machine_info, write_json
+from benchmarks.kddrl_parts import RESULTS, buffer_keys, learner_kwargs, sample_batches, time_updates
+from benchmarks.update_floor import gemm_rate, update_flops
+from kddrl_trl.process_settings import apply_flush_denormal
+from kddrl_trl.training import HierarchicalLearner
+
+
+def arm_learner(n: int | None, compiled: bool) -> HierarchicalLearner:
+    """The default KDDRL learner, alone (``n`` None) or as ``n`` seeds, eager or compiled."""
+    kw = learner_kwargs(compiled)[0]
+    return HierarchicalLearner(**kw) if n is None else HierarchicalLearner(**kw, seeds=n)
+
+
+def stacked(buffer, n: int | None, count: int) -> list:
+    """``count`` minibatches: single ones (``n`` None) or ``n`` independent samples stacked on a seed dimension."""
+    if n is None:
+        return [buffer.sample() for _ in range(count)]
+    return [torch.stack([buffer.sample() for _ in range(n)]) for _ in range(count)]
+
+
+def measure(seeds: list[int], updates: int, repeats: int, seed: int, compiled_arms: bool = True) -> dict:
+    """Seconds per TD3 / D3QN update (whole batch) of each arm: ``single`` and ``seeds_<N>``, eager and (with
+    ``compiled_arms``) compiled."""
+    torch.manual_seed(seed)
+    rb_cf, rb_lc = sample_batches(4000, seed, buffer_keys())
+    lc_period = learner_kwargs(False)[1]
+    arms = {}
+    for compiled in (False, True) if compiled_arms else (False,):
+        for n in (None, *seeds):
+            name = f"{'compiled' if compiled else 'eager'}/{'single' if n is None else f'seeds_{n}'}"
+            learner = arm_learner(n, compiled)
+            cf = stacked(rb_cf, n, updates)
+            lc = stacked(rb_lc, n, max(updates // 4, 10))
+            arms[name] = (n or 1, learner.update_cf, learner.update_lc, cf, lc)
+    runs = {name: [] for name in arms}
+    for _ in range(repeats):
+        for name, (_, update_cf, update_lc, cf, lc) in arms.items():
+            runs[name].append(time_updates(update_cf, update_lc, cf, lc, lc_period))
+    rows = {}
+    for name, (n, *_rest) in arms.items():
+        td3 = statistics.median(r[0] for r in runs[name])
+        d3qn = statistics.median(r[1] for r in runs[name])
+        rows[name] = {"seeds": n, "td3_update_s": td3, "d3qn_update_s": d3qn, "td3_per_seed_s": td3 / n,
+                      "d3qn_per_seed_s": d3qn / n}  # fmt: skip
+    return rows
+
+
+def ratios(rows: dict, floor: dict) -> None:
+    """Adds to each row its per-seed time over the same arm's single learner and over the floor (in place)."""
+    for name, row in rows.items():
+        single = rows[name.split("/")[0] + "/single"]
+        for agent in ("td3", "d3qn"):
+            row[f"{agent}_per_seed_over_single"] = row[f"{agent}_per_seed_s"] / single[f"{agent}_per_seed_s"]
+            row[f"{agent}_per_seed_over_floor"] = row[f"{agent}_per_seed_s"] / floor[f"{agent}_floor_s"]
+
+
+def print_table(rows: dict, floor: dict) -> None:
+    print(
+        f"\n{'arm':<22}{'TD3 ms/seed':>12}{'÷ single':>10}{'÷ floor':>9}{'D3QN ms/seed':>14}{'÷ single':>10}"
+        f"   floor: TD3 {1e3 * floor['td3_floor_s']:.3f} ms, D3QN {1e3 * floor['d3qn_floor_s']:.3f} ms"
+    )
+    for name, r in rows.items():
+        print(
+            f"{name:<22}{1e3 * r['td3_per_seed_s']:>12.3f}{r['td3_per_seed_over_single']:>10.2f}"
+            f"{r['td3_per_seed_over_floor']:>9.2f}{1e3 * r['d3qn_per_seed_s']:>14.3f}{r['d3qn_per_seed_over_single']:>10.2f}"
+        )
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 4, 8, 16], help="batch sizes N to measure")
+    p.add_argument("--updates", type=int, default=200, help="TD3 updates timed per arm and repeat")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)), help="torch threads")
+    p.add_argument("--eager-only", action="store_true", help="skip the compiled arms")
+    p.add_argument("--note", default=None, help="free text stored in the JSON")
+    p.add_argument("--out", type=Path, default=RESULTS / "seed_batch.json")
+    args = p.parse_args(argv)
+    apply_flush_denormal(True)
+    torch.set_num_threads(args.threads)
+    # every arm's learner compiles the same gradient function at its own shapes (3 graphs each), all kept warm to
+    # take turns: past TorchDynamo's default of 8 graphs per code object the later arms would run eagerly
+    torch._dynamo.config.recompile_limit = 8 * (len(args.seeds) + 1)
+    rows = measure(args.seeds, args.updates, args.repeats, args.seed, compiled_arms=not args.eager_only)
+    flops = update_flops(args.seed, sample_batches(4000, args.seed, buffer_keys()))
+    rate = gemm_rate(args.threads)
+    floor = {**flops, "gemm_flop_per_s": rate, **{f"{a}_floor_s": flops[f"{a}_flops_per_update"] / rate
+                                                   for a in ("td3", "d3qn")}}  # fmt: skip
+    ratios(rows, floor)
+    print_table(rows, floor)
+    result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "floor": floor,
+              "arms": rows, **({"note": args.note} if args.note else {})}  # fmt: skip
+    write_json(args.out, result)
+    print(f"\nwritten {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,172 @@
+"""N learners in one (``seeds=N``, :mod:`kddrl_trl.modules.seed_batch`): each seed of the batch is the single
+learner it was loaded from, update for update, and no seed reads another's weights, data or gradients."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from testkit import SMALL, fake_samples
+
+from kddrl_trl.modules.seed_batch import SeedLinear, load_seeds, seed_slice, stack_seeds, stacked_names
+from kddrl_trl.training import HierarchicalLearner
+
+N = 3
+#: TD3's target-policy smoothing draws noise of the minibatch's shape; without it the batched and the single
+#: updates see the same arithmetic (the noise's own stream is per call, not per seed)
+NO_SMOOTHING = {**SMALL, "td3": {**SMALL["td3"], "policy_noise": 0.0}}
+
+
+@pytest.fixture(scope="module")
+def samples():
+    frames, macros = fake_samples(12, 6)
+    return [f.exclude("priority") for f in frames], [m.exclude("priority") for m in macros]
+
+
+def singles(cfg=NO_SMOOTHING, n=N):
+    out = []
+    for i in range(n):
+        torch.manual_seed(i)
+        out.append(HierarchicalLearner(**cfg))
+    return out
+
+
+def batched(learners, cfg=NO_SMOOTHING):
+    b = HierarchicalLearner(**cfg, seeds=len(learners))
+    load_seeds(b, learners)
+    return b
+
+
+def per_seed(samples_, step):
+    """Seed i's minibatch at ``step``: a different sample for every seed and step."""
+    frames, macros = samples_
+    return [frames[(step * N + i) % len(frames)] for i in range(N)], [
+        macros[(step + i) % len(macros)] for i in range(N)
+    ]
+
+
+def run_batched(b, samples_, steps=4, change=None):
+    out = []
+    for step in range(steps):
+        f, m = per_seed(samples_, step)
+        if change is not None:
+            f, m = change(f, m)
+        out.append((b.update_cf(torch.stack([x.clone() for x in f])), b.update_lc(torch.stack([x.clone() for x in m]))))
+    return out
+
+
+def test_each_seed_of_a_batch_is_its_single_learner_update_for_update(samples):
+    """4 TD3 and 4 D3QN updates (the actor and the soft targets twice), each seed on its own minibatches: every
+    loss and, after them, every tensor of seed i equals the single learner i's to float tolerance (the batched
+    matrix products round differently); the updates moved them."""
+    ones = singles()
+    b = batched(ones)
+    for i, one in enumerate(ones):
+        assert all(torch.equal(seed_slice(b, i)[k], v) for k, v in one.state_dict().items())
+    start = seed_slice(b, 0)
+    losses = run_batched(b, samples)
+    for step, (cf, lc) in enumerate(losses):
+        f, m = per_seed(samples, step)
+        for i, one in enumerate(ones):
+            o_cf, o_lc = one.update_cf(f[i].clone()), one.update_lc(m[i].clone())
+            for k in o_cf:
+                torch.testing.assert_close(cf[k][i], o_cf[k], rtol=1e-5, atol=1e-6)
+            torch.testing.assert_close(lc["loss_lc"][i], o_lc["loss_lc"], rtol=1e-5, atol=1e-6)
+    for i, one in enumerate(ones):
+        mine = seed_slice(b, i)
+        for k, v in one.state_dict().items():
+            torch.testing.assert_close(mine[k], v, rtol=1e-5, atol=1e-6, msg=k)
+    moved = [k for k in stacked_names(b) if not torch.equal(seed_slice(b, 0)[k], start[k])]
+    assert len(moved) > len(stacked_names(b)) // 2
+
+
+def test_no_seed_reads_another_seeds_weights_data_or_gradients(samples):
+    """Seed 1's minibatches replaced by others and its weights perturbed: seeds 0 and 2 end bit for bit where they
+    ended before; and the gradient of seed 0's loss is exactly zero in every other seed's slice."""
+    ref = batched(singles())
+    run_batched(ref, samples)
+
+    other = batched(singles())
+    with torch.no_grad():
+        for name in stacked_names(other):
+            t = dict(other.named_parameters(remove_duplicate=False)).get(name)
+            if t is not None:
+                from kddrl_trl.modules.seed_batch import seed_dim
+
+                t.select(seed_dim(name, t), 1).add_(0.1)
+    frames, macros = samples
+    swap = lambda f, m: ([f[0], frames[-1], f[2]], [m[0], macros[-1], m[2]])  # noqa: E731
+    run_batched(other, samples, change=swap)
+    for i in (0, 2):
+        a, c = seed_slice(ref, i), seed_slice(other, i)
+        for k in stacked_names(ref):
+            assert torch.equal(a[k], c[k]), k
+    assert not torch.equal(seed_slice(ref, 1)[stacked_names(ref)[0]], seed_slice(other, 1)[stacked_names(ref)[0]])
+
+    b = batched(singles())
+    f, _ = per_seed(samples, 0)
+    losses, _ = b.loss("cf_value", torch.stack(f))
+    from kddrl_trl.modules.seed_batch import seed_dim, seed_means
+
+    params = [p for p in b.parameters() if p.requires_grad]
+    grads = torch.autograd.grad(seed_means(losses, torch.stack(f))[0], params, allow_unused=True)
+    reached = 0
+    names = {id(p): n for n, p in b.named_parameters()}
+    for p, g in zip(params, grads):
+        if g is None:
+            continue
+        d = seed_dim(names[id(p)], p)
+        assert torch.count_nonzero(g.narrow(d, 1, N - 1)) == 0, names[id(p)]
+        reached += bool(torch.count_nonzero(g.select(d, 0)))
+    assert reached > 0
+
+
+def test_seed_linear_refuses_an_input_without_the_seed_dimension():
+    layer = stack_seeds(torch.nn.Sequential(torch.nn.Linear(4, 2)), 3)[0]
+    assert isinstance(layer, SeedLinear) and layer.weight.shape == (3, 2, 4)
+    assert layer(torch.randn(3, 5, 7, 4)).shape == (3, 5, 7, 2)
+    with pytest.raises(ValueError, match="seed dimension"):
+        layer(torch.randn(5, 4))
+
+
+def test_load_seeds_refuses_learners_that_differ_where_nothing_is_stacked():
+    ones = singles(n=2)
+    ones[1].counters[1] = 5  # the update counters are one for the batch (the seeds update together)
+    with pytest.raises(ValueError, match="counters"):
+        batched(ones)
+
+
+def test_a_batch_acts_on_n_times_k_rows_as_each_seed_on_its_own_k(samples):
+    """Greedy actions of a batch of 3 seeds on 3 x 2 env rows, seed-major, with decision and held rows mixed: seed
+    i's rows get single learner i's lane-change and car-following actions; the batch refuses rows that do not split
+    into its seeds."""
+    from tensordict.nn import set_interaction_type
+    from torchrl.envs import Compose, ExplorationType, TransformedEnv
+
+    from kddrl_trl import keys as K
+    from kddrl_trl.envs import FakeHighwayEnv
+    from kddrl_trl.transforms import DecisionClock, make_kddrl_transforms
+
+    ones = singles()
+    b = batched(ones)
+    env = TransformedEnv(FakeHighwayEnv(num_roads=6, seed=3), Compose(make_kddrl_transforms(), DecisionClock(5)))
+    td = env.reset()
+    td.set(K.LC_DECIDE, torch.tensor([True, False, False, True, True, False]).reshape(td.get(K.LC_DECIDE).shape))
+    with set_interaction_type(ExplorationType.DETERMINISTIC):
+        acted = b.policy(explore=False)(td.clone())
+        for i, one in enumerate(ones):
+            own = one.policy(explore=False)(td[2 * i : 2 * i + 2].clone())
+            assert torch.equal(acted.get(K.LC_ACTION)[2 * i : 2 * i + 2], own.get(K.LC_ACTION))
+            torch.testing.assert_close(acted.get(K.CF_ACTION)[2 * i : 2 * i + 2], own.get(K.CF_ACTION))
+        with pytest.raises(ValueError, match="N x K rows"):
+            b.policy(explore=False)(td[:5].clone())
+
+
+def test_each_seed_anneals_its_own_epsilon_by_its_own_decisions():
+    """ε of seed i after its decisions equals TorchRL's ``EGreedyModule.step`` on the single learner i."""
+    ones = singles()
+    b = batched(ones)
+    b.explore_step([3, 0, 7], 10)
+    for one, n in zip(ones, (3, 0, 7)):
+        one.explore_step(n, 10)
+    assert b.exploration()["epsilon"] == [float(one.lc_explore.eps) for one in ones]
+    assert len(set(b.exploration()["epsilon"])) == 3
