@@ -170,3 +170,34 @@ def test_each_seed_anneals_its_own_epsilon_by_its_own_decisions():
         one.explore_step(n, 10)
     assert b.exploration()["epsilon"] == [float(one.lc_explore.eps) for one in ones]
     assert len(set(b.exploration()["epsilon"])) == 3
+
+
+def test_a_seed_that_sits_steps_out_is_untouched_and_later_steps_as_its_own_count(samples):
+    """D3QN steps that some seeds sit out (a seed learns once per decision of its own): a seed's networks, targets
+    and optimiser states are bit for bit as before a step it sat out, and after 3 steps each seed equals its single
+    learner that took only the steps it took (its own Adam step count: SeedAdam)."""
+    ones = singles()
+    b = batched(ones)
+    masks = [[True, False, True], [True, True, False], [True, True, True]]
+    for step, mask in enumerate(masks):
+        f, m = per_seed(samples, step)
+        b.update_cf(torch.stack([x.clone() for x in f]))
+        before = seed_slice(b, mask.index(False)) if not all(mask) else None
+        moments = [t.select(d, mask.index(False)).clone() for t, d in b.opt_lc.seed_tensors()] if before else None
+        b.update_lc(torch.stack([x.clone() for x in m]), active=torch.tensor(mask))
+        if before is not None:  # the idle seed: the D3QN step moved none of its tensors (the embedding's included)
+            after = seed_slice(b, mask.index(False))
+            assert all(torch.equal(before[k], after[k]) for k in stacked_names(b))
+            now = [t.select(d, mask.index(False)) for t, d in b.opt_lc.seed_tensors()]
+            assert moments and all(torch.equal(x, y) for x, y in zip(moments, now))  # its Adam moments and step count
+        for i, one in enumerate(ones):
+            one.update_cf(f[i].clone())
+            if mask[i]:
+                one.update_lc(m[i].clone())
+    steps = b.opt_lc.state[b.opt_lc.param_groups[0]["params"][0]]["step"]
+    assert steps.tolist() == [3.0, 2.0, 2.0]
+    for i, one in enumerate(ones):
+        mine = seed_slice(b, i)
+        for k, v in one.state_dict().items():
+            if k != "counters":  # the batch's update counters are shared (the trainer counts each seed's own)
+                torch.testing.assert_close(mine[k], v, rtol=1e-5, atol=1e-6, msg=k)

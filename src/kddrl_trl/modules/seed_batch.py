@@ -161,6 +161,30 @@ def load_seeds(batched: nn.Module, singles: Sequence[nn.Module]) -> None:
             own[name].copy_(values[0])
 
 
+def seed_dims_of(module: nn.Module, tensors) -> list[int]:
+    """The seed dimension of each of ``tensors``, stacked tensors of ``module`` (refused otherwise)."""
+    dims = {id(t): d for t, d in stacked_tensors(module)}
+    out = []
+    for t in tensors:
+        if id(t) not in dims:
+            raise ValueError(
+                f"seed_dims_of: a tensor of shape {tuple(t.shape)} is not one of the module's stacked ones"
+            )
+        out.append(dims[id(t)])
+    return out
+
+
+def stacked_tensors(module: nn.Module) -> list[tuple[torch.Tensor, int]]:
+    """Every stacked tensor of ``module`` once (a tensor under two names counted once), with its seed dimension."""
+    own, seen, out = _tensors_by_name(module), set(), []
+    for name in stacked_names(module):
+        t = own[name]
+        if id(t) not in seen:
+            seen.add(id(t))
+            out.append((t, seed_dim(name, t)))
+    return out
+
+
 def seed_slice(batched: nn.Module, i: int) -> dict[str, torch.Tensor]:
     """Seed ``i`` 's state of a batched learner as a single learner's ``state_dict`` (the other entries as they
     are): what a seed's own checkpoint holds."""

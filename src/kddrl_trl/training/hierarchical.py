@@ -41,6 +41,7 @@ from ..objectives import (
     td_priority,
 )
 from .learner import STATE_KEYS, Learner, adam, transition_keys
+from .seed_adam import seed_adam
 
 log = logging.getLogger(__name__)
 
@@ -139,11 +140,12 @@ class HierarchicalLearner(Learner):
             stack_seeds(self, seeds, scalars=["lc_explore.eps"])  # each seed's ε, annealed by its own decisions
             self.lc_loss.reduction = self.cf_loss.reduction = "none"
         dev = self._place(device)  # then the optimisers and target updates, on the moved tensors
-        self.opt_lc = adam(self.lc_loss.parameters(), self.lr_lc, dev)
-        self.opt_critic = adam(self.td3.critic_params().flatten_keys().values(), self.lr_critic, dev)
-        self.opt_actor = adam(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor, dev)
+        opt = adam if seeds is None else (lambda params, lr, _dev: seed_adam(self, params, lr))  # a step count per seed
+        self.opt_lc = opt(self.lc_loss.parameters(), self.lr_lc, dev)
+        self.opt_critic = opt(self.td3.critic_params().flatten_keys().values(), self.lr_critic, dev)
+        self.opt_actor = opt(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor, dev)
         emb = embedding_parameters(self.embedding)
-        self.opt_embed = adam(emb, float(embed_lr), dev) if emb else None
+        self.opt_embed = opt(emb, float(embed_lr), dev) if emb else None
         embed_targets = module_tensors(self.target_embedding, self.embedding, self.embed_tau)
         embed_buffers = (
             []
@@ -251,26 +253,29 @@ class HierarchicalLearner(Learner):
         self._soft_lc()
         return loss.reshape(1, *loss.shape), priority
 
-    def update_cf(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """One TD3 step on a buffer-L sample (Algorithm 1 lines 38-43)."""
+    def update_cf(self, batch: TensorDictBase, active: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """One TD3 step on a buffer-L sample (Algorithm 1 lines 38-43); ``active``: a seed batch's seeds that take it
+        (:meth:`~kddrl_trl.training.learner.Learner._run`; they share the update counters, so a seed that sits a TD3
+        step out takes no later one)."""
         self.counters[1] += 1
         if int(self.counters[1]) % self.td3.policy_delay == 0:
-            value_loss, actor_loss = self._run("cf_full", batch).unbind()
+            value_loss, actor_loss = self._run("cf_full", batch, active).unbind()
             self.counters[2] += 1
             return {"loss_qvalue": value_loss, "loss_actor": actor_loss}
-        return {"loss_qvalue": self._run("cf_value", batch)[0]}
+        return {"loss_qvalue": self._run("cf_value", batch, active)[0]}
 
-    def update_frame(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    def update_frame(self, batch: TensorDictBase, active: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """Buffer L: :meth:`update_cf`."""
-        return self.update_cf(batch)
+        return self.update_cf(batch, active)
 
-    def update_decision(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
+    def update_decision(self, batch: TensorDictBase, active: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """Buffer H: :meth:`update_lc`."""
-        return self.update_lc(batch)
+        return self.update_lc(batch, active)
 
-    def update_lc(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        """One D3QN step on a buffer-H sample of macro-transitions (Algorithm 1 lines 27-29)."""
-        loss = self._run("lc", batch)[0]
+    def update_lc(self, batch: TensorDictBase, active: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """One D3QN step on a buffer-H sample of macro-transitions (Algorithm 1 lines 27-29); ``active``: a seed
+        batch's seeds that take it (each seed learns once per decision of its own)."""
+        loss = self._run("lc", batch, active)[0]
         self.counters[0] += 1
         return {"loss_lc": loss}
 

@@ -51,7 +51,7 @@ from torch import nn
 from .. import keys as K
 from ..collectors import PolicySnapshot
 from ..compiling import GraphedUpdate, WarmCompiled, inductor_options, resolve_cudagraphs, resolved
-from ..modules.seed_batch import seed_means
+from ..modules.seed_batch import seed_means, stacked_tensors
 from .adam import FusedAdam, step_all
 
 #: keys a learner reads from a replay-buffer sample besides those of its own state (root and "next")
@@ -147,14 +147,31 @@ class Learner(nn.Module):
             fns[name] = fn
         self.__dict__["_update_fns"] = fns  # not submodules (compiled wrappers hold the learner's own modules)
 
-    def _run(self, name: str, batch: TensorDictBase) -> torch.Tensor:
+    def _seed_tensors(self) -> list[tuple[torch.Tensor, int]]:
+        """Every tensor of a seed batch whose slices are a seed's own, with its seed dimension: the stacked networks
+        and targets, and the optimisers' moments and step counts."""
+        out = stacked_tensors(self)
+        for opt in self.optimizers().values():
+            out += opt.seed_tensors()
+        return out
+
+    def _run(self, name: str, batch: TensorDictBase, active: torch.Tensor | None = None) -> torch.Tensor:
         """Runs the update function ``name`` on a sampled ``batch`` (moved to the learner's device); returns its
         detached losses (a 1-d tensor on the learner's device, not read here: on a GPU reading it would wait for
         the update, :meth:`~kddrl_trl.training.Trainer._update` reads a whole batch of updates' losses at once)
         and writes each transition's ``|δ|`` into ``batch`` (``keys.PRIORITY``: what a prioritized buffer's
-        ``update_tensordict_priority`` reads; a graph's outputs come back cloned)."""
+        ``update_tensordict_priority`` reads; a graph's outputs come back cloned). ``active`` (a seed batch, ``[N]``
+        bool): the seeds that take this step; the others' networks, targets and optimiser states are as before it."""
         on_device = batch if batch.device == self.device else batch.to(self.device, non_blocking=True)
-        losses, priority = self._update_fns[name](on_device)
+        if active is not None and not bool(active.all()):  # a seed batch's step that some seeds sit out
+            idle = (~active).nonzero().flatten()
+            kept = [(t, d, t.index_select(d, idle)) for t, d in self._seed_tensors()]
+            losses, priority = self._update_fns[name](on_device)
+            with torch.no_grad():
+                for t, d, before in kept:
+                    t.index_copy_(d, idle, before)
+        else:
+            losses, priority = self._update_fns[name](on_device)
         batch.set(K.PRIORITY, priority.reshape(batch.shape))
         return losses
 
