@@ -103,17 +103,18 @@ class FusedAdam(torch.optim.Adam):
 
 
 def step_all(optimizers: Sequence[torch.optim.Optimizer]) -> None:
-    """``o.step()`` for each optimiser, in order (disjoint parameters). Where every one is a :class:`FusedAdam`
-    that can take the lean step now and whose steps nothing watches, they take it together (module docstring)."""
+    """``o.step()`` for each optimiser (disjoint parameters, so the order does not matter). The :class:`FusedAdam`
+    ones that can take the lean step now and whose steps nothing watches take it together (module docstring); the
+    others step on their own."""
     lean = []
     for o in optimizers:
         grads = o._lean_grads() if isinstance(o, FusedAdam) and o._unwatched() else None
         if grads is None:
-            for each in optimizers:
-                each.step()
-            return
-        lean.append((o, grads))
-    _fused_steps(lean)
+            o.step()  # its own step (another kind of optimiser, or one that cannot take the lean step now)
+        else:
+            lean.append((o, grads))
+    if lean:
+        _fused_steps(lean)
 
 
 def _fused_steps(lean: list) -> None:

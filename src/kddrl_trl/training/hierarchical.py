@@ -140,12 +140,15 @@ class HierarchicalLearner(Learner):
             stack_seeds(self, seeds, scalars=["lc_explore.eps"])  # each seed's ε, annealed by its own decisions
             self.lc_loss.reduction = self.cf_loss.reduction = "none"
         dev = self._place(device)  # then the optimisers and target updates, on the moved tensors
-        opt = adam if seeds is None else (lambda params, lr, _dev: seed_adam(self, params, lr))  # a step count per seed
-        self.opt_lc = opt(self.lc_loss.parameters(), self.lr_lc, dev)
-        self.opt_critic = opt(self.td3.critic_params().flatten_keys().values(), self.lr_critic, dev)
-        self.opt_actor = opt(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor, dev)
+        # a seed batch: the optimisers that a seed's decisions step (the D3QN's, the embedding's) keep a step count per
+        # seed (SeedAdam); the TD3's step every seed that still trains at once, a seed that has ended never again, so
+        # one count serves them and they keep the fused kernel
+        per_seed = adam if seeds is None else (lambda params, lr, _dev: seed_adam(self, params, lr))
+        self.opt_lc = per_seed(self.lc_loss.parameters(), self.lr_lc, dev)
+        self.opt_critic = adam(self.td3.critic_params().flatten_keys().values(), self.lr_critic, dev)
+        self.opt_actor = adam(self.cf_loss.actor_network_params.flatten_keys().values(), self.lr_actor, dev)
         emb = embedding_parameters(self.embedding)
-        self.opt_embed = opt(emb, float(embed_lr), dev) if emb else None
+        self.opt_embed = per_seed(emb, float(embed_lr), dev) if emb else None
         embed_targets = module_tensors(self.target_embedding, self.embedding, self.embed_tau)
         embed_buffers = (
             []

@@ -151,8 +151,14 @@ class Learner(nn.Module):
         """Every tensor of a seed batch whose slices are a seed's own, with its seed dimension: the stacked networks
         and targets, and the optimisers' moments and step counts."""
         out = stacked_tensors(self)
+        dims = dict((id(t), d) for t, d in out)
         for opt in self.optimizers().values():
-            out += opt.seed_tensors()
+            if hasattr(opt, "seed_tensors"):
+                out += opt.seed_tensors()
+            else:  # one step count for all seeds (module docstring of seed_adam): the moments are per seed
+                for p in (p for g in opt.param_groups for p in g["params"]):
+                    state = opt.state.get(p, {})
+                    out += [(state[k], dims[id(p)]) for k in ("exp_avg", "exp_avg_sq") if k in state]
         return out
 
     def _run(self, name: str, batch: TensorDictBase, active: torch.Tensor | None = None) -> torch.Tensor:

@@ -4,10 +4,9 @@ each seed with its own step count.
 Adam is elementwise but for its bias corrections, which read the number of steps taken. Seeds of a batch take
 different numbers of steps (a seed's lane-change agent learns once per decision of its own, a seed that has
 finished its episodes learns no more), so a single step count per tensor, as ``torch.optim.Adam`` keeps, would
-bias-correct a seed with another's count. Here each stacked tensor is stepped as its N per-seed slices, each
-slice with its own step count (``state["step"]`` is ``[N]``), by ``torch.optim.adam.adam`` (the foreach
-implementation: the slices of a twin critic's ``[2, N, out, in]`` are not contiguous, which the fused CPU kernel
-does not handle). Which seeds step is the learner's business (:meth:`~kddrl_trl.training.learner.Learner._run`
+bias-correct a seed with another's count. Here each parameter's ``state["step"]`` is ``[N]``, and the bias
+corrections are ``[N]`` tensors broadcast along each stacked tensor's seed dimension, in one ``torch._foreach_*``
+call per operation over all the parameters (stepping the N slices one by one would cost N times the calls). Which seeds step is the learner's business (:meth:`~kddrl_trl.training.learner.Learner._run`
 restores the seeds that sat a step out).
 """
 
@@ -17,7 +16,6 @@ from collections.abc import Sequence
 
 import torch
 from torch import nn
-from torch.optim.adam import adam
 
 from ..modules.seed_batch import seed_dims_of
 
@@ -42,34 +40,52 @@ class SeedAdam(torch.optim.Optimizer):
             }
         self._views = None
 
-    def _slices(self) -> list:
-        """Per parameter: its per-seed slices of the parameter, both moments and the step count (views, taken once:
-        the tensors are updated in place)."""
+    def _seed_shaped(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Per parameter, views of two ``[N]`` tensors (the step size and the bias correction of the second moment,
+        per seed) shaped to broadcast along its seed dimension; taken once, the ``[N]`` tensors written each step."""
         if self._views is None:
+            self._step_size, self._bc2_sqrt = torch.zeros(self.seeds), torch.ones(self.seeds)
             self._views = []
             for p, d in zip(self.param_groups[0]["params"], self.seed_dims):
-                s = self.state[p]
-                self._views.append(
-                    (p.unbind(d), s["exp_avg"].unbind(d), s["exp_avg_sq"].unbind(d), s["step"].unbind(0))
-                )
+                shape = [self.seeds if i == d else 1 for i in range(p.dim())]
+                self._views.append((self._step_size.view(shape), self._bc2_sqrt.view(shape)))
         return self._views
 
     @torch.no_grad()
     def step(self, closure=None):
+        """``torch.optim.Adam`` 's step (its single-tensor arithmetic, in the same order), the bias corrections
+        per seed: ``m <- lerp(m, g, 1 - β1)``, ``v <- β2 v + (1 - β2) g²``, ``p <- p - lr / (1 - β1^t) ·
+        m / (sqrt(v) / sqrt(1 - β2^t) + eps)`` with ``t`` the seed's own step count."""
         loss = closure() if closure is not None else None
         group = self.param_groups[0]
-        params, grads, m, v, steps = [], [], [], [], []
-        for p, d, (ps, ms, vs, ss) in zip(group["params"], self.seed_dims, self._slices()):
+        beta1, beta2 = group["betas"]
+        shaped = self._seed_shaped()
+        params, grads, m, v, sizes, bc2 = [], [], [], [], [], []
+        for p, views in zip(group["params"], shaped):
             if p.grad is None:
                 continue
-            params += ps
-            grads += p.grad.unbind(d)
-            m += ms
-            v += vs
-            steps += ss
-        beta1, beta2 = group["betas"]
-        adam(params, grads, m, v, [], steps, foreach=True, amsgrad=False, beta1=beta1, beta2=beta2,
-             lr=group["lr"], weight_decay=0.0, eps=group["eps"], maximize=False)  # fmt: skip
+            s = self.state[p]
+            params.append(p)
+            grads.append(p.grad)
+            m.append(s["exp_avg"])
+            v.append(s["exp_avg_sq"])
+            sizes.append(views[0])
+            bc2.append(views[1])
+            s["step"].add_(1)
+        if not params:
+            return loss
+        step = self.state[params[0]]["step"]  # the step counts of a step's parameters move together
+        self._step_size.copy_(group["lr"] / (1 - beta1**step))
+        self._bc2_sqrt.copy_((1 - beta2**step).sqrt())
+        torch._foreach_lerp_(m, grads, 1 - beta1)
+        torch._foreach_mul_(v, beta2)
+        torch._foreach_addcmul_(v, grads, grads, value=1 - beta2)
+        denom = torch._foreach_sqrt(v)
+        torch._foreach_div_(denom, bc2)
+        torch._foreach_add_(denom, group["eps"])
+        update = torch._foreach_div(m, denom)
+        torch._foreach_mul_(update, sizes)
+        torch._foreach_sub_(params, update)
         return loss
 
     def load_state_dict(self, state_dict) -> None:
