@@ -565,3 +565,36 @@ def test_reward_terms_are_written_and_sum_to_the_rewards():
     assert started.any() and torch.equal(lc, -started)
     assert torch.equal(col, -100.0 * nxt[K.COLLISION].float())
     torch.testing.assert_close(eff, efficiency_term(nxt[K.EGO_STATE][..., 1:2], env.config), rtol=0, atol=1e-4)
+
+
+def test_the_roads_of_a_seed_in_one_simulation_of_several_seeds_carry_its_traffic_alone():
+    """``road_seeds``: one simulation of 3 seeds x 2 roads (braking: random events per road), the rule driving; the
+    rows of seed 7 equal, frame for frame and bit for bit, those of a simulation of its own with ``seed=7``
+    (observations, rewards, events); the rows of seed 3 differ from them. A road_seeds list of the wrong length is
+    refused, naming num_roads."""
+    alone = SumoHighwayEnv("braking", num_roads=2, seed=7)
+    try:
+        own = torch.stack(rollout(alone, IDMMobilPolicy(), 300), -1)
+    finally:
+        alone.close()
+    batch = SumoHighwayEnv("braking", num_roads=6, seed=3, road_seeds=[3, 3, 7, 7, 9, 9])
+    try:
+        rows = torch.stack(rollout(batch, IDMMobilPolicy(), 300), -1)
+    finally:
+        batch.close()
+    assert own.batch_size == (2, 300) and rows.batch_size == (6, 300)
+    lateral = [k for k in own.keys(True, True) if k[-1] == "lane_offset"]
+    for k in own.keys(True, True):
+        if k not in lateral:
+            assert torch.equal(rows.get(k)[2:4], own.get(k)), k
+    # a lateral offset carries the road's place in the network in its rounding (1e-14 m), and at a lane change's
+    # mid-point it may fall on the other side of the lane boundary: +w/2 for -w/2, the same place
+    width = make_config("braking").lane_width
+    for k in lateral:
+        d = (rows.get(k)[2:4].double() - own.get(k).double()).abs()
+        assert bool(((d < 1e-12) | ((d - width).abs() < 1e-5)).all()), k
+        assert int((d > 1e-12).sum()) < 0.02 * d.numel()
+    assert not torch.equal(rows.get(K.EGO_STATE)[0:2], own.get(K.EGO_STATE))
+    assert bool(own.get(("next", "done")).any())  # episodes ended and restarted within the window
+    with pytest.raises(ValueError, match="num_roads=4"):
+        HighwaySim(make_config("baseline"), 4, seed=0, road_seeds=[1, 2])

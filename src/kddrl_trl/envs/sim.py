@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -62,6 +63,18 @@ def simulation_open() -> bool:
     return _ACTIVE is not None
 
 
+def road_streams(seed: int, offsets: Sequence[int]) -> list[list[int]]:
+    """Each road's random stream ``[its seed, j]``: its seed ``seed + offsets[r]``, ``j`` the number of earlier
+    roads of the same seed (``[seed, r]`` for roads of one seed)."""
+    count: dict[int, int] = {}
+    out = []
+    for off in offsets:
+        s = int(seed) + int(off)
+        out.append([s, count.get(s, 0)])
+        count[s] = count.get(s, 0) + 1
+    return out
+
+
 class HighwaySim:
     """K disconnected copies of the road in one SUMO simulation; numpy arrays of shape [K, ...] out.
 
@@ -72,15 +85,33 @@ class HighwaySim:
             parameter draws, ego designation, braking events). Same seed -> identical rollouts.
         gui: run the simulation in ``sumo-gui`` (a live view that follows road 0's ego, in real time;
             :func:`~kddrl_trl.envs.network.gui_args`): the same simulation, watched.
+        road_seeds: the seed whose traffic each road carries (None: ``seed`` for every road). Road ``r`` draws from
+            the stream ``[road_seeds[r], j]``, ``j`` the number of earlier roads with the same seed, so the roads of
+            seed ``s`` carry, road for road, the traffic of a simulation of their own with ``seed=s`` (N seeds'
+            K roads each in one simulation: a seed batch). SUMO's own generator draws nothing here (every driver's
+            ``sigma`` and ``speedDev`` are 0), so the roads' traffic is their streams' alone: bit for bit, but for
+            the lateral offsets, which carry a road's place in the network in their rounding (1e-14 m) and at a
+            lane change's mid-point may fall on the other side of the lane boundary (``+w/2`` for ``-w/2``).
 
     Outputs of a frame (:meth:`outputs`): ``obs`` (every raw key of ``kddrl_trl.keys``), ``reward_lc``,
     ``reward_cf`` and their named ``terms``, ``terminated``, ``truncated``. A road whose episode ended keeps the outputs
     of its final frame until it is reset.
     """
 
-    def __init__(self, cfg: HighwayConfig, num_roads: int, seed: int = 0, gui: bool = False):
+    def __init__(
+        self,
+        cfg: HighwayConfig,
+        num_roads: int,
+        seed: int = 0,
+        gui: bool = False,
+        road_seeds: Sequence[int] | None = None,
+    ):
         if not isinstance(num_roads, (int, np.integer)) or num_roads < 1:
             raise ValueError(f"num_roads must be an integer >= 1, got {num_roads!r}")
+        if road_seeds is not None and len(road_seeds) != num_roads:
+            raise ValueError(f"road_seeds holds {len(road_seeds)} seeds for num_roads={num_roads}: one per road")
+        #: each road's seed as an offset from ``seed`` (a reseed moves them together)
+        self._road_offsets = [0] * int(num_roads) if road_seeds is None else [int(r) - int(seed) for r in road_seeds]
         self.cfg, self.num_roads, self.gui = cfg, int(num_roads), bool(gui)
         self.dt = cfg.step_length
         self.lc_frames = int(round(cfg.lc_duration / cfg.step_length))
@@ -140,7 +171,7 @@ class HighwaySim:
         _ACTIVE, self._started = self, True
         # one random stream per road (arrivals, driver draws, ego designation, braking): a road's traffic
         # never depends on what happens on another road
-        self.rngs = [np.random.default_rng([int(seed), r]) for r in range(self.num_roads)]
+        self.rngs = [np.random.default_rng(stream) for stream in road_streams(int(seed), self._road_offsets)]
         self.rate = self.cfg.flow / 3600.0  # vehicles per second per road
         self.next_arrival = np.array([self._interarrival(r) for r in range(self.num_roads)])
         self.arrivals = np.zeros(self.num_roads, np.int64)
@@ -161,7 +192,8 @@ class HighwaySim:
         self._next_frame = max(self._next_frame, time.monotonic() - self.dt) + self.dt
 
     def reseed(self, seed: int) -> None:
-        """Restart the simulation from scratch with a new seed (warm-up included)."""
+        """Restart the simulation from scratch with a new seed (warm-up included); roads of other seeds
+        (``road_seeds``) keep their offsets from it."""
         self.seed = int(seed)
         self._start(self.seed)
 

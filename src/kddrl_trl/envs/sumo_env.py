@@ -39,6 +39,9 @@ class SumoHighwayEnv(HighwayEnvBase):
         seed: seeds SUMO and the env's own generator; same seed -> identical rollouts.
         device: torch device of the output tensors (the simulator itself is CPU).
         gui: drive ``sumo-gui`` (a live view of road 0's ego, in real time; needs a display, e.g. ``xvfb-run``).
+        road_seeds: the seed whose traffic each of the K roads carries (None: ``seed`` for all;
+            :class:`~kddrl_trl.envs.sim.HighwaySim`): the roads of seed ``s`` carry the traffic of an env of their
+            own with ``seed=s``.
         **overrides: any field of :class:`~kddrl_trl.envs.config.HighwayConfig` (e.g. ``flow_vph=2658``,
             ``braking={"stand_time": 5}``); unknown keys or bad values raise ``ValueError`` naming the key
             before SUMO starts.
@@ -62,10 +65,17 @@ class SumoHighwayEnv(HighwayEnvBase):
     """
 
     def __init__(
-        self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, gui: bool = False, **overrides
+        self,
+        scenario: str = "baseline",
+        num_roads: int = 1,
+        seed: int = 0,
+        device=None,
+        gui: bool = False,
+        road_seeds=None,
+        **overrides,
     ):
         super().__init__(scenario, num_roads, seed, device, **overrides)
-        self.sim = HighwaySim(self.config, num_roads, seed=seed, gui=gui)
+        self.sim = HighwaySim(self.config, num_roads, seed=seed, gui=gui, road_seeds=road_seeds)
         self._seed = seed
         self._bind()
 
