@@ -201,3 +201,40 @@ def test_a_seed_that_sits_steps_out_is_untouched_and_later_steps_as_its_own_coun
         for k, v in one.state_dict().items():
             if k != "counters":  # the batch's update counters are shared (the trainer counts each seed's own)
                 torch.testing.assert_close(mine[k], v, rtol=1e-5, atol=1e-6, msg=k)
+
+
+def test_the_collector_fills_each_seeds_buffers_with_its_own_rows_only():
+    """A seed batch of 2 on 2 x 2 fake-env rows, 2 iterations: seed i's buffer L holds exactly its rows' frames and
+    its buffer H exactly what a writer of its own makes of its rows (its macro-transitions carried across the
+    iterations); the rows are acted on by the batch's policy."""
+    from torchrl.envs import Compose, TransformedEnv
+
+    from kddrl_trl import keys as K
+    from kddrl_trl.collectors import MacroTransitionWriter, MultiTimescaleCollector
+    from kddrl_trl.envs import FakeHighwayEnv
+    from kddrl_trl.training import make_buffer
+    from kddrl_trl.transforms import DecisionClock, make_kddrl_transforms
+
+    b = batched(singles(n=2))
+    env = TransformedEnv(FakeHighwayEnv(num_roads=4, seed=0), Compose(make_kddrl_transforms(), DecisionClock(5)))
+    frames_l, macros_h = [make_buffer(5000, 8, i) for i in range(2)], [make_buffer(5000, 8, i) for i in range(2)]
+    mtc = MultiTimescaleCollector.from_env(
+        env, b.policy(), frames_per_env=30, frame_buffer=frames_l, macro_buffer=macros_h, seeds=2
+    )
+    batches = []
+    for batch in mtc:
+        batches.append(batch)
+        if len(batches) == 2:
+            break
+    mtc.shutdown()
+    for i in range(2):
+        own = torch.cat([bt.frames[2 * i : 2 * i + 2].reshape(-1) for bt in batches])
+        assert len(frames_l[i]) == own.numel() == 2 * 2 * 30
+        stored = frames_l[i][:]
+        assert torch.equal(stored.get(K.EGO_STATE), own.get(K.EGO_STATE))
+        writer = MacroTransitionWriter()
+        expect = [m for m in (writer(bt.frames[2 * i : 2 * i + 2]) for bt in batches) if m is not None]
+        expect = torch.cat(expect) if expect else None
+        assert expect is not None and len(macros_h[i]) == expect.numel()
+        assert torch.equal(macros_h[i][:].get(("next", K.LC_REWARD)), expect.get(("next", K.LC_REWARD)))
+        assert [bt.seed_macros[i] is None for bt in batches] != [True, True]

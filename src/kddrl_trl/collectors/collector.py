@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import copy
 import importlib.util
 from collections.abc import Callable, Iterator, Sequence
 from typing import NamedTuple
@@ -41,6 +42,8 @@ ENDLESS_RAY_FRAMES = 2**62
 class MultiTimescaleBatch(NamedTuple):
     frames: TensorDictBase  # [B, T] every frame (buffer L)
     macros: TensorDictBase | None  # [N] macro-transitions closed in this batch (buffer H), None if none
+    #: a seed batch (``seeds``): each seed's macro-transitions (None where it closed none); ``macros`` is then None
+    seed_macros: list | None = None
 
 
 class MultiTimescaleCollector:
@@ -57,6 +60,11 @@ class MultiTimescaleCollector:
     row order the writer and the episode tracker need. Build it with :meth:`from_env` (one env in this process,
     or N env factories run by TorchRL's multi-process collector); :meth:`update_policy_weights_` hands the
     learner's current weights and exploration state to the acting policies.
+
+    A seed batch (``seeds=N``, :mod:`kddrl_trl.modules.seed_batch`): the rows are N seeds' K roads, seed-major
+    (rows ``i K`` to ``(i + 1) K - 1`` are seed ``i`` 's); ``frame_buffer`` and ``macro_buffer`` are then N buffers,
+    seed ``i`` 's receiving only its rows' frames and the macro-transitions of its own writer (a copy of ``writer``
+    per seed, fed its rows), so that each seed's buffers fill as a run of its own would fill them.
     """
 
     def __init__(
@@ -72,10 +80,18 @@ class MultiTimescaleCollector:
         local_env: EnvBase | None = None,
         frame_transform: Callable[[TensorDictBase], TensorDictBase] | None = None,
         policy=None,
+        seeds: int | None = None,
     ):
         self.collector = collector
         self.frame_buffer, self.macro_buffer = frame_buffer, macro_buffer
         self.writer = writer if writer is not None else MacroTransitionWriter()
+        self.seeds = None if seeds is None else int(seeds)
+        if self.seeds is not None:
+            for name, buffers in (("frame_buffer", frame_buffer), ("macro_buffer", macro_buffer)):
+                if buffers is not None and len(buffers) != self.seeds:
+                    raise ValueError(f"a batch of {self.seeds} seeds needs {self.seeds} buffers as {name}")
+            self.writers = [copy.deepcopy(self.writer) for _ in range(self.seeds)]
+            self.frame_transforms = [copy.deepcopy(frame_transform) for _ in range(self.seeds)]  # each its rows' window
         self.frame_keys = list(frame_keys) if frame_keys is not None else None
         self.macro_keys = list(macro_keys) if macro_keys is not None else self.frame_keys
         self.owns_envs = bool(owns_envs)
@@ -176,6 +192,9 @@ class MultiTimescaleCollector:
                 frames = frames.unsqueeze(0)
             elif frames.batch_dims == 3:  # N workers stacked: [N, K, T] -> [N * K, T], worker-major
                 frames = frames.reshape(-1, frames.shape[-1])
+            if self.seeds is not None:
+                yield self._seed_batch(frames)
+                continue
             macros = self.writer(frames)
             if self.frame_buffer is not None:
                 flat = (frames if self.frame_transform is None else self.frame_transform(frames)).reshape(-1)
@@ -183,6 +202,24 @@ class MultiTimescaleCollector:
             if self.macro_buffer is not None and macros is not None:
                 self.macro_buffer.extend(macros.select(*self.macro_keys) if self.macro_keys else macros)
             yield MultiTimescaleBatch(frames, macros)
+
+    def _seed_batch(self, frames: TensorDictBase) -> MultiTimescaleBatch:
+        """A seed batch's iteration: each seed's rows through its own writer and into its own buffers."""
+        rows = frames.shape[0]
+        if rows % self.seeds:
+            raise ValueError(f"{rows} env rows do not split into {self.seeds} seeds' roads")
+        k = rows // self.seeds
+        per_seed = []
+        for i, (writer, transform) in enumerate(zip(self.writers, self.frame_transforms)):
+            own = frames[i * k : (i + 1) * k]
+            macros = writer(own)
+            if self.frame_buffer is not None:
+                flat = (own if transform is None else transform(own)).reshape(-1)
+                self.frame_buffer[i].extend(flat.select(*self.frame_keys) if self.frame_keys else flat)
+            if self.macro_buffer is not None and macros is not None:
+                self.macro_buffer[i].extend(macros.select(*self.macro_keys) if self.macro_keys else macros)
+            per_seed.append(macros)
+        return MultiTimescaleBatch(frames, None, per_seed)
 
     def update_policy_weights_(self) -> None:
         """The acting policies take the policy's current weights and buffers (TorchRL's weight sync), the
