@@ -4,6 +4,7 @@ run: for each N, the TD3 and D3QN updates of the default KDDRL learner on N inde
 and compiled, the arms taking turns ``repeats`` times (medians over the turns).
 
     python -m benchmarks.seed_batch [--seeds 1 2 4 8 16] [--updates 200] [--repeats 3] [--threads 2]
+    python -m benchmarks.seed_batch --device cuda --seeds 1 4 16 64 256   # a GPU: compiled arms CUDA-graphed
 
 Prints a table and writes ``benchmarks/results/seed_batch.json``. ``per_seed_over_single``: seconds per update per
 seed over the single learner's (``seeds`` unset) in the same arm; ``per_seed_over_floor``: over one seed's update
@@ -26,9 +27,10 @@ from kddrl_trl.process_settings import apply_flush_denormal
 from kddrl_trl.training import HierarchicalLearner
 
 
-def arm_learner(n: int | None, compiled: bool) -> HierarchicalLearner:
-    """The default KDDRL learner, alone (``n`` None) or as ``n`` seeds, eager or compiled."""
-    kw = learner_kwargs(compiled)[0]
+def arm_learner(n: int | None, compiled: bool, device: torch.device = torch.device("cpu")) -> HierarchicalLearner:
+    """The default KDDRL learner, alone (``n`` None) or as ``n`` seeds, eager or compiled (on CUDA compiled and
+    CUDA-graphed), on ``device``."""
+    kw = {**learner_kwargs(compiled)[0], "device": device, "cudagraphs": compiled and device.type == "cuda"}
     return HierarchicalLearner(**kw) if n is None else HierarchicalLearner(**kw, seeds=n)
 
 
@@ -39,9 +41,17 @@ def stacked(buffer, n: int | None, count: int) -> list:
     return [torch.stack([buffer.sample() for _ in range(n)]) for _ in range(count)]
 
 
-def measure(seeds: list[int], updates: int, repeats: int, seed: int, compiled_arms: bool = True) -> dict:
+def measure(
+    seeds: list[int],
+    updates: int,
+    repeats: int,
+    seed: int,
+    compiled_arms: bool = True,
+    device: torch.device = torch.device("cpu"),
+) -> dict:
     """Seconds per TD3 / D3QN update (whole batch) of each arm: ``single`` and ``seeds_<N>``, eager and (with
-    ``compiled_arms``) compiled."""
+    ``compiled_arms``) compiled, on ``device`` (the minibatches there beforehand, as the learner's buffers sample
+    them)."""
     torch.manual_seed(seed)
     rb_cf, rb_lc = sample_batches(4000, seed, buffer_keys())
     lc_period = learner_kwargs(False)[1]
@@ -49,14 +59,14 @@ def measure(seeds: list[int], updates: int, repeats: int, seed: int, compiled_ar
     for compiled in (False, True) if compiled_arms else (False,):
         for n in (None, *seeds):
             name = f"{'compiled' if compiled else 'eager'}/{'single' if n is None else f'seeds_{n}'}"
-            learner = arm_learner(n, compiled)
-            cf = stacked(rb_cf, n, updates)
-            lc = stacked(rb_lc, n, max(updates // 4, 10))
+            learner = arm_learner(n, compiled, device)
+            cf = [b.to(device) for b in stacked(rb_cf, n, updates)]
+            lc = [b.to(device) for b in stacked(rb_lc, n, max(updates // 4, 10))]
             arms[name] = (n or 1, learner.update_cf, learner.update_lc, cf, lc)
     runs = {name: [] for name in arms}
     for _ in range(repeats):
         for name, (_, update_cf, update_lc, cf, lc) in arms.items():
-            runs[name].append(time_updates(update_cf, update_lc, cf, lc, lc_period))
+            runs[name].append(time_updates(update_cf, update_lc, cf, lc, lc_period, device))
     rows = {}
     for name, (n, *_rest) in arms.items():
         td3 = statistics.median(r[0] for r in runs[name])
@@ -66,24 +76,29 @@ def measure(seeds: list[int], updates: int, repeats: int, seed: int, compiled_ar
     return rows
 
 
-def ratios(rows: dict, floor: dict) -> None:
+def ratios(rows: dict, floor: dict | None) -> None:
     """Adds to each row its per-seed time over the same arm's single learner and over the floor (in place)."""
     for name, row in rows.items():
         single = rows[name.split("/")[0] + "/single"]
         for agent in ("td3", "d3qn"):
             row[f"{agent}_per_seed_over_single"] = row[f"{agent}_per_seed_s"] / single[f"{agent}_per_seed_s"]
-            row[f"{agent}_per_seed_over_floor"] = row[f"{agent}_per_seed_s"] / floor[f"{agent}_floor_s"]
+            if floor is not None:
+                row[f"{agent}_per_seed_over_floor"] = row[f"{agent}_per_seed_s"] / floor[f"{agent}_floor_s"]
 
 
-def print_table(rows: dict, floor: dict) -> None:
-    print(
-        f"\n{'arm':<22}{'TD3 ms/seed':>12}{'÷ single':>10}{'÷ floor':>9}{'D3QN ms/seed':>14}{'÷ single':>10}"
-        f"   floor: TD3 {1e3 * floor['td3_floor_s']:.3f} ms, D3QN {1e3 * floor['d3qn_floor_s']:.3f} ms"
+def print_table(rows: dict, floor: dict | None) -> None:
+    said = (
+        ""
+        if floor is None
+        else f"   floor: TD3 {1e3 * floor['td3_floor_s']:.3f} ms, D3QN {1e3 * floor['d3qn_floor_s']:.3f} ms"
     )
+    print(f"\n{'arm':<22}{'TD3 ms/seed':>12}{'÷ single':>10}{'÷ floor':>9}{'D3QN ms/seed':>14}{'÷ single':>10}{said}")
     for name, r in rows.items():
+        over = r.get("td3_per_seed_over_floor")
         print(
             f"{name:<22}{1e3 * r['td3_per_seed_s']:>12.3f}{r['td3_per_seed_over_single']:>10.2f}"
-            f"{r['td3_per_seed_over_floor']:>9.2f}{1e3 * r['d3qn_per_seed_s']:>14.3f}{r['d3qn_per_seed_over_single']:>10.2f}"
+            f"{'-' if over is None else f'{over:.2f}':>9}{1e3 * r['d3qn_per_seed_s']:>14.3f}"
+            f"{r['d3qn_per_seed_over_single']:>10.2f}"
         )
 
 
@@ -95,6 +110,9 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)), help="torch threads")
     p.add_argument("--eager-only", action="store_true", help="skip the compiled arms")
+    p.add_argument(
+        "--device", default="cpu", help="cpu or cuda (the floor is then the CPU's: read the per-seed ratios)"
+    )
     p.add_argument("--note", default=None, help="free text stored in the JSON")
     p.add_argument("--out", type=Path, default=RESULTS / "seed_batch.json")
     args = p.parse_args(argv)
@@ -103,11 +121,14 @@ def main(argv=None) -> int:
     # every arm's learner compiles the same gradient function at its own shapes (3 graphs each), all kept warm to
     # take turns: past TorchDynamo's default of 8 graphs per code object the later arms would run eagerly
     torch._dynamo.config.recompile_limit = 8 * (len(args.seeds) + 1)
-    rows = measure(args.seeds, args.updates, args.repeats, args.seed, compiled_arms=not args.eager_only)
-    flops = update_flops(args.seed, sample_batches(4000, args.seed, buffer_keys()))
-    rate = gemm_rate(args.threads)
-    floor = {**flops, "gemm_flop_per_s": rate, **{f"{a}_floor_s": flops[f"{a}_flops_per_update"] / rate
-                                                   for a in ("td3", "d3qn")}}  # fmt: skip
+    device = torch.device(args.device)
+    rows = measure(args.seeds, args.updates, args.repeats, args.seed, compiled_arms=not args.eager_only, device=device)
+    floor = None  # the CPU's GEMM floor; a GPU's tiny products are launch-bound, its figure is the per-seed cost
+    if device.type == "cpu":
+        flops = update_flops(args.seed, sample_batches(4000, args.seed, buffer_keys()))
+        rate = gemm_rate(args.threads)
+        floor = {**flops, "gemm_flop_per_s": rate, **{f"{a}_floor_s": flops[f"{a}_flops_per_update"] / rate
+                                                       for a in ("td3", "d3qn")}}  # fmt: skip
     ratios(rows, floor)
     print_table(rows, floor)
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "floor": floor,

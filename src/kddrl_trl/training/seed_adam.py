@@ -34,7 +34,7 @@ class SeedAdam(torch.optim.Optimizer):
             if p.shape[d] != self.seeds:
                 raise ValueError(f"SeedAdam: a parameter of shape {tuple(p.shape)} has no seed dimension {d}")
             self.state[p] = {
-                "step": torch.zeros(self.seeds),
+                "step": torch.zeros(self.seeds, device=p.device),
                 "exp_avg": torch.zeros_like(p, memory_format=torch.preserve_format),
                 "exp_avg_sq": torch.zeros_like(p, memory_format=torch.preserve_format),
             }
@@ -44,7 +44,11 @@ class SeedAdam(torch.optim.Optimizer):
         """Per parameter, views of two ``[N]`` tensors (the step size and the bias correction of the second moment,
         per seed) shaped to broadcast along its seed dimension; taken once, the ``[N]`` tensors written each step."""
         if self._views is None:
-            self._step_size, self._bc2_sqrt = torch.zeros(self.seeds), torch.ones(self.seeds)
+            device = self.param_groups[0]["params"][0].device
+            self._step_size, self._bc2_sqrt = (
+                torch.zeros(self.seeds, device=device),
+                torch.ones(self.seeds, device=device),
+            )
             self._views = []
             for p, d in zip(self.param_groups[0]["params"], self.seed_dims):
                 shape = [self.seeds if i == d else 1 for i in range(p.dim())]
