@@ -1,5 +1,6 @@
-"""The README's and the guide's code stays true: the two set-up commands are CI's, the verdict table is the
-report's, the transform-reuse example of docs/reuse.md runs as written, and the README stays a front door."""
+"""The README's and the guide's code stays true: the two set-up commands are CI's, the README is a hand-written front
+door whose figures are the guide's, the guide's verdict table is the report's, and the transform-reuse example of
+docs/reuse.md runs as written."""
 
 from __future__ import annotations
 
@@ -31,32 +32,29 @@ def test_readme_gives_exactly_two_command_lines_first():
 
 
 def test_readme_is_a_front_door():
-    """At most 200 lines, no line over 120 characters but the two set-up commands (kept whole, as CI runs them), and
-    every relative link points to a file that exists."""
+    """At most 120 lines, written by hand (no generated block), no line over 120 characters but the two set-up
+    commands (kept whole, as CI runs them), and every relative link (pictures included) points to a file that
+    exists."""
     text = README.read_text()
     commands = re.search(r"```bash\n(.*?)```", text, re.S).group(1).splitlines()
-    assert len(text.splitlines()) <= 200
+    assert len(text.splitlines()) <= 120
     assert max(len(line) for line in text.splitlines() if line not in commands) <= 120
+    assert "| # | claim |" not in text and "<!--" not in text
     for target in re.findall(r"\]\(([^)#]+)\)", text):
         if not target.startswith("http"):
             assert (ROOT / target).exists(), target
 
 
-def test_the_guide_home_is_the_readme():
-    """docs/index.md is README.md with its links made relative to docs/ (regenerate it when the README changes);
-    the site reads its ``../studies/`` links as ``studies/`` (tools/mkdocs_studies.py)."""
-    readme = (
-        README.read_text()
-        .replace("](docs/", "](")
-        .replace("](studies/", "](../studies/")
-        .replace("([LICENSE](LICENSE))", "(the file LICENSE at the repository root)")
-        .replace("[CITATION.cff](CITATION.cff)", "the file CITATION.cff")
-    )
+def test_the_readme_results_are_the_guides_tested_figures():
+    """Each interval and each percentage of the README's results is on the guide's home page, whose tables are the
+    committed reports' and runs' (the two tests below): the front door states no figure of its own."""
+    text = README.read_text()
+    results = text[text.index("## Results") : text.index("## Everyday commands")]
+    figures = re.findall(r"\[-?\d+\.\d+, -?\d+\.\d+\]|\d+(?:\.\d+)?(?:-\d+)? %", results)
+    assert len(figures) >= 5
     home = (ROOT / "docs" / "index.md").read_text()
-    marker = (
-        "<!-- the guide's home: README.md with links relative to docs/ (tests/test_readme.py keeps them in step) -->\n"
-    )
-    assert home.replace(marker, "").replace("# kddrl_trl\n\n", "# kddrl_trl\n", 1) == readme
+    for figure in figures:
+        assert figure in home, figure
 
 
 def test_conf_at_the_root_is_the_package_conf():
@@ -84,20 +82,20 @@ def test_one_version_everywhere():
     assert (ROOT / "src" / "kddrl_trl" / "py.typed").is_file()
 
 
-def test_the_readme_verdict_table_is_the_reports():
-    """The README's short verdict table is :func:`kddrl_trl.reporting.verdict_table.table` of the committed
-    ``studies/paper/report.json`` (``python -m kddrl_trl.report ... verdict_table=[README.md,docs/index.md]`` writes
-    it): a regenerated report that changes a claim fails here until the README follows."""
+def test_the_guides_verdict_table_is_the_reports():
+    """The guide home page's short verdict table is :func:`kddrl_trl.reporting.verdict_table.table` of the committed
+    ``studies/paper/report.json`` (``python -m kddrl_trl.report ... verdict_table=[docs/index.md]`` writes it): a
+    regenerated report that changes a claim fails here until the page follows."""
     import json
 
     from kddrl_trl.reporting.verdict_table import table
 
     report = json.loads((ROOT / "studies" / "paper" / "report.json").read_text())
-    assert table(report) in README.read_text()
+    assert table(report) in (ROOT / "docs" / "index.md").read_text()
 
 
 def test_the_preset_confirmation_tables_are_the_runs(tmp_path):
-    """The README's safety table and studies/paper/README.md's confirmation table are ``studies/paper/confirmation.py``'s
+    """The guide home page's safety table and studies/paper/README.md's confirmation table are ``studies/paper/confirmation.py``'s
     output on the committed run records: a run that lands and changes a row fails here until the prose follows."""
     import runpy
 
@@ -107,7 +105,7 @@ def test_the_preset_confirmation_tables_are_the_runs(tmp_path):
         tmp_path, "studies/paper/runs", "studies/paper/runs_5-14", "studies/ablation/runs", "studies/reproduction/runs"
     )
     confirmation = runpy.run_path(str(ROOT / "studies" / "paper" / "confirmation.py"))
-    assert confirmation["safety_table"](studies) in README.read_text()
+    assert confirmation["safety_table"](studies) in (ROOT / "docs" / "index.md").read_text()
     assert confirmation["table"](studies) in (ROOT / "studies" / "paper" / "README.md").read_text()
 
 

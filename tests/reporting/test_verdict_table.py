@@ -1,4 +1,4 @@
-"""The README's short verdict table reads each primary claim's verdicts from ``report.json`` as the report wrote them."""
+"""The guide home page's short verdict table reads each primary claim's verdicts from ``report.json`` as the report wrote them."""
 
 import pytest
 

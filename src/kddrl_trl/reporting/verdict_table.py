@@ -1,7 +1,7 @@
 """The short verdict table: the analysis plan's 17 primary claims (``studies/paper/plan.md``), read from a verdict
 report's ``report.json`` (:mod:`kddrl_trl.reporting.verdict`).
 
-    python -m kddrl_trl.report <runs> verdict=true verdict_table=[README.md,docs/index.md]  # the table replaced there
+    python -m kddrl_trl.report <runs> verdict=true verdict_table=[docs/index.md]  # the table replaced there
 
 a − b is the claim's first system minus its second; speeds in km/h, collision rates in percentage points; ``paper``:
 the same difference in the paper's tables. "ours" is the confirmatory test's estimate on seeds 5-14 once every cell
