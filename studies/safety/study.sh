@@ -1,50 +1,50 @@
 #!/usr/bin/env bash
 # The safety study (studies/safety/plan.md): KDDRL and D3QN+TD3 under +preset=safe, and IDM+MOBIL, on baseline,
-# congested and braking at seeds 100-109, seed-major; then (PHASE=unshielded) every learning run's final policy
-# evaluated again without the layer on the same test traffic, each into <SWEEP_DIR>_unshielded/<run name>/. Run it
-# with the plan's pinned commit on the path (a checkout of it, its venv active):
-#   bash studies/safety/study.sh [SWEEP_DIR]                      # default runs/safety
-#   PHASE=unshielded bash studies/safety/study.sh [SWEEP_DIR]
-# It resumes job by job: a finished run (summary.json) is skipped, a killed one continues from its newest checkpoint;
-# an unshielded evaluation already made (its summary.json) is skipped. JOBS (default 2) at a time, one torch thread
-# each.
+# congested and braking at seeds 100-109, seed-major; each learning run's final policy is then evaluated again
+# without the layer on the same test traffic (shield=none), into <SWEEP_DIR>_unshielded/<run name>/, in the same
+# slot right after its training: a checkpoint does not outlive the machine it was written on, so the evaluation that
+# reads it cannot wait for a later session. Run it from a checkout of the plan's pinned commit, its venv active
+# (this script may be main's: the code it runs is the checkout's):
+#   bash studies/safety/study.sh [SWEEP_DIR]                # default runs/safety
+#   STOP_AT=07:20 bash studies/safety/study.sh runs/safety  # start no job that would end after 07:20 (a session's end)
+# It resumes job by job: a finished run (summary.json) with its unshielded evaluation is skipped, a killed one
+# continues from its newest checkpoint. JOBS (default 2) at a time, one torch thread each. A job's expected wall
+# (EXPECT_KDDRL, EXPECT_D3QN_TD3, EXPECT_IDM_MOBIL, minutes: 32, 24, 5 by default, measured two at a time on a
+# 2-core machine) decides whether it starts before STOP_AT; what it skipped is logged.
 set -euo pipefail
 SWEEP=${1:-runs/safety}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} SWEEP
+export STOP_EPOCH=$([ -n "${STOP_AT:-}" ] && date -d "$STOP_AT" +%s || echo 0)
+export EXPECT_KDDRL=${EXPECT_KDDRL:-32} EXPECT_D3QN_TD3=${EXPECT_D3QN_TD3:-24} EXPECT_IDM_MOBIL=${EXPECT_IDM_MOBIL:-5}
 SEEDS=${SEEDS:-"100 101 102 103 104 105 106 107 108 109"}
 
 jobs() {
-  local seed sc
-  for seed in $SEEDS; do for sc in baseline congested braking; do
-    echo "seed=$seed +scenario=$sc +preset=safe algo=kddrl"
-    echo "seed=$seed +scenario=$sc +preset=safe algo=d3qn_td3"
-    echo "seed=$seed +scenario=$sc algo=idm_mobil"
-  done; done
+  local seed sc algo
+  for seed in $SEEDS; do for sc in baseline congested braking; do for algo in kddrl d3qn_td3 idm_mobil; do
+    echo "$seed $sc $algo"
+  done; done; done
 }
 
-one() {  # a single-job sweep into the shared folder: its subdir is named as in a full sweep
+slot() {  # one job: its training (a single-job sweep into the shared folder), then its unshielded evaluation
+  local seed sc algo name expect preset
+  read -r seed sc algo <<< "$1"
+  name="${sc}__${algo}__${seed}"
+  if [ -f "$SWEEP/$name/summary.json" ] && { [ "$algo" = idm_mobil ] || [ -f "${SWEEP}_unshielded/$name/summary.json" ]; }; then
+    return
+  fi
+  case $algo in kddrl) expect=$EXPECT_KDDRL;; d3qn_td3) expect=$EXPECT_D3QN_TD3;; *) expect=$EXPECT_IDM_MOBIL;; esac
+  if [ "$STOP_EPOCH" -gt 0 ] && [ $(( $(date +%s) + expect * 60 )) -gt "$STOP_EPOCH" ]; then
+    echo "study.sh: $name not started: it would end after STOP_AT" >&2
+    return
+  fi
+  preset=$([ "$algo" = idm_mobil ] && echo "" || echo "+preset=safe")
   # shellcheck disable=SC2086
-  python -m kddrl_trl.train -m progress=false resume="$SWEEP" $1 || echo "study.sh: job failed: $1" >&2
+  python -m kddrl_trl.train -m progress=false resume="$SWEEP" seed="$seed" +scenario="$sc" $preset algo="$algo" \
+    || { echo "study.sh: job failed: $name" >&2; return; }
+  if [ "$algo" != idm_mobil ] && [ ! -f "${SWEEP}_unshielded/$name/summary.json" ]; then
+    python -m kddrl_trl.evaluate progress=false run="$SWEEP/$name" +scenario="$sc" seed="$seed" shield=none \
+      hydra.run.dir="${SWEEP}_unshielded/$name" || echo "study.sh: evaluation failed: $name" >&2
+  fi
 }
-
-unshielded() {  # the final policy of each finished learning run, on its own scenario's test traffic, no layer
-  local run name sc seed
-  for run in "$SWEEP"/*__kddrl__* "$SWEEP"/*__d3qn_td3__*; do
-    [ -f "$run/summary.json" ] || continue
-    name=$(basename "$run")
-    [ -f "${SWEEP}_unshielded/$name/summary.json" ] && continue
-    sc=${name%%__*}; seed=${name##*__}
-    echo "run=$run +scenario=$sc seed=$seed shield=none hydra.run.dir=${SWEEP}_unshielded/$name"
-  done
-}
-
-unshielded_one() {
-  # shellcheck disable=SC2086
-  python -m kddrl_trl.evaluate progress=false $1 || echo "study.sh: evaluation failed: $1" >&2
-}
-export -f one unshielded_one
-if [ "${PHASE:-}" = unshielded ]; then
-  unshielded | xargs -d '\n' -P "${JOBS:-2}" -I{} bash -c 'unshielded_one "$1"' _ {}
-else
-  jobs | xargs -d '\n' -P "${JOBS:-2}" -I{} bash -c 'one "$1"' _ {}
-fi
+export -f slot
+jobs | xargs -d '\n' -P "${JOBS:-2}" -I{} bash -c 'slot "$1"' _ {}
