@@ -238,3 +238,42 @@ def test_the_collector_fills_each_seeds_buffers_with_its_own_rows_only():
         assert expect is not None and len(macros_h[i]) == expect.numel()
         assert torch.equal(macros_h[i][:].get(("next", K.LC_REWARD)), expect.get(("next", K.LC_REWARD)))
         assert [bt.seed_macros[i] is None for bt in batches] != [True, True]
+
+
+def test_a_seed_leaves_the_batch_as_a_single_learner_and_comes_back(samples):
+    """After 3 batched steps (the D3QN's partly sat out), seed i's state (``seed_full_state``, what its own
+    checkpoint holds) loaded into a single learner trains on as the batch's seed i does; and written back into a
+    fresh batch seed by seed (``load_seed_state``, a resumed batch) it gives the same batch, optimiser states
+    included."""
+    from kddrl_trl.training.seed_split import load_seed_state, seed_full_state
+
+    b = batched(singles())
+    for step, mask in enumerate([[True, False, True], [True, True, True], [False, True, True]]):
+        f, m = per_seed(samples, step)
+        b.update_cf(torch.stack([x.clone() for x in f]))
+        b.update_lc(torch.stack([x.clone() for x in m]), active=torch.tensor(mask))
+    states = [seed_full_state(b, i) for i in range(N)]
+    again = HierarchicalLearner(**NO_SMOOTHING, seeds=N)
+    for i, state in enumerate(states):
+        load_seed_state(again, i, state)
+    for k, v in b.state_dict().items():
+        assert torch.equal(again.state_dict()[k], v), k
+    for name, opt in b.optimizers().items():
+        mine = again.optimizers()[name].state_dict()["state"]
+        for idx, s in opt.state_dict()["state"].items():
+            assert all(torch.equal(mine[idx][key], s[key]) for key in s), (name, idx)
+    alone = []
+    for i, state in enumerate(states):
+        one = HierarchicalLearner(**NO_SMOOTHING)
+        one.load_full_state_dict(state)
+        alone.append(one)
+    f, m = per_seed(samples, 3)
+    b.update_cf(torch.stack([x.clone() for x in f]))
+    b.update_lc(torch.stack([x.clone() for x in m]))
+    for i, one in enumerate(alone):
+        one.update_cf(f[i].clone())
+        one.update_lc(m[i].clone())
+        mine = seed_slice(b, i)
+        for k, v in one.state_dict().items():
+            if k != "counters":
+                torch.testing.assert_close(mine[k], v, rtol=1e-5, atol=1e-6, msg=k)

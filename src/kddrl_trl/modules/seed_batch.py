@@ -83,7 +83,7 @@ def _stacked_value(name: str, values: list[torch.Tensor], stacked: torch.Tensor)
     return torch.stack(values, seed_dim(name, stacked)).reshape(stacked.shape)
 
 
-def _seed_value(name: str, stacked: torch.Tensor, i: int) -> torch.Tensor:
+def seed_value(name: str, stacked: torch.Tensor, i: int) -> torch.Tensor:
     """Seed ``i`` 's value of a stacked tensor, shaped as a single learner's."""
     if not _is_layer_tensor(name):
         return stacked[i, 0]
@@ -189,7 +189,7 @@ def seed_slice(batched: nn.Module, i: int) -> dict[str, torch.Tensor]:
     """Seed ``i`` 's state of a batched learner as a single learner's ``state_dict`` (the other entries as they
     are): what a seed's own checkpoint holds."""
     stacked = set(stacked_names(batched))
-    return {k: (_seed_value(k, v, i) if k in stacked else v).clone() for k, v in batched.state_dict().items()}
+    return {k: (seed_value(k, v, i) if k in stacked else v).clone() for k, v in batched.state_dict().items()}
 
 
 class SeedRows(TensorDictModuleBase):
