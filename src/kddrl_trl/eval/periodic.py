@@ -72,7 +72,7 @@ class PeriodicEvaluator:
 
     The worker runs beside the training at the lowest scheduling priority (``nice`` 19): on a machine whose cores
     the training fills, the validation takes what the training leaves idle, and the learner's threads do not wait
-    for a core the worker holds (measured in ``studies/performance/log/async_validation_2026-11-27``). The training
+    for a core the worker holds (``python -m benchmarks.default_job`` measures the training time either way). The training
     process's torch threads are left as they are (TorchDynamo guards the thread count: a change mid-run would
     trace every compiled loss again)."""
 
