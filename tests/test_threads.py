@@ -4,6 +4,8 @@ busy process, and a run's records that do not depend on the count."""
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import logging
 import subprocess
@@ -100,8 +102,10 @@ def test_another_busy_process_is_seen_and_this_ones_threads_are_not():
 
 
 def test_a_runs_records_are_the_same_at_one_and_two_threads(tmp_path):
-    """The records of a short real-SUMO run (default network sizes) are byte-identical at 1 and 2 torch threads, so
-    ``auto`` may follow the machine; ``summary.json`` records the choice."""
+    """The training records of a short real-SUMO run (default network sizes) are byte-identical at 1 and 2 torch
+    threads, so ``auto`` may follow the machine, and its final evaluation's agree to 1e-6 (byte-identical on the
+    Intel Xeon; on an AMD EPYC with AVX-512 the greedy evaluation's floats part at about 1e-8 between the two thread
+    counts, measured); ``summary.json`` records the choice."""
     records = {}
     for n in (1, 2):
         out = tmp_path / f"t{n}"
@@ -114,4 +118,15 @@ def test_a_runs_records_are_the_same_at_one_and_two_threads(tmp_path):
         summary = json.loads((out / "summary.json").read_text())
         assert summary["torch_threads"]["threads"] == n and summary["torch_threads"]["reason"] == "torch_threads"
         records[n] = [(out / f).read_bytes() for f in ("train_episodes.csv", "eval_episodes.csv")]
-    assert records[1] == records[2]
+    assert records[1][0] == records[2][0]
+    one, two = (list(csv.DictReader(io.StringIO(r[1].decode()))) for r in (records[1], records[2]))
+    assert len(one) == len(two) and one
+    for a, b in zip(one, two):
+        assert a.keys() == b.keys()
+        for k in a:
+            try:
+                x, y = float(a[k]), float(b[k])
+            except ValueError:
+                assert a[k] == b[k], k
+                continue
+            assert x == y or abs(x - y) <= 1e-6 * max(abs(x), abs(y)), (k, x, y)

@@ -268,12 +268,12 @@ class HierarchicalLearner(Learner):
         return {"loss_qvalue": self._run("cf_value", batch, active)[0]}
 
     def update_frame(self, batch: TensorDictBase, active: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """Buffer L: :meth:`update_cf`."""
-        return self.update_cf(batch, active)
+        """Buffer L: :meth:`update_cf` (called as a single learner's, ``update_cf(batch)``, where no seeds sit out)."""
+        return self.update_cf(batch) if active is None else self.update_cf(batch, active)
 
     def update_decision(self, batch: TensorDictBase, active: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """Buffer H: :meth:`update_lc`."""
-        return self.update_lc(batch, active)
+        """Buffer H: :meth:`update_lc` (called as a single learner's where no seeds sit out)."""
+        return self.update_lc(batch) if active is None else self.update_lc(batch, active)
 
     def update_lc(self, batch: TensorDictBase, active: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """One D3QN step on a buffer-H sample of macro-transitions (Algorithm 1 lines 27-29); ``active``: a seed
