@@ -161,7 +161,10 @@ def t_power(effect: float, sd: float, n: int, alpha: float, paired: bool) -> flo
     # adaptive quadrature from n = 2 to 1000)
     u, w = _legendre()
     scale = crit * np.sqrt(chi2.ppf((u + 1) / 2, df) / df)
-    return float(min(1.0, np.dot(w / 2, norm.cdf(delta - scale) + norm.cdf(-delta - scale))))
+    total = np.dot(w / 2, norm.cdf(delta - scale) + norm.cdf(-delta - scale))
+    # rounded to 1e-12, far below the rule's accuracy: the dot product's last bits depend on the CPU's vector width
+    # (an AVX-512 and an AMX machine part at 1e-17), and a report must regenerate byte-identical on either
+    return float(min(1.0, round(float(total), 12)))
 
 
 @functools.cache
