@@ -379,3 +379,33 @@ def test_update_floor_runs_at_its_smallest_size(tmp_path):
                        "--out", str(out)]) == 0  # fmt: skip
     result = json.loads(out.read_text())
     assert result["floor"] and result["update"]["torch_threads"] == 1
+
+
+#: the smallest size of benchmarks that had only their ``--help`` tested: a broken import or call fails here
+SMALLEST = {
+    "replay_sampling": [
+        "--capacity",
+        "1000",
+        "--batch-size",
+        "8",
+        "--calls",
+        "4",
+        "--per-batch",
+        "2",
+        "--repeats",
+        "1",
+    ],
+    "gan_inference": ["--envs", "1", "--calls", "2"],
+    "transform_overhead": ["--roads", "1", "--frames", "20", "--segment", "10"],
+    "env_throughput": ["--roads", "1", "--scenarios", "baseline", "--frames", "20", "--warmup", "2"],
+}
+
+
+@pytest.mark.benchmarks
+@pytest.mark.parametrize("name", sorted(SMALLEST))
+def test_a_benchmark_runs_at_its_smallest_size_and_writes_its_json(name, tmp_path):
+    """Each of :data:`SMALLEST` for real at its smallest size: it ends without an error and writes a JSON object."""
+    bench = load_benchmark(name)
+    out = tmp_path / f"{name}.json"
+    assert bench.main([*SMALLEST[name], "--out", str(out)]) in (0, None)
+    assert isinstance(json.loads(out.read_text()), dict)
