@@ -398,6 +398,7 @@ SMALLEST = {
     "gan_inference": ["--envs", "1", "--calls", "2"],
     "transform_overhead": ["--roads", "1", "--frames", "20", "--segment", "10"],
     "env_throughput": ["--roads", "1", "--scenarios", "baseline", "--frames", "20", "--warmup", "2"],
+    "update_speed": ["--updates", "4", "--repeats", "1"],
 }
 
 
