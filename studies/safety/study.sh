@@ -7,6 +7,7 @@
 # (this script may be main's: the code it runs is the checkout's):
 #   bash studies/safety/study.sh [SWEEP_DIR]                # default runs/safety
 #   STOP_AT=07:20 bash studies/safety/study.sh runs/safety  # start no job that would end after 07:20 (a session's end)
+#   LANDED=<main>/studies/safety bash studies/safety/study.sh runs/safety   # skip the runs landed on main already
 # It resumes job by job: a finished run (summary.json) with its unshielded evaluation is skipped, a killed one
 # continues from its newest checkpoint. JOBS (default 2) at a time, one torch thread each. A job's expected wall
 # (EXPECT_KDDRL, EXPECT_D3QN_TD3, EXPECT_IDM_MOBIL, minutes: 32, 24, 5 by default, measured two at a time on a
@@ -29,9 +30,12 @@ slot() {  # one job: its training (a single-job sweep into the shared folder), t
   local seed sc algo name expect preset
   read -r seed sc algo <<< "$1"
   name="${sc}__${algo}__${seed}"
-  if [ -f "$SWEEP/$name/summary.json" ] && { [ "$algo" = idm_mobil ] || [ -f "${SWEEP}_unshielded/$name/summary.json" ]; }; then
-    return
-  fi
+  local where
+  for where in "$SWEEP" ${LANDED:+"$LANDED/runs"}; do  # done here, or landed on main already (LANDED)
+    if [ -f "$where/$name/summary.json" ] && { [ "$algo" = idm_mobil ] || [ -f "${where}_unshielded/$name/summary.json" ]; }; then
+      return
+    fi
+  done
   case $algo in kddrl) expect=$EXPECT_KDDRL;; d3qn_td3) expect=$EXPECT_D3QN_TD3;; *) expect=$EXPECT_IDM_MOBIL;; esac
   if [ "$STOP_EPOCH" -gt 0 ] && [ $(( $(date +%s) + expect * 60 )) -gt "$STOP_EPOCH" ]; then
     echo "study.sh: $name not started: it would end after STOP_AT" >&2
