@@ -45,15 +45,14 @@ def measure(
     seeds: list[int],
     updates: int,
     repeats: int,
-    seed: int,
+    buffers: tuple,
     compiled_arms: bool = True,
     device: torch.device = torch.device("cpu"),
 ) -> dict:
     """Seconds per TD3 / D3QN update (whole batch) of each arm: ``single`` and ``seeds_<N>``, eager and (with
-    ``compiled_arms``) compiled, on ``device`` (the minibatches there beforehand, as the learner's buffers sample
-    them)."""
-    torch.manual_seed(seed)
-    rb_cf, rb_lc = sample_batches(4000, seed, buffer_keys())
+    ``compiled_arms``) compiled, on minibatches of ``buffers`` (:func:`~benchmarks.kddrl_parts.sample_batches`' two)
+    moved to ``device`` beforehand, as the learner's buffers sample them."""
+    rb_cf, rb_lc = buffers
     lc_period = learner_kwargs(False)[1]
     arms = {}
     for compiled in (False, True) if compiled_arms else (False,):
@@ -122,10 +121,12 @@ def main(argv=None) -> int:
     # take turns: past TorchDynamo's default of 8 graphs per code object the later arms would run eagerly
     torch._dynamo.config.recompile_limit = 8 * (len(args.seeds) + 1)
     device = torch.device(args.device)
-    rows = measure(args.seeds, args.updates, args.repeats, args.seed, compiled_arms=not args.eager_only, device=device)
+    torch.manual_seed(args.seed)
+    buffers = sample_batches(4000, args.seed, buffer_keys())
+    rows = measure(args.seeds, args.updates, args.repeats, buffers, compiled_arms=not args.eager_only, device=device)
     floor = None  # the CPU's GEMM floor; a GPU's tiny products are launch-bound, its figure is the per-seed cost
     if device.type == "cpu":
-        flops = update_flops(args.seed, sample_batches(4000, args.seed, buffer_keys()))
+        flops = update_flops(args.seed, buffers)
         rate = gemm_rate(args.threads)
         floor = {**flops, "gemm_flop_per_s": rate, **{f"{a}_floor_s": flops[f"{a}_flops_per_update"] / rate
                                                        for a in ("td3", "d3qn")}}  # fmt: skip

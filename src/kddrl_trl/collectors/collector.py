@@ -195,13 +195,19 @@ class MultiTimescaleCollector:
             if self.seeds is not None:
                 yield self._seed_batch(frames)
                 continue
-            macros = self.writer(frames)
-            if self.frame_buffer is not None:
-                flat = (frames if self.frame_transform is None else self.frame_transform(frames)).reshape(-1)
-                self.frame_buffer.extend(flat.select(*self.frame_keys) if self.frame_keys else flat)
-            if self.macro_buffer is not None and macros is not None:
-                self.macro_buffer.extend(macros.select(*self.macro_keys) if self.macro_keys else macros)
+            macros = self._fill(frames, self.writer, self.frame_transform, self.frame_buffer, self.macro_buffer)
             yield MultiTimescaleBatch(frames, macros)
+
+    def _fill(self, frames, writer, transform, frame_buffer, macro_buffer) -> TensorDictBase | None:
+        """The macro-transitions ``writer`` closes in ``frames`` ``[B, T]``; the frames (through ``transform``) into
+        ``frame_buffer`` and the macro-transitions into ``macro_buffer``, each restricted to its keys."""
+        macros = writer(frames)
+        if frame_buffer is not None:
+            flat = (frames if transform is None else transform(frames)).reshape(-1)
+            frame_buffer.extend(flat.select(*self.frame_keys) if self.frame_keys else flat)
+        if macro_buffer is not None and macros is not None:
+            macro_buffer.extend(macros.select(*self.macro_keys) if self.macro_keys else macros)
+        return macros
 
     def _seed_batch(self, frames: TensorDictBase) -> MultiTimescaleBatch:
         """A seed batch's iteration: each seed's rows through its own writer and into its own buffers."""
@@ -209,16 +215,16 @@ class MultiTimescaleCollector:
         if rows % self.seeds:
             raise ValueError(f"{rows} env rows do not split into {self.seeds} seeds' roads")
         k = rows // self.seeds
-        per_seed = []
-        for i, (writer, transform) in enumerate(zip(self.writers, self.frame_transforms)):
-            own = frames[i * k : (i + 1) * k]
-            macros = writer(own)
-            if self.frame_buffer is not None:
-                flat = (own if transform is None else transform(own)).reshape(-1)
-                self.frame_buffer[i].extend(flat.select(*self.frame_keys) if self.frame_keys else flat)
-            if self.macro_buffer is not None and macros is not None:
-                self.macro_buffer[i].extend(macros.select(*self.macro_keys) if self.macro_keys else macros)
-            per_seed.append(macros)
+        per_seed = [
+            self._fill(
+                frames[i * k : (i + 1) * k],
+                writer,
+                transform,
+                None if self.frame_buffer is None else self.frame_buffer[i],
+                None if self.macro_buffer is None else self.macro_buffer[i],
+            )
+            for i, (writer, transform) in enumerate(zip(self.writers, self.frame_transforms))
+        ]
         return MultiTimescaleBatch(frames, None, per_seed)
 
     def update_policy_weights_(self) -> None:

@@ -119,19 +119,16 @@ def stack_seeds(module: nn.Module, seeds: int, scalars: Sequence[str] = ()) -> n
     are each seed's own (an exploration schedule's ε), made ``[N, 1]``."""
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds}")
-    own, done = _tensors_by_name(module), set()
+    own = _tensors_by_name(module)
     for name in scalars:
         t = own.get(name)
         if t is None or t.dim() != 0:
             raise ValueError(f"stack_seeds: {name!r} is not a 0-d tensor of the module")
         t.data = t.data.expand(seeds, 1).clone()
-        done.add(id(t))
     module.seed_scalars = tuple(scalars)
-    for name in stacked_names(module):
-        t = own[name]
-        if id(t) in done:  # one tensor under two names (a network and its loss's copy of it): stacked once
+    for name, t in _unique_stacked(module):
+        if name in module.seed_scalars:
             continue
-        done.add(id(t))
         d = _unstacked_seed_dim(name, t)
         with torch.no_grad():
             t.data = t.data.unsqueeze(d).expand(*t.shape[:d], seeds, *t.shape[d:]).clone()
@@ -174,15 +171,20 @@ def seed_dims_of(module: nn.Module, tensors) -> list[int]:
     return out
 
 
-def stacked_tensors(module: nn.Module) -> list[tuple[torch.Tensor, int]]:
-    """Every stacked tensor of ``module`` once (a tensor under two names counted once), with its seed dimension."""
-    own, seen, out = _tensors_by_name(module), set(), []
+def _unique_stacked(module: nn.Module):
+    """``(name, tensor)`` of each of :func:`stacked_names` ' tensors once: one tensor under two names (a network and
+    its loss's copy of it) under the first."""
+    own, seen = _tensors_by_name(module), set()
     for name in stacked_names(module):
         t = own[name]
         if id(t) not in seen:
             seen.add(id(t))
-            out.append((t, seed_dim(name, t)))
-    return out
+            yield name, t
+
+
+def stacked_tensors(module: nn.Module) -> list[tuple[torch.Tensor, int]]:
+    """Every stacked tensor of ``module`` once (a tensor under two names counted once), with its seed dimension."""
+    return [(t, seed_dim(name, t)) for name, t in _unique_stacked(module)]
 
 
 def seed_slice(batched: nn.Module, i: int) -> dict[str, torch.Tensor]:

@@ -149,8 +149,11 @@ class Learner(nn.Module):
 
     def _seed_tensors(self) -> list[tuple[torch.Tensor, int]]:
         """Every tensor of a seed batch whose slices are a seed's own, with its seed dimension: the stacked networks
-        and targets, and the optimisers' moments and step counts."""
-        out = stacked_tensors(self)
+        and targets (found once: they keep their identity), and the optimisers' moments and step counts (read each
+        time: a fused Adam makes its moments at its first step)."""
+        if "_stacked" not in self.__dict__:
+            self.__dict__["_stacked"] = stacked_tensors(self)
+        out = list(self._stacked)
         dims = dict((id(t), d) for t, d in out)
         for opt in self.optimizers().values():
             if hasattr(opt, "seed_tensors"):
