@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+from collections.abc import Sequence
 from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
@@ -70,19 +71,21 @@ from .envs.highwayenv import HighwayEnvAdapter
 from .envs.sumo_env import SumoHighwayEnv
 from .eval.periodic import PeriodicEvaluator
 from .eval.protocol import test_seed, validation_seed, worker_seed
+from .eval.seed_validation import SeedBatchValidation
 from .generative import shipped_traffic
 from .loggers import MultiLogger
+from .modules.seed_batch import load_seeds
 from .physics import IDMParams, MOBILParams
 from .physics.rss import RSSParams
 from .policies import POLICY_FILE
-from .process_settings import TorchSettings
+from .process_settings import TorchSettings, seed_everything
 from .run_folder import (
     RunFolder,
     best_checkpoint,
     checkpoint_dir,
-    latest_checkpoint,
     no_folder_if_refused,
     resume_requested,
+    run_checkpoint,
     trained_run,
 )
 from .threads import ThreadGovernor
@@ -96,6 +99,9 @@ from .training import (
     load_training_checkpoint,
     make_buffer,
 )
+from .training.seed_batch_trainer import SeedBatchTrainer
+from .training.seed_split import SeedView
+from .training.trainer import Trainer
 from .transforms import (
     DecisionClock,
     MOBILCriteria,
@@ -178,7 +184,7 @@ def make_run_dir(resume) -> tuple[Path, bool]:
 
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
-    resuming = latest_checkpoint(run_dir) is not None
+    resuming = run_checkpoint(run_dir) is not None
     if resume_requested(resume) and not resuming and hydra_cfg.mode != RunMode.MULTIRUN:
         raise SystemExit(f"resume={resume}: {run_dir} holds no checkpoint")
     return run_dir, resuming
@@ -247,20 +253,42 @@ def make_env(
     compile: bool = False,
     fake: bool = False,
     gui: bool = False,
+    road_seeds: Sequence[int] | None = None,
 ) -> EnvBase:
     """The env of ``env.simulator`` with ``env.num_roads`` roads on the composed highway config: ``SumoHighwayEnv``
     (``sumo``; ``FakeHighwayEnv`` with ``fake=True``) or ``HighwayEnvAdapter`` (``highwayenv``, the optional extra
     ``.[highway]``), with :func:`make_transforms` (built first: no simulator starts before every option is
-    checked; a rule-based algo without a shield gets the bare env)."""
+    checked; a rule-based algo without a shield gets the bare env). ``road_seeds`` (a seed batch's env, SUMO or
+    the fake env): one road per entry, each carrying the traffic of its seed (``num_roads`` is then their count)."""
     highway = env.highway()
     transforms = make_transforms(algo, seed, highway, compile, env.simulator)
+    roads = env.num_roads if road_seeds is None else len(road_seeds)
+    if road_seeds is not None and env.simulator != "sumo":
+        raise ValueError(f"a seed batch's env is SUMO's (env.simulator=sumo), got env.simulator={env.simulator}")
     if fake:
-        base = FakeHighwayEnv(highway, num_roads=env.num_roads, seed=seed)
+        base = FakeHighwayEnv(highway, num_roads=roads, seed=seed, road_seeds=road_seeds)
     elif env.simulator == "highwayenv":
         base = HighwayEnvAdapter(highway, num_roads=env.num_roads, seed=seed, options=env.highwayenv)
     else:
-        base = SumoHighwayEnv(highway, num_roads=env.num_roads, seed=seed, gui=gui)
+        base = SumoHighwayEnv(highway, num_roads=roads, seed=seed, gui=gui, road_seeds=road_seeds)
     return TransformedEnv(base, transforms) if len(transforms.transforms) else base
+
+
+def make_seed_batch_env(job: TrainJob, seeds: Sequence[int], fake: bool = False) -> list[WorkerEnv]:
+    """The env factory of a seed batch, run in the learner process: one env of ``len(seeds) x env.num_roads``
+    roads, seed-major, seed ``i`` 's roads carrying the traffic of its run alone with env seed ``seeds[i]``
+    (:class:`~kddrl_trl.envs.sim.HighwaySim` ``road_seeds``; on resume each seed's seed plus its episodes done)."""
+    roads = [int(s) for s in seeds for _ in range(job.env.num_roads)]
+    make = partial(make_env, job.env, job.algo, compile=job.compile, fake=fake, road_seeds=roads)
+    return [WorkerEnv(make, roads[0], seed_torch=False, settings=make_torch_settings(job))]
+
+
+def make_seed_batch_test_env(jobs: Sequence[Job], fake: bool = False) -> EnvBase:
+    """The env of a seed batch's final evaluations: ``jobs[i]`` 's test traffic (:func:`make_test_env` 's seed) on
+    the ``env.num_roads`` roads of seed ``i``, seed-major, in one simulation."""
+    job = jobs[0]
+    roads = [test_seed(j.seed, j.eval_seed) for j in jobs for _ in range(job.env.num_roads)]
+    return make_env(job.env, job.algo, seed=roads[0], compile=job.compile, fake=fake, road_seeds=roads)
 
 
 def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[WorkerEnv]:
@@ -283,17 +311,42 @@ def make_learner(
     compile: bool = False,
     device: torch.device | str | None = None,
     cudagraphs: bool = False,
+    seeds: int | None = None,
 ) -> Learner:
     """The learner of ``algo.kind`` (:data:`LEARNERS`) built from ``algo.learner`` and ``algo.state_extras`` (every
     learner's states) on ``device`` (None: the CPU; ``compile``: its update functions, the learner's one compile
-    site; ``cudagraphs``: CUDA-graph them)."""
+    site; ``cudagraphs``: CUDA-graph them). ``seeds=N``: N learners stacked in one (a hierarchical learner,
+    :mod:`kddrl_trl.modules.seed_batch`), all with the initial weights of the one built (:func:`make_seed_learner`
+    gives each seed its own)."""
+    extra = {} if seeds is None else {"seeds": int(seeds)}
     return LEARNERS[algo.kind](
         **asdict(algo.learner),
         state_extras=tuple(algo.state_extras),
         compile=compile,
         device=device,
         cudagraphs=cudagraphs,
+        **extra,
     )
+
+
+def make_seed_learner(
+    algo: LearningAlgo,
+    seeds: Sequence[int],
+    compile: bool = False,
+    device: torch.device | str | None = None,
+    cudagraphs: bool = False,
+) -> Learner:
+    """The batched learner of a seed batch: seed ``i`` starts with the initial weights its run alone starts with
+    (the learner built after ``seed_everything(seeds[i])``, :func:`~kddrl_trl.modules.seed_batch.load_seeds`); the
+    process is left seeded with ``seeds[0]``."""
+    singles = []
+    for seed in seeds:
+        seed_everything(int(seed))
+        singles.append(make_learner(algo))
+    batched = make_learner(algo, compile=compile, device=device, cudagraphs=cudagraphs, seeds=len(seeds))
+    load_seeds(batched, [s.to(batched.device) for s in singles])
+    seed_everything(int(seeds[0]))
+    return batched
 
 
 def make_policy(algo: LearningAlgo | RuleAlgo, highway: HighwayConfig, learner: Learner | None = None):
@@ -332,6 +385,7 @@ def make_collector(
     *,
     collector: CollectorConfig | None = None,
     rows: int | None = None,
+    seeds: int | None = None,
 ) -> MultiTimescaleCollector:
     """``train.frames_per_env`` frames per road per iteration with the exploring policy, into ``buffers``
     (restricted to the keys the learner reads; buffer H only for a learner that ``learns_from_decisions``).
@@ -340,7 +394,8 @@ def make_collector(
     (:meth:`MultiTimescaleCollector.from_env`). ``lc_reward`` (``algo.lc_reward``): ``frames`` sums the per-frame
     lane-change rewards of a macro-transition (Algorithm 1 line 35); ``decision`` counts the efficiency term the env
     writes (``keys.EFFICIENCY_TERM``) once per decision (§III.G,
-    :class:`~kddrl_trl.collectors.MacroTransitionWriter`)."""
+    :class:`~kddrl_trl.collectors.MacroTransitionWriter`). ``seeds=N`` (a seed batch): ``buffers`` holds N buffers L
+    and N buffers H, seed ``i`` 's filled from its rows (:class:`MultiTimescaleCollector`)."""
     if lc_reward not in LC_REWARDS:
         raise ValueError(f"make_collector: lc_reward must be one of {', '.join(LC_REWARDS)}, got {lc_reward!r}")
     collector = collector or CollectorConfig()
@@ -361,6 +416,77 @@ def make_collector(
         frame_transform=nstep,
         macro_keys=[*learner.buffer_keys(), ("next", *K.LC_MACRO_FRAMES)],
         writer=MacroTransitionWriter(efficiency_key=K.EFFICIENCY_TERM if lc_reward == "decision" else None),
+        seeds=seeds,
+    )
+
+
+def make_seed_batch(job: TrainJob, folder: Path, fake: bool = False) -> SeedBatchTrainer:
+    """The trainer of the seed batch ``job.seeds`` in ``folder``: the batched learner (:func:`make_seed_learner`)
+    and, per seed, a :class:`~kddrl_trl.training.Trainer` on its :class:`~kddrl_trl.training.seed_split.SeedView`
+    with the buffers, logger and periodic evaluator its run alone has (``fake``: none), writing into
+    ``folder/<scenario>__<algo>__<seed>/`` (a sweep's job names; a finished seed's folder gets no evaluator)."""
+    seeds = [int(s) for s in job.seeds]
+    jobs = [replace(job, seed=seed, seeds=None) for seed in seeds]
+    learner = make_seed_learner(
+        job.algo, seeds, compile=job.compile, device=job.torch_device, cudagraphs=job.cudagraphs
+    )
+    single = make_learner(job.algo)  # each seed's policies: its weights in a learner of its own
+    validation = None if fake else make_seed_batch_validation(jobs)
+    books = []
+    for i, seed_job in enumerate(jobs):
+        run = RunFolder(Path(folder) / f"{job.env.scenario}__{job.algo.name}__{seed_job.seed}")
+        view = SeedView(learner, i, single, counts=None)
+        book = Trainer(
+            view,
+            make_buffers(job.train, seed_job.seed, learner.device),
+            job.train,
+            run.path,
+            make_logger(job.logger, run.path),
+            episodes=job.episodes,
+            progress=False,
+            evaluator=None if validation is None or run.is_finished() else validation.evaluator(i),
+            highway=job.env.highway(),
+        )
+        view.counts = lambda b=book: (b.counters["lc_updates"], b.counters["cf_updates"])
+        books.append(book)
+    return SeedBatchTrainer(
+        learner, books, job.train, folder, progress=job.progress, threads=job.threads, validation=validation
+    )
+
+
+def make_seed_batch_validation(jobs: Sequence[TrainJob]) -> SeedBatchValidation | None:
+    """The periodic validations of a seed batch (None with ``train.eval_every=0``): ``train.eval_episodes`` greedy
+    episodes per seed on ``jobs[i]`` 's validation traffic (:func:`make_evaluator` 's seed), on its K roads of one
+    env of N x K roads in a worker process; each seed's own evaluator (:func:`make_evaluator`) for the validations a
+    resumed batch starts again."""
+    job = jobs[0]
+    if job.train.eval_every == 0:
+        return None
+    roads = [validation_seed(j.seed) for j in jobs for _ in range(job.env.num_roads)]
+    make = partial(make_env, job.env, job.algo, compile=False, road_seeds=roads)
+    shared = PeriodicEvaluator(
+        WorkerEnv(make, roads[0], seed_torch=False, settings=make_torch_settings(job)),
+        job.train.eval_episodes,
+        roads[0],
+        job.train.best_metric,
+        groups=len(jobs),
+    )
+    return SeedBatchValidation(shared, lambda i: make_evaluator(jobs[i]))
+
+
+def make_seed_batch_collector(env, batch: SeedBatchTrainer, job: TrainJob) -> MultiTimescaleCollector:
+    """:func:`make_collector` of a seed batch: ``env`` (:func:`make_seed_batch_env`, or a batched env) of N x K rows,
+    seed ``i`` 's into its trainer's buffers."""
+    books = batch.books
+    return make_collector(
+        env,
+        batch.learner,
+        ([b.buffer_cf for b in books], [b.buffer_lc for b in books]),
+        job.train,
+        job.algo.lc_reward,
+        collector=job.collector,
+        rows=len(books) * job.env.num_roads,
+        seeds=len(books),
     )
 
 

@@ -38,6 +38,8 @@ class RunFolder:
     VALIDATION = "validation.csv"
     CURVES = "training_curves.png"
     CHECKPOINTS = "checkpoints"
+    #: a seed batch's folder: its seeds and their run folders (:mod:`kddrl_trl.training.seed_batch_trainer`)
+    SEED_BATCH = "seed_batch.json"
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
@@ -131,6 +133,16 @@ def latest_checkpoint(run_dir: str | Path) -> Path | None:
     return candidates[0] if candidates else None
 
 
+def run_checkpoint(run_dir: str | Path) -> Path | None:
+    """The newest checkpoint of a run folder, or of a seed batch's folder (``seed_batch.json``): the newest of its
+    seed folders'; None if there is none."""
+    own = latest_checkpoint(run_dir)
+    if own is not None or not (Path(run_dir) / RunFolder.SEED_BATCH).is_file():
+        return own
+    found = [c for d in sorted(Path(run_dir).iterdir()) if d.is_dir() and (c := latest_checkpoint(d)) is not None]
+    return max(found, key=lambda c: c.stat().st_mtime) if found else None
+
+
 def resume_requested(resume) -> bool:
     """Whether a ``resume`` option asks to resume (``true`` or a run folder; ``false`` / null do not)."""
     return resume not in (None, False, "", "false", "False")
@@ -138,19 +150,20 @@ def resume_requested(resume) -> bool:
 
 def find_resume_dir(resume, runs_root: str | Path, prefix: str) -> Path | None:
     """The run directory to resume: ``resume`` a path -> that directory; ``resume=True`` -> the newest
-    ``<runs_root>/<prefix>*`` directory holding a checkpoint; ``False`` / None -> None."""
+    ``<runs_root>/<prefix>*`` directory holding a checkpoint (:func:`run_checkpoint`: a seed batch's folder too);
+    ``False`` / None -> None."""
     if not resume_requested(resume):
         return None
     if resume is True or str(resume).lower() == "true":
-        candidates = [d for d in Path(runs_root).glob(f"{prefix}*") if latest_checkpoint(d) is not None]
+        candidates = [d for d in Path(runs_root).glob(f"{prefix}*") if run_checkpoint(d) is not None]
         if not candidates:
             raise FileNotFoundError(
                 f"resume=true: no run directory {Path(runs_root) / (prefix + '*')} holds a "
                 "checkpoint (pass resume=<run dir> to pick one)"
             )
-        return max(candidates, key=lambda d: latest_checkpoint(d).stat().st_mtime)
+        return max(candidates, key=lambda d: run_checkpoint(d).stat().st_mtime)
     path = Path(str(resume))
-    if latest_checkpoint(path) is None:
+    if run_checkpoint(path) is None:
         raise FileNotFoundError(f"resume={resume}: {checkpoint_dir(path)} holds no checkpoint")
     return path
 

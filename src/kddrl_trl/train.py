@@ -30,7 +30,7 @@ from omegaconf import DictConfig, OmegaConf
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
 from .compiling import SHORT_RUN_EPISODES, fresh_compiler
 from .conf.schema import LearningAlgo, TrainJob
-from .eval.final import FinalEvaluation
+from .eval.final import FinalEvaluation, seed_batch_evaluations
 from .eval.final import final_evaluation as run_final_evaluation
 from .eval.metrics import paper_reference
 from .eval.protocol import protocol
@@ -44,6 +44,10 @@ from .factories import (
     make_logger,
     make_policy,
     make_run_dir,
+    make_seed_batch,
+    make_seed_batch_collector,
+    make_seed_batch_env,
+    make_seed_batch_test_env,
     make_test_env,
 )
 from .loggers import trim_logs
@@ -82,18 +86,81 @@ def train(job: TrainJob, run: RunFolder, logger, resuming: bool):
     collector = make_collector(
         envs, learner, buffers, job.train, job.algo.lc_reward, collector=job.collector, rows=job.env.num_roads
     )
-    history = trainer.run(collector, finish=False)
+    trainer.run(collector, finish=False)
     try:
-        run.write_table(run.train_episodes, history)
-        plot_training_curves(history, run.curves, title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}")
+        write_training(trainer, run, job)
     except BaseException:
         trainer.close()
         raise
-    tail = history[-100:]
+    return learner, training_summary(trainer), trainer
+
+
+def training_summary(trainer: Trainer) -> dict:
+    """The ``training`` part of a run's summary: the trainer's counters, its episodes and the means of its last 100."""
+    tail = trainer.history[-100:]
     last100 = {
         k: float(np.mean([h[k] for h in tail])) for k in ("return_lc", "return_cf", "mean_speed_kmh", "collision")
     }
-    return learner, {**trainer.counters, "episodes": len(history), "last100": last100}, trainer
+    return {**trainer.counters, "episodes": len(trainer.history), "last100": last100}
+
+
+def write_training(trainer: Trainer, run: RunFolder, job: TrainJob) -> None:
+    """A trained run's ``train_episodes.csv`` and ``training_curves.png``."""
+    run.write_table(run.train_episodes, trainer.history)
+    plot_training_curves(trainer.history, run.curves, title=f"{job.algo.name} on {job.env.scenario}, seed {job.seed}")
+
+
+def train_seed_batch(job: TrainJob, cfg: DictConfig, run: RunFolder, resuming: bool, started: float) -> list[dict]:
+    """A seed batch (``seeds=[...]``, :mod:`kddrl_trl.training.seed_batch_trainer`): each seed trains into its own
+    folder of ``run`` (config, records, checkpoints, validations, as its run alone writes them, the summary naming
+    the batch), then its final evaluation runs on its own test traffic; returns the seeds' summaries. A seed whose
+    summary is written is done: a resumed batch evaluates only the others."""
+    seeds = [int(s) for s in job.seeds]
+    batch = make_seed_batch(job, run.path)
+    books = batch.books
+    jobs = [replace(job, seed=s, seeds=None) for s in seeds]
+    runs = [RunFolder(b.run_dir) for b in books]
+    for seed_job, seed_run in zip(jobs, runs):
+        if not seed_run.config.is_file():
+            seed_cfg = OmegaConf.to_container(cfg, resolve=True)
+            seed_run.write_config(OmegaConf.to_yaml({**seed_cfg, "seed": seed_job.seed, "seeds": None}))
+    if not resuming:
+        batch.record(seeds=seeds, folders=[r.path.name for r in runs])
+    done = batch.load() if resuming else [0] * len(seeds)
+    for book, seed_run, n in zip(books, runs, done):
+        if n:
+            trim_logs(seed_run.path, last_step=n - 1, eval_last_step=book.validated_through())
+    if any(n < job.episodes for n in done):
+        envs = make_seed_batch_env(job, [s + n for s, n in zip(seeds, done)])
+        batch.run(make_seed_batch_collector(envs, batch, job))
+    try:
+        todo = [i for i, r in enumerate(runs) if not r.is_finished()]
+        if todo:  # every seed at once, each on its own test traffic (a resumed batch writes those not yet written)
+            requests = []
+            for i, (seed_job, seed_run, book) in enumerate(zip(jobs, runs, books)):
+                extra = {"training": training_summary(book), "seed_batch": {"seeds": seeds, "index": i}}
+                requests.append(
+                    {
+                        "job": seed_job,
+                        "logger": book.logger,
+                        "out_dir": seed_run.path,
+                        "title": evaluation_title(seed_job),
+                        "reference": paper_reference(job.env.scenario, job.algo.name),
+                        "fields": run_fields(seed_job, seed_run, started, extra),
+                    }
+                )
+            env = make_seed_batch_test_env(jobs)
+            evaluations = seed_batch_evaluations(
+                env, make_policy(job.algo, job.env, batch.learner), job.algo.name, requests
+            )
+            for i in todo:
+                write_training(books[i], runs[i], jobs[i])
+                finish_validations(books[i], runs[i])
+                evaluations[i].write()
+    finally:
+        batch.close()
+    batch.record(finished=True)
+    return [r.read_summary() for r in runs]
 
 
 def finish_validations(trainer: Trainer | None, run: RunFolder) -> None:
@@ -124,9 +191,15 @@ def main(cfg: DictConfig) -> dict:
         return run.read_summary()
     started = time.perf_counter()
     seed_everything(job.seed)
-    logger = make_logger(job.logger, run_dir)
     if not resuming:
         run.write_config(OmegaConf.to_yaml(cfg, resolve=True))
+    if job.seeds is not None:
+        summaries = train_seed_batch(job, cfg, run, resuming, started)
+        folders = [s["run_dir"] for s in summaries]
+        print("\n".join(f"seed {seed}: {folder}" for seed, folder in zip(job.seeds, folders)))
+        print("\n".join(next_steps(job, run_dir, learning=True, one_run=folders[0])))
+        return {"seeds": list(job.seeds), "runs": folders}
+    logger = make_logger(job.logger, run_dir)
 
     extra, learner, trainer = {}, None, None
     if isinstance(job.algo, LearningAlgo):
@@ -140,8 +213,9 @@ def main(cfg: DictConfig) -> dict:
     return summary
 
 
-def next_steps(job: TrainJob, run_dir, learning: bool) -> list[str]:
-    """What a user may run next on this run, and, for a short training, that its numbers are a wiring check."""
+def next_steps(job: TrainJob, run_dir, learning: bool, one_run=None) -> list[str]:
+    """What a user may run next on this run (a seed batch: ``one_run``, one of its seeds' folders, to evaluate, and
+    the batch's folder to report), and, for a short training, that its numbers are a wiring check."""
     lines = []
     if learning and job.episodes < SHORT_RUN_EPISODES:
         lines.append(
@@ -151,7 +225,8 @@ def next_steps(job: TrainJob, run_dir, learning: bool) -> list[str]:
     lines.append("next:")
     if learning:
         lines.append(
-            f"  python -m kddrl_trl.evaluate run={run_dir} +scenario=braking video=true  # other traffic, filmed"
+            f"  python -m kddrl_trl.evaluate run={one_run or run_dir} +scenario=braking video=true  # other traffic, "
+            "filmed"
         )
     lines.append(f"  python -m kddrl_trl.report {run_dir} out={run_dir}/report  # its tables with 95 % CIs, figures")
     return lines
@@ -164,17 +239,7 @@ def evaluate_run(
     validation; ``validation.csv`` is written once that ends, and the run's summary last (:meth:`RunFolder.finish`)."""
     seeds = protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes, job.collector.workers)
     if not job.eval_scenarios:  # the final evaluation on the training traffic, into the run folder
-        result = final_evaluation(
-            job,
-            learner,
-            logger,
-            run.path,
-            seed=job.seed,
-            protocol=seeds,
-            run_dir=str(run.path),
-            started=started,
-            **extra,
-        )
+        result = final_evaluation(job, learner, logger, run.path, **run_fields(job, run, started, extra))
         finish_validations(trainer, run)
         return result.write()
     # one final evaluation per scenario (a run trained on +scenario=mixed, evaluated on baseline and on braking)
@@ -207,11 +272,23 @@ def evaluate_run(
     return run.finish(summary)
 
 
+def run_fields(job: TrainJob, run: RunFolder, started: float, extra: dict) -> dict:
+    """The summary fields of a run's final evaluation into its own folder: its seed, protocol, folder, start."""
+    seeds = protocol(job.seed, job.episodes, job.eval_seed, job.eval_episodes, job.collector.workers)
+    return dict(seed=job.seed, protocol=seeds, run_dir=str(run.path), started=started, **extra)
+
+
+def evaluation_title(job: TrainJob, trained_on: str | None = None) -> str:
+    """The heading of a final evaluation's printed table."""
+    trained_on = trained_on or job.env.scenario
+    title = job.algo.name + ("" if trained_on == job.env.scenario else f" trained on {trained_on}")
+    return f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off"
+
+
 def final_evaluation(job: TrainJob, learner, logger, out_dir, **fields) -> FinalEvaluation:
     """The greedy policy of ``job.algo`` on ``job.env`` 's traffic, test seed, for ``out_dir``, not yet written
     (:func:`kddrl_trl.eval.final.final_evaluation`)."""
     trained_on = fields.get("trained_on", job.env.scenario)
-    title = job.algo.name + ("" if trained_on == job.env.scenario else f" trained on {trained_on}")
     return run_final_evaluation(
         job,
         make_test_env(job, job.algo, job.env),
@@ -219,7 +296,7 @@ def final_evaluation(job: TrainJob, learner, logger, out_dir, **fields) -> Final
         job.algo.name,
         logger,
         out_dir,
-        title=f"{title} on {job.env.scenario}, seed {job.seed}: evaluation, exploration off",
+        title=evaluation_title(job, trained_on),
         reference=paper_reference(job.env.scenario, job.algo.name) if trained_on == job.env.scenario else None,
         **fields,
     )

@@ -13,7 +13,11 @@ folder behind. These resolvers decide while the config is composed, once (:mod:`
   does not exist are then removed (:func:`kddrl_trl.run_folder.output_parent`);
 * ``${kddrl_scenario:<name>,${env.simulator}}``: the ``env.scenario`` a ``+scenario=<name>`` preset sets
   (:func:`kddrl_trl.envs.config.scenario_label`: ``highwayenv_congested`` on HighwayEnv), so that the run folder
-  already carries the simulator.
+  already carries the simulator;
+* ``${kddrl_seed_label:${seed},${seeds}}``: the seed part of a run folder's name: ``seed``, or for a seed batch
+  (``seeds=[...]``) ``seeds<first>-<last>`` (:func:`seed_label`);
+* ``${kddrl_seeds:<first>,<stop>}``: the seeds ``first .. stop - 1`` as a list, a range for ``seeds``
+  (``seeds='${kddrl_seeds:200,210}'``: ten seeds).
 """
 
 from __future__ import annotations
@@ -33,6 +37,25 @@ def train_dir(resume, runs_root: str, prefix: str, stamp: str) -> str:
     return str(found) if found is not None else str(Path(runs_root) / f"{prefix}{stamp}")
 
 
+def seed_label(seed, seeds) -> str:
+    """``seed`` (a single run), or ``seeds<first>-<last>`` for the seed batch ``seeds`` (its seeds in order:
+    ``seeds200-209``; seeds that do not run consecutively are all named, ``seeds3_7_9``)."""
+    if seeds is None:
+        return str(seed)
+    seeds = [int(s) for s in seeds]
+    if seeds == list(range(seeds[0], seeds[0] + len(seeds))) and len(seeds) > 1:
+        return f"seeds{seeds[0]}-{seeds[-1]}"
+    return "seeds" + "_".join(map(str, seeds))
+
+
+def seed_range(first, stop) -> list[int]:
+    """The seeds ``first`` to ``stop - 1`` (refused when empty)."""
+    first, stop = int(first), int(stop)
+    if stop <= first:
+        raise ValueError(f"kddrl_seeds:{first},{stop}: no seeds (the range stops before it starts)")
+    return list(range(first, stop))
+
+
 def register() -> None:
     """Register the resolvers (idempotent; cached so a config resolves them once)."""
     for name, fn in (
@@ -40,6 +63,8 @@ def register() -> None:
         ("kddrl_trained_run", lambda run: str(output_parent(output_folder(run)))),
         ("kddrl_sweep_dir", lambda resume, prefix, stamp: str(find_sweep_dir(resume, prefix, stamp))),
         ("kddrl_scenario", scenario_label),
+        ("kddrl_seed_label", seed_label),
+        ("kddrl_seeds", seed_range),
     ):
         if not OmegaConf.has_resolver(name):
             OmegaConf.register_new_resolver(name, fn, use_cache=True)

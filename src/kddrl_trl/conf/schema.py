@@ -547,19 +547,53 @@ class TrainJob(Job):
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     # scenarios of the final evaluation ([]: the training scenario); each is written to <run>/final__<scenario>/
     eval_scenarios: list[str] = field(default_factory=list)
+    # a seed batch: these seeds' learners trained in one process, each into <run>/<scenario>__<algo>__<seed>/
+    # (kddrl_trl/training/seed_batch_trainer.py); null: one run of ``seed``
+    seeds: Optional[list[int]] = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _at_least("", self, 1, "episodes")
+        if self.seeds is not None:
+            self._check_seed_batch()
         unknown = [s for s in self.eval_scenarios if s not in SCENARIOS]
         if unknown or len(set(self.eval_scenarios)) != len(self.eval_scenarios):
             raise ValueError(
                 f"eval_scenarios={list(self.eval_scenarios)}: each must be one of "
                 f"{', '.join(sorted(SCENARIOS))}, at most once"
             )
-        check_disjoint(
-            "eval_seed", test_seed(self.seed, self.eval_seed), self.seed, self.episodes, self.collector.workers
-        )
+        for seed in self.seeds or [self.seed]:
+            check_disjoint("eval_seed", test_seed(seed, self.eval_seed), seed, self.episodes, self.collector.workers)
+
+    def _check_seed_batch(self) -> None:
+        """A seed batch trains hierarchical learners (the batched learner of ``modules/seed_batch.py``) on one env in
+        this process, with uniform replay, each seed evaluated on its training scenario, on its own test traffic;
+        distinct seeds, each with the training, validation and test seeds a run of its own has (``eval/protocol.py``)."""
+        seeds = list(self.seeds)
+        if not seeds or len(set(seeds)) != len(seeds) or any(isinstance(s, bool) or s < 0 for s in seeds):
+            raise ValueError(f"seeds={seeds}: a seed batch needs one or more distinct seeds >= 0")
+        kind = getattr(self.algo, "kind", "rule")
+        if kind != "hierarchical":
+            raise ValueError(
+                f"seeds={seeds}: a seed batch trains the hierarchical learners (algo=kddrl, d3qn_td3, ...); "
+                f"algo={self.algo.name} is of kind {kind!r}: run its seeds as a sweep (-m seed=...)"
+            )
+        refused = {
+            "collector.workers": (self.collector.workers, 1),
+            "collector.backend": (self.collector.backend, "process"),
+            "collector.sync": (self.collector.sync, True),
+            "train.prioritized": (self.train.prioritized, False),
+            "eval_scenarios": (list(self.eval_scenarios), []),
+            "video": (self.video, False),  # (a seed's folder: python -m kddrl_trl.evaluate run=<it> video=true)
+            "gui": (self.gui, False),
+        }
+        for key, (value, needed) in refused.items():
+            if value != needed:
+                raise ValueError(f"seeds={seeds}: a seed batch runs with {key}={needed}, got {key}={value}")
+        if self.eval_seed is not None:
+            raise ValueError(
+                f"seeds={seeds}: each seed's test traffic is its own (eval_seed=null), got {self.eval_seed}"
+            )
 
 
 @dataclass

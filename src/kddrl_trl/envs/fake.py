@@ -24,7 +24,19 @@ _PER_LANE = 4  # background vehicles per lane
 class FakeHighwayEnv(HighwayEnvBase):
     """Same constructor, specs and keys as :class:`~kddrl_trl.envs.SumoHighwayEnv`; no SUMO."""
 
-    def __init__(self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, **overrides):
+    def __init__(
+        self, scenario: str = "baseline", num_roads: int = 1, seed: int = 0, device=None, road_seeds=None, **overrides
+    ):
+        """``road_seeds`` as :class:`~kddrl_trl.envs.SumoHighwayEnv` 's: road ``r`` places its episodes as road ``j``
+        of an env of seed ``road_seeds[r]`` would, ``j`` the number of earlier roads with that seed."""
+        if road_seeds is not None and len(road_seeds) != num_roads:
+            raise ValueError(f"road_seeds holds {len(road_seeds)} seeds for num_roads={num_roads}: one per road")
+        #: per road: (its seed's offset from the env's seed, its place among the roads of that seed); a reseed keeps
+        #: the offsets
+        self._roads = None
+        if road_seeds is not None:
+            own = [int(s) for s in road_seeds]
+            self._roads = [(s - int(seed or 0), own[:r].count(s)) for r, s in enumerate(own)]
         super().__init__(scenario, num_roads, seed, device, **overrides)
         cfg, b, n = self.config, num_roads, self.config.num_lanes * _PER_LANE
         self.lc_frames = int(round(cfg.lc_duration / cfg.step_length))
@@ -44,7 +56,8 @@ class FakeHighwayEnv(HighwayEnvBase):
         cfg = self.config
         spacing = 3600.0 * 36.0 / max(cfg.flow / cfg.num_lanes, 1.0)  # m between vehicles of one lane
         for r in rows.tolist():
-            g = torch.Generator().manual_seed(self._seed * 100_003 + r * 1_009 + int(self.episode_count[r]))
+            offset, j = (0, r) if self._roads is None else self._roads[r]
+            g = torch.Generator().manual_seed((self._seed + offset) * 100_003 + j * 1_009 + int(self.episode_count[r]))
             self.ego_lane[r] = (
                 cfg.ego_lane if cfg.ego_lane is not None else int(torch.randint(cfg.num_lanes, (1,), generator=g))
             )

@@ -44,8 +44,7 @@ def evaluate(env: EnvBase, policy, job, logger, out_dir: Path | None = None, alg
         )
 
     def on_episode(ep: dict) -> None:
-        for key in (*METRIC_FIELDS, "shield_rate"):
-            logger.log_scalar(f"test/{key}", float(ep[key]), step=ep["start"])
+        log_test_episode(logger, ep)
 
     try:
         episodes = evaluate_policy(
@@ -68,6 +67,12 @@ def evaluate(env: EnvBase, policy, job, logger, out_dir: Path | None = None, alg
             write_json_atomic(out_dir / "traces" / f"{name}.json", trace)
             write_video(trace, out_dir / "videos" / f"{name}.mp4")
     return episodes, stats
+
+
+def log_test_episode(logger, ep: dict) -> None:
+    """A test episode's metrics under ``test/``, at its start number."""
+    for key in (*METRIC_FIELDS, "shield_rate"):
+        logger.log_scalar(f"test/{key}", float(ep[key]), step=ep["start"])
 
 
 @dataclass
@@ -102,12 +107,52 @@ def final_evaluation(
     is written but its traces and videos: the caller writes its own files first (``train``: the validations), then
     :meth:`FinalEvaluation.write` (the summary with the scenario, algo, env counters, flow and ``fields``)."""
     episodes, stats = evaluate(env, policy, job, logger, out_dir, algo)
+    return FinalEvaluation(Path(out_dir), episodes, title, reference, _summary_fields(job, algo, stats, fields))
+
+
+def _summary_fields(job, algo: str, stats: dict, fields: dict) -> dict:
+    """What a final evaluation's summary holds besides its episodes' summary."""
     summary_fields = dict(
         scenario=job.env.scenario, algo=algo, env_stats=stats, flow_vph=job.env.flow, compile=job.compile, **fields
     )
     if getattr(job, "threads", None) is not None:  # the torch threads it ran on, and why (kddrl_trl.threads)
         summary_fields["torch_threads"] = job.threads.record()
-    return FinalEvaluation(Path(out_dir), episodes, title, reference, summary_fields)
+    return summary_fields
+
+
+def seed_batch_evaluations(env: EnvBase, policy, algo: str, seeds: list[dict]) -> list[FinalEvaluation]:
+    """The final evaluations of a seed batch's N seeds at once. ``seeds[i]``: seed ``i`` 's ``job``, ``logger``,
+    ``out_dir``, ``title``, ``reference`` and summary ``fields`` (as :func:`final_evaluation` takes them). ``env``
+    holds N x K roads, seed-major, seed ``i`` 's on its own test traffic (``road_seeds`` from
+    :func:`~kddrl_trl.eval.protocol.test_seed`: the traffic its run alone is tested on), ``policy`` is the batch's
+    greedy policy on all rows; each seed's episodes are counted in start order on its own rows
+    (:func:`evaluate_policy` ``groups``) and logged under ``test/`` in its logger. ``env_stats``: the batch env's
+    counters (every seed's roads; ``seed_batch_env``). Closes ``env``. No video: a seed's folder is filmed by
+    ``kddrl_trl.evaluate run=<seed folder> video=true``."""
+    job = seeds[0]["job"]
+    try:
+        per_seed = evaluate_policy(
+            env,
+            policy,
+            job.eval_episodes,
+            test_seed(job.seed, job.eval_seed),
+            progress=job.progress,
+            on_episode=lambda ep, i: log_test_episode(seeds[i]["logger"], ep),
+            groups=len(seeds),
+        )
+        stats = {**unwrap_env(env).stats, "seed_batch_env": True}
+    finally:
+        env.close()
+    return [
+        FinalEvaluation(
+            Path(s["out_dir"]),
+            episodes,
+            s["title"],
+            s["reference"],
+            _summary_fields(s["job"], algo, stats, s["fields"]),
+        )
+        for s, episodes in zip(seeds, per_seed, strict=True)
+    ]
 
 
 def write_results(

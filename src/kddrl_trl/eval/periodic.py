@@ -50,10 +50,11 @@ def _start_worker(make_env: Callable[[], EnvBase]) -> None:
     _ENV = make_env()
 
 
-def _validate(policy: bytes, episodes: int, seed: int) -> list[dict]:
-    """In the worker: the greedy episodes of the pickled ``policy`` (:func:`evaluate_policy`)."""
+def _validate(policy: bytes, episodes: int, seed: int, groups: int | None = None) -> list[dict] | list[list[dict]]:
+    """In the worker: the greedy episodes of the pickled ``policy`` (:func:`evaluate_policy`; ``groups``: a seed
+    batch's, one list per seed)."""
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        return evaluate_policy(_ENV, pickle.loads(policy), episodes, seed, progress=False)
+        return evaluate_policy(_ENV, pickle.loads(policy), episodes, seed, progress=False, groups=groups)
 
 
 def _spawnable_start_method() -> None:
@@ -76,10 +77,20 @@ class PeriodicEvaluator:
     process's torch threads are left as they are (TorchDynamo guards the thread count: a change mid-run would
     trace every compiled loss again)."""
 
-    def __init__(self, make_env: Callable[[], EnvBase], episodes: int, seed: int, best_metric: str = "return"):
+    def __init__(
+        self,
+        make_env: Callable[[], EnvBase],
+        episodes: int,
+        seed: int,
+        best_metric: str = "return",
+        groups: int | None = None,
+    ):
+        """``groups=N``: a seed batch's validations (:class:`~kddrl_trl.eval.seed_validation.SeedBatchValidation`):
+        ``make_env`` builds N x K roads, seed-major, each seed's on its own validation traffic; a validation drives
+        a policy of N seeds and its result holds one list of episodes per seed (:meth:`result` ``index``)."""
         if best_metric not in BEST_METRICS:
             raise ValueError(f"train.best_metric={best_metric!r}: known metrics are {', '.join(BEST_METRICS)}")
-        self.make_env, self.episodes, self.seed = make_env, int(episodes), int(seed)
+        self.make_env, self.episodes, self.seed, self.groups = make_env, int(episodes), int(seed), groups
         self.score = BEST_METRICS[best_metric]
         require_main_guard("periodic validation (train.eval_every)")
         _spawnable_start_method()
@@ -98,12 +109,15 @@ class PeriodicEvaluator:
             self.pool = ProcessPoolExecutor(
                 1, mp_context=context, initializer=_start_worker, initargs=(CloudpickleWrapper(self.make_env),)
             )
-        return self.pool.submit(_validate, payload, self.episodes, self.seed)
+        return self.pool.submit(_validate, payload, self.episodes, self.seed, self.groups)
 
-    def result(self, future: Future) -> tuple[list[dict], dict]:
-        """(episodes, summary) of a validation :meth:`submit` started; waits for it."""
+    def result(self, future: Future, index: int | None = None) -> tuple[list[dict], dict]:
+        """(episodes, summary) of a validation :meth:`submit` started (of seed ``index``, with ``groups``); waits
+        for it."""
         try:
             episodes = future.result()
+            if index is not None:
+                episodes = episodes[index]
         except BrokenProcessPool as err:
             raise RuntimeError(
                 "PeriodicEvaluator: the validation env's worker process ended before it answered; its own error "

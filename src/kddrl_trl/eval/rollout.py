@@ -49,7 +49,8 @@ def evaluate_policy(
     progress: bool = True,
     on_episode: Callable[[dict], None] | None = None,
     trace: Callable | None = None,
-) -> list[dict]:
+    groups: int | None = None,
+) -> list[dict] | list[list[dict]]:
     """Seed ``env`` with ``seed`` (its transforms' noise restarted too, :func:`restart_noise`: the same seed gives
     the same episodes on every call, as every periodic validation needs), reset it and step it with ``policy``
     until the first ``episodes`` episodes *to start* have all finished; return their
@@ -61,6 +62,10 @@ def evaluate_policy(
     ``step_and_maybe_reset`` does. Counting by start order (not by completion) keeps the sample unbiased: with
     K roads running at once, the first episodes to finish are the short ones. ``trace`` (e.g. a
     :class:`~kddrl_trl.eval.trace.TraceRecorder`) is called with every step's TensorDict.
+
+    ``groups=N`` (a seed batch's env of N x K rows, seed-major): each seed's K rows are counted apart, as an env of
+    their own would count them, until every seed has its ``episodes``; returns one list per seed, and
+    ``on_episode`` is then called as ``on_episode(ep, i)`` for seed ``i``.
     """
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"evaluate_policy: episodes must be an integer >= 1, got {episodes!r}")
@@ -68,11 +73,14 @@ def evaluate_policy(
     restart_noise(env)
     td = env.reset()
     base = unwrap_env(env)
-    tracker = EpisodeTracker(base.config if isinstance(base, HighwayEnvBase) else None)
-    wanted: dict[int, dict] = {}
-    pending = []  # frames since the last done: the tracker runs once per frame that ends an episode
-    bar = tqdm(total=episodes, desc="episodes", disable=not progress, unit="ep")
-    while len(wanted) < episodes:
+    n = 1 if groups is None else int(groups)
+    rows = td.batch_size.numel() // n
+    config = base.config if isinstance(base, HighwayEnvBase) else None
+    trackers = [EpisodeTracker(config) for _ in range(n)]
+    wanted: list[dict[int, dict]] = [{} for _ in range(n)]
+    pending = []  # frames since the last done: the trackers run once per frame that ends an episode
+    bar = tqdm(total=episodes * n, desc="episodes", disable=not progress, unit="ep")
+    while any(len(w) < episodes for w in wanted):
         full, td = env.step_and_maybe_reset(policy(td))
         if trace is not None:
             trace(full)
@@ -80,16 +88,20 @@ def evaluate_policy(
         if not pending[-1].get(("next", "done")).any():
             continue
         frames, pending = torch.stack(pending, 1), []
-        for ep in tracker(frames):
-            if ep["start"] >= episodes:
-                continue
-            wanted[ep["start"]] = ep
-            bar.update(1)
-            if on_episode is not None:
-                on_episode(ep)
+        for i, (tracker, own) in enumerate(zip(trackers, wanted)):
+            for ep in tracker(frames if n == 1 else frames[i * rows : (i + 1) * rows]):
+                if ep["start"] >= episodes:
+                    continue
+                own[ep["start"]] = ep
+                bar.update(1)
+                if on_episode is not None:
+                    on_episode(ep) if groups is None else on_episode(ep, i)
+        if progress:
+            done = [e for w in wanted for e in w.values()]
             bar.set_postfix(
-                speed_kmh=f"{sum(e['mean_speed_kmh'] for e in wanted.values()) / len(wanted):.1f}",
-                collisions=sum(e["collision"] for e in wanted.values()),
+                speed_kmh=f"{sum(e['mean_speed_kmh'] for e in done) / max(len(done), 1):.1f}",
+                collisions=sum(e["collision"] for e in done),
             )
     bar.close()
-    return [wanted[i] for i in range(episodes)]
+    out = [[w[i] for i in range(episodes)] for w in wanted]
+    return out[0] if groups is None else out

@@ -94,3 +94,42 @@ def load_seed_state(batched: nn.Module, i: int, state: dict) -> None:
                 s["step"].copy_(saved[idx]["step"])
         if hasattr(opt, "_tensors"):
             opt._tensors = None  # a FusedAdam takes its lean tensors again
+
+
+class SeedView:
+    """Seed ``i`` of a batched learner seen as a learner of its own by a :class:`~kddrl_trl.training.Trainer`, which
+    keeps that seed's run folder (episodes, logs, checkpoints, validations; :mod:`.seed_batch_trainer`): its
+    :meth:`full_state_dict` is the seed's single-learner state (:func:`seed_full_state`, with the update counters the
+    trainer counted for it), :meth:`load_full_state_dict` writes one back (:func:`load_seed_state`), and its
+    :meth:`policy` is ``single`` (a learner of the same config, without seeds) given the seed's weights: the policy a
+    validation or the final evaluation drives, as the run of its own would drive it.
+
+    ``counts()`` returns the seed's (D3QN updates, TD3 updates): the learner's ``counters`` ``[lc, cf, actor]``
+    are then those of a single learner that made them (one actor update every ``policy_delay`` TD3 updates)."""
+
+    def __init__(self, batched: nn.Module, i: int, single: nn.Module, counts):
+        self.batched, self.i, self.single, self.counts = batched, int(i), single, counts
+        self.learns_from_decisions = batched.learns_from_decisions
+        self.device = batched.device
+
+    def counters(self) -> torch.Tensor:
+        lc, cf = (int(c) for c in self.counts())
+        return torch.tensor([lc, cf, cf // self.batched.td3.policy_delay], dtype=torch.long)
+
+    def full_state_dict(self) -> dict:
+        return seed_full_state(self.batched, self.i, self.counters())
+
+    def load_full_state_dict(self, state: dict) -> None:
+        load_seed_state(self.batched, self.i, state)
+
+    def load_single(self) -> nn.Module:
+        """``single`` with the seed's networks, targets, exploration and counters as they are now."""
+        self.single.load_state_dict(seed_full_state(self.batched, self.i, self.counters())["modules"])
+        return self.single
+
+    def policy(self, explore: bool = True):
+        return self.load_single().policy(explore)
+
+    def exploration(self) -> dict[str, float]:
+        """The seed's own ε."""
+        return {"epsilon": float(self.batched.lc_explore.eps.reshape(-1)[self.i])}

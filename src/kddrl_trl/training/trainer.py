@@ -204,6 +204,7 @@ class Trainer:
             "update_s": 0.0,
         }
         self.collector: MultiTimescaleCollector | None = None
+        self._bar, self._started = None, None  # (start(): the progress bar, the clock of elapsed_s)
         #: periodic evaluations under way: (episodes trained, future, the learner's state then), in start order
         self.pending: deque = deque()
         #: a loaded checkpoint's evaluations under way when it was written: (episodes, the learner they were given)
@@ -229,7 +230,10 @@ class Trainer:
     def load(self, run_dir: str | Path) -> int:
         """Restore the latest checkpoint of ``run_dir`` that loads (a damaged newest one falls back to the previous,
         with a warning); returns the number of episodes it had finished."""
-        path, payload = load_latest_training_checkpoint(run_dir)
+        return self.load_payload(*load_latest_training_checkpoint(run_dir))
+
+    def load_payload(self, path: Path, payload: dict) -> int:
+        """Restores the checkpoint ``payload`` read from ``path`` (:meth:`load`); returns its episodes."""
         self.learner.load_full_state_dict(payload["learner"])
         self.counters.update(payload["counters"])
         self.history = list(payload["history"])
@@ -260,12 +264,20 @@ class Trainer:
         """Episode count at which the next multiple of ``every`` is reached (``every`` 0: never)."""
         return (len(self.history) // every + 1) * every if every > 0 else math.inf
 
-    def validate(self) -> None:
+    def validate(self, future=None) -> None:
         """Starts one periodic evaluation of the greedy policy as it is now, at the number of episodes trained: the
         evaluator's worker drives it while the training goes on (:meth:`record_validations` takes its result), and
-        the learner's state is kept beside it for ``checkpoints/best.pt`` and the checkpoints."""
-        future = self.evaluator.submit(self.learner.policy(explore=False))
+        the learner's state is kept beside it for ``checkpoints/best.pt`` and the checkpoints. ``future``: one
+        started by the caller instead (a seed batch's validation of all its seeds,
+        :mod:`kddrl_trl.eval.seed_validation`), whose result the evaluator reads."""
+        if future is None:
+            future = self.evaluator.submit(self.learner.policy(explore=False))
         self.pending.append((len(self.history), future, copy.deepcopy(self.learner.full_state_dict())))
+        self._next_eval = self._next_multiple(self.cfg.eval_every)
+
+    def validation_due(self) -> bool:
+        """Whether ``eval_every`` episodes have passed since the last validation (never without an evaluator)."""
+        return len(self.history) >= self._next_eval
 
     def _restart(self, step: int, state: dict) -> None:
         """Starts again the evaluation a checkpoint listed as under way at ``step``, of the learner it was given
@@ -392,22 +404,13 @@ class Trainer:
         evaluator is stopped either way."""
         from tqdm.auto import tqdm
 
-        learner, target = self.learner, self.episodes
-        self.collector = collector
-        next_ckpt = self._next_multiple(self.cfg.checkpoint_every)
-        next_eval = self._next_multiple(self.cfg.eval_every if self.evaluator is not None else 0)
-        recent: deque = deque(maxlen=50)
-        recent.extend(self.history[-50:])
+        target = self.episodes
         bar = tqdm(
             total=target, initial=min(len(self.history), target), desc="train", unit="ep", disable=not self.progress
         )
-        started = time.perf_counter()
-        losses: dict[str, list[float]] = {"loss_qvalue": [], "loss_actor": [], "loss_lc": []}
-        if self.evaluator is not None:
-            for step, state in self.unfinished:  # in the order they started, each on the weights it was given
-                self._restart(step, state)
-            self.unfinished = []
+        self.collector = collector
         try:
+            self.start(collector, bar)
             if len(self.history) >= target:  # resumed after its training ended (killed in the final evaluation)
                 if finish:  # records the validation its checkpoint listed as under way, started again above
                     self.finish()
@@ -417,49 +420,96 @@ class Trainer:
                     self.threads.tick()
                 frames = batch.frames.numel()
                 decisions = int(batch.frames.get(self.collector.writer.decide_key).sum())
-                self.counters["frames"] += frames
-                self.counters["decisions"] += decisions
-                learner.explore_step(decisions, frames)
+                self.count(frames, decisions)
+                self.learner.explore_step(decisions, frames)
                 self._anneal_beta()
                 updating = time.perf_counter()
-                self._updates(frames, decisions, losses)
+                self._updates(frames, decisions, self.losses)
                 self.counters["update_s"] += time.perf_counter() - updating
                 self.collector.update_policy_weights_()
-                for ep in self.tracker(batch.frames):
-                    if len(self.history) >= target:
-                        break
-                    self.history.append(ep)
-                    recent.append(ep)
-                    self._log_episode(ep, losses, started)
-                    losses = {k: [] for k in losses}
-                    bar.update(1)
-                    bar.set_postfix(
-                        R_lc=f"{np.mean([e['return_lc'] for e in recent]):.1f}",
-                        R_cf=f"{np.mean([e['return_cf'] for e in recent]):.1f}",
-                        kmh=f"{np.mean([e['mean_speed_kmh'] for e in recent]):.1f}",
-                        coll=f"{100 * np.mean([e['collision'] for e in recent]):.0f}%",
-                    )
-                self.record_validations()  # those finished during this batch, logged as soon as they are
-                if len(self.history) >= next_eval:
-                    self.validate()
-                    next_eval = self._next_multiple(self.cfg.eval_every)
-                if len(self.history) >= next_ckpt or len(self.history) >= target:
-                    self.counters["elapsed_s"] += time.perf_counter() - started
-                    started = time.perf_counter()
-                    self.checkpoint(final=finish and len(self.history) >= target)
-                    next_ckpt = self._next_multiple(self.cfg.checkpoint_every)
-                if len(self.history) >= target:
+                if self.book(batch.frames, finish):
                     break
         except BaseException:
             finish = True  # nothing is left running
             raise
         finally:
             bar.close()
-            self.counters["elapsed_s"] += time.perf_counter() - started
+            self.stop()
             self.collector.shutdown(close_env=False)
             if finish:
                 self.close()
         return self.history
+
+    def start(self, collector, bar=None) -> None:
+        """Before the first batch of :meth:`run` (or of a seed batch, :mod:`~kddrl_trl.training.seed_batch_trainer`,
+        which drives this trainer's bookkeeping with ``collector`` its own): the next checkpoint and validation
+        episodes, the window of the progress bar's figures, the loss lists, the clock, and the validations a loaded
+        checkpoint listed as under way started again on the weights each was given. ``bar``: a tqdm bar this
+        trainer moves per episode (None: none)."""
+        self.collector, self._bar = collector, bar
+        self._next_ckpt = self._next_multiple(self.cfg.checkpoint_every)
+        self._next_eval = self._next_multiple(self.cfg.eval_every if self.evaluator is not None else 0)
+        self._recent = deque(self.history[-50:], maxlen=50)
+        self.losses: dict[str, list[float]] = {"loss_qvalue": [], "loss_actor": [], "loss_lc": []}
+        self._started = time.perf_counter()
+        if self.evaluator is not None:
+            for step, state in self.unfinished:  # in the order they started, each on the weights it was given
+                self._restart(step, state)
+            self.unfinished = []
+
+    def count(self, frames: int, decisions: int) -> None:
+        """Counts a batch's ``frames`` and lane-change ``decisions`` (this trainer's, a seed's in a seed batch)."""
+        self.counters["frames"] += frames
+        self.counters["decisions"] += decisions
+
+    def book(self, frames, finish: bool = True, checkpoint: bool | None = None, validate: bool = True) -> bool:
+        """After a batch's updates: the episodes finished in ``frames`` ``[B, T]`` (this trainer's rows) are recorded
+        and logged, the validations that finished are recorded, a validation starts every ``eval_every`` episodes
+        (``validate=False``: none, a seed batch starts its seeds' together), and a checkpoint is written every
+        ``checkpoint_every`` episodes and at the last (``checkpoint``: True or False overrides the cadence but for
+        the last, a seed batch's shared checkpoints). Returns whether the training has reached its episodes
+        (``finish`` as in :meth:`run`)."""
+        target, bar, recent = self.episodes, self._bar, self._recent
+        for ep in self.tracker(frames):
+            if len(self.history) >= target:
+                break
+            self.history.append(ep)
+            recent.append(ep)
+            self._log_episode(ep, self.losses, self._started)
+            self.losses = {k: [] for k in self.losses}
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(
+                    R_lc=f"{np.mean([e['return_lc'] for e in recent]):.1f}",
+                    R_cf=f"{np.mean([e['return_cf'] for e in recent]):.1f}",
+                    kmh=f"{np.mean([e['mean_speed_kmh'] for e in recent]):.1f}",
+                    coll=f"{100 * np.mean([e['collision'] for e in recent]):.0f}%",
+                )
+        self.record_validations()  # those finished during this batch, logged as soon as they are
+        if validate and self.validation_due():
+            self.validate()
+        done = len(self.history) >= target
+        if done or (self.checkpoint_due() if checkpoint is None else checkpoint):
+            self.write_checkpoint(final=finish and done)
+        return done
+
+    def write_checkpoint(self, final: bool = False) -> Path:
+        """The checkpoint of :meth:`book` (:meth:`checkpoint`), its wall time counted in ``elapsed_s`` up to it."""
+        self.stop()
+        self._started = time.perf_counter()
+        path = self.checkpoint(final=final)
+        self._next_ckpt = self._next_multiple(self.cfg.checkpoint_every)
+        return path
+
+    def checkpoint_due(self) -> bool:
+        """Whether ``checkpoint_every`` episodes have passed since the last checkpoint."""
+        return len(self.history) >= self._next_ckpt
+
+    def stop(self) -> None:
+        """Adds the wall time since the clock last started to ``elapsed_s`` and stops the clock."""
+        if self._started is not None:
+            self.counters["elapsed_s"] += time.perf_counter() - self._started
+            self._started = None
 
     def finish(self) -> list[dict]:
         """Waits for the periodic evaluations still under way and records them (:meth:`record_validations`), then
