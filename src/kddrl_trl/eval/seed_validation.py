@@ -40,6 +40,10 @@ class SeedBatchValidation:
         """A validation of the batch's greedy ``policy`` (all N seeds), as it is now."""
         return self.shared.submit(policy)
 
+    def share(self, future: Future, i: int) -> SeedFuture:
+        """Seed ``i`` 's share of the batched validation ``future`` (what its trainer keeps as under way)."""
+        return SeedFuture(future, i)
+
     def evaluator(self, i: int) -> SeedEvaluator:
         return self.views.setdefault(i, SeedEvaluator(self, i))
 

@@ -38,7 +38,6 @@ import numpy as np
 import torch
 
 from ..atomic_files import write_json_atomic
-from ..eval.seed_validation import SeedFuture
 from ..run_folder import RunFolder, checkpoint_candidates
 from .checkpoint import CheckpointError, load_latest_training_checkpoint, load_training_checkpoint
 from .trainer import Trainer, minibatches
@@ -92,7 +91,7 @@ class SeedBatchTrainer:
             return
         future = self.validation.submit(self.learner.policy(explore=False))
         for i in due:
-            self.books[i].validate(SeedFuture(future, i))
+            self.books[i].validate(self.validation.share(future, i))
 
     # ------------------------------------------------------------------------------ checkpoints
     def record(self, **fields) -> None:
