@@ -43,9 +43,6 @@ def evaluate(env: EnvBase, policy, job, logger, out_dir: Path | None = None, alg
             step_length=h.step_length,
         )
 
-    def on_episode(ep: dict) -> None:
-        log_test_episode(logger, ep)
-
     try:
         episodes = evaluate_policy(
             env,
@@ -53,7 +50,7 @@ def evaluate(env: EnvBase, policy, job, logger, out_dir: Path | None = None, alg
             job.eval_episodes,
             test_seed(job.seed, job.eval_seed),
             progress=job.progress,
-            on_episode=on_episode,
+            on_episode=lambda ep: log_test_episode(logger, ep),
             trace=recorder,
         )
         stats = dict(unwrap_env(env).stats)

@@ -119,7 +119,7 @@ class SeedBatchTrainer:
         loaded.sort(key=lambda x: len(x[2]["history"]) < x[0].episodes)
         training = {str(p): x["counters"]["frames"] for b, p, x in loaded if len(x["history"]) < b.episodes}
         fresh = [b for b in self.books if all(b is not x[0] for x in loaded)]
-        if len(set(training.values())) > 1 or (training and any(len(b.history) == 0 for b in fresh)):
+        if len(set(training.values())) > 1 or (training and fresh):
             raise CheckpointError(
                 f"{self.folder}: the seeds still training do not resume from one cut (frames: {training}; afresh: "
                 f"{[str(b.run_dir) for b in fresh]}); resume them one by one (resume=<seed folder>) or start again"
