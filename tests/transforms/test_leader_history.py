@@ -69,14 +69,32 @@ def test_continuing_vehicles_roll_new_ones_restart_and_moves_follow_their_vehicl
     assert torch.allclose(w3[0, 1], restart_window(torch.tensor(59.0), torch.tensor(10.0), 4, 0.1))
 
 
+def test_two_vehicles_continuing_one_leader_do_not_share_its_window():
+    """The ego changes lane to the left: the old c becomes b exactly, while a new car in c is within the tolerances
+    of the old c too (side by side in the next lane). b keeps the old c's window, c restarts."""
+    t = LeaderHistory(history_len=4, dt=0.1)
+    w0 = t.fresh(frame([0.0, 0.0, 100.0], [0.0, 0.0, 24.0], [False, False, True]))
+    w1 = t.advance(
+        w0, torch.tensor([[False, False, True]]), frame([0.0, 102.4, 101.8], [0.0, 24.0, 24.5], [False, True, True])
+    )
+    assert torch.allclose(w1[0, 1], torch.cat([w0[0, 2, 1:], torch.tensor([[102.4, 24.0]])]))
+    assert torch.allclose(w1[0, 2], restart_window(torch.tensor(101.8), torch.tensor(24.5), 4, 0.1))
+    # either claimant alone continues the old c: the pairing, not the tolerance, decides
+    alone = t.advance(
+        w0, torch.tensor([[False, False, True]]), frame([0.0, 0.0, 101.8], [0.0, 0.0, 24.5], [False, False, True])
+    )
+    assert torch.allclose(alone[0, 2], torch.cat([w0[0, 2, 1:], torch.tensor([[101.8, 24.5]])]))
+
+
 def test_it_reproduces_the_fake_envs_history_and_declares_its_spec():
     """The fake's traffic drives at constant speed, so its own window (constant-speed back-extrapolation) is what
     the transform must give at every frame, slot changes and partial resets included."""
+    torch.manual_seed(24)  # actions whose rollout has a lane change beside a car continuing the old leader c
     env = TransformedEnv(fake_without_history(keep_env_history=True), LeaderHistory())
+    td = env.rollout(300, accelerate, break_when_any_done=False)
     check_env_specs(env, seed=None)
     assert K.LEADERS_HISTORY in env.observation_spec.keys(True, True)
     assert K.LEADERS_HISTORY in env.state_spec.keys(True, True)  # carried into (partial) resets and workers
-    td = env.rollout(300, accelerate, break_when_any_done=False)
     assert td["next", "done"].any(), "no episode ended: no reset was exercised"
     torch.testing.assert_close(td["next", *K.LEADERS_HISTORY], td["next", *ENV_HISTORY], atol=1e-3, rtol=0)
     torch.testing.assert_close(td[K.LEADERS_HISTORY], td[ENV_HISTORY], atol=1e-3, rtol=0)

@@ -9,9 +9,10 @@ Decision (a slot's vehicle change, without ids)
     ``|y - (y_prev + dt (v_prev + v) / 2)| <= jump_tolerance`` (1 m by default: the trapezoid rule is exact for
     a constant acceleration, and the nearest other vehicle in a lane is a car length away) and
     ``|v - v_prev| <= speed_tolerance`` (1 m/s in 0.1 s: 10 m/s², beyond any car's braking). All three slots of
-    the previous frame are candidates, the best continued one wins (errors in units of the tolerances): when the
-    *ego* changes lane its leaders move between slots (b becomes c, ...), and their windows move with them; of two
-    vehicles side by side, the nearer in (y, v) is taken. A vehicle that continues nothing starts a new window: its
+    the previous frame are candidates (errors in units of the tolerances): when the *ego* changes lane its leaders
+    move between slots (b becomes c, ...), and their windows move with them. A vehicle is in one slot only, so the
+    pairing is one-to-one, the smallest errors first (:func:`one_to_one`): of two cars that both continue one
+    previous leader (side by side in neighbouring lanes), the nearer in (y, v) takes its window. A vehicle that continues nothing starts a new window: its
     current (y, v) back-extrapolated at constant speed over the ``H`` frames (oldest first, last = now). An absent slot
     holds zeros.
 
@@ -21,8 +22,8 @@ What the SUMO env's own history does (:class:`kddrl_trl.envs.observe.Observer`),
     where a vehicle moves between slots, this transform gives the same window (tested on the SUMO env: equal where
     the vehicles stay). They differ only (a) for a vehicle seen as a leader earlier, then not, then again within
     ``H`` frames (the env has its real samples, this transform restarts), (b) right after a reset (the env may
-    have seen the new ego's leaders as the previous ego's), and (c) if two vehicles had continuing kinematics
-    (within 1 m and 1 m/s: practically never).
+    have seen the new ego's leaders as the previous ego's), and (c) where a car that continues a previous leader
+    within 1 m and 1 m/s is taken for it while the real one has left the three slots (the env restarts it).
 
 Per-row state lives in the tensordicts, as in TorchRL's ``RewardSum``: a step reads the previous window from
 the root tensordict (the previous output, carried by ``step_mdp``) and writes the new one under ``"next"``; a
@@ -69,6 +70,28 @@ def continuity_error(
         (y.unsqueeze(-1) - expected).abs() / jump_tolerance,
         (v.unsqueeze(-1) - prev_v.unsqueeze(-2)).abs() / speed_tolerance,
     )
+
+
+def one_to_one(error: Tensor) -> tuple[Tensor, Tensor]:
+    """Which previous slot each slot now continues, from ``error`` ``[*B, 3 (now), 3 (before)]``
+    (:func:`continuity_error`, inf where a slot is empty): ``(found [*B, 3], source [*B, 3])``. A vehicle is in
+    one slot only, so the pairing is one-to-one, taken greedily by the smallest error first: of two vehicles that
+    both continue one previous vehicle (side by side in neighbouring lanes, both within the tolerances), the one
+    continuing it best keeps its window and the other restarts. ``source`` is the slot itself where not found."""
+    error = error.clone()
+    slots_now, slots_before = error.shape[-2], error.shape[-1]
+    found = torch.zeros(error.shape[:-1], dtype=torch.bool, device=error.device)
+    source = torch.arange(slots_now, device=error.device).expand(error.shape[:-1]).clone()
+    for _ in range(min(slots_now, slots_before)):
+        best, where = error.flatten(-2).min(-1)
+        take = best <= 1.0
+        now, before = where // slots_before, where % slots_before
+        row = torch.nn.functional.one_hot(now, slots_now).bool() & take.unsqueeze(-1)  # [*B, now]
+        col = torch.nn.functional.one_hot(before, slots_before).bool() & take.unsqueeze(-1)  # [*B, before]
+        found = found | row
+        source = torch.where(row, before.unsqueeze(-1), source)
+        error = error.masked_fill(row.unsqueeze(-1) | col.unsqueeze(-2), float("inf"))
+    return found, source
 
 
 class LeaderHistory(Transform):
@@ -125,8 +148,7 @@ class LeaderHistory(Transform):
         prev_y, prev_v = previous[..., -1, 0], previous[..., -1, 1]
         error = continuity_error(prev_y, prev_v, y, v, self.dt, self.jump_tolerance, self.speed_tolerance)
         error = error.masked_fill(~(prev_present.unsqueeze(-2) & present.unsqueeze(-1)), float("inf"))
-        best, source = error.min(-1)  # the previous vehicle this one continues best (two side by side: the nearer)
-        found = best <= 1.0
+        found, source = one_to_one(error)
         moved = torch.gather(previous, -3, source[..., None, None].expand_as(previous))
         rolled = torch.cat([moved[..., 1:, :], torch.stack([y, v], -1).unsqueeze(-2)], -2)
         window = torch.where(found[..., None, None], rolled, restart_window(y, v, self.history_len, self.dt))
