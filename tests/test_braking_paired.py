@@ -1,17 +1,13 @@
 """The braking study's paired comparison (studies/braking/paired.py): runs paired by scenario, algo and seed across
 folders, the paired t interval of the differences, and a refusal where an arm's run has no control."""
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 from scipy.stats import ttest_rel
 
-ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("braking_paired", ROOT / "studies" / "braking" / "paired.py")
-paired = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(paired)
+from studies.braking import paired
 
 
 def _run(sweep: Path, algo: str, seed: int, collisions: float, speed: float) -> None:

@@ -83,48 +83,29 @@ def test_one_version_everywhere():
 
 
 def test_the_guides_verdict_table_is_the_reports():
-    """The guide home page's short verdict table is :func:`kddrl_trl.reporting.verdict_table.table` of the committed
-    ``studies/paper/report.json`` (``python -m kddrl_trl.report ... verdict_table=[docs/index.md]`` writes it): a
-    regenerated report that changes a claim fails here until the page follows."""
+    """The guide home page's short verdict table is the "In short" table of the committed verdict report
+    (:func:`kddrl_trl.reporting.sections.claims_summary` of ``studies/paper/report.json``, with the claims file's
+    names): a regenerated report that changes a claim fails here until the page follows."""
     import json
 
-    from kddrl_trl.reporting.verdict_table import table
+    from kddrl_trl.reporting.claims import load_claims
+    from kddrl_trl.reporting.sections import claims_summary
 
     report = json.loads((ROOT / "studies" / "paper" / "report.json").read_text())
-    assert table(report) in (ROOT / "docs" / "index.md").read_text()
+    summary = claims_summary(report, load_claims(ROOT / "studies" / "paper" / "claims.yaml").names)
+    assert summary in (ROOT / "docs" / "index.md").read_text()
+    assert summary in (ROOT / "studies" / "paper" / "report.md").read_text()
 
 
 def test_the_preset_confirmation_tables_are_the_runs(tmp_path):
     """The guide home page's safety table and studies/paper/README.md's confirmation table are ``studies/paper/confirmation.py``'s
     output on the committed run records: a run that lands and changes a row fails here until the prose follows."""
-    import runpy
-
     from testkit import study_records
+
+    from studies.paper import confirmation
 
     studies = study_records(
         tmp_path, "studies/paper/runs", "studies/paper/runs_5-14", "studies/ablation/runs", "studies/reproduction/runs"
     )
-    confirmation = runpy.run_path(str(ROOT / "studies" / "paper" / "confirmation.py"))
-    assert confirmation["safety_table"](studies) in (ROOT / "docs" / "index.md").read_text()
-    assert confirmation["table"](studies) in (ROOT / "studies" / "paper" / "README.md").read_text()
-
-
-def test_the_verdict_table_is_rewritten_in_place_and_a_page_without_one_refused(tmp_path):
-    """``verdict_table=[pages]``: the table (its header to the next blank line) is replaced with the report's; the
-    rest of the page is kept; a page without the table is an error naming it."""
-    import json
-
-    import pytest
-
-    from kddrl_trl.reporting.verdict_table import table, write_table
-
-    report = json.loads((ROOT / "studies" / "paper" / "report.json").read_text())
-    new = table(report)
-    page = tmp_path / "page.md"
-    page.write_text("before\n\n" + new.split("\n", 1)[0] + "\n|---|\n| stale | row |\n\nafter\n")
-    write_table(report, [page])
-    assert page.read_text() == "before\n\n" + new + "\n\nafter\n"
-    other = tmp_path / "other.md"
-    other.write_text("no table here\n")
-    with pytest.raises(SystemExit, match="other.md: it holds no verdict table"):
-        write_table(report, [other])
+    assert confirmation.safety_table(studies) in (ROOT / "docs" / "index.md").read_text()
+    assert confirmation.table(studies) in (ROOT / "studies" / "paper" / "README.md").read_text()

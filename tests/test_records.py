@@ -163,5 +163,6 @@ def test_archive_wants_the_records_committed_and_the_manifest_well_formed(repo):
 def test_the_verdict_report_regenerates_byte_identical_from_history(tmp_path):
     studies = study_records(tmp_path, "studies/paper/runs", "studies/paper/runs_5-14")
     out, runs = tmp_path / "report", [str(studies / "paper" / f) for f in ("runs", "runs_5-14")]
-    run_module(["kddrl_trl.report", *runs, f"out={out}", "verdict=true"], cwd=tmp_path)
+    claims = ROOT / "studies" / "paper" / "claims.yaml"
+    run_module(["kddrl_trl.report", *runs, f"out={out}", f"claims={claims}"], cwd=tmp_path)
     assert (out / "report.json").read_bytes() == (ROOT / "studies" / "paper" / "report.json").read_bytes()

@@ -1,15 +1,11 @@
 """The example's training curves (studies/reuse/curves.py): read from its progress bar's lines, a run not finished
 named and left out, a finished run's log without a progress line refused."""
 
-import importlib.util
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("reuse_curves", ROOT / "studies" / "reuse" / "curves.py")
-curves = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(curves)
+from studies.reuse import curves
 
 
 def _log(path: Path, points: list[tuple[int, int]], total: int, result=True) -> None:

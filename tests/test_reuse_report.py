@@ -1,7 +1,6 @@
 """The HighwayEnv reuse measurement's results (studies/reuse/report.py): every arm recognised from its records, per-arm
 intervals over seeds, exact pooled collision intervals and paired differences over the seeds both arms have."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -10,10 +9,7 @@ import pytest
 from omegaconf import OmegaConf
 from testkit import fake_run
 
-ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("reuse_report", ROOT / "studies" / "reuse" / "report.py")
-report = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(report)
+from studies.reuse import report
 
 
 def _train_run(folder: Path, algo: str, seed: int, speed: float, collisions: int, options: dict | None = None) -> None:

@@ -3,7 +3,6 @@ the refusal of a run of another commit."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -11,14 +10,11 @@ import pandas as pd
 import pytest
 from testkit import fake_run
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def _report():
-    spec = importlib.util.spec_from_file_location("safety_report", ROOT / "studies" / "safety" / "report.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    from studies.safety import report
+
+    return report
 
 
 def run(folder: Path, algo: str, scenario: str, seed: int, speed: float, faults: list[str], shield: int = 0):

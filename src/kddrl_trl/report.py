@@ -3,7 +3,8 @@
 Reads every run under the folders (:func:`kddrl_trl.reporting.records.find_runs`) and writes ``report.md``,
 ``report.json`` and the figures into ``out`` (:func:`kddrl_trl.reporting.builder.build_report`): the paper's
 Tables II-V with across-seed 95 % CIs beside the paper's values, each algo against KDDRL, the collision
-breakdown, Figs. 8-17 and a footer of what produced them. Folders given without ``key=`` are passed as
+breakdown, Figs. 8-17 and a footer of what produced them; with ``claims=<a claims file>``, a study's planned claims
+tested (``studies/paper/claims.yaml``: the paper's verdict). Folders given without ``key=`` are passed as
 ``runs=[...]`` to Hydra.
 """
 
@@ -20,8 +21,8 @@ from omegaconf import DictConfig, OmegaConf
 from . import conf as _conf  # noqa: F401  (registers the typed schemas with Hydra)
 from .conf.schema import ReportJob
 from .reporting.builder import build_report
+from .reporting.claims import load_claims
 from .reporting.records import find_runs
-from .reporting.verdict_table import write_table
 from .run_folder import no_folder_if_refused
 
 #: the lcGAN test metrics shipped beside the weights (``generative/shipped.py``), when there are any
@@ -55,29 +56,21 @@ def main(cfg: DictConfig) -> dict:
 
 def _report(cfg: DictConfig) -> dict:
     job: ReportJob = OmegaConf.to_object(cfg)
-    if job.verdict_table and not job.verdict:
-        raise SystemExit("verdict_table=...: the table is the verdict's; add verdict=true")
-    pages = [Path(p) for p in job.verdict_table]
-    missing = [str(p) for p in pages if not p.is_file()]
-    if missing:
-        raise SystemExit(f"verdict_table: no such page {', '.join(missing)}")
+    plan = load_claims(job.claims) if job.claims else None
     metrics_path = Path(job.lcgan_metrics) if job.lcgan_metrics else SHIPPED_LCGAN_METRICS
     lcgan = read_lcgan_metrics(metrics_path)
     if job.lcgan_metrics and lcgan is None:
         raise SystemExit(f"lcgan_metrics={job.lcgan_metrics}: no such file")
     runs = find_runs(job.runs)
     command = "python -m kddrl_trl.report " + " ".join(shlex.quote(r) for r in job.runs) + f" out={job.out}"
-    if job.verdict:
-        command += " verdict=true"
+    if job.claims:
+        command += f" claims={shlex.quote(job.claims)}"
     if job.title:
         command += " " + shlex.quote(f"title={job.title}")
-    result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan, verdict=job.verdict, title=job.title)
+    result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan, claims=plan, title=job.title)
     print(
         f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures"
     )
-    if pages:
-        write_table(json.loads((Path(job.out) / "report.json").read_text()), pages)
-        print(f"the verdict table written into {', '.join(map(str, pages))}")
     return result
 
 

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from kddrl_trl.reporting import markdown
+from kddrl_trl.reporting.markdown import estimate
 from kddrl_trl.reporting.stats import difference_test, mean_ci
 from kddrl_trl.run_folder import RunFolder
 
@@ -88,26 +90,24 @@ def paired(arm: dict, control: dict) -> dict:
     return out
 
 
-def _ci(d: dict, sign: str = "") -> str:
-    if d["ci_low"] is None:
-        return f"{d['mean']:{sign}.1f} (one seed)"
-    return f"{d['mean']:{sign}.1f} [{d['ci_low']:{sign}.1f}, {d['ci_high']:{sign}.1f}]"
+ONE = " (one seed)"  # an estimate without an interval
 
 
 def table(result: dict, source: str = "test") -> str:
     """The markdown table of :func:`paired`: one row per algo and metric (``source``: the traffic the values are
     from, ``test`` or ``validation``)."""
-    lines = ["| runs | seeds | metric | arm | control | arm − control (paired) | p |", "|---|---|---|---|---|---|---|"]
+    cells = []
     for name, row in result.items():
         for metric, (label, *_) in METRICS.items():
             m = row[metric]
             p = m["difference"]["p"]
             p = "" if p is None else "< 0.001" if p < 0.001 else f"{p:.3f}"
             seeds = ",".join(map(str, row["seeds"]))
-            label = label.replace("test", source, 1)
-            lines.append(
-                f"| {name} | {seeds} | {label} | {_ci(m['arm'])} | {_ci(m['control'])} | {_ci(m['difference'], '+')} | {p} |"
+            cells.append(
+                [name, seeds, label.replace("test", source, 1), estimate(m["arm"], alone=ONE)]
+                + [estimate(m["control"], alone=ONE), estimate(m["difference"], "+.1f", alone=ONE), p]
             )
+    lines = markdown.table(["runs", "seeds", "metric", "arm", "control", "arm − control (paired)", "p"], cells)
     return "\n".join(lines)
 
 

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from kddrl_trl.reporting import markdown
+from kddrl_trl.reporting.markdown import estimate
 from kddrl_trl.reporting.records import find_runs
 from kddrl_trl.reporting.stats import difference_ci, mean_ci, ratio_ci
 from kddrl_trl.reporting.verdict import exact_collisions
@@ -56,13 +58,6 @@ def _goal(value: dict, bound: float, at_least: bool) -> str:
     return "met" if edge is not None and inside(edge) else "mean only"
 
 
-def _ci(value: dict, scale: float = 1.0, fmt: str = ".3f") -> str:
-    """``mean [low, high]``; ``mean [—]`` where one seed gives no interval."""
-    if value["ci_low"] is None:
-        return f"{scale * value['mean']:{fmt}} [—]"
-    return f"{scale * value['mean']:{fmt}} [{scale * value['ci_low']:{fmt}}, {scale * value['ci_high']:{fmt}}]"
-
-
 def _pooled(runs: list) -> str:
     """Collisions pooled over the runs' episodes (one row's runs: :func:`~kddrl_trl.reporting.verdict.exact_collisions`):
     ``k / n = rate [exact 95 % CI]``."""
@@ -71,7 +66,7 @@ def _pooled(runs: list) -> str:
     return f"{k} / {n} = {100 * k / n:.2f} % [{100 * lo:.2f}, {100 * hi:.2f}]"
 
 
-def row(system: str, scenario: str, phase: str, runs: list, reference: list) -> str:
+def row(system: str, scenario: str, phase: str, runs: list, reference: list) -> list[str]:
     if not runs or not reference:
         raise ValueError(f"{system}, {scenario}, {phase}: {len(runs)} runs, {len(reference)} IDM+MOBIL runs")
     speed = [r.summary["mean_speed_kmh"] for r in runs]
@@ -87,18 +82,15 @@ def row(system: str, scenario: str, phase: str, runs: list, reference: list) -> 
     seeds = ",".join(str(r.seed) for r in runs)
     commits = ", ".join(sorted({r.commit for r in runs}))
     shield = float(np.mean([r.summary.get("shield_rate", 0.0) for r in runs]))
-    return (
-        f"| {system} | {scenario} | {phase} | {seeds} | {commits} | {_ci(ratio)} | {_pooled(runs)} "
-        f"| {_ci(extra, 100, '+.2f')} | {100 * shield:.0f} % | {'; '.join(goals)} |"
-    )
+    speed_ratio, extra_rate = estimate(ratio, ".3f", alone=" [—]"), estimate(extra, "+.2f", 100, alone=" [—]")
+    cells = [system, scenario, phase, seeds, commits, speed_ratio, _pooled(runs), extra_rate]
+    return cells + [f"{100 * shield:.0f} %", "; ".join(goals)]
 
 
 def table(docs: Path = DOCS) -> str:
-    lines = [
-        "| system | scenario | phase | seeds | commits | speed ÷ IDM+MOBIL's [95 % CI] | collisions, pooled "
-        "[exact 95 % CI] | − IDM+MOBIL's (points) [95 % CI] | shield rate | goals |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
+    head = ["system", "scenario", "phase", "seeds", "commits", "speed ÷ IDM+MOBIL's [95 % CI]"]
+    head += ["collisions, pooled [exact 95 % CI]", "− IDM+MOBIL's (points) [95 % CI]", "shield rate", "goals"]
+    lines = []
     for system, folders in SYSTEMS.items():
         for scenario in ("baseline", "braking"):
             selection = _runs([docs / "ablation" / "runs" / f for f in folders], system, scenario)
@@ -108,7 +100,7 @@ def table(docs: Path = DOCS) -> str:
             fresh = _runs(study, system, scenario, CONFIRMATION_SEEDS)
             rules = _runs(study, "idm_mobil", scenario, {r.seed for r in fresh})
             lines.append(row(system, scenario, "confirmation", fresh, rules))
-    return "\n".join(lines)
+    return "\n".join(markdown.table(head, lines))
 
 
 #: the README's safety rows: (label, the report's row name, the study's records folder, seeds); every row on the
@@ -125,22 +117,22 @@ def safety_table(docs: Path = DOCS) -> str:
     collision rate over seeds [95 % t CI, each seed one observation] and, as a description of those five policies,
     its collisions pooled over the episodes [exact 95 % CI]. A row short of 5 seeds is refused: the table stands for
     the finished confirmation."""
-    lines = [
-        "| scenario | system | seeds | speed (km/h) | collisions (%) | pooled [exact CI, %] |",
-        "|---|---|---|---|---|---|",
-    ]
+    lines = []
     for scenario in ("baseline", "braking"):
         for label, algo, folder, seeds in SAFETY_ROWS:
             runs = _runs([docs / "paper" / folder], algo, scenario, seeds)
             if len(runs) < 5:
                 raise ValueError(f"{algo}, {scenario}: {len(runs)} of seeds {list(seeds)}, the table needs 5")
-            speed = _ci(mean_ci([r.summary["mean_speed_kmh"] for r in runs]), fmt=".1f")
-            rate = _ci(mean_ci([r.summary["collision_rate"] for r in runs], within=(0.0, 1.0)), 100, ".2f")
+            speed = estimate(mean_ci([r.summary["mean_speed_kmh"] for r in runs]), ".1f", alone=" [—]")
+            rate = estimate(
+                mean_ci([r.summary["collision_rate"] for r in runs], within=(0.0, 1.0)), ".2f", 100, alone=" [—]"
+            )
             (pooled,) = exact_collisions(runs).values()
             k, n, (lo, hi) = pooled["collisions"], pooled["episodes"], pooled["ci"]
-            cells = f"{speed} | {rate} | {k} / {n} [{100 * lo:.2f}, {100 * hi:.2f}]"
-            lines.append(f"| {scenario} | {label} | {min(seeds)}-{max(seeds)} | {cells} |")
-    return "\n".join(lines)
+            pooled = f"{k} / {n} [{100 * lo:.2f}, {100 * hi:.2f}]"
+            lines.append([scenario, label, f"{min(seeds)}-{max(seeds)}", speed, rate, pooled])
+    head = ["scenario", "system", "seeds", "speed (km/h)", "collisions (%)", "pooled [exact CI, %]"]
+    return "\n".join(markdown.table(head, lines))
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@
 # current schema, and that is committed too:
 #   bash studies/paper/land.sh <sweep dir> <destination, e.g. studies/paper/runs_5-14> [commit message]
 # From main's root. Only the runs new to the destination are added (the older ones stay in their own commits). A
-# landing in studies/paper also regenerates the verdict report and the guide home page's verdict table (docs/index.md) in the second commit.
+# landing in studies/paper also regenerates the verdict report in the second commit.
 set -euo pipefail
 SRC=${1:?usage: land.sh <sweep dir> <destination> [message]}
 DST=${2:?usage: land.sh <sweep dir> <destination> [message]}
@@ -23,19 +23,19 @@ python -m kddrl_trl.devtools.records archive "$DST"
 # record in the commit above keeps it as the run wrote it)
 python -m kddrl_trl.devtools.migrate_configs "$DST" > /dev/null
 git add "$DST"
-# the verdict study's report and the guide home page's verdict table follow the runs they read (every record of the study
-# restored first); another study's landing leaves them as they are
+# the verdict study's report follows the runs it reads (every record of the study restored first); another study's
+# landing leaves it as it is. The guide home page's verdict table is a copy of the report's "In short" table
 note="the records of $(git rev-parse --short HEAD) leave the tree (studies/records.json)"
 case "$DST" in
   studies/paper/*)
     python -m kddrl_trl.devtools.records restore paper > /dev/null
-    python -m kddrl_trl.report studies/paper/runs studies/paper/runs_5-14 out=studies/paper verdict=true \
-      title="Verdict report" verdict_table=[docs/index.md] > /dev/null
-    git add studies/paper/report.md studies/paper/report.json studies/paper/fig*.png docs/index.md
-    note="$note; report and the guide's verdict table regenerated"
+    python -m kddrl_trl.report studies/paper/runs studies/paper/runs_5-14 out=studies/paper \
+      claims=studies/paper/claims.yaml title="Verdict report" > /dev/null
+    git add studies/paper/report.md studies/paper/report.json studies/paper/fig*.png
+    note="$note; report regenerated"
     # a regenerated table can break the guide's tested tables: say so now, not in CI
     python -m pytest -q -p no:cacheprovider tests/test_readme.py > /dev/null \
-      || echo "land.sh: tests/test_readme.py fails after this landing; mend docs/index.md before you stop" >&2;;
+      || echo "land.sh: tests/test_readme.py fails after this landing; copy the report's \"In short\" table into docs/index.md before you stop" >&2;;
 esac
 git commit -q -m "$(basename "$DST"): $note"
 echo "land.sh: landed $(echo "$new" | wc -l) run(s): $(echo $new)"

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from kddrl_trl.atomic_files import write_json_atomic, write_text_atomic
+from kddrl_trl.reporting.markdown import estimate
 from kddrl_trl.reporting.records import find_runs
 from kddrl_trl.reporting.stats import clopper_pearson, mean_test
 
@@ -198,15 +199,6 @@ def summarise(results: dict[str, dict[int, dict]]) -> dict:
     return {"arms": arms, "paired_differences": pairs}
 
 
-def _fmt(x: dict, scale: float = 1.0, digits: int = 1) -> str:
-    if x["mean"] is None:
-        return "–"
-    mean = f"{scale * x['mean']:.{digits}f}"
-    if x["ci_low"] is None:
-        return mean
-    return f"{mean} [{scale * x['ci_low']:.{digits}f}, {scale * x['ci_high']:.{digits}f}]"
-
-
 def markdown(report: dict) -> str:
     lines = [
         "# HighwayEnv reuse measurement: results",
@@ -227,8 +219,8 @@ def markdown(report: dict) -> str:
             f" [{100 * cp[0]:.1f}, {100 * cp[1]:.1f}]" if cp else ""
         )
         lines.append(
-            f"| ({arm}) | {row['system']} | {len(row['seeds'])} | {_fmt(row['mean_speed_kmh'])} | "
-            f"{_fmt(row['collision_rate'], 100.0)} | {pooled_s} |"
+            f"| ({arm}) | {row['system']} | {len(row['seeds'])} | {estimate(row['mean_speed_kmh'], missing='–')} | "
+            f"{estimate(row['collision_rate'], scale=100.0, missing='–')} | {pooled_s} |"
         )
     lines += [
         "",
@@ -241,8 +233,8 @@ def markdown(report: dict) -> str:
         if not p["seeds"]:
             continue
         lines.append(
-            f"| ({p['arm']}) − ({p['reference']}) | {p['what']} | {len(p['seeds'])} | {_fmt(p['mean_speed_kmh'])} | "
-            f"{_fmt(p['collision_rate'], 100.0)} |"
+            f"| ({p['arm']}) − ({p['reference']}) | {p['what']} | {len(p['seeds'])} | {estimate(p['mean_speed_kmh'], missing='–')} | "
+            f"{estimate(p['collision_rate'], scale=100.0, missing='–')} |"
         )
     return "\n".join(lines) + "\n"
 

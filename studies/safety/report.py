@@ -22,6 +22,7 @@ import numpy as np
 from scipy.stats import binomtest
 
 from kddrl_trl.atomic_files import write_json_atomic, write_text_atomic
+from kddrl_trl.reporting.markdown import estimate, percent
 from kddrl_trl.reporting.records import RunRecord, find_runs
 from kddrl_trl.reporting.stats import clopper_pearson, difference_ci, mean_ci, ratio_ci
 
@@ -216,16 +217,6 @@ def fault_figure(result: dict, path: Path) -> Path | None:
     return path
 
 
-def _pct(x, digits: int = 2) -> str:
-    return "n/a" if x is None else f"{100 * x:.{digits}f} %"
-
-
-def _ci(d: dict, scale: float = 1.0, digits: int = 2, unit: str = "") -> str:
-    if d.get("ci_low") is None:
-        return f"{scale * d['mean']:.{digits}f}{unit}"
-    return f"{scale * d['mean']:.{digits}f}{unit} [{scale * d['ci_low']:.{digits}f}, {scale * d['ci_high']:.{digits}f}]"
-
-
 def markdown(result: dict) -> str:
     lines = [
         "# The safety study's report",
@@ -241,22 +232,26 @@ def markdown(result: dict) -> str:
     ]
     for row in result["goals"]:
         g1, g2, g3, g4 = (row.get(k) for k in ("G1", "G2", "G3", "G4"))
-        c1 = "n/a" if g1["ego_fault"] is None else f"{g1['ego_fault']} / {row['episodes']} [{_pct(g1['upper95'], 3)}]"
+        c1 = (
+            "n/a" if g1["ego_fault"] is None else f"{g1['ego_fault']} / {row['episodes']} [{percent(g1['upper95'], 3)}]"
+        )
         c2 = (
-            f"{g2['collisions']} / {g2['reference_collisions']} ({_pct(g2['rate'])} vs {_pct(g2['reference_rate'])}, "
+            f"{g2['collisions']} / {g2['reference_collisions']} ({percent(g2['rate'])} vs {percent(g2['reference_rate'])}, "
             f"p {g2['p_worse']:.3f})"
             if g2
             else "no reference yet"
         )
-        c3 = f"{_ci(g3, digits=3)} ({g3['speed_kmh']:.1f} / {g3['reference_speed_kmh']:.1f})" if g3 else "no reference"
-        c4 = _ci(g4, 100, 1, " %") + (f" ({100 * g4['train_last100']:.1f} %)" if "train_last100" in g4 else "")
+        c3 = (
+            f"{estimate(g3, '.3f')} ({g3['speed_kmh']:.1f} / {g3['reference_speed_kmh']:.1f})" if g3 else "no reference"
+        )
+        c4 = estimate(g4, ".1f", 100, " %") + (f" ({100 * g4['train_last100']:.1f} %)" if "train_last100" in g4 else "")
         seeds = f"{len(row['seeds'])} ({min(row['seeds'])}-{max(row['seeds'])})"
         lines.append(f"| {row['arm']} | {row['scenario']} | {seeds} | {c1} | {c2} | {c3} | {c4} |")
     lines += ["", "Pooled over the three scenarios (G1):", ""]
     for arm, pooled in result["pooled_G1"].items():
         lines.append(
             f"- {arm}: {pooled['ego_fault']} ego-fault collisions in {pooled['episodes']} test episodes "
-            f"(95 % upper bound {_pct(pooled['upper95'], 3)})"
+            f"(95 % upper bound {percent(pooled['upper95'], 3)})"
         )
     lines += ["", "Fault classes of every arm's collisions (and IDM+MOBIL's; `fig_faults.png`):", ""]
     lines += ["| algo | scenario | collisions | ego | other | unknown |", "|---|---|---|---|---|---|"]
@@ -273,9 +268,9 @@ def markdown(result: dict) -> str:
     ]
     for row in result["layer_cost"]:
         lines.append(
-            f"| {row['arm']} | {row['scenario']} | {len(row['seeds'])} | {_ci(row['mean_speed_kmh'], digits=1)} | "
-            f"{row['mean_speed_kmh_without']:.1f} | {_ci(row['collision_rate'], 100, 2, ' pts')} | "
-            f"{_pct(row['collision_rate_without'])} |"
+            f"| {row['arm']} | {row['scenario']} | {len(row['seeds'])} | {estimate(row['mean_speed_kmh'], '.1f')} | "
+            f"{row['mean_speed_kmh_without']:.1f} | {estimate(row['collision_rate'], '.2f', 100, ' pts')} | "
+            f"{percent(row['collision_rate_without'])} |"
         )
     if not result["layer_cost"]:
         lines.append("| (no unshielded evaluation landed yet) | | | | | | |")
@@ -288,8 +283,8 @@ def markdown(result: dict) -> str:
     ]
     for row in result.get("against_paper", []):
         lines.append(
-            f"| {row['arm']} | {row['scenario']} | {row['n']} | {_ci(row['speed'], digits=1)} | "
-            f"{_ci(row['collision_rate'], 100, 2, ' pts')} |"
+            f"| {row['arm']} | {row['scenario']} | {row['n']} | {estimate(row['speed'], '.1f')} | "
+            f"{estimate(row['collision_rate'], '.2f', 100, ' pts')} |"
         )
     if not result.get("against_paper"):
         lines.append(
@@ -299,17 +294,17 @@ def markdown(result: dict) -> str:
     lines += ["| scenario | seeds | speed difference (km/h) | p |", "|---|---|---|---|"]
     for row in result["predictions"]:
         d = row["difference"]
-        lines.append(f"| {row['scenario']} | {row['n']} | {_ci(d, digits=1)} | {d.get('p', float('nan')):.3f} |")
+        lines.append(f"| {row['scenario']} | {row['n']} | {estimate(d, '.1f')} | {d.get('p', float('nan')):.3f} |")
     lines += ["", "## The learner's sanity check (one lane, a leader braking to a stop, no layer)", ""]
     lines += [
         "| reward | seed | test collisions | test speed (km/h) | first training episode after which the running "
-        f"{SANITY_WINDOW}-episode collision rate stays below {_pct(SANITY_LEVEL, 0)} |",
+        f"{SANITY_WINDOW}-episode collision rate stays below {percent(SANITY_LEVEL, 0)} |",
         "|---|---|---|---|---|",
     ]
     for row in result["sanity"]:
         first = row["first_safe_episode"]
         lines.append(
-            f"| {row['reward']} | {row['seed']} | {_pct(row['test_collision_rate'], 1)} | "
+            f"| {row['reward']} | {row['seed']} | {percent(row['test_collision_rate'], 1)} | "
             f"{row['test_mean_speed_kmh']:.1f} | {'never' if first is None else first} of "
             f"{row['training_episodes']} |"
         )

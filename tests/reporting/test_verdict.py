@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import stats as sps
 from testkit import fake_run
 
+from kddrl_trl.reporting.claims import Claim, load_claims
 from kddrl_trl.reporting.stats import (
     clopper_pearson,
     difference_test,
@@ -24,9 +26,17 @@ from kddrl_trl.reporting.stats import (
     seeds_for_power,
     t_power,
 )
-from kddrl_trl.reporting.verdict import CLAIMS, PRIMARY, TEST_SEEDS, Claim, judge, paper_difference
+from kddrl_trl.reporting.verdict import judge as judge_on
+from kddrl_trl.reporting.verdict import paper_difference
 
-SEEDS = list(TEST_SEEDS)
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = load_claims(ROOT / "studies" / "paper" / "claims.yaml")
+SEEDS = list(PAPER.test_seeds)
+
+
+def judge(claims, rows):
+    """The verdict on the paper study's confirmatory seeds."""
+    return judge_on(claims, rows, PAPER.test_seeds, PAPER.paper_runs)
 
 
 def test_mean_interval_by_hand_and_degenerate_cases():
@@ -238,11 +248,12 @@ def test_holm_is_applied_over_the_primary_family_only():
 
 
 def test_the_plan_family_has_17_distinct_claims_and_no_mirror_image():
-    assert len(PRIMARY) == 17 and [c.id for c in PRIMARY] == [f"P{i}" for i in range(1, 18)]
-    keys = [(c.scenario, c.metric, frozenset((c.a, c.b))) for c in CLAIMS]
+    assert len(PAPER.primary) == 17 and [c.id for c in PAPER.primary] == [f"P{i}" for i in range(1, 18)]
+    assert len(PAPER.secondary) == 37 and PAPER.plan_commit == "b80dd04" and SEEDS == list(range(5, 15))
+    keys = [(c.scenario, c.metric, frozenset((c.a, c.b))) for c in PAPER.claims]
     assert len(keys) == len(set(keys)), "a claim and its mirror image (or a duplicate) are both in the family"
-    assert {c.id for c in PRIMARY if c.paired} == {"P10", "P12"}  # braking collisions, as the plan says
-    assert paper_difference(PRIMARY[9]) == pytest.approx(0.010 - 0.248)
+    assert {c.id for c in PAPER.primary if c.paired} == {"P10", "P12"}  # braking collisions, as the plan says
+    assert paper_difference(PAPER.primary[9]) == pytest.approx(0.010 - 0.248)
 
 
 def test_verdict_report_keeps_commits_apart_and_writes_both_readings(tmp_path):
@@ -260,7 +271,7 @@ def test_verdict_report_keeps_commits_apart_and_writes_both_readings(tmp_path):
                 commit="aaaaaaa",
             )
     fake_run(tmp_path / "runs" / "k3", "kddrl", 3, speeds=(10.0, 10.0), collisions=(True, True), commit="bbbbbbb")
-    build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep", verdict=True)
+    build_report(find_runs([tmp_path / "runs"]), tmp_path / "rep", claims=PAPER)
     report = json.loads((tmp_path / "rep" / "report.json").read_text())
     assert set(report) == {"rows", "claims", "commits", "plan_commit"}
     assert report["commits"] == {"aaaaaaa": 9, "bbbbbbb": 1}

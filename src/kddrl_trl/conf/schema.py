@@ -603,9 +603,8 @@ class ReportJob:
     runs: list[str] = field(default_factory=list)
     out: str = "report"
     lcgan_metrics: Optional[str] = None  # JSON of lcGAN test metrics for Figs. 16-17 (default: beside the weights)
-    verdict: bool = False  # the paper's claims tested on paired seeds (reporting/verdict.py)
+    claims: Optional[str] = None  # a study's claims file, tested (reporting/claims.py, reporting/verdict.py)
     title: Optional[str] = None  # the heading of report.md (default "kddrl_trl report")
-    verdict_table: list[str] = field(default_factory=list)  # pages whose verdict table is rewritten (verdict=true)
 
     def __post_init__(self) -> None:
         if not self.runs:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import re
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -263,3 +264,36 @@ def lcgan(metrics: dict | None, out_dir: Path) -> dict:
         "Fig. 16: lcGAN class shares": out_dir / "fig16_lcgan_shares.png",
         "Fig. 17: lcGAN confusion": out_dir / "fig17_lcgan_confusion.png",
     }
+
+
+@dataclass(frozen=True)
+class Drawn:
+    """One of a report's figures: its title, its PNG (None where nothing was drawn) and, then, why not."""
+
+    title: str
+    path: Path | None
+    missing: str = "nothing to draw"
+
+
+#: the paper's figure number of each scenario's distributions (Figs. 10, 12, 13); others in the order of those
+DISTRIBUTION_FIGURES = {"baseline": "10", "congested": "12", "congested_text": "12", "braking": "13"}
+
+
+def draw_all(runs, scenarios: list[str], out_dir: Path, lcgan_metrics: dict | None) -> list[Drawn]:
+    """Every figure of a report into ``out_dir``: Fig. 8, Figs. 9 / 15, the distributions of each scenario,
+    Fig. 14 where runs have traces and Figs. 16 / 17 where the lcGAN metrics are given."""
+    figs = [
+        Drawn("Fig. 8: training curves", training_curves(runs, out_dir / "fig08_training_curves.png")),
+        Drawn("Figs. 9 / 15: evaluation returns", return_boxes(runs, out_dir / "fig09_returns.png")),
+    ]
+    for s, fig_no in zip(scenarios, ("10", "12", "13")):
+        number = DISTRIBUTION_FIGURES.get(s, fig_no)
+        path = distributions(runs, s, out_dir / f"fig{number}_distributions_{s}.png")
+        figs.append(Drawn(f"Fig. {number}: {s}, speed and acceleration", path))
+    no_traces = (
+        "no space-time traces in these runs (record them with `python -m kddrl_trl.evaluate run=<dir> video=true`)"
+    )
+    figs += [Drawn(title, path, no_traces) for title, path in space_time(runs, out_dir).items()]
+    no_metrics = "the shipped lcGAN weights carry no test metrics"
+    figs += [Drawn(title, path, no_metrics) for title, path in lcgan(lcgan_metrics, out_dir).items()]
+    return figs

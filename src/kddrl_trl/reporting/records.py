@@ -101,15 +101,11 @@ def _csv(path: Path, required: tuple = ()) -> pd.DataFrame:
     return frame
 
 
-def load_run(path: str | Path) -> RunRecord:
-    """Read the run folder ``path``."""
-    path = Path(path)
-    summary_path = RunFolder(path).summary
-    summary = _read_summary(summary_path)
-    for key in ("algo", "scenario", "seed"):
-        if key not in summary:
-            raise ValueError(f"{summary_path}: no {key!r} key")
-    episodes_path = record_file(path, RunFolder.EVAL_EPISODES)
+def read_episodes(episodes_path: Path, summary: dict, summary_path: Path) -> pd.DataFrame:
+    """A run's evaluation episodes (``eval_episodes.csv``), checked: as many rows as its ``summary.json`` counts,
+    ``collision`` True / False, every numeric column numeric and filled, ``collision_fault`` one of
+    :data:`~kddrl_trl.envs.fault.FAULTS` on a collision and empty otherwise. A bad record is refused naming its
+    file and column."""
     episodes = _csv(episodes_path, EPISODE_COLUMNS)
     if "episodes" in summary and int(summary["episodes"]) != len(episodes):
         raise ValueError(
@@ -139,6 +135,18 @@ def load_run(path: str | Path) -> RunRecord:
                 f"one of {', '.join(FAULTS)}; an episode without one has none)"
             )
         episodes["collision_fault"] = fault
+    return episodes
+
+
+def load_run(path: str | Path) -> RunRecord:
+    """Read the run folder ``path``."""
+    path = Path(path)
+    summary_path = RunFolder(path).summary
+    summary = _read_summary(summary_path)
+    for key in ("algo", "scenario", "seed"):
+        if key not in summary:
+            raise ValueError(f"{summary_path}: no {key!r} key")
+    episodes = read_episodes(record_file(path, RunFolder.EVAL_EPISODES), summary, summary_path)
     trained = path.parent if summary.get("final") else path  # a final__<scenario> folder: its run's training
     training_path = record_file(trained, RunFolder.TRAIN_EPISODES)
     validation_path = record_file(trained, RunFolder.VALIDATION)

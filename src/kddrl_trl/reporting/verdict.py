@@ -1,10 +1,9 @@
-"""The paper's verdict: its comparative claims (Tables II-V) tested as the analysis plan fixed them
-(``studies/paper/plan.md``).
+"""A study's verdict: its planned claims (a claims file, :mod:`kddrl_trl.reporting.claims`; the verdict study's is
+``studies/paper/claims.yaml``) tested on the per-seed values of a report's rows.
 
-* **Primary family** (:data:`PRIMARY`, 17 claims from the paper's text, no mirror images): each is tested once, on
-  the confirmatory seeds :data:`TEST_SEEDS` only (5-14, none of them seen when the plan was fixed), by Welch's
-  t-test, or the paired t-test where the plan pairs seeds (braking collisions), :mod:`kddrl_trl.reporting.stats`.
-  Two questions, each Holm-corrected over the 17:
+* **Primary family** (the file's ``primary``): each claim is tested once, on the plan's confirmatory seeds
+  (``test_seeds``) only, by Welch's t-test, or the paired t-test where the plan pairs seeds,
+  :mod:`kddrl_trl.reporting.stats`. Two questions, each Holm-corrected over the family:
 
   - *direction* (H0: Δ = 0): ``holds`` (adjusted p < 0.05, our Δ in the claimed direction), ``contradicted``
     (adjusted p < 0.05, against it) or ``inconclusive``;
@@ -15,34 +14,31 @@
   Beside each verdict, the interval that agrees with it (``ci_direction``, ``ci_size``): the test's interval at the
   level at which Holm's step-down decides the claim, 1 − α·p / p_Holm, which excludes 0 (the paper's Δ) exactly when
   the adjusted p is below α. The unadjusted 95 % interval (``ci``) and the Bonferroni one (``ci_simultaneous``, at
-  1 − α / 17, which can disagree with a Holm verdict decided at a later step) stay beside them.
+  1 − α / m for a family of m, which can disagree with a Holm verdict decided at a later step) stay beside them.
   Every primary claim also carries:
 
-  - ``p_permutation`` and its Holm adjustment: the plan's sensitivity check (§3), which decides nothing
+  - ``p_permutation`` and its Holm adjustment: a sensitivity check, which decides nothing
     (:func:`~kddrl_trl.reporting.stats.permutation_p`);
-  - ``power`` on the paper's Δ at n = 10 seeds, at 0.05 / 17 and at 0.05, and ``seeds_needed`` for 80 % power at
-    each level, at the spread of all seeds (plan §4). An inconclusive direction that 10 seeds could not decide
-    (``seeds_needed`` above them) has a ``reading`` naming that basis. The plan's line of 50 seeds for "not testable
-    at a realistic n" was a budget judgement, not a property of the claim, and no reading uses it;
+  - ``power`` on the paper's Δ at n = the confirmatory seeds, at 0.05 / m and at 0.05, and ``seeds_needed`` for 80 %
+    power at each level, at the spread of all seeds. An inconclusive direction that n could not decide
+    (``seeds_needed`` above it) has a ``reading`` naming that basis;
   - ``size_if_estimate``: the size question again with the paper's Δ read as a study of 1 and of 3 runs per
-    system with our spread, not as an exact constant (Holm over the 17 each;
+    system (the file's ``paper_runs``) with our spread, not as an exact constant (Holm over the family each;
     :func:`~kddrl_trl.reporting.stats.noisy_reference_test`).
 
-  Until every cell of the family has all :data:`TEST_SEEDS`, every verdict reads ``pending``: the test runs once,
-  over the whole family. Every claim also carries its ``description``: the estimate and 95 % interval over all its
-  seeds (0-14).
-* **Secondary claims** (:data:`SECONDARY`): every other comparative statement of the paper (lane changes,
-  accelerations, the unified systems, the rest of Table V), exploratory: the estimate over all seeds, its
-  unadjusted 95 % interval and p-value, no verdict.
+  Until every cell of the family has all its confirmatory seeds, every verdict reads ``pending``: the test runs
+  once, over the whole family. Every claim also carries its ``description``: the estimate and 95 % interval over all
+  its seeds, the pilot's included.
+* **Secondary claims** (the file's ``secondary``): exploratory: the estimate over all seeds, its unadjusted 95 %
+  interval and p-value, no verdict.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-
 import numpy as np
 
 from ..eval.paper import paper_value
+from .claims import Claim
 from .stats import (
     clopper_pearson,
     difference_test,
@@ -55,105 +51,15 @@ from .stats import (
 )
 
 ALPHA = 0.05
-#: the commit that fixed the analysis plan (``studies/paper/plan.md``); every confirmatory run started after it
-PLAN_COMMIT = "b80dd04"
-#: the confirmatory seeds of the primary family (plan §2): the test reads these and no others
-TEST_SEEDS = tuple(range(5, 15))
-#: the paper's Δ read as a study of this many runs per system, with our spread (the size's sensitivity rows)
-PAPER_RUNS = (1, 3)
 RULES = "idm_mobil"
-SPEED, COLL, LC, ACCEL, ACCEL_SD = (
-    "mean_speed_kmh",
-    "collision_rate",
-    "lane_changes_per_episode",
-    "mean_accel",
-    "frame_accel_sd",
-)
-VERB = {
-    (SPEED, "greater"): "drives faster than",
-    (SPEED, "less"): "drives slower than",
-    (COLL, "less"): "collides less than",
-    (COLL, "greater"): "collides more than",
-    (LC, "greater"): "changes lanes more often than",
-    (LC, "less"): "changes lanes less often than",
-    (ACCEL, "greater"): "accelerates more on average than",
-    (ACCEL_SD, "less"): "has a narrower acceleration spread than",
-}
-
-
-@dataclass(frozen=True)
-class Claim:
-    """``a``'s ``metric`` is ``claimed`` (``"greater"`` or ``"less"``) than ``b``'s on ``scenario``; ``paired``:
-    tested on paired seeds (the plan's choice, from the pilot's correlation)."""
-
-    id: str
-    table: str
-    scenario: str
-    metric: str
-    a: str
-    b: str
-    claimed: str
-    family: str = "secondary"
-    paired: bool = False
-
-    @property
-    def text(self) -> str:
-        return f"Table {self.table}: {self.a} {VERB[(self.metric, self.claimed)]} {self.b}"
-
-
-def _c(id_, table, scenario, metric, a, b, claimed, family="secondary", paired=False) -> Claim:
-    return Claim(id_, table, scenario, metric, a, b, claimed, family, paired)
-
-
-_SCEN = (("baseline", "II"), ("congested", "III"), ("braking", "IV"))
-
-#: the primary family of the plan (§1), in its order P1-P17
-PRIMARY: tuple[Claim, ...] = tuple(
-    _c(f"P{4 * i + j + 1}", t, s, m, "kddrl", b, d, "primary", paired=s == "braking" and m == COLL)
-    for i, (s, t) in enumerate(_SCEN)
-    for j, (b, m, d) in enumerate(((b, m, d) for b in ("ni", "peng") for m, d in ((SPEED, "greater"), (COLL, "less"))))
-) + (
-    _c("P13", "V", "baseline", COLL, "d3qn_td3_lg", "d3qn_td3", "less", "primary"),
-    _c("P14", "V", "baseline", COLL, "kddrl", "d3qn_td3_lg", "less", "primary"),
-    _c("P15", "V", "baseline", COLL, "kddrl", "kddrl_same_clock", "less", "primary"),
-    _c("P16", "V", "baseline", SPEED, RULES, "kddrl", "less", "primary"),
-    _c("P17", "V", "baseline", COLL, RULES, "d3qn_td3", "less", "primary"),
-)
-
-_V = ("d3qn_td3", "d3qn_td3_lg", "kddrl_same_clock")
-#: every other comparative statement of the paper, exploratory (plan §1)
-SECONDARY: tuple[Claim, ...] = tuple(
-    # Table II: the unified systems are slower, change lanes more, and KDDRL collides least
-    [_c("", "II", "baseline", SPEED, "kddrl", u, "greater") for u in ("d3qn_unified", "pasac_unified")]
-    + [_c("", "II", "baseline", COLL, "kddrl", u, "less") for u in ("d3qn_unified", "pasac_unified")]
-    + [_c("", "II", "baseline", LC, u, "kddrl", "greater") for u in ("d3qn_unified", "pasac_unified")]
-    # "Peng et al. shows more frequent lane changes and a higher conflict rate than ... Ni et al."
-    + [_c("", "II", "baseline", LC, "peng", "ni", "greater"), _c("", "II", "baseline", COLL, "peng", "ni", "greater")]
-    # Table III: Ni the fewest lane changes, Peng the most
-    + [_c("", "III", "congested", LC, "ni", b, "less") for b in ("peng", "kddrl")]
-    + [_c("", "III", "congested", LC, "peng", "kddrl", "greater")]
-    # Table IV: Ni the lowest speed, the fewest lane changes, the highest collision rate
-    + [_c("", "IV", "braking", SPEED, "ni", "peng", "less")]
-    + [_c("", "IV", "braking", LC, "ni", b, "less") for b in ("peng", "kddrl")]
-    + [_c("", "IV", "braking", COLL, "ni", "peng", "greater")]
-    # accelerations: KDDRL the highest mean and the lowest spread (Tables II-IV)
-    + [_c("", t, s, ACCEL, "kddrl", b, "greater") for s, t in _SCEN for b in ("ni", "peng")]
-    + [_c("", t, s, ACCEL_SD, "kddrl", b, "less") for s, t in _SCEN for b in ("ni", "peng")]
-    # Table V: +LG raises the speed, KDDRL the fastest configuration, two clocks faster than one
-    + [_c("", "V", "baseline", SPEED, "d3qn_td3_lg", "d3qn_td3", "greater")]
-    + [_c("", "V", "baseline", SPEED, "kddrl", b, "greater") for b in _V]
-    # IDM+MOBIL the slowest and the safest of all configurations (its primary pairs: P16, P17)
-    + [_c("", "V", "baseline", SPEED, RULES, b, "less") for b in _V]
-    + [_c("", "V", "baseline", COLL, RULES, b, "less") for b in ("kddrl", "d3qn_td3_lg", "kddrl_same_clock")]
-)
-SECONDARY = tuple(replace(c, id=f"S{i + 1}") for i, c in enumerate(SECONDARY))
-CLAIMS: tuple[Claim, ...] = PRIMARY + SECONDARY
+SPEED, COLL, LC, ACCEL_SD = "mean_speed_kmh", "collision_rate", "lane_changes_per_episode", "frame_accel_sd"
+MEAN_ACCEL = "mean_accel"
 
 
 def paper_difference(c: Claim) -> float | None:
     """The paper's ``a`` minus ``b`` on the claim's metric, in our units (lane changes per episode: its totals per
     1000 episodes ÷ 1000; the acceleration spread: its ``±`` of the mean acceleration)."""
-    metric = {LC: "lane_changes_per_1000_episodes", ACCEL_SD: ACCEL}.get(c.metric, c.metric)
+    metric = {LC: "lane_changes_per_1000_episodes", ACCEL_SD: MEAN_ACCEL}.get(c.metric, c.metric)
     a, b = paper_value(c.scenario, c.a, metric), paper_value(c.scenario, c.b, metric)
     k = 1 if c.metric == ACCEL_SD else 0
     if a is None or b is None or a[k] is None or b[k] is None:
@@ -210,9 +116,9 @@ def _interval(test: dict) -> list[float] | None:
     return None if test["ci_low"] is None else [test["ci_low"], test["ci_high"]]
 
 
-def judge(claims, rows: list[dict], test_seeds=TEST_SEEDS) -> list[dict]:
+def judge(claims, rows: list[dict], test_seeds, paper_runs=(1, 3)) -> list[dict]:
     """Every claim of ``claims`` on the per-seed values of ``rows`` (``report.json`` rows: ``seeds`` and
-    ``per_seed`` in the same order): the primary ones tested as the plan says (Holm over those that could be
+    ``per_seed`` in the same order): the primary ones tested on ``test_seeds`` as the plan says (Holm over those that could be
     tested, each question its own family), the secondary ones described (their verdicts and adjusted p-values
     null, so that every claim has the same keys)."""
     out, tested, primary = [], [], [c for c in claims if c.family == "primary"]
@@ -247,13 +153,13 @@ def judge(claims, rows: list[dict], test_seeds=TEST_SEEDS) -> list[dict]:
                 entry["size_if_estimate"] = {
                     str(r): {"runs": r, "p": _noisy(c, a, b, test_seeds, entry["paper"], r), "p_adjusted": None}
                     | {"size": None}
-                    for r in PAPER_RUNS
+                    for r in paper_runs
                 }
             if desc is not None and entry["paper"] is not None:
                 entry |= _power(c, a, b, entry["paper"], len(test_seeds), m)
             tested.append((entry, c, a, b))
         out.append(entry)
-    _adjust(out)
+    _adjust(out, paper_runs)
     for entry, c, a, b in tested:  # the intervals that agree with the adjusted verdicts
         for key, p, p_adjusted in (
             ("ci_direction", entry["p_direction"], entry["p_direction_adjusted"]),
@@ -292,7 +198,7 @@ def _noisy(c: Claim, a: dict, b: dict, seeds, paper: float, runs: int) -> float 
 def _power(c: Claim, a: dict, b: dict, paper: float, n: int, m: int) -> dict:
     """The power on the paper's difference at ``n`` seeds per system, at α / ``m`` (the family's first Holm step, a
     lower bound on Holm's power) and at α, and the seeds per system for 80 % power at each, at the spread of all
-    seeds (plan §4)."""
+    seeds."""
     if c.paired:
         common = sorted(set(a) & set(b))
         sd = float(np.std([a[s] - b[s] for s in common], ddof=1)) if len(common) > 1 else 0.0
@@ -318,7 +224,7 @@ def _holm_into(entries: list[dict], get, put) -> None:
         put(e, p)
 
 
-def _adjust(entries: list[dict]) -> None:
+def _adjust(entries: list[dict], paper_runs) -> None:
     """Holm over the primary family, the direction and the size each a family (and the permutation check, and each
     sensitivity row of the size, each its own); the verdicts. The test runs once, on the whole family: while any
     primary claim waits for its confirmatory seeds, every primary claim reads pending (Holm over the claims that are
@@ -342,7 +248,7 @@ def _adjust(entries: list[dict]) -> None:
     _holm_into(tested, lambda e: e["p_permutation"], lambda e, p: e.update(p_permutation_adjusted=p))
     _holm_into(tested, lambda e: e["p_size"], lambda e, p: e.update(p_size_adjusted=p, size=_size_claim(e, p)))
     estimated = [e for e in tested if e["size_if_estimate"] is not None]
-    for r in map(str, PAPER_RUNS):  # each sensitivity row its own family (the lambdas run within the iteration)
+    for r in map(str, paper_runs):  # each sensitivity row its own family (the lambdas run within the iteration)
         _holm_into(
             estimated,
             lambda e: e["size_if_estimate"][r]["p"],
