@@ -303,3 +303,31 @@ def test_flush_denormal_is_applied_by_every_job_on_every_intra_op_thread():
     finally:
         torch.set_flush_denormal(False)
         torch.set_num_threads(threads)
+
+
+def test_the_idm_and_mobil_nodes_are_the_physics_parameters_as_floats():
+    """``algo.idm`` / ``algo.mobil`` are written out as plain dataclasses; they must stay the physics parameters'
+    fields with their defaults (paper Table A.1)."""
+    from dataclasses import fields
+
+    from kddrl_trl.conf.schema import IDMNode, MOBILNode
+    from kddrl_trl.physics import IDMParams, MOBILParams
+
+    for node, params in ((IDMNode, IDMParams), (MOBILNode, MOBILParams)):
+        assert [(f.name, f.default) for f in fields(node)] == [(f.name, float(f.default)) for f in fields(params)]
+        assert all(f.type == "float" for f in fields(node))
+
+
+def test_every_schema_node_is_a_plain_dataclass_of_the_schema_module():
+    """Every node an editor reads: a class written in ``conf/schema.py``, none built at run time."""
+    import inspect
+    from dataclasses import is_dataclass
+
+    from kddrl_trl.conf import schema
+
+    nodes = [o for o in vars(schema).values() if isinstance(o, type) and is_dataclass(o)]
+    own = [o for o in nodes if o.__module__ != "kddrl_trl.conf.schema"]
+    assert all(o.__module__.startswith("kddrl_trl.") and o.__module__ != "types" for o in own), own
+    source = inspect.getsource(schema)
+    for node in (o for o in nodes if o.__module__ == "kddrl_trl.conf.schema"):
+        assert f"\nclass {node.__name__}(" in source or f"\nclass {node.__name__}:" in source, node.__name__

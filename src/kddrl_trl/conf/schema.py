@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field, fields, is_dataclass, make_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, Optional
 
 from omegaconf import MISSING, DictConfig, OmegaConf
@@ -41,7 +41,6 @@ from ..eval.periodic import BEST_METRICS
 from ..eval.protocol import MAX_WORKERS, check_disjoint, test_seed
 from ..generative import SHIPPED_TRAFFIC
 from ..modules.state import check_extras
-from ..physics import IDMParams, MOBILParams
 from ..training.hierarchical import CF_AGENTS
 
 
@@ -87,17 +86,6 @@ class EnvNode(HighwayConfig):
         )
 
 
-def _node(name: str, doc: str, check=None, optional: dict | None = None, **types: type) -> type:
-    """A schema whose fields all take their values from the YAML (``field=type`` pairs, no defaults), but those of
-    ``optional`` (``{field: (type, default)}``: a node that an algo may leave out, such as the car-following agent
-    it does not use); ``check`` (the range checks) runs when the composed config becomes objects."""
-    namespace = {"__doc__": doc} if check is None else {"__doc__": doc, "__post_init__": check}
-    optional = [(key, kind, field(default=default)) for key, (kind, default) in (optional or {}).items()]
-    return make_dataclass(
-        name, [(key, kind, field(default=MISSING)) for key, kind in types.items()] + optional, namespace=namespace
-    )
-
-
 def _check_train(train) -> None:
     _at_least(
         "train.",
@@ -121,31 +109,40 @@ def _check_train(train) -> None:
         raise ValueError(f"train.best_metric={train.best_metric!r}: known metrics are {', '.join(BEST_METRICS)}")
 
 
-LoggerConfig = _node(
-    "LoggerConfig", "``logger``: CSV and TensorBoard (true | false | auto: when installed).", csv=bool, tensorboard=Any
-)
-TrainConfig = _node(
-    "TrainConfig",
-    "The ``train`` node (``conf/config.yaml``): collection, replay buffers, update ratios, checkpoints.",
-    _check_train,
-    frames_per_env=int,
-    warmup_frames=int,
-    batch_size_cf=int,
-    batch_size_lc=int,
-    buffer_cf=int,
-    buffer_lc=int,
-    updates_per_frame=int,
-    updates_per_decision=int,
-    checkpoint_every=int,
-    keep_buffers=bool,
-    eval_every=int,
-    eval_episodes=int,
-    best_metric=str,
-    n_steps=int,
-    prioritized=bool,
-    priority_alpha=float,
-    priority_beta=float,
-)
+@dataclass
+class LoggerConfig:
+    """``logger``: CSV and TensorBoard (true | false | auto: when installed)."""
+
+    csv: bool = MISSING
+    tensorboard: Any = MISSING
+
+
+@dataclass
+class TrainConfig:
+    """The ``train`` node (``conf/config.yaml``): collection, replay buffers, update ratios, checkpoints."""
+
+    frames_per_env: int = MISSING
+    warmup_frames: int = MISSING
+    batch_size_cf: int = MISSING
+    batch_size_lc: int = MISSING
+    buffer_cf: int = MISSING
+    buffer_lc: int = MISSING
+    updates_per_frame: int = MISSING
+    updates_per_decision: int = MISSING
+    checkpoint_every: int = MISSING
+    keep_buffers: bool = MISSING
+    eval_every: int = MISSING
+    eval_episodes: int = MISSING
+    best_metric: str = MISSING
+    n_steps: int = MISSING
+    prioritized: bool = MISSING
+    priority_alpha: float = MISSING
+    priority_beta: float = MISSING
+
+    def __post_init__(self) -> None:
+        _check_train(self)
+
+
 #: ``algo.transforms.weights`` values: the traffic the shipped GAN weights were trained on, or ``auto`` (that of
 #: the env's simulator)
 GAN_WEIGHTS = ("auto", *SHIPPED_TRAFFIC)
@@ -156,67 +153,72 @@ def _check_transforms(t) -> None:
         raise ValueError(f"algo.transforms.weights={t.weights!r}: known values are {', '.join(GAN_WEIGHTS)}")
 
 
-TransformsConfig = _node(
-    "TransformsConfig",
-    "``algo.transforms``: options of "
-    ":func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none); "
-    "``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.); ``weights``: the "
-    "shipped GAN weights used without a checkpoint path (``auto``: those trained on the env simulator's traffic); "
-    "``event_oracle``: the braking car's key gaps from its script (:class:`~kddrl_trl.transforms.EventOracleKeyGaps`, "
-    "the braking study's oracle, not the paper's method).",
-    check=_check_transforms,
-    enabled=bool,
-    trajgan=bool,
-    priors=bool,
-    num_samples=int,
-    reduce=str,
-    trajgan_checkpoint=Optional[str],
-    lcgan_checkpoint=Optional[str],
-    mobil_criteria=bool,
-    weights=str,
-    event_oracle=bool,
-)
-D3QNConfig = _node(
-    "D3QNConfig",
-    "``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the learning rate.",
-    hidden=list[int],
-    dueling=bool,
-    double=bool,
-    gamma=float,
-    tau=float,
-    lr=float,
-    eps_init=float,
-    eps_end=float,
-    eps_decisions=int,
-    semi_mdp=bool,
-)
-TD3Config = _node(
-    "TD3Config",
-    "``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the learning rates.",
-    hidden=list[int],
-    gamma=float,
-    tau=float,
-    actor_lr=float,
-    critic_lr=float,
-    policy_noise=float,
-    noise_clip=float,
-    policy_delay=int,
-    exploration_sigma=float,
-    # a run saved before the clipped acting noise has no clip (null: unclipped; devtools.migrate_configs)
-    optional={"exploration_clip": (Optional[float], None)},
-)
-DDPGConfig = _node(
-    "DDPGConfig",
-    "``algo.learner.ddpg``: :func:`~kddrl_trl.objectives.make_ddpg` options and the learning rates.",
-    hidden=list[int],
-    gamma=float,
-    tau=float,
-    actor_lr=float,
-    critic_lr=float,
-    exploration_sigma=float,
-    # a run saved before the clipped acting noise has no clip (null: unclipped; devtools.migrate_configs)
-    optional={"exploration_clip": (Optional[float], None)},
-)
+@dataclass
+class TransformsConfig:
+    """``algo.transforms``: options of :func:`~kddrl_trl.transforms.make_kddrl_transforms` (``enabled=false``: none);
+    ``mobil_criteria``: add :class:`~kddrl_trl.transforms.MOBILCriteria` (Peng et al.); ``weights``: the shipped GAN
+    weights used without a checkpoint path (``auto``: those trained on the env simulator's traffic);
+    ``event_oracle``: the braking car's key gaps from its script (:class:`~kddrl_trl.transforms.EventOracleKeyGaps`,
+    the braking study's oracle, not the paper's method)."""
+
+    enabled: bool = MISSING
+    trajgan: bool = MISSING
+    priors: bool = MISSING
+    num_samples: int = MISSING
+    reduce: str = MISSING
+    trajgan_checkpoint: Optional[str] = MISSING
+    lcgan_checkpoint: Optional[str] = MISSING
+    mobil_criteria: bool = MISSING
+    weights: str = MISSING
+    event_oracle: bool = MISSING
+
+    def __post_init__(self) -> None:
+        _check_transforms(self)
+
+
+@dataclass
+class D3QNConfig:
+    """``algo.learner.d3qn``: :func:`~kddrl_trl.objectives.make_d3qn` options and the learning rate."""
+
+    hidden: list[int] = MISSING
+    dueling: bool = MISSING
+    double: bool = MISSING
+    gamma: float = MISSING
+    tau: float = MISSING
+    lr: float = MISSING
+    eps_init: float = MISSING
+    eps_end: float = MISSING
+    eps_decisions: int = MISSING
+    semi_mdp: bool = MISSING
+
+
+@dataclass
+class TD3Config:
+    """``algo.learner.td3``: :func:`~kddrl_trl.objectives.make_td3` options and the learning rates."""
+
+    hidden: list[int] = MISSING
+    gamma: float = MISSING
+    tau: float = MISSING
+    actor_lr: float = MISSING
+    critic_lr: float = MISSING
+    policy_noise: float = MISSING
+    noise_clip: float = MISSING
+    policy_delay: int = MISSING
+    exploration_sigma: float = MISSING
+    exploration_clip: Optional[float] = None
+
+
+@dataclass
+class DDPGConfig:
+    """``algo.learner.ddpg``: :func:`~kddrl_trl.objectives.make_ddpg` options and the learning rates."""
+
+    hidden: list[int] = MISSING
+    gamma: float = MISSING
+    tau: float = MISSING
+    actor_lr: float = MISSING
+    critic_lr: float = MISSING
+    exploration_sigma: float = MISSING
+    exploration_clip: Optional[float] = None
 
 
 def _check_learner(learner) -> None:
@@ -228,23 +230,23 @@ def _check_learner(learner) -> None:
         )
 
 
-LearnerConfig = _node(
-    "LearnerConfig",
-    "``algo.learner``: keyword arguments of :class:`~kddrl_trl.training.HierarchicalLearner`.",
-    _check_learner,
-    optional={
-        "td3": (Optional[TD3Config], None),
-        "ddpg": (Optional[DDPGConfig], None),
-    },
-    cf_agent=str,
-    mobil_criteria=bool,
-    priors=bool,
-    key_gaps=bool,
-    embed_dim=int,
-    embed_hidden=int,
-    embed_lr=float,
-    d3qn=D3QNConfig,
-)
+@dataclass
+class LearnerConfig:
+    """``algo.learner``: keyword arguments of :class:`~kddrl_trl.training.HierarchicalLearner`."""
+
+    cf_agent: str = MISSING
+    mobil_criteria: bool = MISSING
+    priors: bool = MISSING
+    key_gaps: bool = MISSING
+    embed_dim: int = MISSING
+    embed_hidden: int = MISSING
+    embed_lr: float = MISSING
+    d3qn: D3QNConfig = MISSING
+    td3: Optional[TD3Config] = None
+    ddpg: Optional[DDPGConfig] = None
+
+    def __post_init__(self) -> None:
+        _check_learner(self)
 
 
 def _check_levels(learner) -> None:
@@ -253,37 +255,43 @@ def _check_levels(learner) -> None:
         raise ValueError(f"algo.learner: low < high needed, got [{learner.low}, {learner.high}]")
 
 
-JointD3QNLearnerConfig = _node(
-    "JointD3QNLearnerConfig",
-    "``algo.learner`` of ``d3qn_unified``: keyword arguments of :class:`~kddrl_trl.training.JointD3QNLearner`.",
-    _check_levels,
-    num_levels=int,
-    low=float,
-    high=float,
-    d3qn=D3QNConfig,
-)
-PASACConfig = _node(
-    "PASACConfig",
-    "``algo.learner.pasac``: :func:`~kddrl_trl.objectives.make_pasac` options and the learning rates.",
-    hidden=list[int],
-    gamma=float,
-    tau=float,
-    actor_lr=float,
-    critic_lr=float,
-    alpha_lr=float,
-    alpha_init=float,
-    alpha_min=float,
-    alpha_max=float,
-    target_entropy_lane=float,
-    target_entropy_param=float,
-    low=float,
-    high=float,
-)
-PASACLearnerConfig = _node(
-    "PASACLearnerConfig",
-    "``algo.learner`` of ``pasac_unified``: keyword arguments of :class:`~kddrl_trl.training.PASACLearner`.",
-    pasac=PASACConfig,
-)
+@dataclass
+class JointD3QNLearnerConfig:
+    """``algo.learner`` of ``d3qn_unified``: keyword arguments of :class:`~kddrl_trl.training.JointD3QNLearner`."""
+
+    num_levels: int = MISSING
+    low: float = MISSING
+    high: float = MISSING
+    d3qn: D3QNConfig = MISSING
+
+    def __post_init__(self) -> None:
+        _check_levels(self)
+
+
+@dataclass
+class PASACConfig:
+    """``algo.learner.pasac``: :func:`~kddrl_trl.objectives.make_pasac` options and the learning rates."""
+
+    hidden: list[int] = MISSING
+    gamma: float = MISSING
+    tau: float = MISSING
+    actor_lr: float = MISSING
+    critic_lr: float = MISSING
+    alpha_lr: float = MISSING
+    alpha_init: float = MISSING
+    alpha_min: float = MISSING
+    alpha_max: float = MISSING
+    target_entropy_lane: float = MISSING
+    target_entropy_param: float = MISSING
+    low: float = MISSING
+    high: float = MISSING
+
+
+@dataclass
+class PASACLearnerConfig:
+    """``algo.learner`` of ``pasac_unified``: keyword arguments of :class:`~kddrl_trl.training.PASACLearner`."""
+
+    pasac: PASACConfig = MISSING
 
 
 #: ``algo.shield`` values: no shield, the IDM interaction bound, the TTC bound, RSS's worst-case bound with its
@@ -346,23 +354,12 @@ class LearningAlgo(SafetyOptions):
             raise ValueError(f"algo.lc_reward={self.lc_reward!r}: known readings are {', '.join(LC_REWARDS)}")
 
 
-def _learning_algo(name: str, doc: str, parent: type, kind: str, learner: type) -> type:
-    """A learning algo schema: ``parent`` 's fields, its ``kind`` and its ``learner`` node."""
-    return make_dataclass(
-        name,
-        [("kind", str, field(default=kind)), ("learner", learner, field(default=MISSING))],
-        bases=(parent,),
-        namespace={"__doc__": doc},
-    )
+@dataclass
+class HierarchicalAlgo(LearningAlgo):
+    """A hierarchical learning algo: KDDRL and its configuration-only comparison systems (ni, peng, ablations)."""
 
-
-HierarchicalAlgo = _learning_algo(
-    "HierarchicalAlgo",
-    "A hierarchical learning algo: KDDRL and its configuration-only comparison systems (ni, peng, ablations).",
-    LearningAlgo,
-    "hierarchical",
-    LearnerConfig,
-)
+    kind: str = "hierarchical"
+    learner: LearnerConfig = MISSING
 
 
 @dataclass
@@ -380,21 +377,45 @@ class UnifiedAlgo(LearningAlgo):
             )
 
 
-JointD3QNAlgo = _learning_algo(
-    "JointD3QNAlgo",
-    "``algo=d3qn_unified``: one D3QN over (lane command x acceleration level).",
-    UnifiedAlgo,
-    "joint_d3qn",
-    JointD3QNLearnerConfig,
-)
-PASACAlgo = _learning_algo(
-    "PASACAlgo", "``algo=pasac_unified``: one parameterised-action SAC agent.", UnifiedAlgo, "pasac", PASACLearnerConfig
-)
+@dataclass
+class JointD3QNAlgo(UnifiedAlgo):
+    """``algo=d3qn_unified``: one D3QN over (lane command x acceleration level)."""
+
+    kind: str = "joint_d3qn"
+    learner: JointD3QNLearnerConfig = MISSING
 
 
-#: ``algo.idm`` / ``algo.mobil``: the fields of the physics parameters, as floats (defaults: paper Table A.1)
-IDMNode = make_dataclass("IDMNode", [(f.name, float, field(default=f.default)) for f in fields(IDMParams)])
-MOBILNode = make_dataclass("MOBILNode", [(f.name, float, field(default=f.default)) for f in fields(MOBILParams)])
+@dataclass
+class PASACAlgo(UnifiedAlgo):
+    """``algo=pasac_unified``: one parameterised-action SAC agent."""
+
+    kind: str = "pasac"
+    learner: PASACLearnerConfig = MISSING
+
+
+@dataclass
+class IDMNode:
+    """``algo.idm``: :class:`~kddrl_trl.physics.IDMParams` as floats (defaults: paper Table A.1; a test keeps the two
+    equal)."""
+
+    v0: float = 130 / 3.6
+    T: float = 1.5
+    s0: float = 5.0
+    a_max: float = 5.0
+    b: float = 4.0
+    delta: float = 4.0
+    length: float = 5.0
+
+
+@dataclass
+class MOBILNode:
+    """``algo.mobil``: :class:`~kddrl_trl.physics.MOBILParams` as floats (defaults: paper Table A.1; a test keeps
+    the two equal)."""
+
+    politeness: float = 0.1
+    threshold: float = 0.3
+    b_safe: float = 4.0
+    y_safe: float = 5.0
 
 
 @dataclass
