@@ -2,7 +2,7 @@
 ``sota-implementations/*/utils.py`` do: each ``make_*`` turns a typed config node (:mod:`kddrl_trl.conf.schema`)
 into one part, and holds no algorithm. The final evaluation ``train.py`` and ``evaluate.py`` share runs in
 :mod:`kddrl_trl.eval.final` on the env of :func:`make_test_env`; the datasets of the generative models are built by
-:mod:`kddrl_trl.generative.datasets`.
+:mod:`kddrl_trl.data.gan_datasets`.
 
 =============================  ===========================================================================
 :func:`make_device`            ``auto`` | ``cpu`` | ``cuda``

@@ -21,9 +21,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from . import conf as _conf  # noqa: F401  (registers the typed schemas and the scenarios with Hydra)
+from .data.gan_datasets import dataset_description, gan_dataset
 from .factories import make_device, make_logger
 from .generative import TASKS, format_metrics
-from .generative.datasets import dataset_description, gan_dataset
 from .generative.pretraining import PretrainConfig, run_pretraining
 from .generative.shipped import evaluate_checkpoint, write_shipped_metrics
 from .process_settings import seed_everything

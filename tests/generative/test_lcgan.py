@@ -10,8 +10,8 @@ import torch
 from tensordict import TensorDict
 
 from kddrl_trl import keys as K
-from kddrl_trl.gan_inputs import lane_change_condition
 from kddrl_trl.generative.checkpoint import CheckpointError, load_checkpoint
+from kddrl_trl.generative.gan_inputs import lane_change_condition
 from kddrl_trl.generative.lcgan import (
     LCGANConfig,
     LCGANPredictor,

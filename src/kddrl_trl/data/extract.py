@@ -72,7 +72,7 @@ driver            [N]              int64    index of the ego's driver_type in ``
 
 The condition vector C of Eq. 16 is left unassembled (``s_av``, ``rel``/``mask``, ``key_gaps``/
 ``key_gaps_mask``) so the lcGAN decides how to concatenate and normalise; these fields come from
-:func:`kddrl_trl.gan_inputs.lane_change_condition`, the function the RL-time predictor builds them with.
+:func:`kddrl_trl.generative.gan_inputs.lane_change_condition`, the function the RL-time predictor builds them with.
 
 On disk (:func:`extract_dataset`): ``out_dir/<kind>/<split>/`` is ``TensorDict.memmap`` output for
 ``kind`` in (``leaders``, ``lane_changes``) and ``split`` in (``train``, ``val``, ``test``), read back with
@@ -102,7 +102,7 @@ from kddrl_trl import keys as K
 from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.data.highd import HighDRecording
 from kddrl_trl.data.tracks import TRACKS10_COLUMNS, longitudinal_tracks, tracks_hz, vehicle_num_lanes
-from kddrl_trl.gan_inputs import DRIVER_TYPES, KEY_STEPS, lane_change_condition
+from kddrl_trl.generative.gan_inputs import DRIVER_TYPES, KEY_STEPS, lane_change_condition
 from kddrl_trl.physics.idm import IDMParams, idm_rollout
 
 __all__ = [

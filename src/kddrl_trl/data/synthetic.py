@@ -2,7 +2,7 @@
 into a folder if it holds none, then extract the leaders' and lane changes' datasets from it. The traffic is that
 of the ``env`` node's simulator (:func:`traffic_recorder`): our SUMO highway, or HighwayEnv's own traffic.
 
-:mod:`kddrl_trl.prepare` (the entry point) and :func:`kddrl_trl.generative.datasets.gan_dataset` both build it here.
+:mod:`kddrl_trl.prepare` (the entry point) and :func:`kddrl_trl.data.gan_datasets.gan_dataset` both build it here.
 """
 
 from __future__ import annotations

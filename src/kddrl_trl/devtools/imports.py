@@ -30,7 +30,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
         "main_guard",
         "policies",
     ),
-    ("physics", "gan_inputs"),  # IDM and MOBIL (Eqs. 1-2); what the generative models read
+    ("physics",),  # IDM and MOBIL (Eqs. 1-2)
     ("envs",),  # the simulator env, its config and its episode metrics
     ("generative", "data"),  # the GANs and the offline data code
     ("transforms", "baselines"),  # the predictive state (Fig. 2), the rule-based policy

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from kddrl_trl.gan_inputs import KEY_STEPS
+from kddrl_trl.generative.gan_inputs import KEY_STEPS
 
 #: paper §IV.F: trajGAN over the 2 s horizon; lcGAN accuracy and recalls (left, keep, right)
 PAPER_TRAJGAN = {"mae": 4.39, "rmse": 5.36}

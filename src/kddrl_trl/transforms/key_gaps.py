@@ -8,7 +8,7 @@ import torch
 from torch import Tensor
 
 from .. import keys as K
-from ..gan_inputs import KEY_STEPS
+from ..generative.gan_inputs import KEY_STEPS
 from .predictive import PredictiveTransform, finite_or_zero, unbounded_spec
 
 

@@ -4,7 +4,7 @@ A conditional GAN whose generator ``G(Z, C)`` (Eq. 16) outputs a probability vec
 actions (left, keep, right) and whose discriminator ``D(P, C)`` (Eq. 17) scores whether a probability
 vector is a real human action (one-hot) or a generated one, both conditioned on ``C = {S_AV, S_SV, y_pre}``.
 
-Condition C: its fields are built by :func:`kddrl_trl.gan_inputs.lane_change_condition`, from the tracks for
+Condition C: its fields are built by :func:`kddrl_trl.generative.gan_inputs.lane_change_condition`, from the tracks for
 the ``lane_changes`` samples of :mod:`kddrl_trl.data.extract` and from the raw observation at RL time
 (:class:`LCGANPredictor`); :meth:`LCGenerator.condition` assembles and normalises them:
 

@@ -11,7 +11,7 @@ from tensordict import TensorDictBase
 from torch import Tensor
 
 from kddrl_trl import keys as K
-from kddrl_trl.gan_inputs import lane_change_condition
+from kddrl_trl.generative.gan_inputs import lane_change_condition
 
 from ..checkpoint import CheckpointError
 from ..predictor import GANPredictor
@@ -25,7 +25,7 @@ class LCGANPredictor(GANPredictor):
     lateral speed = ``[..., 2]``), ``keys.EGO_LANE`` ``[*B, 1]``, ``keys.NEIGHBORS_REL`` ``[*B, 6, 4]``,
     ``keys.NEIGHBORS_MASK`` ``[*B, 6]``, ``keys.EGO_LANE_OFFSET`` ``[*B, 1]``, ``keys.NEIGHBORS_LANE_OFFSET``
     ``[*B, 6]`` and ``keys.PRED_KEY_GAPS`` ``[*B, 3, 2]`` (trajGAN key gaps); the
-    condition is built by :func:`~kddrl_trl.gan_inputs.lane_change_condition`, as for the training samples.
+    condition is built by :func:`~kddrl_trl.generative.gan_inputs.lane_change_condition`, as for the training samples.
     Writes ``keys.PRIOR_P_LCGAN`` ``[*B, 3]``: a valid simplex over (left, keep, right), exactly 0 on directions
     without a lane. All environments go through ONE generator call, without gradients, on the net's device
     (inputs are moved there, the output back); the noise is one draw per call, or the mean of ``draws``

@@ -20,7 +20,7 @@ import torch
 from tensordict import TensorDictBase
 from torch import Tensor, nn
 
-from kddrl_trl.gan_inputs import DRIVER_TYPES, KEY_STEPS
+from kddrl_trl.generative.gan_inputs import DRIVER_TYPES, KEY_STEPS
 
 from .figures import plot_errors, plot_samples
 from .model import FEATURES_VERSION, KIND, TrajDiscriminator, TrajGenerator, cond_dim, condition_features, refine

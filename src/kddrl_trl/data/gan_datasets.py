@@ -9,8 +9,8 @@ from pathlib import Path
 
 import torch
 
-from ..data.extract import LABELS, load_dataset
-from ..data.synthetic import synthetic_dataset
+from .extract import LABELS, load_dataset
+from .synthetic import synthetic_dataset
 
 #: which sample kind each generative model learns from (``kddrl_trl.data.extract``)
 GAN_DATA_KIND = {"trajgan": "leaders", "lcgan": "lane_changes"}
