@@ -67,6 +67,9 @@ def _report(cfg: DictConfig) -> dict:
         command += f" claims={shlex.quote(job.claims)}"
     if job.title:
         command += " " + shlex.quote(f"title={job.title}")
+    if not job.lcgan_figures:
+        command += " lcgan_figures=false"
+        lcgan = False
     result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan, claims=plan, title=job.title)
     print(
         f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures"

@@ -497,3 +497,21 @@ def test_an_evaluation_in_other_traffic_than_its_training_is_labelled_by_what_di
     assert evaluation_label(programmed, {"env": {"braking": {"release": "programmed"}}}) == ""  # as it was trained
     assert evaluation_label({"env": {"braking": {"stand_time": 5.0}}}, None) == "env.braking.stand_time=5.0"
     assert evaluation_label(None, programmed) == ""
+
+
+def test_the_lcgan_figures_are_drawn_from_its_metrics_and_left_out_when_not_asked_for(tmp_path):
+    """Figs. 16 / 17 show the lcGAN's test metrics, not the runs: drawn from the shipped metrics by default, each
+    figure's absence said with its reason (none shipped, or ``lcgan_figures=false``)."""
+    from kddrl_trl.report import SHIPPED_LCGAN_METRICS, read_lcgan_metrics
+    from kddrl_trl.reporting.builder import build_report
+
+    runs = find_runs([fake_run(tmp_path / "runs" / "a")])
+    metrics = read_lcgan_metrics(SHIPPED_LCGAN_METRICS)
+    drawn = build_report(runs, tmp_path / "with", lcgan_metrics=metrics)["figures"]
+    assert drawn["Fig. 16: lcGAN class shares"] and (tmp_path / "with" / "fig16_lcgan_shares.png").is_file()
+    title = "Figs. 16 / 17: lcGAN class shares and confusion"
+    for metrics, out, reason in ((None, "none", "carry no test metrics"), (False, "off", "`lcgan_figures=false`")):
+        assert build_report(runs, tmp_path / out, lcgan_metrics=metrics)["figures"][title] is None
+        md = (tmp_path / out / "report.md").read_text()
+        assert f"### {title}\n\nNot drawn: " in md and reason in md.split(title)[1].split("\n###")[0]
+        assert not (tmp_path / out / "fig16_lcgan_shares.png").exists()

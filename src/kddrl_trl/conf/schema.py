@@ -624,6 +624,7 @@ class ReportJob:
     runs: list[str] = field(default_factory=list)
     out: str = "report"
     lcgan_metrics: Optional[str] = None  # JSON of lcGAN test metrics for Figs. 16-17 (default: beside the weights)
+    lcgan_figures: bool = True  # false: Figs. 16-17 not drawn (they show the lcGAN, not the runs)
     claims: Optional[str] = None  # a study's claims file, tested (reporting/claims.py, reporting/verdict.py)
     title: Optional[str] = None  # the heading of report.md (default "kddrl_trl report")
 

@@ -21,14 +21,15 @@ def build_report(
     runs: list[RunRecord],
     out_dir: str | Path,
     command: str = "python -m kddrl_trl.report",
-    lcgan_metrics: dict | None = None,
+    lcgan_metrics: dict | bool | None = None,
     claims: ClaimPlan | None = None,
     title: str | None = None,
 ) -> dict:
     """Write ``report.md`` (headed ``title``, default "kddrl_trl report"), ``report.json`` and the figures into
-    ``out_dir``; return the JSON's rows, the figures and the judged claims. ``claims``: a claims file read
-    (:func:`~kddrl_trl.reporting.claims.load_claims`): runs of other commits are rows of their own and its claims are
-    tested (:mod:`~kddrl_trl.reporting.verdict`); without it, ``claims`` is empty and ``plan_commit`` null."""
+        ``out_dir``; return the JSON's rows, the figures and the judged claims. ``lcgan_metrics``: the lcGAN's test metrics
+    for Figs. 16 / 17 (None: there are none; False: not asked for). ``claims``: a claims file read
+        (:func:`~kddrl_trl.reporting.claims.load_claims`): runs of other commits are rows of their own and its claims are
+        tested (:mod:`~kddrl_trl.reporting.verdict`); without it, ``claims`` is empty and ``plan_commit`` null."""
     from ..atomic_files import write_json_atomic, write_text_atomic
 
     report = compute_report(runs, command, title, claims)

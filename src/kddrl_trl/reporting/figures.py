@@ -279,9 +279,9 @@ class Drawn:
 DISTRIBUTION_FIGURES = {"baseline": "10", "congested": "12", "congested_text": "12", "braking": "13"}
 
 
-def draw_all(runs, scenarios: list[str], out_dir: Path, lcgan_metrics: dict | None) -> list[Drawn]:
+def draw_all(runs, scenarios: list[str], out_dir: Path, lcgan_metrics: dict | bool | None) -> list[Drawn]:
     """Every figure of a report into ``out_dir``: Fig. 8, Figs. 9 / 15, the distributions of each scenario,
-    Fig. 14 where runs have traces and Figs. 16 / 17 where the lcGAN metrics are given."""
+    Fig. 14 where runs have traces and Figs. 16 / 17 where the lcGAN metrics are given (``False``: not asked for)."""
     figs = [
         Drawn("Fig. 8: training curves", training_curves(runs, out_dir / "fig08_training_curves.png")),
         Drawn("Figs. 9 / 15: evaluation returns", return_boxes(runs, out_dir / "fig09_returns.png")),
@@ -294,6 +294,10 @@ def draw_all(runs, scenarios: list[str], out_dir: Path, lcgan_metrics: dict | No
         "no space-time traces in these runs (record them with `python -m kddrl_trl.evaluate run=<dir> video=true`)"
     )
     figs += [Drawn(title, path, no_traces) for title, path in space_time(runs, out_dir).items()]
-    no_metrics = "the shipped lcGAN weights carry no test metrics"
-    figs += [Drawn(title, path, no_metrics) for title, path in lcgan(lcgan_metrics, out_dir).items()]
+    no_metrics = (
+        "not asked for (`lcgan_figures=false`: they show the lcGAN's test metrics, not these runs)"
+        if lcgan_metrics is False
+        else "the shipped lcGAN weights carry no test metrics"
+    )
+    figs += [Drawn(title, path, no_metrics) for title, path in lcgan(lcgan_metrics or None, out_dir).items()]
     return figs
