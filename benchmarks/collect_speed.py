@@ -38,8 +38,8 @@ from benchmarks.update_speed import measure_update
 from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.collectors.workers import WorkerEnv
 from kddrl_trl.compiling import resolve_compile
-from kddrl_trl.eval.protocol import worker_seed
 from kddrl_trl.process_settings import apply_flush_denormal
+from kddrl_trl.protocol import worker_seed
 from kddrl_trl.training import HierarchicalLearner, make_buffer
 from kddrl_trl.transforms import (
     PredictiveStack,

@@ -17,7 +17,7 @@ from kddrl_trl import keys as K
 from kddrl_trl.collectors import MultiTimescaleCollector
 from kddrl_trl.compiling import resolve_compile
 from kddrl_trl.envs import FakeHighwayEnv, SumoHighwayEnv
-from kddrl_trl.generative import shipped_traffic
+from kddrl_trl.factories import make_transforms
 from kddrl_trl.training import HierarchicalLearner, make_buffer
 from kddrl_trl.transforms import (
     DecisionClock,
@@ -48,23 +48,23 @@ def batch_sizes() -> tuple[int, int]:
     return int(train["batch_size_cf"]), int(train["batch_size_lc"])
 
 
-def transform_kwargs(compile: bool | str | None = None) -> dict:
-    """The transform options of ``conf/algo/kddrl.yaml`` with the ``compile`` of conf/config.yaml (as training
-    builds the stack), or ``compile`` when given."""
-    cfg = OmegaConf.to_container(OmegaConf.load(CONF), resolve=True)["transforms"]
-    cfg.pop("enabled", None)
-    cfg["weights"] = shipped_traffic(cfg.get("weights", "auto"), "sumo")  # as make_transforms resolves it on SUMO
-    if compile is None:
-        compile = OmegaConf.load(CONF.parents[1] / "config.yaml")["compile"]
-    return {**cfg, "compile": resolve_compile(compile)}  # as make_job resolves it
+def training_job(overrides: tuple[str, ...] = ()):
+    """The typed job of ``python -m kddrl_trl.train`` with ``overrides`` (the schema's objects, composed by Hydra as
+    the entry point composes them; none of the job's process settings applied)."""
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module(config_module="kddrl_trl.conf", version_base="1.3"):
+        return OmegaConf.to_object(compose(config_name="config", overrides=list(overrides)))
 
 
 def collect_env(k: int, compile: bool | str | None = None, *, seed: int) -> TransformedEnv:
-    """The env of (b): ``SumoHighwayEnv`` with ``k`` roads + the KDDRL transform stack + the decision clock."""
-    lc_period = learner_kwargs(False)[1]
+    """The env of (b): ``SumoHighwayEnv`` with ``k`` roads + the default job's env-side stack, built as training
+    builds it (:func:`kddrl_trl.factories.make_transforms`: the KDDRL transforms, the decision clock), with
+    ``compile`` of ``conf/config.yaml`` or ``compile`` when given."""
+    job = training_job()
+    use = resolve_compile(job.compile if compile is None else compile)
     return TransformedEnv(
-        SumoHighwayEnv("baseline", num_roads=k, seed=seed),
-        Compose(make_kddrl_transforms(seed=seed, **transform_kwargs(compile)), DecisionClock(lc_period)),
+        SumoHighwayEnv("baseline", num_roads=k, seed=seed), make_transforms(job.algo, seed, job.env.highway(), use)
     )
 
 

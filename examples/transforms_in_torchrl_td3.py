@@ -288,7 +288,7 @@ def main(argv=None) -> dict:
 
 def validate(actor, keep, args, view: dict) -> dict:
     """The greedy policy of ``actor`` as it is now, ``args.validate_episodes`` episodes on validation traffic
-    (seed + 500,000: neither training's nor the evaluation's, as ``kddrl_trl.eval.protocol``), in an env of its
+    (seed + 500,000: neither training's nor the evaluation's, as ``kddrl_trl.protocol``), in an env of its
     own process beside the training env. The kept policy is the one of the highest mean return, the reward it is
     trained on (as the package's ``train.best_metric``)."""
     seed = args.seed + 500_000

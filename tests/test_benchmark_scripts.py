@@ -14,6 +14,8 @@ import pandas as pd
 import pytest
 from testkit import fake_run, load_benchmark, study_records
 
+ROOT = Path(__file__).resolve().parents[1]
+
 NAMES = [f"baseline__kddrl__{s}" for s in (0, 1, 2)]
 
 
@@ -400,6 +402,13 @@ SMALLEST = {
     "env_throughput": ["--roads", "1", "--scenarios", "baseline", "--frames", "20", "--warmup", "2"],
     "update_speed": ["--updates", "4", "--repeats", "1"],
 }
+#: benchmarks that open SUMO, each run in a process of its own (libsumo runs one simulation per process): their
+#: smallest size
+SMALLEST_SUMO = {
+    "collect_speed": ["--roads", "1", "--frames", "20"],
+    "collector_overhead": ["--roads", "1", "--frames", "20"],
+    "data_throughput": ["--duration", "5", "--roads", "1"],
+}
 
 
 @pytest.mark.benchmarks
@@ -409,4 +418,20 @@ def test_a_benchmark_runs_at_its_smallest_size_and_writes_its_json(name, tmp_pat
     bench = load_benchmark(name)
     out = tmp_path / f"{name}.json"
     assert bench.main([*SMALLEST[name], "--out", str(out)]) in (0, None)
+    assert isinstance(json.loads(out.read_text()), dict)
+
+
+@pytest.mark.benchmarks
+@pytest.mark.parametrize("name", sorted(SMALLEST_SUMO))
+def test_a_sumo_benchmark_runs_at_its_smallest_size_in_a_process_of_its_own(name, tmp_path):
+    """Each of :data:`SMALLEST_SUMO` as a user runs it (``python -m benchmarks.<name>``), at its smallest size: it
+    ends without an error and writes a JSON object."""
+    import os
+    import sys
+
+    out = tmp_path / f"{name}.json"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", f"benchmarks.{name}", *SMALLEST_SUMO[name], "--out", str(out)]
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
     assert isinstance(json.loads(out.read_text()), dict)

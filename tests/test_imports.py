@@ -22,7 +22,7 @@ def test_the_scan_reports_a_cycle_and_an_upward_import(monkeypatch):
 
 def test_lazy_and_relative_imports_are_seen():
     edges = imports.graph()
-    assert "kddrl_trl.eval.periodic" in edges["kddrl_trl.conf.schema"]  # imported inside a function
+    assert "kddrl_trl.eval.render" in edges["kddrl_trl.reporting.figures"]  # imported inside a function
     assert "kddrl_trl.envs.episode_metrics" in edges["kddrl_trl.training.trainer"]  # from ..envs.episode_metrics
 
 
@@ -49,3 +49,19 @@ def test_one_checkpoint_error_for_every_checkpoint():
     from kddrl_trl.training import CheckpointError as TrainingError
 
     assert TrainingError is GenerativeError is CheckpointError and issubclass(CheckpointError, ValueError)
+
+
+def test_parsing_a_config_imports_neither_the_runtime_parts_nor_torch():
+    """The schema reads its choices from leaf modules: importing it (as every entry point's config parsing does)
+    loads no simulator, network, collector, learner or evaluation code, and neither torch nor SUMO."""
+    import subprocess
+    import sys
+
+    code = "import sys, kddrl_trl.conf.schema; print(' '.join(sorted(sys.modules)))"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    parts = ("collectors", "envs", "training", "generative", "modules", "eval", "physics", "transforms", "objectives")
+    runtime = [
+        m for m in loaded if m.split(".")[0] == "kddrl_trl" and len(m.split(".")) > 1 and m.split(".")[1] in parts
+    ]
+    heavy = [m for m in loaded if m.split(".")[0] in ("torch", "torchrl", "tensordict", "libsumo", "traci", "pandas")]
+    assert not runtime and not heavy, (runtime, heavy)

@@ -10,6 +10,6 @@ try:
 except PackageNotFoundError:  # imported from a source tree that was never installed
     __version__ = "0+unknown"
 
-from .gym_env import register as _register_gym
+from .gym_registration import register as _register_gym
 
 _register_gym()

@@ -20,9 +20,9 @@ from .compiling import fresh_compiler
 from .conf.schema import EvaluateJob
 from .eval.final import final_evaluation
 from .eval.metrics import paper_reference
-from .eval.protocol import check_disjoint, test_seed
 from .factories import make_job, make_logger, make_policy, make_test_env, make_trained_learner
 from .process_settings import seed_everything
+from .protocol import check_disjoint, test_seed
 from .provenance import code_commit
 from .run_folder import no_folder_if_refused, trained_run
 

@@ -65,20 +65,20 @@ from .conf.schema import (
     algo_from_node,
     unknown_keys,
 )
-from .envs.config import HighwayConfig
 from .envs.fake import FakeHighwayEnv
 from .envs.highwayenv import HighwayEnvAdapter
 from .envs.sumo_env import SumoHighwayEnv
 from .eval.periodic import PeriodicEvaluator
-from .eval.protocol import test_seed, validation_seed, worker_seed
 from .eval.seed_validation import SeedBatchValidation
 from .generative import shipped_traffic
+from .highway_config import HighwayConfig
 from .loggers import MultiLogger
 from .modules.seed_batch import load_seeds
 from .physics import IDMParams, MOBILParams
 from .physics.rss import RSSParams
 from .policies import POLICY_FILE
 from .process_settings import TorchSettings, seed_everything
+from .protocol import test_seed, validation_seed, worker_seed
 from .run_folder import (
     RunFolder,
     best_checkpoint,
@@ -294,7 +294,7 @@ def make_seed_batch_test_env(jobs: Sequence[Job], fake: bool = False) -> EnvBase
 def make_env_factories(job: TrainJob, seed: int, fake: bool = False) -> list[WorkerEnv]:
     """One :class:`~kddrl_trl.collectors.workers.WorkerEnv` per collection worker of ``job.collector``: worker
     ``i`` builds :func:`make_env` of the job's env, algo and ``compile`` with env seed
-    :func:`~kddrl_trl.eval.protocol.worker_seed` ``(seed, i)`` (``seed``: the run's env seed, ``job.seed`` plus the
+    :func:`~kddrl_trl.protocol.worker_seed` ``(seed, i)`` (``seed``: the run's env seed, ``job.seed`` plus the
     episodes already done on resume), seeds its process's torch generator with it and applies the job's
     :func:`make_torch_settings` there. A single worker of the ``process`` backend is the env of the learner process: its
     seed is ``seed`` and torch is left as the entry point seeded it (``collector.sync=false``: its one worker is a
@@ -492,7 +492,7 @@ def make_seed_batch_collector(env, batch: SeedBatchTrainer, job: TrainJob) -> Mu
 
 def make_evaluator(job: TrainJob):
     """The periodic evaluation of :class:`~kddrl_trl.training.Trainer` (None with ``train.eval_every=0``):
-    ``train.eval_episodes`` greedy episodes on the validation seed of :mod:`kddrl_trl.eval.protocol`, in an env
+    ``train.eval_episodes`` greedy episodes on the validation seed of :mod:`kddrl_trl.protocol`, in an env
     of the job's traffic and the algo's transforms run by a worker process (eager: it acts a few times per run),
     under the job's :func:`make_torch_settings`."""
     if job.train.eval_every == 0:
@@ -550,5 +550,5 @@ def make_trained_learner(
 
 def make_test_env(job: Job, algo: LearningAlgo | RuleAlgo, env_cfg) -> EnvBase:
     """The env of a final evaluation: ``env_cfg`` 's traffic (an ``env`` node) with ``algo`` 's transforms, from the
-    test seed of ``job`` (:func:`kddrl_trl.eval.protocol.test_seed`: never a training or validation seed)."""
+    test seed of ``job`` (:func:`kddrl_trl.protocol.test_seed`: never a training or validation seed)."""
     return make_env(env_cfg, algo, seed=test_seed(job.seed, job.eval_seed), compile=job.compile, gui=job.gui)

@@ -40,12 +40,12 @@ from tensordict import TensorDict
 from torchrl.data import Bounded
 
 from . import keys as K
-from .envs.config import make_config
 from .envs.episode_metrics import EpisodeTracker
 from .envs.road_sim import EGO, check_process, open_road_sim
 from .envs.specs import observation_spec
+from .gym_registration import ENV_ID, register  # noqa: F401  (the id and its registration, re-exported)
+from .highway_config import make_config
 
-ENV_ID = "kddrl_trl/SumoHighway-v0"
 #: ``a[0]`` of the flat action beyond this changes lane (left above, right below the negative)
 FLAT_LANE_THRESHOLD = 1.0 / 3.0
 
@@ -271,9 +271,3 @@ class SumoHighwayGymEnv(gym.Env):
 
 def _as_obs(value: np.ndarray) -> np.ndarray:
     return value.astype(np.int8) if value.dtype == bool else np.array(value)
-
-
-def register() -> None:
-    """Register ``kddrl_trl/SumoHighway-v0`` with Gymnasium (idempotent; done on ``import kddrl_trl``)."""
-    if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="kddrl_trl.gym_env:SumoHighwayGymEnv", max_episode_steps=None)

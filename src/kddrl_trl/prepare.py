@@ -38,7 +38,7 @@ from kddrl_trl.data.sumo_to_highd import (
 )
 from kddrl_trl.data.synthetic import ensure_recordings
 from kddrl_trl.data.tracks import longitudinal_tracks
-from kddrl_trl.envs.config import default_drivers
+from kddrl_trl.highway_config import default_drivers
 from kddrl_trl.run_folder import no_folder_if_refused
 
 log = logging.getLogger(__name__)
@@ -154,7 +154,7 @@ def skip_calibration(err: CalibrationImpossible, out_dir: Path) -> str:
     log.warning(
         "%s: no calibration written. The datasets in %s are complete and still good for pretraining "
         "trajGAN and lcGAN (python -m kddrl_trl.pretrain gan=trajgan|lcgan data_dir=%s); the env keeps its "
-        "default drivers (envs/config.py). Calibrating needs longer recordings (record.duration_s, or more "
+        "default drivers (highway_config.py). Calibrating needs longer recordings (record.duration_s, or more "
         "HighD files); calibrate=strict makes this an error.",
         err,
         out_dir,

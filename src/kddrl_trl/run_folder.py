@@ -20,8 +20,6 @@ import shutil
 from contextlib import contextmanager
 from pathlib import Path
 
-import pandas as pd
-
 from .atomic_files import write_json_atomic, write_text_atomic
 
 
@@ -87,6 +85,8 @@ class RunFolder:
 
     def write_table(self, path: Path, rows: list[dict]) -> None:
         """``rows`` as a CSV at ``path`` (one of this folder's tables: :attr:`train_episodes`, :attr:`validation`)."""
+        import pandas as pd  # here, not at the top: resolving a config's run folder (conf/resolvers.py) needs no pandas
+
         write_text_atomic(path, pd.DataFrame(rows).to_csv(index=False))
 
     def finish(self, summary: dict, episodes: list[dict] | None = None) -> dict:

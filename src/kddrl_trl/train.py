@@ -8,7 +8,7 @@ Wires the parts of :mod:`kddrl_trl.factories` and holds no algorithm:
   ``resume=true`` continues), then evaluate ``eval_episodes`` episodes with exploration off on a fresh env;
 - rule-based algos (``algo=idm_mobil``): evaluate ``eval_episodes`` episodes.
 
-The evaluation traffic never repeats training traffic (:mod:`kddrl_trl.eval.protocol`). Outputs go to
+The evaluation traffic never repeats training traffic (:mod:`kddrl_trl.protocol`). Outputs go to
 ``runs/<scenario>__<algo>__<seed>__<time>/`` (a sweep, ``-m``: ``runs/multirun__<time>/<scenario>__<algo>__<seed>``;
 ``-m ... resume=true`` continues the newest sweep job by job, skipping finished jobs): ``config.yaml``,
 ``train_episodes.csv``, ``validation.csv``, ``training_curves.png``, ``checkpoints/``, ``eval_episodes.csv``,
@@ -33,7 +33,6 @@ from .conf.schema import LearningAlgo, TrainJob
 from .eval.final import FinalEvaluation, seed_batch_evaluations
 from .eval.final import final_evaluation as run_final_evaluation
 from .eval.metrics import paper_reference
-from .eval.protocol import protocol
 from .factories import (
     make_buffers,
     make_collector,
@@ -52,6 +51,7 @@ from .factories import (
 )
 from .loggers import trim_logs
 from .process_settings import seed_everything
+from .protocol import protocol
 from .provenance import code_commit, provenance
 from .run_folder import RunFolder, config_differences
 from .training import Trainer, plot_training_curves

@@ -31,7 +31,7 @@ from kddrl_trl import keys as K
 from kddrl_trl.baselines.idm_mobil import IDMMobilPolicy
 from kddrl_trl.envs import SumoHighwayEnv
 from kddrl_trl.envs.observe import longitudinal
-from kddrl_trl.eval.protocol import test_seed
+from kddrl_trl.protocol import test_seed
 from kddrl_trl.reporting.stats import mean_ci
 from kddrl_trl.transforms import make_kddrl_transforms
 

@@ -24,10 +24,10 @@ import torch
 from kddrl_trl import keys as K
 from kddrl_trl.baselines.idm_mobil import IDMMobilPolicy
 from kddrl_trl.envs import SumoHighwayEnv
-from kddrl_trl.envs.config import RELEASES
 from kddrl_trl.envs.observe import longitudinal
-from kddrl_trl.eval.protocol import test_seed
 from kddrl_trl.eval.rollout import evaluate_policy
+from kddrl_trl.highway_config import RELEASES
+from kddrl_trl.protocol import test_seed
 
 WINDOW_S = 15.0
 CUT_IN_RANGE_M = 60.0
@@ -101,7 +101,7 @@ def _summary(ev: dict, dt: float) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--release", choices=RELEASES, default="sumo", help="braking.release (envs/config.py)")
+    ap.add_argument("--release", choices=RELEASES, default="sumo", help="braking.release (highway_config.py)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     ap.add_argument("--episodes", type=int, default=200, help="episodes per seed")
     ap.add_argument("--roads", type=int, default=8)

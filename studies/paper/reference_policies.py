@@ -18,9 +18,9 @@ from tensordict.nn import TensorDictModuleBase
 
 from kddrl_trl.baselines.random_policy import RandomDrivingPolicy
 from kddrl_trl.eval import evaluate_policy
-from kddrl_trl.eval.protocol import test_seed
 from kddrl_trl.factories import make_env
 from kddrl_trl.keys import CF_ACTION, LC_ACTION
+from kddrl_trl.protocol import test_seed
 
 
 class StandStill(TensorDictModuleBase):

@@ -18,7 +18,7 @@ from testkit import TINY as KDDRL_TINY
 
 from kddrl_trl import keys as K
 from kddrl_trl.collectors.workers import WorkerEnv
-from kddrl_trl.eval.protocol import MAX_WORKERS, WORKER_OFFSET, protocol
+from kddrl_trl.protocol import MAX_WORKERS, WORKER_OFFSET, protocol
 
 #: what the probe writes into every frame: the ε and σ the acting policy used, and a checksum of its weights
 PROBE_EPS, PROBE_SIGMA, PROBE_W = ("probe", "eps"), ("probe", "sigma"), ("probe", "weights")

@@ -31,7 +31,7 @@ from kddrl_trl.data.calibrate import (
     mobil_decision,
     write_calibration,
 )
-from kddrl_trl.envs.config import default_drivers, make_config
+from kddrl_trl.highway_config import default_drivers, make_config
 from kddrl_trl.physics.idm import IDMParams, idm_acceleration
 from kddrl_trl.physics.mobil import MOBILParams, mobil_utilities
 

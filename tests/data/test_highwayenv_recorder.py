@@ -16,7 +16,7 @@ from kddrl_trl.data.highd import lane_index_in_direction, list_recordings, read_
 from kddrl_trl.data.highwayenv_to_highd import record_highwayenv_traffic  # noqa: E402
 from kddrl_trl.data.sumo_to_highd import FRAME_RATE, read_driver_params  # noqa: E402
 from kddrl_trl.envs import make_config  # noqa: E402
-from kddrl_trl.envs.highwayenv import HighwayEnvOptions  # noqa: E402
+from kddrl_trl.highwayenv_options import HighwayEnvOptions  # noqa: E402
 
 OPTIONS = HighwayEnvOptions(vehicles_count=12, record_episode_s=8.0)
 DURATION = 16.0  # two episodes per recording

@@ -22,8 +22,9 @@ pytest.importorskip("highway_env")
 
 from testkit import command  # noqa: E402
 
-from kddrl_trl.envs.highwayenv import HighwayEnvAdapter, HighwayEnvOptions  # noqa: E402
+from kddrl_trl.envs.highwayenv import HighwayEnvAdapter  # noqa: E402
 from kddrl_trl.eval import evaluate_policy  # noqa: E402
+from kddrl_trl.highwayenv_options import HighwayEnvOptions  # noqa: E402
 
 #: a small, fast road: few vehicles, few observed
 SMALL = {"options": HighwayEnvOptions(vehicles_count=12, observed_vehicles=10)}
@@ -191,7 +192,7 @@ def test_highwayenvs_own_driver_can_drive_the_ego():
     from highway_env.vehicle.behavior import IDMVehicle
 
     from kddrl_trl.envs import make_config
-    from kddrl_trl.envs.highwayenv import check_config
+    from kddrl_trl.highwayenv_options import check_config
 
     options = HighwayEnvOptions(vehicles_count=12, observed_vehicles=10, ego_driver="highwayenv")
 

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from testkit import TINY_BUDGET, fake_run, run_module
 
-from kddrl_trl.eval.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
+from kddrl_trl.protocol import TEST_OFFSET, VALIDATION_OFFSET, check_disjoint, protocol
 from kddrl_trl.reporting.records import find_runs
 from kddrl_trl.reporting.stats import difference_ci, mean_ci, ratio_ci
 

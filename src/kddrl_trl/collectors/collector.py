@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import copy
-import importlib.util
 from collections.abc import Callable, Iterator, Sequence
 from typing import NamedTuple
 
@@ -13,6 +12,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import ReplayBuffer
 from torchrl.envs import EnvBase
 
+from ..choices import check_backend
 from ..main_guard import require_main_guard
 from .macro import MacroTransitionWriter
 from .overlap import OverlappedCollector
@@ -20,20 +20,6 @@ from .snapshot import PolicySnapshot
 
 #: ``collector.backend`` values: TorchRL's local multi-process collector, or its Ray collector (the optional extra
 #: ``.[ray]``)
-BACKENDS = ("process", "ray")
-
-
-def check_backend(backend: str) -> None:
-    """``backend`` must be one of :data:`BACKENDS`; ``ray`` needs Ray installed (the ``.[ray]`` extra)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"collector.backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
-    if backend == "ray" and importlib.util.find_spec("ray") is None:
-        raise ValueError(
-            "collector.backend=ray needs Ray, which is not installed: pip install '.[ray]' (the optional "
-            "extra), or use collector.backend=process"
-        )
-
-
 #: ``total_frames`` of an endless Ray collection (TorchRL 0.14.1's ``RayCollector`` iterates while its collected
 #: frames are below ``total_frames``, so its ``-1`` yields nothing)
 ENDLESS_RAY_FRAMES = 2**62

@@ -6,7 +6,7 @@ multi-process collector (:meth:`~kddrl_trl.collectors.MultiTimescaleCollector.fr
 ``WorkerEnv``, pickled to the worker and called there: it seeds that process's torch generator (the exploring
 policy's draws: ε-greedy coins, Gaussian acting noise), applies the job's torch settings there
 (:class:`~kddrl_trl.process_settings.TorchSettings`: a new process starts with torch's defaults) and builds the env with the
-worker's env seed (:func:`kddrl_trl.eval.protocol.worker_seed`). Nothing here is specific to SUMO: ``make`` is any
+worker's env seed (:func:`kddrl_trl.protocol.worker_seed`). Nothing here is specific to SUMO: ``make`` is any
 env factory taking ``seed=``; the validation worker builds its env through one too.
 """
 

@@ -5,7 +5,7 @@ Importing this module registers in Hydra's ConfigStore:
 * the typed schemas of :mod:`kddrl_trl.conf.schema` (``env/highway_schema``, ``algo/hierarchical_schema``,
   ``algo/joint_d3qn_schema``, ``algo/pasac_schema``, ``algo/rule_schema``, ``logger/logger_schema``, ``train_job``,
   ``evaluate_job``, ``report_job``), so a misspelt key or a wrong type fails at composition, naming the key;
-* the ``scenario`` group: one option per preset of :data:`kddrl_trl.envs.config.SCENARIOS` (the same
+* the ``scenario`` group: one option per preset of :data:`kddrl_trl.highway_config.SCENARIOS` (the same
   presets ``SumoHighwayEnv(scenario=...)`` applies), an ``env:`` block in the global package, appended with
   ``+scenario=<name>``;
 * the resolvers of :mod:`kddrl_trl.conf.resolvers` (run folders chosen before Hydra creates them).
@@ -13,7 +13,7 @@ Importing this module registers in Hydra's ConfigStore:
 
 from hydra.core.config_store import ConfigStore
 
-from ..envs.config import SCENARIOS
+from ..highway_config import SCENARIOS
 from . import resolvers
 from .schema import (
     EnvNode,

@@ -12,7 +12,7 @@ folder behind. These resolvers decide while the config is composed, once (:mod:`
   run folder is checked inside the entry point (one line naming it), and the folders Hydra makes for a ``run`` that
   does not exist are then removed (:func:`kddrl_trl.run_folder.output_parent`);
 * ``${kddrl_scenario:<name>,${env.simulator}}``: the ``env.scenario`` a ``+scenario=<name>`` preset sets
-  (:func:`kddrl_trl.envs.config.scenario_label`: ``highwayenv_congested`` on HighwayEnv), so that the run folder
+  (:func:`kddrl_trl.highway_config.scenario_label`: ``highwayenv_congested`` on HighwayEnv), so that the run folder
   already carries the simulator;
 * ``${kddrl_seed_label:${seed},${seeds}}``: the seed part of a run folder's name: ``seed``, or for a seed batch
   (``seeds=[...]``) ``seeds<first>-<last>`` (:func:`seed_label`);
@@ -26,7 +26,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from ..envs.config import scenario_label
+from ..highway_config import scenario_label
 from ..policies import output_folder
 from ..run_folder import find_resume_dir, find_sweep_dir, output_parent
 

@@ -6,7 +6,7 @@ misspelt key or a value of the wrong type while it composes the config, naming t
 composed config into these objects (``OmegaConf.to_object``), before any simulator starts.
 
 =====================  =================================================================================
-``env``                :class:`EnvNode`: every :class:`~kddrl_trl.envs.config.HighwayConfig` field + ``num_roads``,
+``env``                :class:`EnvNode`: every :class:`~kddrl_trl.highway_config.HighwayConfig` field + ``num_roads``,
                        ``simulator`` (``sumo`` | ``highwayenv``), ``highwayenv`` (HighwayEnv's own options)
 ``algo`` (learning)    :class:`HierarchicalAlgo`: ``lc_period``, ``transforms``, ``learner{d3qn, td3 | ddpg, ...}``;
                        :class:`JointD3QNAlgo` (``d3qn_unified``), :class:`PASACAlgo` (``pasac_unified``): one agent
@@ -34,14 +34,10 @@ from typing import Any, Optional
 
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from ..collectors.collector import check_backend
-from ..envs.config import SCENARIOS, HighwayConfig, switch_scenario
-from ..envs.highwayenv import HighwayEnvOptions, check_config
-from ..eval.periodic import BEST_METRICS
-from ..eval.protocol import MAX_WORKERS, check_disjoint, test_seed
-from ..generative import SHIPPED_TRAFFIC
-from ..modules.state import check_extras
-from ..training.hierarchical import CF_AGENTS
+from ..choices import BEST_METRICS, CF_AGENTS, SHIPPED_TRAFFIC, check_backend, check_extras
+from ..highway_config import SCENARIOS, HighwayConfig, switch_scenario
+from ..highwayenv_options import HighwayEnvOptions, check_config
+from ..protocol import MAX_WORKERS, check_disjoint, test_seed
 
 
 def _at_least(prefix: str, node, low: int, *names: str) -> None:
@@ -59,7 +55,7 @@ SIMULATORS = ("sumo", "highwayenv")
 @dataclass
 class EnvNode(HighwayConfig):
     """The ``env`` node: the highway config plus the number of roads simulated side by side, the simulator and, for
-    HighwayEnv, its own options (:class:`~kddrl_trl.envs.highwayenv.HighwayEnvOptions`; checked here, before any
+    HighwayEnv, its own options (:class:`~kddrl_trl.highwayenv_options.HighwayEnvOptions`; checked here, before any
     simulator starts, with the :class:`HighwayConfig` values HighwayEnv cannot honour)."""
 
     num_roads: int = 8
@@ -80,7 +76,7 @@ class EnvNode(HighwayConfig):
 
     def with_scenario(self, scenario: str) -> "EnvNode":
         """This node on the traffic of another ``scenario``
-        (:func:`~kddrl_trl.envs.config.switch_scenario`: the current preset's keys reset, ``scenario`` 's applied)."""
+        (:func:`~kddrl_trl.highway_config.switch_scenario`: the current preset's keys reset, ``scenario`` 's applied)."""
         return OmegaConf.to_object(
             OmegaConf.merge(OmegaConf.structured(EnvNode), switch_scenario(OmegaConf.structured(self), scenario))
         )
@@ -483,7 +479,7 @@ class Job:
 
     seed: int = MISSING
     eval_episodes: int = MISSING
-    eval_seed: Optional[int] = None  # env seed of the evaluation; null: seed + eval.protocol.TEST_OFFSET
+    eval_seed: Optional[int] = None  # env seed of the evaluation; null: seed + protocol.TEST_OFFSET
     video: bool = False  # record evaluation episodes: traces/*.json (Fig. 14) and videos/*.mp4
     video_episodes: int = 3
     video_select: str = "any"  # any | collisions: which evaluation episodes the video records (collisions: only those)
@@ -534,7 +530,7 @@ class CollectorConfig:
     (``env.num_roads``) and transform stack, collecting through TorchRL's multi-process collector with ``backend``
     (``process``: local processes; ``ray``: Ray actors, the optional extra ``.[ray]``; checked here, before any
     simulator starts). ``workers=1`` with ``process`` runs the env in the learner process
-    (:meth:`kddrl_trl.collectors.MultiTimescaleCollector.from_env`); worker seeds: :mod:`kddrl_trl.eval.protocol`.
+    (:meth:`kddrl_trl.collectors.MultiTimescaleCollector.from_env`); worker seeds: :mod:`kddrl_trl.protocol`.
     ``sync=false``: one worker process collects while the learner updates
     (:class:`~kddrl_trl.collectors.OverlappedCollector`; one batch more policy lag, runs still repeat exactly)."""
 
@@ -547,7 +543,7 @@ class CollectorConfig:
         if self.workers > MAX_WORKERS:
             raise ValueError(
                 f"collector.workers must be <= {MAX_WORKERS} (each worker's env seeds stay below the "
-                f"validation seed, kddrl_trl/eval/protocol.py), got {self.workers}"
+                f"validation seed, kddrl_trl/protocol.py), got {self.workers}"
             )
         check_backend(self.backend)
         if not self.sync and (self.workers != 1 or self.backend != "process"):
@@ -589,7 +585,7 @@ class TrainJob(Job):
     def _check_seed_batch(self) -> None:
         """A seed batch trains hierarchical learners (the batched learner of ``modules/seed_batch.py``) on one env in
         this process, with uniform replay, each seed evaluated on its training scenario, on its own test traffic;
-        distinct seeds, each with the training, validation and test seeds a run of its own has (``eval/protocol.py``)."""
+        distinct seeds, each with the training, validation and test seeds a run of its own has (``protocol.py``)."""
         seeds = list(self.seeds)
         if not seeds or len(set(seeds)) != len(seeds) or any(isinstance(s, bool) or s < 0 for s in seeds):
             raise ValueError(f"seeds={seeds}: a seed batch needs one or more distinct seeds >= 0")

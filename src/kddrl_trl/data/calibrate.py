@@ -159,7 +159,7 @@ def write_calibration(result: Mapping[str, Any], path: str | os.PathLike) -> Non
     """
     import yaml
 
-    from kddrl_trl.envs.config import DriverClass, default_drivers
+    from kddrl_trl.highway_config import DriverClass, default_drivers
 
     defaults = {d.name: d for d in default_drivers()}
     classes, mobil, pop = result["classes"], result["mobil"], result["population"].iloc[0]

@@ -32,16 +32,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..envs.config import HighwayConfig
 from ..envs.highwayenv import (
-    HW_ROAD_LENGTH,
-    HighwayEnvOptions,
-    check_config,
     highway_settings,
     highwayenv_drives_ego,
     make_highway,
 )
 from ..envs.observe import lane_and_offset
+from ..highway_config import HighwayConfig
+from ..highwayenv_options import HW_ROAD_LENGTH, HighwayEnvOptions, check_config
 from .sumo_to_highd import RecordedTraffic, _build_recording, recording_steps
 
 log = logging.getLogger(__name__)
@@ -116,7 +114,7 @@ def record_highwayenv_traffic(
     options: HighwayEnvOptions | dict | None = None,
 ) -> list[RecordedTraffic]:
     """Record ``num_roads`` recordings (ids 1..K) of ``duration_s`` simulated seconds of HighwayEnv traffic on
-    ``cfg`` with ``options`` (:class:`~kddrl_trl.envs.highwayenv.HighwayEnvOptions`), in the HighD format at 25 Hz
+    ``cfg`` with ``options`` (:class:`~kddrl_trl.highwayenv_options.HighwayEnvOptions`), in the HighD format at 25 Hz
     (module docstring). The same arguments as :func:`~kddrl_trl.data.sumo_to_highd.record_traffic`, which records
     our SUMO traffic."""
     from highway_env.vehicle.kinematics import Vehicle

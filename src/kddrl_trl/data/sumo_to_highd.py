@@ -64,9 +64,9 @@ import numpy as np
 import pandas as pd
 
 from ..atomic_files import write_text_atomic
-from ..envs.config import HighwayConfig
 from ..envs.network import ROAD_SPACING
 from ..envs.observe import lane_and_offset
+from ..highway_config import HighwayConfig
 from .highd import (
     NEIGHBOUR_ID_COLUMNS,
     TRACKS_COLUMNS,

@@ -29,6 +29,11 @@ LAYERS: tuple[tuple[str, ...], ...] = (
         "run_folder",
         "main_guard",
         "policies",
+        "choices",
+        "highway_config",
+        "highwayenv_options",
+        "protocol",
+        "gym_registration",
     ),
     ("physics",),  # IDM and MOBIL (Eqs. 1-2)
     ("envs",),  # the simulator env, its config and its episode metrics

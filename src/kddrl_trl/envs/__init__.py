@@ -1,6 +1,6 @@
 """Environments: the batched SUMO highway (TorchRL and Gymnasium) and a SUMO-free fake with the same specs."""
 
-from .config import BrakingEvent, DriverClass, HighwayConfig, make_config, scenario_names
+from ..highway_config import BrakingEvent, DriverClass, HighwayConfig, make_config, scenario_names
 from .fake import FakeHighwayEnv
 from .sumo_env import SumoHighwayEnv
 

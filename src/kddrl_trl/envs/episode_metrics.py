@@ -14,8 +14,8 @@ import torch
 from tensordict import TensorDictBase
 
 from .. import keys as K
+from ..highway_config import HighwayConfig
 from ..physics.rss import RSSParams
-from .config import HighwayConfig
 from .fault import breaches, fault, held
 from .specs import lc_command
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..atomic_files import cache_dir, write_text_atomic
-from .config import HighwayConfig
+from ..highway_config import HighwayConfig
 
 ROAD_SPACING = 50.0  # m between the centre lines of neighbouring roads
 #: SUMO's default speed and lane-change modes, given back to a vehicle released from external control

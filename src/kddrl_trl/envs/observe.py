@@ -17,7 +17,7 @@ from collections import deque
 import numpy as np
 
 from .. import keys as K
-from .config import HighwayConfig
+from ..highway_config import HighwayConfig
 from .network import road_y
 from .specs import observation_spec
 

@@ -17,7 +17,7 @@ torch tensors.
 from __future__ import annotations
 
 from .. import keys as K
-from .config import HighwayConfig
+from ..highway_config import HighwayConfig
 
 
 def _where(cond, a, b):

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from ..highway_config import HighwayConfig
 from ..main_guard import require_main_guard
-from .config import HighwayConfig
 from .sim import HighwaySim, simulation_open
 
 EGO = "ego_id"  # the frame's entry holding the ego's SUMO id (None once its episode ended)

@@ -38,8 +38,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from .. import keys as K
+from ..highway_config import HighwayConfig
 from .braking import BrakingEvents
-from .config import HighwayConfig
 from .network import (
     GUI_VIEW,
     GUI_ZOOM,

@@ -8,7 +8,7 @@ from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 from torchrl.envs import EnvBase
 
 from .. import keys as K
-from .config import HighwayConfig, make_config
+from ..highway_config import HighwayConfig, make_config
 from .rewards import car_following_total, lane_change_total
 
 

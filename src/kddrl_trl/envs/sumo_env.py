@@ -34,7 +34,7 @@ class SumoHighwayEnv(HighwayEnvBase):
     """The KDDRL highway: K roads x one ego, raw keys of ``kddrl_trl.keys``, two per-agent rewards.
 
     Args:
-        scenario: ``"baseline"``, ``"congested"``, ``"congested_text"`` or ``"braking"`` (``envs.config.SCENARIOS``).
+        scenario: ``"baseline"``, ``"congested"``, ``"congested_text"`` or ``"braking"`` (``highway_config.SCENARIOS``).
         num_roads: K >= 1, the batch size.
         seed: seeds SUMO and the env's own generator; same seed -> identical rollouts.
         device: torch device of the output tensors (the simulator itself is CPU).
@@ -42,7 +42,7 @@ class SumoHighwayEnv(HighwayEnvBase):
         road_seeds: the seed whose traffic each of the K roads carries (None: ``seed`` for all;
             :class:`~kddrl_trl.envs.sim.HighwaySim`): the roads of seed ``s`` carry the traffic of an env of their
             own with ``seed=s``.
-        **overrides: any field of :class:`~kddrl_trl.envs.config.HighwayConfig` (e.g. ``flow_vph=2658``,
+        **overrides: any field of :class:`~kddrl_trl.highway_config.HighwayConfig` (e.g. ``flow_vph=2658``,
             ``braking={"stand_time": 5}``); unknown keys or bad values raise ``ValueError`` naming the key
             before SUMO starts.
 

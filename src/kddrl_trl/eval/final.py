@@ -14,17 +14,17 @@ from torchrl.envs import EnvBase
 from ..atomic_files import write_json_atomic
 from ..compiling import compile_counts, compile_seconds
 from ..envs.episode_metrics import METRIC_FIELDS
+from ..protocol import test_seed
 from ..provenance import provenance
 from ..run_folder import RunFolder
 from .metrics import format_summary, summarize
-from .protocol import test_seed
 from .rollout import evaluate_policy, unwrap_env
 from .trace import TraceRecorder
 
 
 def evaluate(env: EnvBase, policy, job, logger, out_dir: Path | None = None, algo: str = "") -> tuple[list[dict], dict]:
     """``job.eval_episodes`` episodes of ``policy`` (in start order, :func:`kddrl_trl.eval.evaluate_policy`) on
-    the test seed of :mod:`kddrl_trl.eval.protocol`, logged under ``test/``, and the env's counters; closes
+    the test seed of :mod:`kddrl_trl.protocol`, logged under ``test/``, and the env's counters; closes
     ``env``. With ``job.video``, ``job.video_episodes`` of them are recorded into ``out_dir``: ``traces/*.json``
     (:class:`~kddrl_trl.eval.trace.TraceRecorder`) and ``videos/*.mp4`` (:func:`~kddrl_trl.eval.render.write_video`).
     """
@@ -121,7 +121,7 @@ def seed_batch_evaluations(env: EnvBase, policy, algo: str, seeds: list[dict]) -
     """The final evaluations of a seed batch's N seeds at once. ``seeds[i]``: seed ``i`` 's ``job``, ``logger``,
     ``out_dir``, ``title``, ``reference`` and summary ``fields`` (as :func:`final_evaluation` takes them). ``env``
     holds N x K roads, seed-major, seed ``i`` 's on its own test traffic (``road_seeds`` from
-    :func:`~kddrl_trl.eval.protocol.test_seed`: the traffic its run alone is tested on), ``policy`` is the batch's
+    :func:`~kddrl_trl.protocol.test_seed`: the traffic its run alone is tested on), ``policy`` is the batch's
     greedy policy on all rows; each seed's episodes are counted in start order on its own rows
     (:func:`evaluate_policy` ``groups``) and logged under ``test/`` in its logger. ``env_stats``: the batch env's
     counters (every seed's roads; ``seed_batch_env``). Closes ``env``. No video: a seed's folder is filmed by

@@ -65,7 +65,7 @@ PAPER = {
     },
 }
 
-PAPER["congested_text"] = PAPER["congested"]  # the same Table III, read with the text's flow (envs.config.SCENARIOS)
+PAPER["congested_text"] = PAPER["congested"]  # the same Table III, read with the text's flow (highway_config.SCENARIOS)
 
 
 def paper_value(scenario: str, algo: str, metric: str) -> tuple[float, float | None] | None:

@@ -6,7 +6,7 @@ worker process of its own (spawned, never forked from a process that already run
 validation takes a copy of the policy as it is when :meth:`PeriodicEvaluator.submit` is called (pickled there:
 the learner may go on changing its weights at once), and returns a ``Future``, so that the training goes on while
 the worker drives the episodes (:class:`~kddrl_trl.training.Trainer` collects the result later). Every validation
-reseeds the env with the same seed (:func:`kddrl_trl.eval.protocol.validation_seed`), so successive validations meet
+reseeds the env with the same seed (:func:`kddrl_trl.protocol.validation_seed`), so successive validations meet
 the same traffic and compare, and it counts episodes in start order (:func:`~kddrl_trl.eval.rollout.evaluate_policy`).
 TorchRL's own ``Evaluator`` (process backend) returns the first trajectories to *finish*, which with several roads
 favours the short ones: hence this worker around :func:`~kddrl_trl.eval.rollout.evaluate_policy`.
@@ -26,16 +26,10 @@ from torchrl.data.utils import CloudpickleWrapper
 from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from ..choices import BEST_METRICS
 from ..main_guard import require_main_guard
 from .metrics import summarize
 from .rollout import evaluate_policy
-
-#: the validation score a ``best`` checkpoint maximises: name -> (score of a summary, higher is better)
-BEST_METRICS = {
-    "return": lambda s: s["return_lc"] + s["return_cf"],  # both agents' undiscounted returns (Eq. 26 + Eq. 32)
-    "mean_speed_kmh": lambda s: s["mean_speed_kmh"],
-    "collision_rate": lambda s: -s["collision_rate"],
-}
 
 #: the worker process's validation env (:func:`_start_worker`)
 _ENV: EnvBase | None = None

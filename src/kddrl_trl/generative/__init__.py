@@ -15,6 +15,9 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
+from ..choices import SHIPPED_TRAFFIC  # the shipped weights' traffic: our SUMO highway (weights/<kind>.pt,
+
+# the default) and HighwayEnv's own (weights/highwayenv/<kind>.pt: 4 m lanes, HighwayEnv's drivers)
 from .checkpoint import CheckpointError, load_checkpoint, read_checkpoint, save_checkpoint
 from .lcgan import LCGANPredictor, LCGANTask
 from .metrics_table import format_metrics
@@ -23,11 +26,6 @@ from .trajgan import TrajGANPredictor, TrajGANTask
 
 TASKS = {"trajgan": TrajGANTask, "lcgan": LCGANTask}
 PREDICTORS = {"trajgan": TrajGANPredictor, "lcgan": LCGANPredictor}
-
-
-#: the traffic each set of shipped weights was trained on: our SUMO highway (``weights/<kind>.pt``, the default)
-#: and HighwayEnv's own traffic (``weights/highwayenv/<kind>.pt``: 4 m lanes, HighwayEnv's drivers)
-SHIPPED_TRAFFIC = ("sumo", "highwayenv")
 
 
 def shipped_traffic(weights: str, simulator: str) -> str:

@@ -60,6 +60,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from .. import keys as K
+from ..choices import STATE_EXTRAS, check_extras
 
 #: size of the common block [s_AV (3), Δs_i (24), mask (6)]
 BASE_DIM = 3 + 6 * 4 + 6
@@ -93,21 +94,6 @@ class StateScale:
     def rel_units(self) -> tuple[float, float, float, float]:
         """Units of one slot of ``keys.NEIGHBORS_REL`` (REL_FEATURES order: Δx lateral, Δy, Δv_x lateral, Δv_y)."""
         return (self.lateral_position, self.position, self.lateral_speed, self.speed)
-
-
-#: the optional state features of ``algo.state_extras`` (not in the paper), in state order
-STATE_EXTRAS = ("thw", "ttc")
-
-
-def check_extras(extras) -> tuple[str, ...]:
-    """``extras`` in :data:`STATE_EXTRAS` order; an unknown or repeated name raises ``ValueError`` naming it."""
-    extras = tuple(extras or ())
-    bad = [e for e in extras if e not in STATE_EXTRAS]
-    if bad or len(set(extras)) != len(extras):
-        raise ValueError(
-            f"algo.state_extras={list(extras)}: each must be one of {', '.join(STATE_EXTRAS)}, at most once"
-        )
-    return tuple(e for e in STATE_EXTRAS if e in extras)
 
 
 def headway_features(

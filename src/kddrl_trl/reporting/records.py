@@ -248,14 +248,14 @@ _DEFAULTS: dict[tuple[str, str, str], dict] = {}
 def default_config(algo: str, scenario: str, simulator: str = "sumo") -> dict:
     """The package's composed config of ``algo=<algo> +scenario=<scenario>`` (resolved; cached): what a run of
     that algo and scenario runs with when no option is set. On another ``simulator`` (its env node
-    ``env=<simulator>``) the scenario is that simulator's label (:func:`kddrl_trl.envs.config.scenario_label`:
+    ``env=<simulator>``) the scenario is that simulator's label (:func:`kddrl_trl.highway_config.scenario_label`:
     ``<simulator>`` or ``<simulator>_<preset>``)."""
     if (algo, scenario, simulator) not in _DEFAULTS:
         from hydra import compose, initialize_config_module
         from hydra.core.global_hydra import GlobalHydra
         from omegaconf import OmegaConf
 
-        from ..envs.config import preset_name
+        from ..highway_config import preset_name
 
         preset = scenario if simulator == "sumo" else preset_name(scenario) or "baseline"
         env = [f"env={simulator}"] if simulator != "sumo" else []
@@ -296,7 +296,7 @@ def evaluation_label(evaluation: dict | None, training: dict | None) -> str:
     training run's (a key the training config lacks, saved before it existed, ran as its default today)."""
     if not evaluation:
         return ""
-    from ..envs.config import BrakingEvent
+    from ..highway_config import BrakingEvent
 
     defaults = {f"env.braking.{k}": v for k, v in vars(BrakingEvent()).items()}
     diffs = []

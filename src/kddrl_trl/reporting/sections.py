@@ -277,7 +277,7 @@ def footer(report: Report) -> list[str]:
         f"* **Runs:** {len(runs)}; seeds per (algo, scenario) in the tables. **Evaluation protocol:** greedy policy "
         "(exploration off), the first N episodes to *start* (unbiased by episode length), env seed "
         + "; ".join(f"{k} ({n} runs)" for k, n in protocols.items())
-        + " — never a training seed (`kddrl_trl/eval/protocol.py`). Training seeds: seed, seed + 1, ...",
+        + " — never a training seed (`kddrl_trl/protocol.py`). Training seeds: seed, seed + 1, ...",
         f"* **Wall time:** training {sum(t for t in training if t) / 3600:.2f} h over all runs (`training.elapsed_s` "
         f"of each `summary.json`, every session of a resumed run counted); the last session of each run, training "
         f"included, {sum(w for w in wall if w) / 3600:.2f} h (`wall_s`)"

@@ -46,7 +46,7 @@ from .seed_adam import seed_adam
 log = logging.getLogger(__name__)
 
 #: car-following agents of a hierarchical learner: their loss factories (TD3: KDDRL; DDPG: Peng et al.)
-CF_AGENTS = {"td3": make_td3, "ddpg": make_ddpg}
+CF_LOSSES = {"td3": make_td3, "ddpg": make_ddpg}
 #: besides the base's state keys, the decision flag: the TD3 target's next lane-change action is the D3QN's choice
 #: where the next frame is a decision frame (``modules/sharing.py::build_agent_states``)
 HIERARCHICAL_STATE_KEYS = (*STATE_KEYS, K.LC_DECIDE)
@@ -110,8 +110,8 @@ class HierarchicalLearner(Learner):
         seeds: int | None = None,
     ):
         super().__init__()
-        if cf_agent not in CF_AGENTS:
-            raise ValueError(f"cf_agent={cf_agent!r}: known car-following agents are {', '.join(CF_AGENTS)}")
+        if cf_agent not in CF_LOSSES:
+            raise ValueError(f"cf_agent={cf_agent!r}: known car-following agents are {', '.join(CF_LOSSES)}")
         d3qn_kw, td3_kw = dict(d3qn or {}), dict((td3 if cf_agent == "td3" else ddpg) or {})
         self.lr_lc = float(d3qn_kw.pop("lr", 1e-4))
         self.lr_actor = float(td3_kw.pop("actor_lr", 3e-4))
@@ -126,7 +126,7 @@ class HierarchicalLearner(Learner):
         self.cf_state = cf_state(embed=self.embedding is not None, extras=extras)
         self.d3qn = make_d3qn(lc_obs_dim(d, mobil=self.mobil_criteria, extras=extras), **d3qn_kw)
         #: the car-following agent's parts (``TD3Parts`` or ``DDPGParts``; the attribute keeps its KDDRL name)
-        self.td3 = CF_AGENTS[cf_agent](cf_obs_dim(d, extras=extras), **td3_kw)
+        self.td3 = CF_LOSSES[cf_agent](cf_obs_dim(d, extras=extras), **td3_kw)
         # registered so that state_dict() holds every network, target and exploration schedule
         self.lc_loss, self.cf_loss = self.d3qn.loss, self.td3.loss
         self.lc_explore, self.cf_explore = self.d3qn.explore, self.td3.explore

@@ -45,7 +45,7 @@ from torchrl.data import Composite
 from torchrl.envs.transforms import Transform
 
 from .. import keys as K
-from ..envs.config import HighwayConfig
+from ..highway_config import HighwayConfig
 from .predictive import unbounded_spec
 
 _DEFAULTS = HighwayConfig()
