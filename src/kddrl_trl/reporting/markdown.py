@@ -8,6 +8,11 @@ def table(head: list[str], rows: list[list[str]]) -> list[str]:
     return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)] + ["| " + " | ".join(r) + " |" for r in rows]
 
 
+def section(heading: str, text: str, body: list[str]) -> list[str]:
+    """A section's lines: its ``heading`` (with its ``#`` marks), a blank line, ``text``, a blank line, ``body``."""
+    return [heading, "", text, "", *body]
+
+
 def estimate(
     d: dict, fmt: str = ".1f", scale: float = 1.0, unit: str = "", alone: str = "", missing: str = "n/a"
 ) -> str:

@@ -22,7 +22,7 @@ from ..provenance import commit, machine, versions
 from .claims import NOUN
 from .contents import REFERENCE, RULE_REFERENCE, Report, groups, shielded
 from .figures import Drawn, seed_count
-from .markdown import table
+from .markdown import section, table
 from .metrics import METRICS, TABLE_METRICS, fmt
 from .records import RunRecord
 from .stats import difference_ci, ratio_ci
@@ -85,14 +85,12 @@ def scenario_table(scenario: str, table_rows: list[dict]) -> list[str]:
             paper = _paper_cell(scenario, row["algo"], m)
             line.append(_cell(m, row["metrics"][m]) + (f"<br>paper: {paper}" if paper else ""))
         cells.append(line)
-    return [
-        f"### {scenario} (paper {TABLES.get(scenario, 'no table')})",
-        "",
+    text = (
         "Each cell: the mean over seeds [95 % Student-t CI over seeds: each seed, one trained policy, is one "
         "observation, collision rates included]; below it, the paper's value (mean ± its unexplained ±) where it "
-        "published one.",
-        "",
-    ] + table(head, cells)
+        "published one."
+    )
+    return section(f"### {scenario} (paper {TABLES.get(scenario, 'no table')})", text, table(head, cells))
 
 
 def tables(report: Report) -> list[str]:
@@ -127,13 +125,15 @@ def _comparisons(scenario: str, table_rows: list[dict]) -> list[str]:
                 [row["algo"], METRICS[m][0], f"{sign}{fmt(m, d['mean'])}", ci, f"{d['p_greater']:.2f}"]
                 + [_verdict(d, row["algo"], n)]
             )
-    return [
-        f"### {scenario}: each algo minus {REFERENCE}",
-        "",
+    text = (
         "Difference of the across-seed means, Welch's 95 % CI (the verdict's test, unadjusted here), and the "
-        f"probability of improvement P(algo > {REFERENCE}) over all pairs of seeds.",
-        "",
-    ] + table(["algo", "metric", "difference", "95 % CI", "P(algo > kddrl)", "reading"], lines)
+        f"probability of improvement P(algo > {REFERENCE}) over all pairs of seeds."
+    )
+    return section(
+        f"### {scenario}: each algo minus {REFERENCE}",
+        text,
+        table(["algo", "metric", "difference", "95 % CI", "P(algo > kddrl)", "reading"], lines),
+    )
 
 
 def comparisons(report: Report) -> list[str]:
@@ -167,13 +167,15 @@ def _against_rules(scenario: str, table_rows: list[dict]) -> list[str]:
         rate = fmt("collision_rate", row["metrics"]["collision_rate"]["mean"])
         line = [row["algo"], str(len(row["seeds"])), f"{speed['mean']:.3f}", ci[0], rate, f"{hits['mean']:+.1f}", ci[1]]
         cells.append(line + ([fmt("shield_rate", row["metrics"]["shield_rate"]["mean"])] if shield else []))
-    return [
-        f"### {scenario}: each algo against {RULE_REFERENCE} ({seed_count(len(ref['seeds']))})",
-        "",
+    text = (
         f"Mean speed ÷ {RULE_REFERENCE}'s and collision rate − {RULE_REFERENCE}'s (percentage points), "
-        "Welch's 95 % CI over seeds (of the log-ratio for the speed).",
-        "",
-    ] + table(head + (["shield interventions"] if shield else []), cells)
+        "Welch's 95 % CI over seeds (of the log-ratio for the speed)."
+    )
+    return section(
+        f"### {scenario}: each algo against {RULE_REFERENCE} ({seed_count(len(ref['seeds']))})",
+        text,
+        table(head + (["shield interventions"] if shield else []), cells),
+    )
 
 
 def against_rules(report: Report) -> list[str]:
@@ -449,13 +451,15 @@ def secondary_claims(report: Report) -> list[str]:
         m, d = c["metric"], c["description"]
         n = "—" if d is None else f"{d['n'][0]}, {d['n'][1]}"
         cells.append([c["id"], c["claim"], n, _estimate(m, c["difference"], c["ci"]), _p(c["p"]), _num(m, c["paper"])])
-    return [
-        "### Secondary claims (exploratory)",
-        "",
+    text = (
         "Every other comparative statement of the paper, over all the seeds each system has: Welch's difference, "
-        "its unadjusted 95 % interval and p-value. No verdict: these were not planned tests.",
-        "",
-    ] + table(["#", "claim", "seeds (a, b)", "a − b [95 % CI]", "p (unadjusted)", "paper"], cells)
+        "its unadjusted 95 % interval and p-value. No verdict: these were not planned tests."
+    )
+    return section(
+        "### Secondary claims (exploratory)",
+        text,
+        table(["#", "claim", "seeds (a, b)", "a − b [95 % CI]", "p (unadjusted)", "paper"], cells),
+    )
 
 
 def pooled_collisions(report: Report) -> list[str]:
@@ -471,15 +475,13 @@ def pooled_collisions(report: Report) -> list[str]:
         rate = f"{e['rate']:.2%} [{e['ci'][0]:.3%}, {e['ci'][1]:.3%}]"
         cells.append([row["scenario"], row["algo"], f"{e['collisions']} / {e['episodes']}", rate, ratio, paper])
     head = ["scenario", "algo", "collisions / episodes, pooled", "rate [exact 95 % CI]", "speed ÷ IDM+MOBIL", "paper"]
-    return [
-        "### Collisions pooled, and speed against IDM+MOBIL",
-        "",
+    text = (
         "Collisions pooled over a row's episodes with a Clopper-Pearson 95 % interval: a description of these "
         "trained policies, not an interval for the method (its seeds vary far more than a binomial; the tables' "
         "seed-level intervals are the method's). Speed as the mean of the per-seed ratios to IDM+MOBIL's speed on "
-        "the same seeds (t interval), beside the paper's ratio.",
-        "",
-    ] + table(head, cells)
+        "the same seeds (t interval), beside the paper's ratio."
+    )
+    return section("### Collisions pooled, and speed against IDM+MOBIL", text, table(head, cells))
 
 
 def claims(report: Report) -> list[str]:
