@@ -92,7 +92,7 @@ def test_the_guides_verdict_table_is_the_reports():
     from kddrl_trl.reporting.sections import claims_summary
 
     report = json.loads((ROOT / "studies" / "paper" / "report.json").read_text())
-    summary = claims_summary(report, load_claims(ROOT / "studies" / "paper" / "claims.yaml").names)
+    summary = claims_summary(report["claims"], load_claims(ROOT / "studies" / "paper" / "claims.yaml").names)
     assert summary in (ROOT / "docs" / "index.md").read_text()
     assert summary in (ROOT / "studies" / "paper" / "report.md").read_text()
 

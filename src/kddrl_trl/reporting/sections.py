@@ -396,8 +396,8 @@ def claims_intro(report: Report) -> list[str]:
     ]
 
 
-def claims_summary(report: dict, names: dict[str, str]) -> str:
-    """The primary claims in short, from a ``report.json``: the difference on the confirmatory seeds (or over the
+def claims_summary(claims: list[dict], names: dict[str, str]) -> str:
+    """The primary claims in short, from judged claims (``report.json``'s ``claims``): the difference on the confirmatory seeds (or over the
     seeds so far while pending) in km/h or points, the paper's, the direction (with the seeds 80 % power would
     need where underpowered) and the size. ``names``: the systems' short names (the claims file's)."""
 
@@ -408,7 +408,7 @@ def claims_summary(report: dict, names: dict[str, str]) -> str:
         return f"{scale * value:+.1f}" + ("" if ci is None else f" [{scale * ci[0]:+.1f}, {scale * ci[1]:+.1f}]")
 
     cells = []
-    for c in (c for c in report["claims"] if c.get("family") == "primary"):
+    for c in (c for c in claims if c.get("family") == "primary"):
         scale = 100.0 if c["metric"] == "collision_rate" else 1.0
         verb = SHORT_VERB.get((c["metric"], c["claimed"]), f"{c['claimed']} {c['metric']} than")
         claim = f"{c['scenario']}: {names.get(c['a'], c['a'])} {verb} {names.get(c['b'], c['b'])}"
@@ -489,7 +489,7 @@ def claims(report: Report) -> list[str]:
     exploratory estimates, and the pooled collisions and speed ratios; nothing without a plan."""
     if report.plan is None:
         return []
-    short = ["### In short", "", claims_summary(report.json(), report.plan.names), ""]
+    short = ["### In short", "", claims_summary(report.claims, report.plan.names), ""]
     return (
         claims_intro(report)
         + short
