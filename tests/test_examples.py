@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
 import subprocess
 import sys
@@ -12,14 +12,12 @@ import pytest
 import torch
 from torchrl.envs import ObservationNorm
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "transforms_in_torchrl_td3.py"
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def _example():
-    spec = importlib.util.spec_from_file_location("transforms_in_torchrl_td3", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """The example as a module: the repository's root is on the tests' path, as for the studies' scripts."""
+    return importlib.import_module("examples.transforms_in_torchrl_td3")
 
 
 @pytest.mark.parametrize("transforms", [True, False])
@@ -114,9 +112,7 @@ def test_the_example_runs_on_highwayenv(tmp_path):
 def test_sb3_ppo_example_learns_and_evaluates(tmp_path):
     """``examples/sb3_ppo.py`` (the optional extra ``.[sb3]``): PPO on the flat form, two envs in one DummyVecEnv."""
     pytest.importorskip("stable_baselines3")
-    spec = importlib.util.spec_from_file_location("sb3_ppo", EXAMPLE.with_name("sb3_ppo.py"))
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = importlib.import_module("examples.sb3_ppo")
     out, saved = tmp_path / "ppo.json", tmp_path / "ppo.zip"
     args = ["--steps", "128", "--n-steps", "64", "--eval-episodes", "2", "--out", str(out), "--save", str(saved)]
     result = example.main(args)
@@ -185,7 +181,7 @@ def test_the_examples_evaluation_counts_commands_at_the_bound():
 
 @pytest.mark.parametrize("script", ["transforms_in_torchrl_td3.py", "sb3_ppo.py"])
 def test_the_examples_help_shows_their_defaults(script):
-    done = subprocess.run([sys.executable, str(EXAMPLE.with_name(script)), "--help"], capture_output=True, text=True)
+    done = subprocess.run([sys.executable, str(EXAMPLES / script), "--help"], capture_output=True, text=True)
     if done.returncode != 0 and "No module named 'stable_baselines3'" in done.stderr:
         pytest.skip("the optional extra .[sb3] is not installed")
     assert done.returncode == 0, done.stderr[-2000:]

@@ -70,7 +70,17 @@ def _report(cfg: DictConfig) -> dict:
     if not job.lcgan_figures:
         command += " lcgan_figures=false"
         lcgan = False
-    result = build_report(runs, job.out, command=command, lcgan_metrics=lcgan, claims=plan, title=job.title)
+    if not job.space_time_figures:
+        command += " space_time_figures=false"
+    result = build_report(
+        runs,
+        job.out,
+        command=command,
+        lcgan_metrics=lcgan,
+        claims=plan,
+        title=job.title,
+        space_time_figures=job.space_time_figures,
+    )
     print(
         f"{len(runs)} runs -> {Path(job.out) / 'report.md'}, report.json and {sum(1 for v in result['figures'].values() if v)} figures"
     )

@@ -395,6 +395,14 @@ def test_report_of_the_sweep_as_typed(sweep, tmp_path):
         "fig14_space_time_braking.png",
     ):
         assert (tmp_path / "rep" / fig).read_bytes()[:4] == b"\x89PNG", fig
+    # the same runs with Fig. 14 left to that report: said why, and no PNG written
+    run_module(
+        ["kddrl_trl.report", str(root / "sweep"), f"out={tmp_path / 'no14'}", "space_time_figures=false"], tmp_path
+    )
+    md = (tmp_path / "no14" / "report.md").read_text()
+    assert "space_time_figures=false" in md.split("### Fig. 14: braking, space-time diagrams")[1].split("\n###")[0]
+    assert not (tmp_path / "no14" / "fig14_space_time_braking.png").exists()
+    assert "* **Command:** `python -m kddrl_trl.report" in md and "space_time_figures=false`" in md
 
 
 # ------------------------------------------------------------------------------------ traces, video

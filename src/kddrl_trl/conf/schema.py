@@ -621,6 +621,7 @@ class ReportJob:
     out: str = "report"
     lcgan_metrics: Optional[str] = None  # JSON of lcGAN test metrics for Figs. 16-17 (default: beside the weights)
     lcgan_figures: bool = True  # false: Figs. 16-17 not drawn (they show the lcGAN, not the runs)
+    space_time_figures: bool = True  # false: Fig. 14 not drawn (another report of the same runs draws it)
     claims: Optional[str] = None  # a study's claims file, tested (reporting/claims.py, reporting/verdict.py)
     title: Optional[str] = None  # the heading of report.md (default "kddrl_trl report")
 

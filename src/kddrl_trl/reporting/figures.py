@@ -227,6 +227,10 @@ def distributions(runs, scenario: str, path: Path) -> Path | None:
     return path
 
 
+def space_time_title(scenario: str) -> str:
+    return f"Fig. 14: {scenario}, space-time diagrams"
+
+
 def space_time(runs, out_dir: Path, prefer: str = "kddrl") -> dict:
     """Fig. 14 per scenario: the space-time diagrams of two recorded episodes (``traces/*.json`` of a run, made
     with ``video=true``), one with a lane change and one without, of ``prefer``'s runs where they have traces."""
@@ -239,7 +243,7 @@ def space_time(runs, out_dir: Path, prefer: str = "kddrl") -> dict:
         holders = sorted(
             [r for r in runs if r.scenario == scenario and r.traces], key=lambda r: (r.algo != prefer, r.algo, r.seed)
         )
-        title = f"Fig. 14: {scenario}, space-time diagrams"
+        title = space_time_title(scenario)
         if not holders:
             out[title] = None
             continue
@@ -279,9 +283,12 @@ class Drawn:
 DISTRIBUTION_FIGURES = {"baseline": "10", "congested": "12", "congested_text": "12", "braking": "13"}
 
 
-def draw_all(runs, scenarios: list[str], out_dir: Path, lcgan_metrics: dict | bool | None) -> list[Drawn]:
+def draw_all(
+    runs, scenarios: list[str], out_dir: Path, lcgan_metrics: dict | bool | None, space_time_figures: bool = True
+) -> list[Drawn]:
     """Every figure of a report into ``out_dir``: Fig. 8, Figs. 9 / 15, the distributions of each scenario,
-    Fig. 14 where runs have traces and Figs. 16 / 17 where the lcGAN metrics are given (``False``: not asked for)."""
+    Fig. 14 where runs have traces (unless ``space_time_figures`` is false) and Figs. 16 / 17 where the lcGAN metrics
+    are given (``False``: not asked for)."""
     figs = [
         Drawn("Fig. 8: training curves", training_curves(runs, out_dir / "fig08_training_curves.png")),
         Drawn("Figs. 9 / 15: evaluation returns", return_boxes(runs, out_dir / "fig09_returns.png")),
@@ -293,7 +300,11 @@ def draw_all(runs, scenarios: list[str], out_dir: Path, lcgan_metrics: dict | bo
     no_traces = (
         "no space-time traces in these runs (record them with `python -m kddrl_trl.evaluate run=<dir> video=true`)"
     )
-    figs += [Drawn(title, path, no_traces) for title, path in space_time(runs, out_dir).items()]
+    if space_time_figures:
+        figs += [Drawn(title, path, no_traces) for title, path in space_time(runs, out_dir).items()]
+    else:
+        not_asked = "not asked for (`space_time_figures=false`: another report of these runs draws them)"
+        figs += [Drawn(space_time_title(s), None, not_asked) for s in sorted({r.scenario for r in runs})]
     no_metrics = (
         "not asked for (`lcgan_figures=false`: they show the lcGAN's test metrics, not these runs)"
         if lcgan_metrics is False
