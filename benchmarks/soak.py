@@ -153,7 +153,8 @@ def soak_training(args) -> dict:
     from hydra import compose, initialize_config_module
 
     from kddrl_trl.factories import make_job
-    from kddrl_trl.train import train
+    from kddrl_trl.run_folder import RunFolder
+    from kddrl_trl.train import finish_validations, train
 
     overrides = [
         f"episodes={args.train_episodes}",
@@ -166,8 +167,13 @@ def soak_training(args) -> dict:
     probe = MemoryProbe(args.every)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as run_dir:
-        _, summary = train(job, Path(run_dir), TrainingProbe(probe), resuming=False)
-        history = pd.read_csv(Path(run_dir) / "train_episodes.csv")
+        run = RunFolder(run_dir)
+        _, summary, trainer = train(job, run, TrainingProbe(probe), resuming=False)
+        try:
+            finish_validations(trainer, run)
+        finally:
+            trainer.close()
+        history = pd.read_csv(run.train_episodes)
     lost = int((history["outcome"] == "lost").sum())
     return {
         "episodes": args.train_episodes,

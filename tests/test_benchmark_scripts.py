@@ -401,6 +401,7 @@ SMALLEST = {
     "transform_overhead": ["--roads", "1", "--frames", "20", "--segment", "10"],
     "env_throughput": ["--roads", "1", "--scenarios", "baseline", "--frames", "20", "--warmup", "2"],
     "update_speed": ["--updates", "4", "--repeats", "1"],
+    "gpu_update": ["--device", "cpu", "--updates", "2", "--repeats", "1"],  # the device's code path, on the CPU
 }
 #: benchmarks that open SUMO, each run in a process of its own (libsumo runs one simulation per process): their
 #: smallest size
@@ -408,6 +409,7 @@ SMALLEST_SUMO = {
     "collect_speed": ["--roads", "1", "--frames", "20"],
     "collector_overhead": ["--roads", "1", "--frames", "20"],
     "data_throughput": ["--duration", "5", "--roads", "1"],
+    "soak": ["--eval-episodes", "2", "--train-episodes", "2", "--every", "1", "--roads", "1"],
 }
 
 
@@ -435,3 +437,24 @@ def test_a_sumo_benchmark_runs_at_its_smallest_size_in_a_process_of_its_own(name
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
     assert isinstance(json.loads(out.read_text()), dict)
+
+
+@pytest.mark.benchmarks
+def test_lcgan_ablation_runs_at_its_smallest_size_on_a_dataset_just_prepared(tmp_path):
+    """``benchmarks/lcgan_ablation.py`` as a user runs it, on a minute of traffic that ``python -m kddrl_trl.prepare``
+    records and splits here, one seed and one epoch per variant: it ends without an error and writes both variants."""
+    import os
+    import sys
+
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    prepare = [sys.executable, "-m", "kddrl_trl.prepare", "progress=false", "record.duration_s=60"]
+    prepare += ["record.num_roads=1", "calibrate=false"]
+    done = subprocess.run(prepare, cwd=tmp_path, capture_output=True, text=True, timeout=900, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    out, data = tmp_path / "lcgan_ablation.json", tmp_path / "data" / "datasets" / "synthetic_baseline_seed0"
+    cmd = [sys.executable, "-m", "benchmarks.lcgan_ablation", "--seeds", "0", "--epochs", "1", "--data-dir", str(data)]
+    done = subprocess.run([*cmd, "--out", str(out)], cwd=tmp_path, capture_output=True, text=True, timeout=900, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads(out.read_text())
+    assert {k: len(v) for k, v in result["runs"].items()} == {"adversarial": 1, "plain": 1}
+    assert result["ratio_balanced_accuracy_adversarial_over_plain"] > 0

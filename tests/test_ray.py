@@ -148,3 +148,23 @@ def test_launcher_config_is_registered_and_reaches_ray_init():
     assert ray_init == {"address": "auto", "log_to_driver": False}
     assert init_kwargs(_launcher()) == {"include_dashboard": False}  # no address: a local Ray, no dashboard
     assert init_kwargs(_launcher(init={"include_dashboard": True})) == {"include_dashboard": True}
+
+
+@pytest.mark.ray
+def test_the_scale_out_benchmark_runs_at_its_smallest_size(tmp_path):
+    """``benchmarks/scale_out.py`` as a user runs it, at its smallest size: a one-run sweep (IDM+MOBIL, one episode)
+    sequentially and on a local Ray of one CPU, and collection on one and two Ray actors of one road; it ends without
+    an error and writes both ratios."""
+    pytest.importorskip("ray")
+    import os
+    import subprocess
+    from pathlib import Path
+
+    out = tmp_path / "scale_out.json"
+    cmd = [sys.executable, "-m", "benchmarks.scale_out", "--algos", "idm_mobil", "--seeds", "0", "--episodes", "1"]
+    cmd += ["--eval-episodes", "1", "--ray-cpus", "1", "--collect-roads", "1", "--collect-frames", "20"]
+    root, env = Path(__file__).resolve().parents[1], {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run([*cmd, "--out", str(out)], cwd=root, capture_output=True, text=True, timeout=1800, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads(out.read_text())
+    assert result["sweep_time_ratio"] > 0 and result["collect_scaling"] > 0

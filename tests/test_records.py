@@ -1,6 +1,6 @@
 """The studies' run records kept in main's history (``kddrl_trl.devtools.records``): archived records leave the
-tree and come back byte for byte, a tracked file that disagrees with its record is refused, and the verdict study's
-report regenerates byte-identical from the records of main's history."""
+tree and come back byte for byte, a tracked file that disagrees with its record is refused, and every study's report
+regenerates byte-identical from the records of main's history."""
 
 from __future__ import annotations
 
@@ -55,6 +55,25 @@ def test_archived_records_leave_the_tree_and_come_back(repo):
     assert records.restore(repo, []) == 1
     assert record.read_bytes() == b"\xfd7zXZ records"
     assert records.restore(repo, ["other"]) == 0
+
+
+def test_a_run_landed_after_its_studys_archive_is_extracted_from_its_own(repo, tmp_path):
+    """Records asked for by a run's folder: the study's archive, taken before that run landed, does not hold it, and
+    the run's own later archive does."""
+    records.archive(repo, ["studies/x/runs"])
+    _git(repo, "commit", "-qm", "out of the tree")
+    later = repo / "studies" / "x" / "runs" / "braking__kddrl__0"
+    later.mkdir()
+    (later / "summary.json").write_text('{"seed": 0}\n')
+    (later / "eval_episodes.csv.xz").write_bytes(b"\xfd7zXZ later")
+    _git(repo, "add", "-f", "studies")
+    _git(repo, "commit", "-qm", "a run lands")
+    records.archive(repo, ["studies/x/runs/braking__kddrl__0"])
+    _git(repo, "commit", "-qm", "its records out of the tree")
+    out = tmp_path / "out"
+    assert records.extract(repo, out, ("studies/x/runs/braking__kddrl__0",)) == 2
+    assert (out / "studies/x/runs/braking__kddrl__0/eval_episodes.csv.xz").read_bytes() == b"\xfd7zXZ later"
+    assert not (out / "studies/x/runs/baseline__kddrl__0").exists()
 
 
 def test_a_shallow_clone_says_in_one_line_why_it_cannot_restore_and_what_to_run(repo, tmp_path):
@@ -159,10 +178,38 @@ def test_archive_wants_the_records_committed_and_the_manifest_well_formed(repo):
         records.restore(repo, [])
 
 
+#: the footer line of a report made by ``python -m kddrl_trl.report``: the command that made it
+COMMAND = "* **Command:** `python -m kddrl_trl.report "
+#: every committed report of that command (the verdict's, with its claims file, among them)
+REPORTS = sorted(
+    p.parent.relative_to(ROOT).as_posix() for p in ROOT.glob("studies/**/report.md") if COMMAND in p.read_text()
+)
+
+
+def _without_provenance(md: str) -> list[str]:
+    """A report.md's lines but its command (another ``out=``) and where and when it was made."""
+    return [line for line in md.splitlines() if not line.startswith((COMMAND, "* **Report made at commit"))]
+
+
 @pytest.mark.records
-def test_the_verdict_report_regenerates_byte_identical_from_history(tmp_path):
-    studies = study_records(tmp_path, "studies/paper/runs", "studies/paper/runs_5-14")
-    out, runs = tmp_path / "report", [str(studies / "paper" / f) for f in ("runs", "runs_5-14")]
-    claims = ROOT / "studies" / "paper" / "claims.yaml"
-    run_module(["kddrl_trl.report", *runs, f"out={out}", f"claims={claims}"], cwd=tmp_path)
-    assert (out / "report.json").read_bytes() == (ROOT / "studies" / "paper" / "report.json").read_bytes()
+@pytest.mark.parametrize("folder", REPORTS)
+def test_a_study_report_regenerates_byte_identical_from_its_own_command(folder, tmp_path):
+    """The command in a report's footer, run again on the records of main's history (their summaries and configs
+    from the tree, the rest extracted), writes the same report.json byte for byte and the same report.md but its
+    provenance."""
+    import shlex
+    import shutil
+
+    md = (ROOT / folder / "report.md").read_text()
+    args = shlex.split(next(line for line in md.splitlines() if line.startswith(COMMAND)).split("`")[1])[3:]
+    runs = [a for a in args if "=" not in a]
+    claims = [a.split("=", 1)[1] for a in args if a.startswith("claims=")]
+    tracked = _git(ROOT, "ls-files", "--", *runs, *claims).split()
+    for name in tracked:  # what main keeps in its tree, then the records from its history beside it
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ROOT / name, tmp_path / name)
+    study_records(tmp_path, *runs)
+    out = tmp_path / "regenerated"
+    run_module(["kddrl_trl.report", *[a for a in args if not a.startswith("out=")], f"out={out}"], cwd=tmp_path)
+    assert (out / "report.json").read_bytes() == (ROOT / folder / "report.json").read_bytes(), folder
+    assert _without_provenance((out / "report.md").read_text()) == _without_provenance(md), folder

@@ -425,8 +425,8 @@ def make_seed_batch(job: TrainJob, folder: Path, fake: bool = False) -> SeedBatc
     and, per seed, a :class:`~kddrl_trl.training.Trainer` on its :class:`~kddrl_trl.training.seed_split.SeedView`
     with the buffers, logger and periodic evaluator its run alone has (``fake``: none), writing into
     ``folder/<scenario>__<algo>__<seed>/`` (a sweep's job names; a finished seed's folder gets no evaluator)."""
-    seeds = [int(s) for s in job.seeds]
-    jobs = [replace(job, seed=seed, seeds=None) for seed in seeds]
+    jobs = job.seed_jobs()
+    seeds = [j.seed for j in jobs]
     learner = make_seed_learner(
         job.algo, seeds, compile=job.compile, device=job.torch_device, cudagraphs=job.cudagraphs
     )

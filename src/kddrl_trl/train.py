@@ -114,11 +114,12 @@ def train_seed_batch(job: TrainJob, cfg: DictConfig, run: RunFolder, resuming: b
     """A seed batch (``seeds=[...]``, :mod:`kddrl_trl.training.seed_batch_trainer`): each seed trains into its own
     folder of ``run`` (config, records, checkpoints, validations, as its run alone writes them, the summary naming
     the batch), then its final evaluation runs on its own test traffic; returns the seeds' summaries. A seed whose
-    summary is written is done: a resumed batch evaluates only the others."""
-    seeds = [int(s) for s in job.seeds]
+    summary is written is done: a resumed batch writes only the others' evaluations (it evaluates every seed again,
+    all N on one simulation, when a batch was stopped between two seeds' summaries)."""
+    jobs = job.seed_jobs()
+    seeds = [j.seed for j in jobs]
     batch = make_seed_batch(job, run.path)
     books = batch.books
-    jobs = [replace(job, seed=s, seeds=None) for s in seeds]
     runs = [RunFolder(b.run_dir) for b in books]
     for seed_job, seed_run in zip(jobs, runs):
         if not seed_run.config.is_file():

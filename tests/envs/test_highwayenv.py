@@ -248,3 +248,21 @@ def test_highwayenvs_idm_with_its_lane_kept_drives_the_ego_in_one_lane():
     assert (started, moved) == (0, 0)
     assert torch.equal(slow, episodes("highwayenv_idm", K.RIGHT, 5.0)[2])  # the commands are ignored
     assert episodes("highwayenv", K.KEEP, 0.0)[0] > 0  # with MOBIL on, the same driver changes lanes
+
+
+def test_the_highwayenv_throughput_benchmark_runs_at_its_smallest_size(tmp_path):
+    """``benchmarks/highwayenv_throughput.py`` as a user runs it, one road and a few frames per arm: it ends without
+    an error and writes a row with each arm's frames per second."""
+    import os
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "highwayenv_throughput.json"
+    cmd = [sys.executable, "-m", "benchmarks.highwayenv_throughput", "--roads", "1", "--frames", "10"]
+    cmd += ["--repeats", "1", "--vehicles", "5", "--out", str(out)]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=900, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = json.loads(out.read_text())["rows"]
+    arms = ("bare_fps", "adapter_fps", "stack_fps")
+    assert len(rows) == 1 and rows[0]["num_roads"] == 1 and all(rows[0][arm] > 0 for arm in arms)

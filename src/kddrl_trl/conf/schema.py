@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass, field, fields, is_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Any, Optional
 
 from omegaconf import MISSING, DictConfig, OmegaConf
@@ -581,6 +581,10 @@ class TrainJob(Job):
             )
         for seed in self.seeds or [self.seed]:
             check_disjoint("eval_seed", test_seed(seed, self.eval_seed), seed, self.episodes, self.collector.workers)
+
+    def seed_jobs(self) -> list[TrainJob]:
+        """A seed batch's seeds, each as the job of its run alone (``seed`` set, ``seeds`` null), in batch order."""
+        return [replace(self, seed=int(s), seeds=None) for s in self.seeds]
 
     def _check_seed_batch(self) -> None:
         """A seed batch trains hierarchical learners (the batched learner of ``modules/seed_batch.py``) on one env in

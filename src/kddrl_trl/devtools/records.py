@@ -182,6 +182,11 @@ def _under(path: str, folder: str) -> bool:
     return path == folder or path.startswith(folder.rstrip("/") + "/")
 
 
+def _in_commit(root: Path, commit: str, path: str) -> bool:
+    probe = ["git", "-C", str(root), "cat-file", "-e", f"{commit}:{path.rstrip('/')}"]
+    return subprocess.run(probe, capture_output=True).returncode == 0
+
+
 def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
     """Write every file of every archive (in the manifest's order; a later one wins) that lies under one of
     ``prefixes`` (all where empty) to the same relative path under ``dest``. A file that ``dest`` holds already
@@ -216,6 +221,8 @@ def extract(root: Path, dest: Path, prefixes: tuple[str, ...] = ()) -> int:
                 | {p for p in paths for x in wanted if _under(p, x)}
                 | {p for p in paths for x in olds if _under(x, p) or _under(p, x)}
             )
+            # a wanted folder inside an archived one may postdate that archive (a run landed later): not in it
+            paths = [p for p in paths if _in_commit(root, commit, p)]
         if not paths:
             continue
         with tarfile.open(fileobj=io.BytesIO(_git(root, "archive", commit, "--", *paths, binary=True))) as tar:

@@ -194,7 +194,8 @@ class Trainer:
         self.tracker = EpisodeTracker(highway)
         self.history: list[dict] = []
         # elapsed_s: training wall time; update_s: its share spent in the learner's updates (losses read included,
-        # so a GPU learner's queued work is counted where it is waited for)
+        # so a GPU learner's queued work is counted where it is waited for). A seed of a batch counts the batch's
+        # shared wall time in both: a seed's share of the compute is them over the batch's size
         self.counters = {
             "frames": 0,
             "decisions": 0,
