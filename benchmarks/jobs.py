@@ -15,10 +15,19 @@ def train_command(out: Path, overrides: list[str]) -> list[str]:
     return [sys.executable, "-m", "kddrl_trl.train", "progress=false", f"hydra.run.dir={out}", *overrides]
 
 
+def run_summaries(out: Path) -> list[dict]:
+    """The ``summary.json`` of the run in ``out``, or of each seed of the seed batch there (``seed_batch.json``'s
+    folders, in its seeds' order)."""
+    batch = out / "seed_batch.json"
+    folders = json.loads(batch.read_text())["folders"] if batch.is_file() else ["."]
+    return [json.loads((out / folder / "summary.json").read_text()) for folder in folders]
+
+
 def started_train_jobs(outs: list[Path], overrides: list[str], env: dict[str, str]) -> list[dict]:
     """The same job in each of ``outs`` at once, each a process of its own with exactly ``env`` as its environment
     (``OMP_NUM_THREADS`` included or not, as given); waits for all. Returns each one's wall time (``process_s``) and
-    ``summary.json`` (``summary``); a failed job raises, with the end of its standard error."""
+    ``summary.json`` (``summary``; a seed batch's seeds' in ``summaries``, its first seed's as ``summary``); a failed job
+    raises, with the end of its standard error."""
     logs = [out.parent / f"{out.name}.stderr" for out in outs]  # a file, not a pipe a chatty job could fill
     handles = [log.open("w") for log in logs]
     started = time.perf_counter()
@@ -39,7 +48,8 @@ def started_train_jobs(outs: list[Path], overrides: list[str], env: dict[str, st
         if proc.returncode != 0:
             err = logs[i].read_text()
             raise RuntimeError(f"{' '.join(train_command(out, overrides))} failed in {out}:\n{err[-3000:]}")
-        results.append({"process_s": ended[i], "summary": json.loads((out / "summary.json").read_text())})
+        summaries = run_summaries(out)
+        results.append({"process_s": ended[i], "summary": summaries[0], "summaries": summaries})
     return results
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from testkit import fake_run, load_benchmark, study_records
+from testkit import TINY_BUDGET, fake_run, load_benchmark, study_records
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -410,6 +410,7 @@ SMALLEST_SUMO = {
     "collector_overhead": ["--roads", "1", "--frames", "20"],
     "data_throughput": ["--duration", "5", "--roads", "1"],
     "soak": ["--eval-episodes", "2", "--train-episodes", "2", "--every", "1", "--roads", "1"],
+    "seed_batch_job": ["--seeds", "1", "2", "episodes=2", "eval_episodes=1", "env.max_steps=60", *TINY_BUDGET],
 }
 
 
