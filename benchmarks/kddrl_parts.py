@@ -92,6 +92,13 @@ def sync(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
+def stacked(buffer, n: int | None, count: int) -> list:
+    """``count`` minibatches: single ones (``n`` None) or ``n`` independent samples stacked on a seed dimension."""
+    if n is None:
+        return [buffer.sample() for _ in range(count)]
+    return [torch.stack([buffer.sample() for _ in range(n)]) for _ in range(count)]
+
+
 def unprioritized(batches: list) -> list:
     """``batches`` without the ``keys.PRIORITY`` an update wrote into them (a TensorDict's, in place)."""
     for b in batches:

@@ -5,10 +5,14 @@ and compiled, the arms taking turns ``repeats`` times (medians over the turns).
 
     python -m benchmarks.seed_batch [--seeds 1 2 4 8 16] [--updates 200] [--repeats 3] [--threads 2]
     python -m benchmarks.seed_batch --device cuda --seeds 1 4 16 64 256   # a GPU: compiled arms CUDA-graphed
+    python -m benchmarks.seed_batch --seeds 1 16 --split 1 16             # and where a compiled update's time goes
 
 Prints a table and writes ``benchmarks/results/seed_batch.json``. ``per_seed_over_single``: seconds per update per
 seed over the single learner's (``seeds`` unset) in the same arm; ``per_seed_over_floor``: over one seed's update
-FLOPs at the machine's GEMM rate (:mod:`benchmarks.update_floor`).
+FLOPs at the machine's GEMM rate (:mod:`benchmarks.update_floor`). ``--split``: for those N (1: the single learner),
+the compiled TD3 update's time per seed in its parts, over the same floor (``split``): its matrix products as they
+run inside it (``gemm_in_update``), the loss-and-gradients graph, the optimiser steps, the soft target updates and
+the rest (``update_parts``); what stands between the batch and the floor.
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ from pathlib import Path
 import torch
 
 from benchmarks.env_throughput import machine_info, write_json
-from benchmarks.kddrl_parts import RESULTS, buffer_keys, learner_kwargs, sample_batches, time_updates
-from benchmarks.update_floor import gemm_rate, update_flops
+from benchmarks.kddrl_parts import RESULTS, buffer_keys, learner_kwargs, sample_batches, stacked, time_updates
+from benchmarks.update_floor import gemm_in_update, gemm_rate, update_flops, update_parts
 from kddrl_trl.process_settings import apply_flush_denormal
 from kddrl_trl.training import HierarchicalLearner
 
@@ -32,13 +36,6 @@ def arm_learner(n: int | None, compiled: bool, device: torch.device = torch.devi
     CUDA-graphed), on ``device``."""
     kw = {**learner_kwargs(compiled)[0], "device": device, "cudagraphs": compiled and device.type == "cuda"}
     return HierarchicalLearner(**kw) if n is None else HierarchicalLearner(**kw, seeds=n)
-
-
-def stacked(buffer, n: int | None, count: int) -> list:
-    """``count`` minibatches: single ones (``n`` None) or ``n`` independent samples stacked on a seed dimension."""
-    if n is None:
-        return [buffer.sample() for _ in range(count)]
-    return [torch.stack([buffer.sample() for _ in range(n)]) for _ in range(count)]
 
 
 def measure(
@@ -101,6 +98,24 @@ def print_table(rows: dict, floor: dict | None) -> None:
         )
 
 
+def split_update(n: int, seed: int, buffers: tuple, floor: dict, updates: int = 200) -> dict:
+    """Seconds per seed of the compiled TD3 update of a batch of ``n`` seeds (1: the single learner) in its parts,
+    each also over the floor (``*_over_floor``): ``gemm`` (its products' self time under the profiler) and the
+    wall-clock parts ``gradients``, ``optimizer``, ``soft``, ``rest`` and ``total``."""
+    seeds = None if n == 1 else n
+    gemm = gemm_in_update(seed, buffers, max(updates // 2, 1), seeds=seeds)["td3_gemm_in_update_s"] / n
+    parts = {k: v / n for k, v in update_parts(seed, buffers, updates, seeds=seeds)["td3_parts_s"].items()}
+    row = {"gemm": gemm, **parts}
+    return {**row, **{f"{k}_over_floor": v / floor["td3_floor_s"] for k, v in row.items()}}
+
+
+def print_split(split: dict) -> None:
+    names = ("gemm", "gradients", "optimizer", "soft", "rest", "total")
+    print("\ncompiled TD3 update per seed, x floor: " + "  ".join(f"{k:>9}" for k in names))
+    for n, row in split.items():
+        print(f"{'N = ' + n:<40}" + "  ".join(f"{row[k + '_over_floor']:>9.2f}" for k in names))
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 4, 8, 16], help="batch sizes N to measure")
@@ -112,6 +127,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--device", default="cpu", help="cpu or cuda (the floor is then the CPU's: read the per-seed ratios)"
     )
+    p.add_argument("--split", type=int, nargs="*", default=[], help="N whose compiled TD3 update is split in parts")
     p.add_argument("--note", default=None, help="free text stored in the JSON")
     p.add_argument("--out", type=Path, default=RESULTS / "seed_batch.json")
     args = p.parse_args(argv)
@@ -132,8 +148,15 @@ def main(argv=None) -> int:
                                                        for a in ("td3", "d3qn")}}  # fmt: skip
     ratios(rows, floor)
     print_table(rows, floor)
+    split = (
+        {str(n): split_update(n, args.seed, buffers, floor, args.updates) for n in args.split}
+        if floor is not None
+        else {}
+    )
+    if split:
+        print_split(split)
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "floor": floor,
-              "arms": rows, **({"note": args.note} if args.note else {})}  # fmt: skip
+              "arms": rows, **({"split": split} if split else {}), **({"note": args.note} if args.note else {})}  # fmt: skip
     write_json(args.out, result)
     print(f"\nwritten {args.out}")
     return 0

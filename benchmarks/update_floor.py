@@ -25,6 +25,7 @@ from benchmarks.kddrl_parts import (
     buffer_keys,
     learner_kwargs,
     sample_batches,
+    stacked,
     unprioritized,
 )
 from benchmarks.update_speed import measure_update, python_wrapper
@@ -75,23 +76,31 @@ def gemm_rate(threads: int, size: int = 128, batch: int = 2, seconds: float = 1.
 GEMM_OPS = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
 
 
-def gemm_in_update(seed: int, buffers: tuple, updates: int = 100) -> dict:
+def compiled_learner(seeds: int | None = None) -> HierarchicalLearner:
+    """The default KDDRL learner, compiled: alone (``seeds`` None) or as a batch of ``seeds`` seeds."""
+    kw = learner_kwargs(True)[0]
+    return HierarchicalLearner(**kw) if seeds is None else HierarchicalLearner(**kw, seeds=seeds)
+
+
+def gemm_in_update(seed: int, buffers: tuple, updates: int = 100, seeds: int | None = None) -> dict:
     """Seconds per TD3 / D3QN update spent in the update's own matrix products, as they run inside our compiled
     update: the self time of its GEMM calls (:data:`GEMM_OPS`) under ``torch.profiler`` over ``updates`` updates.
     The loss is compiled with TorchInductor's Python wrapper (:func:`python_wrapper`: the same kernels, and its
     GEMMs are ATen calls the profiler sees; the C++ wrapper calls them past the profiler), on samples of
     ``buffers`` (:func:`sample_batches`' two). Against the floor this says how much of the gap is the products
     themselves (the floor's loop runs one product back to back; inside the update each follows other work) and how
-    much is everything else."""
+    much is everything else. ``seeds``: the same of a batch of that many seeds (:func:`compiled_learner`), each
+    update on one independent sample per seed (:func:`~benchmarks.kddrl_parts.stacked`), the time the whole batch's.
+    """
     from torch.profiler import ProfilerActivity, profile
 
     torch.manual_seed(seed)
-    learner = HierarchicalLearner(**learner_kwargs(True)[0])
+    learner = compiled_learner(seeds)
     python_wrapper(learner)
     rb_cf, rb_lc = buffers
     out = {}
     for agent, update, rb in (("td3", learner.update_cf, rb_cf), ("d3qn", learner.update_lc, rb_lc)):
-        batches = [rb.sample() for _ in range(updates)]
+        batches = stacked(rb, seeds, updates)
         for b in batches[:10]:
             update(b)
         with profile(activities=[ProfilerActivity.CPU]) as prof:
@@ -102,18 +111,19 @@ def gemm_in_update(seed: int, buffers: tuple, updates: int = 100) -> dict:
     return out
 
 
-def update_parts(seed: int, buffers: tuple, updates: int = 400, passes: int = 3) -> dict:
+def update_parts(seed: int, buffers: tuple, updates: int = 400, passes: int = 3, seeds: int | None = None) -> dict:
     """Seconds per TD3 / D3QN update in each part of our compiled update as training runs it (the C++ wrapper, warm
     graphs called directly, ``flush_denormal`` on as every job sets it): the loss-and-gradients graph
     (``Learner._gradients``), the optimiser steps (``step_all``), the soft target updates, and the rest (Python,
     TensorDict, the priorities), each the median over ``passes`` passes of ``updates`` updates on samples of
     ``buffers``. With :func:`gemm_in_update` this bounds the update as it is built: the products at their speed inside
     it, the optimiser steps and the soft updates (each reads and writes all of its tensors) take
-    ``*_bound_over_floor`` of the floor before the graphs' other kernels and the rest add anything."""
+    ``*_bound_over_floor`` of the floor before the graphs' other kernels and the rest add anything. ``seeds``: the
+    same of a batch of that many seeds, as :func:`gemm_in_update` takes it."""
     from kddrl_trl.training import learner as base  # the module whose step_all the learner calls
 
     torch.manual_seed(seed)
-    learner = HierarchicalLearner(**learner_kwargs(True)[0])
+    learner = compiled_learner(seeds)
     acc = dict.fromkeys(("gradients", "optimizer", "soft"), 0.0)
 
     def timed(part: str, fn):
@@ -133,7 +143,7 @@ def update_parts(seed: int, buffers: tuple, updates: int = 400, passes: int = 3)
     out = {}
     try:
         for agent, update, rb in (("td3", learner.update_cf, rb_cf), ("d3qn", learner.update_lc, rb_lc)):
-            batches = [rb.sample() for _ in range(updates)]
+            batches = stacked(rb, seeds, updates)
             for b in unprioritized(batches)[:20]:
                 update(b)
             runs = []

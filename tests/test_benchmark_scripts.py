@@ -361,11 +361,15 @@ def test_threads_runs_the_job_alone_and_beside_a_copy_of_itself_at_its_smallest_
 @pytest.mark.benchmarks
 def test_seed_batch_runs_at_its_smallest_size(tmp_path):
     """``benchmarks/seed_batch.py`` for real at its smallest size: a single learner and a batch of 2 seeds, eager
-    and compiled, their per-seed ratios and the floor."""
+    and compiled, their per-seed ratios and the floor, and the batch's compiled update split in its parts."""
     bench = load_benchmark("seed_batch")
     out = tmp_path / "seed_batch.json"
-    assert bench.main(["--seeds", "2", "--updates", "2", "--repeats", "1", "--threads", "1", "--out", str(out)]) == 0
-    arms = json.loads(out.read_text())["arms"]
+    args = ["--seeds", "2", "--updates", "2", "--repeats", "1", "--threads", "1", "--split", "2", "--out", str(out)]
+    assert bench.main(args) == 0
+    result = json.loads(out.read_text())
+    arms, split = result["arms"], result["split"]["2"]
+    assert split["gemm"] > 0 and split["gradients"] > 0 and split["optimizer"] > 0
+    assert split["total"] >= split["gradients"] + split["optimizer"] and split["total_over_floor"] > 0
     assert set(arms) == {"eager/single", "eager/seeds_2", "compiled/single", "compiled/seeds_2"}
     assert arms["eager/single"]["td3_per_seed_over_single"] == 1.0
     assert all(r["td3_per_seed_over_floor"] > 0 for r in arms.values())

@@ -10,7 +10,7 @@ import sys
 import pytest
 from hydra import compose, initialize_config_module
 from omegaconf import OmegaConf
-from testkit import SMALL_NETS, TINY, TINY_BUDGET, compose_job, fake_trainer
+from testkit import SMALL_NETS, TINY, TINY_BUDGET, compose_job, fake_trainer, kill_when
 
 
 def test_scenario_is_appended_not_required():
@@ -189,30 +189,14 @@ def _latest_episodes(run) -> int:
 
 @pytest.mark.slow
 def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
-    import signal
-    import time
-
     args = ["episodes=8", "eval_episodes=1", "train.checkpoint_every=2", *TINY]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "kddrl_trl.train", *args],
-        cwd=tmp_path,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + 400
-    run = None
-    try:
-        while time.monotonic() < deadline and proc.poll() is None:
-            runs = list((tmp_path / "runs").glob("baseline__kddrl__0__*"))
-            if runs and 2 <= _latest_episodes(runs[0]) < 8:
-                run = runs[0]
-                break
-            time.sleep(0.2)
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-    assert run is not None, "no checkpoint appeared before the run ended: " + proc.stderr.read()[-2000:]
+
+    def checkpointed():
+        runs = list((tmp_path / "runs").glob("baseline__kddrl__0__*"))
+        return runs[0] if runs and 2 <= _latest_episodes(runs[0]) < 8 else None
+
+    run, stderr = kill_when(["kddrl_trl.train", *args], tmp_path, checkpointed, timeout=400)
+    assert run is not None, "no checkpoint appeared before the run ended: " + stderr
     killed_at = _latest_episodes(run)
     assert not (run / "summary.json").exists()
 

@@ -159,6 +159,27 @@ def run_module(cmd, cwd, timeout=900):
     return done
 
 
+def kill_when(cmd, cwd, ready, timeout: float = 600):
+    """``python -m <cmd...>`` started in ``cwd`` and killed with SIGKILL as soon as ``ready()`` returns something
+    (polled every 0.2 s), or at ``timeout`` seconds or its own end; returns what ``ready`` returned (None: never)
+    and the end of the process's stderr."""
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", *cmd], cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    deadline, found = time.monotonic() + timeout, None
+    try:
+        while time.monotonic() < deadline and proc.poll() is None and found is None:
+            found = ready()
+            time.sleep(0.2)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    return found, proc.stderr.read()[-2000:]
+
+
 def run_script(folder, body: str, timeout: int = 300) -> subprocess.CompletedProcess:
     """``body`` (dedented) written to ``folder/script.py`` and run as a script (``python script.py``): what a user's
     own script does, ``__main__`` included; returns the finished process (not checked)."""
