@@ -36,6 +36,13 @@ def learner_kwargs(compile: bool | str) -> tuple[dict, int]:
     return {**cfg["learner"], "compile": compile}, int(cfg["lc_period"])
 
 
+def arm_learner(n: int | None, compiled: bool, device: torch.device = torch.device("cpu")) -> HierarchicalLearner:
+    """The default KDDRL learner, alone (``n`` None) or as ``n`` seeds, eager or compiled (on CUDA compiled and
+    CUDA-graphed), on ``device``."""
+    kw = {**learner_kwargs(compiled)[0], "device": device, "cudagraphs": compiled and device.type == "cuda"}
+    return HierarchicalLearner(**kw) if n is None else HierarchicalLearner(**kw, seeds=n)
+
+
 def buffer_keys() -> list:
     """The keys a buffer entry keeps for the KDDRL learner of ``conf/algo/kddrl.yaml`` (a superset of the other
     learners' keys): what :func:`sample_batches` is asked for."""

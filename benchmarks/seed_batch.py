@@ -25,17 +25,17 @@ from pathlib import Path
 import torch
 
 from benchmarks.env_throughput import machine_info, write_json
-from benchmarks.kddrl_parts import RESULTS, buffer_keys, learner_kwargs, sample_batches, stacked, time_updates
+from benchmarks.kddrl_parts import (
+    RESULTS,
+    arm_learner,
+    buffer_keys,
+    learner_kwargs,
+    sample_batches,
+    stacked,
+    time_updates,
+)
 from benchmarks.update_floor import gemm_in_update, gemm_rate, update_flops, update_parts
 from kddrl_trl.process_settings import apply_flush_denormal
-from kddrl_trl.training import HierarchicalLearner
-
-
-def arm_learner(n: int | None, compiled: bool, device: torch.device = torch.device("cpu")) -> HierarchicalLearner:
-    """The default KDDRL learner, alone (``n`` None) or as ``n`` seeds, eager or compiled (on CUDA compiled and
-    CUDA-graphed), on ``device``."""
-    kw = {**learner_kwargs(compiled)[0], "device": device, "cudagraphs": compiled and device.type == "cuda"}
-    return HierarchicalLearner(**kw) if n is None else HierarchicalLearner(**kw, seeds=n)
 
 
 def measure(
@@ -131,6 +131,8 @@ def main(argv=None) -> int:
     p.add_argument("--note", default=None, help="free text stored in the JSON")
     p.add_argument("--out", type=Path, default=RESULTS / "seed_batch.json")
     args = p.parse_args(argv)
+    if args.split and args.device != "cpu":
+        p.error(f"--split measures against the CPU's GEMM floor: it needs --device cpu, got --device {args.device}")
     apply_flush_denormal(True)
     torch.set_num_threads(args.threads)
     # every arm's learner compiles the same gradient function at its own shapes (3 graphs each), all kept warm to
@@ -148,11 +150,7 @@ def main(argv=None) -> int:
                                                        for a in ("td3", "d3qn")}}  # fmt: skip
     ratios(rows, floor)
     print_table(rows, floor)
-    split = (
-        {str(n): split_update(n, args.seed, buffers, floor, args.updates) for n in args.split}
-        if floor is not None
-        else {}
-    )
+    split = {str(n): split_update(n, args.seed, buffers, floor, args.updates) for n in args.split}
     if split:
         print_split(split)
     result = {"args": {k: str(v) for k, v in vars(args).items()}, "machine": machine_info(), "floor": floor,

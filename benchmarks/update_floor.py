@@ -22,6 +22,7 @@ import torch
 from benchmarks.env_throughput import machine_info, write_json
 from benchmarks.kddrl_parts import (
     RESULTS,
+    arm_learner,
     buffer_keys,
     learner_kwargs,
     sample_batches,
@@ -76,12 +77,6 @@ def gemm_rate(threads: int, size: int = 128, batch: int = 2, seconds: float = 1.
 GEMM_OPS = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")
 
 
-def compiled_learner(seeds: int | None = None) -> HierarchicalLearner:
-    """The default KDDRL learner, compiled: alone (``seeds`` None) or as a batch of ``seeds`` seeds."""
-    kw = learner_kwargs(True)[0]
-    return HierarchicalLearner(**kw) if seeds is None else HierarchicalLearner(**kw, seeds=seeds)
-
-
 def gemm_in_update(seed: int, buffers: tuple, updates: int = 100, seeds: int | None = None) -> dict:
     """Seconds per TD3 / D3QN update spent in the update's own matrix products, as they run inside our compiled
     update: the self time of its GEMM calls (:data:`GEMM_OPS`) under ``torch.profiler`` over ``updates`` updates.
@@ -89,13 +84,13 @@ def gemm_in_update(seed: int, buffers: tuple, updates: int = 100, seeds: int | N
     GEMMs are ATen calls the profiler sees; the C++ wrapper calls them past the profiler), on samples of
     ``buffers`` (:func:`sample_batches`' two). Against the floor this says how much of the gap is the products
     themselves (the floor's loop runs one product back to back; inside the update each follows other work) and how
-    much is everything else. ``seeds``: the same of a batch of that many seeds (:func:`compiled_learner`), each
+    much is everything else. ``seeds``: the same of a batch of that many seeds (:func:`~benchmarks.kddrl_parts.arm_learner`), each
     update on one independent sample per seed (:func:`~benchmarks.kddrl_parts.stacked`), the time the whole batch's.
     """
     from torch.profiler import ProfilerActivity, profile
 
     torch.manual_seed(seed)
-    learner = compiled_learner(seeds)
+    learner = arm_learner(seeds, compiled=True)
     python_wrapper(learner)
     rb_cf, rb_lc = buffers
     out = {}
@@ -123,7 +118,7 @@ def update_parts(seed: int, buffers: tuple, updates: int = 400, passes: int = 3,
     from kddrl_trl.training import learner as base  # the module whose step_all the learner calls
 
     torch.manual_seed(seed)
-    learner = compiled_learner(seeds)
+    learner = arm_learner(seeds, compiled=True)
     acc = dict.fromkeys(("gradients", "optimizer", "soft"), 0.0)
 
     def timed(part: str, fn):

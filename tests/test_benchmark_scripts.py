@@ -375,6 +375,13 @@ def test_seed_batch_runs_at_its_smallest_size(tmp_path):
     assert all(r["td3_per_seed_over_floor"] > 0 for r in arms.values())
 
 
+def test_seed_batch_refuses_a_split_off_the_cpu(capsys):
+    """The split's ratios are over the CPU's GEMM floor: on another device it says so, not skips it."""
+    with pytest.raises(SystemExit):
+        load_benchmark("seed_batch").main(["--device", "cuda", "--split", "2"])
+    assert "--split measures against the CPU's GEMM floor" in capsys.readouterr().err
+
+
 @pytest.mark.benchmarks
 def test_update_floor_runs_at_its_smallest_size(tmp_path):
     """``benchmarks/update_floor.py`` for real at its smallest size: the update eager and compiled, the floor and the

@@ -12,7 +12,7 @@ from dataclasses import replace
 import pandas as pd
 import pytest
 import torch
-from testkit import TINY, compose_job, kill_when
+from testkit import TINY, compose_job, kill_when, run_module
 
 from kddrl_trl.baselines import IDMMobilPolicy
 from kddrl_trl.conf.resolvers import seed_label
@@ -184,8 +184,7 @@ def test_a_seed_batch_runs_as_typed_on_sumo_and_its_folders_read_as_runs(tmp_pat
 
 def _batch_cut(batch) -> int:
     """The episodes every seed of ``batch`` has checkpointed (0 before its first cut)."""
-    record = read_seed_batch(batch) if batch is not None else None
-    return min((record or {}).get("checkpoint", {}).values(), default=0)
+    return min((read_seed_batch(batch) or {}).get("checkpoint", {}).values(), default=0)
 
 
 @pytest.mark.slow
@@ -193,20 +192,19 @@ def test_a_killed_seed_batch_resumes_on_sumo_from_its_last_shared_cut(tmp_path):
     """``kill -9`` in the middle of a batch's training on SUMO, then ``resume=true``: each seed's run goes on from the
     batch's last cut to its full length, with no episode logged twice and none missing, in the folders it began."""
     args = ["seeds=[3,5]", "episodes=8", "eval_episodes=1", "train.checkpoint_every=2", "train.eval_every=0", *TINY]
-    cmd = [sys.executable, "-m", "kddrl_trl.train", *args]
+    train = ["kddrl_trl.train", *args]
 
     def cut():
         found = list((tmp_path / "runs").glob("baseline__kddrl__seeds3_5__*"))
         return found[0] if found and 2 <= _batch_cut(found[0]) < 8 else None
 
-    batch, stderr = kill_when(cmd[2:], tmp_path, cut)
+    batch, stderr = kill_when(train, tmp_path, cut)
     assert batch is not None, "no shared cut appeared before the batch ended: " + stderr
     killed_at = _batch_cut(batch)
     assert read_seed_batch(batch).get("finished") is not True
     assert not any((batch / f"baseline__kddrl__{s}" / "summary.json").exists() for s in SEEDS)
 
-    done = subprocess.run([*cmd, "resume=true"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
-    assert done.returncode == 0, done.stderr[-3000:]
+    run_module([*train, "resume=true"], tmp_path)  # asserts it succeeded
     assert list((tmp_path / "runs").iterdir()) == [batch]  # the resumed batch made no folder of its own
     assert read_seed_batch(batch)["finished"] is True and killed_at >= 2
     for seed in SEEDS:
