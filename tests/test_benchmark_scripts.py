@@ -405,6 +405,8 @@ SMALLEST = {
         "4",
         "--per-batch",
         "2",
+        "--seeds",
+        "2",
         "--repeats",
         "1",
     ],

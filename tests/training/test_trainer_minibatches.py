@@ -80,3 +80,30 @@ def test_a_run_of_updates_is_read_at_once_and_a_non_finite_loss_names_its_update
     assert losses == {"loss_qvalue": [1.0, 2.0, 3.0], "loss_actor": [-2.0]} and trainer.counters["cf_updates"] == 3
     with pytest.raises(FloatingPointError, match=r"loss_actor = nan at cf_updates update 4 \(5 buffer-L"):
         trainer._update(trainer.buffer_cf, 2, update, losses, "cf_updates")
+
+
+def test_a_seed_batchs_stacked_minibatches_are_each_seeds_own_step_by_step():
+    """``seed_minibatches``: row ``i`` of step ``j`` is seed ``i`` 's ``j``-th minibatch alone while it takes the step
+    (counts that end inside, at and past a storage read, and a seed that takes none), and its generator stream goes
+    on as alone; a seed that sits a step out gets some other seed's rows."""
+    from kddrl_trl.training.seed_batch_trainer import seed_minibatches
+
+    counts = [MINIBATCHES_PER_DRAW + 6, 3, 0, 2 * MINIBATCHES_PER_DRAW, MINIBATCHES_PER_DRAW]
+    ours = [_filled(seed=s) for s in range(len(counts))]
+    alone = [list(minibatches(_filled(seed=s), n)) for s, n in enumerate(counts)]
+    got = list(seed_minibatches(ours, counts))
+    assert len(got) == max(counts)
+    rows = {tuple(b["x"][:, 0].tolist()) for a in alone for b in a}
+    for j, batch in enumerate(got):
+        assert batch.batch_size == torch.Size([len(counts), 16])
+        for i, n in enumerate(counts):
+            if j < n:
+                assert torch.equal(batch["x"][i], alone[i][j]["x"]), (i, j)
+                assert torch.equal(batch["next", "done"][i], alone[i][j]["next", "done"]), (i, j)
+            else:
+                assert tuple(batch["x"][i, :, 0].tolist()) in rows  # a filler: another seed's minibatch
+    for s, buf in enumerate(ours):
+        reference = _filled(seed=s)
+        list(minibatches(reference, counts[s]))
+        assert torch.equal(buf.sample()["x"], reference.sample()["x"])
+    assert list(seed_minibatches(ours, [0, 0])) == []

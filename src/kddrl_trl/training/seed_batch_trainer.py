@@ -13,8 +13,8 @@ view of the batch (:class:`~kddrl_trl.training.seed_split.SeedView`); this loop 
   seed's own, as many stacked steps as the seed with the most decisions needs, the others sitting out the steps
   beyond theirs (``active``: their networks, targets and optimiser states are kept as they were);
 - each seed's minibatch is sampled from its own buffers with its own generator, as its run alone samples them, and
-  the N minibatches are stacked ``[N, B]``; a seed that sits a step out is given another seed's minibatch, whose
-  result it never keeps;
+  the N minibatches are stacked ``[N, B]`` (:func:`seed_minibatches`); a seed that sits a step out is given another
+  seed's minibatch, whose result it never keeps;
 - a seed that reaches its episodes writes its last checkpoint and stops learning; its roads drive on, unread;
 - periodic validations are shared too (:mod:`kddrl_trl.eval.seed_validation`): when every seed still training is
   due one (``eval_every``), the batch's greedy policy drives N x K validation roads at once, each seed on its own
@@ -40,7 +40,7 @@ import torch
 from ..atomic_files import write_json_atomic
 from ..run_folder import RunFolder, checkpoint_candidates
 from .checkpoint import CheckpointError, load_latest_training_checkpoint, load_training_checkpoint
-from .trainer import Trainer, minibatches
+from .trainer import MINIBATCHES_PER_DRAW, Trainer, minibatch_draws
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +57,22 @@ def read_seed_batch(folder: str | Path) -> dict | None:
         return json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
         raise CheckpointError(f"{path}: cannot be read ({err})") from err
+
+
+def seed_minibatches(buffers, counts: list[int]):
+    """The ``max(counts)`` stacked minibatches ``[N, batch_size]`` of a seed batch's updates: at step ``j``, row
+    ``i`` is the ``j``-th of :func:`~kddrl_trl.training.trainer.minibatches` ``(buffers[i], counts[i])`` (the same
+    indices from seed ``i`` 's own generator as its run alone) where ``j < counts[i]``, and another seed's minibatch
+    where seed ``i`` sits the step out. The seeds' storage reads line up (each draws ``MINIBATCHES_PER_DRAW`` at a
+    time from step 0), so each read of theirs is stacked once and split by step, not stacked step by step. Uniform
+    buffers only (a seed batch refuses ``train.prioritized``)."""
+    draws = [minibatch_draws(buf, n) for buf, n in zip(buffers, counts)]
+    for start in range(0, max(counts, default=0), MINIBATCHES_PER_DRAW):
+        own = [next(d) if n > start else None for d, n in zip(draws, counts)]
+        m = max(x.shape[0] for x in own if x is not None)
+        full = next(x for x in own if x is not None and x.shape[0] == m)
+        rows = [full if x is None else x if x.shape[0] == m else torch.cat([x, full[x.shape[0] :]]) for x in own]
+        yield from torch.stack(rows, dim=1).unbind(0)
 
 
 class SeedBatchTrainer:
@@ -138,15 +154,10 @@ class SeedBatchTrainer:
     # ------------------------------------------------------------------------------------ loop
     def _update(self, buffers, counts: list[int], update, counter: str) -> None:
         """``max(counts)`` stacked updates; seed ``i`` takes the first ``counts[i]`` of them, each on a minibatch of
-        its own buffer (:func:`~kddrl_trl.training.trainer.minibatches`), and reads its losses
-        (:meth:`Trainer._record`)."""
-        draws = [minibatches(buf, n) if n else None for buf, n in zip(buffers, counts)]
+        its own buffer (:func:`seed_minibatches`), and reads its losses (:meth:`Trainer._record`)."""
         outs, masks = [], []
-        for j in range(max(counts)):
+        for j, batch in enumerate(seed_minibatches(buffers, counts)):
             act = [j < n for n in counts]
-            own = [next(d) if a else None for d, a in zip(draws, act)]
-            filler = next(x for x in own if x is not None)
-            batch = torch.stack([x if x is not None else filler for x in own])
             outs.append(update(batch, None if all(act) else torch.tensor(act)))
             masks.append(act)
         for i, book in enumerate(self.books):

@@ -114,27 +114,35 @@ def load_buffer(buffer: TensorDictReplayBuffer, state: dict) -> None:
 MINIBATCHES_PER_DRAW = 64
 
 
-def minibatches(buffer: TensorDictReplayBuffer, n: int):
-    """The ``n`` minibatches (of ``buffer.batch_size`` rows) of ``n`` consecutive updates on ``buffer``.
-
-    A uniform buffer does not change between the updates of one collection batch, so its ``n`` minibatches are
-    drawn as one sample of up to ``MINIBATCHES_PER_DRAW`` x ``batch_size`` rows and split into views: the same
-    indices, from the same generator stream, as ``n`` calls of ``buffer.sample()``
-    (``tests/training/test_trainer_minibatches.py``), at a fraction of the cost per minibatch
-    (``benchmarks/replay_sampling.py`` measures it: arm ``uniform_grouped``). A prioritized buffer is sampled once per
-    update, since each update rewrites the priorities the next draw reads."""
-    if is_prioritized(buffer):
-        for _ in range(n):
-            yield buffer.sample()
-        return
+def minibatch_draws(buffer: TensorDictReplayBuffer, n: int):
+    """The storage reads behind :func:`minibatches` on a uniform ``buffer``: ``[m, batch_size]`` samples, ``m`` up to
+    ``MINIBATCHES_PER_DRAW``, ``n`` minibatches in all, in update order (a seed batch stacks its seeds' reads
+    draw by draw, :func:`~kddrl_trl.training.seed_batch_trainer.seed_minibatches`)."""
     size = buffer.batch_size
     while n > 0:
         m = min(n, MINIBATCHES_PER_DRAW)
         with warnings.catch_warnings():  # TorchRL warns that the size differs from the buffer's batch_size: meant
             warnings.filterwarnings("ignore", "Got conflicting batch_sizes", UserWarning)
             draw = buffer.sample(m * size)
-        yield from draw.reshape(m, size).unbind(0)
+        yield draw.reshape(m, size)
         n -= m
+
+
+def minibatches(buffer: TensorDictReplayBuffer, n: int):
+    """The ``n`` minibatches (of ``buffer.batch_size`` rows) of ``n`` consecutive updates on ``buffer``.
+
+    A uniform buffer does not change between the updates of one collection batch, so its ``n`` minibatches are
+    drawn as one sample of up to ``MINIBATCHES_PER_DRAW`` x ``batch_size`` rows and split into views
+    (:func:`minibatch_draws`): the same indices, from the same generator stream, as ``n`` calls of
+    ``buffer.sample()`` (``tests/training/test_trainer_minibatches.py``), at a fraction of the cost per minibatch
+    (``benchmarks/replay_sampling.py`` measures it: arm ``uniform_grouped``). A prioritized buffer is sampled once per
+    update, since each update rewrites the priorities the next draw reads."""
+    if is_prioritized(buffer):
+        for _ in range(n):
+            yield buffer.sample()
+        return
+    for draw in minibatch_draws(buffer, n):
+        yield from draw.unbind(0)
 
 
 def _under_way(path: Path, payload: dict, episodes: int) -> list[tuple[int, dict]]:
