@@ -383,6 +383,32 @@ def test_seed_batch_refuses_a_split_off_the_cpu(capsys):
 
 
 @pytest.mark.benchmarks
+def test_seed_batch_job_on_c_cores_sets_c_single_runs_against_a_batch_of_c_threads(tmp_path, monkeypatch):
+    """``--cores 2``: the single arm is two copies at once on one thread each, a batch gets two threads, and the
+    per-seed ratio is (batch time / N) over (the copies' time / 2)."""
+    bench = load_benchmark("seed_batch_job")
+    calls = []
+
+    def jobs(outs, overrides, env):
+        calls.append((len(outs), env["OMP_NUM_THREADS"], overrides[0]))
+        n = 1 if overrides[0] == "seed=0" else 4
+        summary = lambda s, t: {"seed": s, "training": {"elapsed_s": t}, "mean_speed_kmh": 1.0, "collision_rate": 0.0}
+        train = 100.0 if n == 1 else 160.0
+        return [
+            {"process_s": train + 10 * i, "summaries": [summary(s, train + 2 * i) for s in range(n)]}
+            for i in range(len(outs))
+        ]
+
+    monkeypatch.setattr(bench, "started_train_jobs", jobs)
+    result = bench.main(
+        ["--seeds", "1", "4", "--cores", "2", "--work", str(tmp_path), "--out", str(tmp_path / "o.json")]
+    )
+    assert calls == [(2, "1", "seed=0"), (1, "2", "seeds=[0,1,2,3]")]
+    assert result["mean"]["1"] == {"process_s": 110.0, "training_s": 101.0}  # the last copy's end, their mean training
+    assert result["per_seed_over_alone"]["4"]["process_s"] == pytest.approx((160 / 4) / (110 / 2))
+    assert result["per_seed_over_alone"]["4"]["training_s"] == pytest.approx((160 / 4) / (101 / 2))
+
+
 def test_update_floor_runs_at_its_smallest_size(tmp_path):
     """``benchmarks/update_floor.py`` for real at its smallest size: the update eager and compiled, the floor and the
     update's parts (whose import of the learner's module once broke with a rename, unseen by ``--help``)."""
@@ -423,7 +449,17 @@ SMALLEST_SUMO = {
     "collector_overhead": ["--roads", "1", "--frames", "20"],
     "data_throughput": ["--duration", "5", "--roads", "1"],
     "soak": ["--eval-episodes", "2", "--train-episodes", "2", "--every", "1", "--roads", "1"],
-    "seed_batch_job": ["--seeds", "1", "2", "episodes=2", "eval_episodes=1", "env.max_steps=60", *TINY_BUDGET],
+    "seed_batch_job": [
+        "--seeds",
+        "1",
+        "2",
+        "--cores",
+        "2",
+        "episodes=2",
+        "eval_episodes=1",
+        "env.max_steps=60",
+        *TINY_BUDGET,
+    ],
 }
 
 
