@@ -8,6 +8,8 @@
 #   bash studies/safety/study.sh [SWEEP_DIR]                # default runs/safety
 #   STOP_AT=07:20 bash studies/safety/study.sh runs/safety  # start no job that would end after 07:20 (a session's end)
 #   LANDED=<main>/studies/safety bash studies/safety/study.sh runs/safety   # skip the runs landed on main already
+#   SEEDS=103 ALGOS=kddrl bash studies/safety/study.sh runs/ship   # some seeds and algos only (a rerun to ship,
+#                                                                    studies/safety/ship.py)
 # It resumes job by job: a finished run (summary.json) with its unshielded evaluation is skipped, a killed one
 # continues from its newest checkpoint. JOBS (default 2) at a time, one torch thread each. A job's expected wall
 # (EXPECT_KDDRL, EXPECT_D3QN_TD3, EXPECT_IDM_MOBIL, minutes: 32, 24, 5 by default, measured two at a time on a
@@ -17,11 +19,11 @@ SWEEP=${1:-runs/safety}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1} SWEEP
 export STOP_EPOCH=$([ -n "${STOP_AT:-}" ] && date -d "$STOP_AT" +%s || echo 0)
 export EXPECT_KDDRL=${EXPECT_KDDRL:-32} EXPECT_D3QN_TD3=${EXPECT_D3QN_TD3:-24} EXPECT_IDM_MOBIL=${EXPECT_IDM_MOBIL:-5}
-SEEDS=${SEEDS:-"100 101 102 103 104 105 106 107 108 109"}
+SEEDS=${SEEDS:-"100 101 102 103 104 105 106 107 108 109"} ALGOS=${ALGOS:-"kddrl d3qn_td3 idm_mobil"}
 
 jobs() {
   local seed sc algo
-  for seed in $SEEDS; do for sc in baseline congested braking; do for algo in kddrl d3qn_td3 idm_mobil; do
+  for seed in $SEEDS; do for sc in baseline congested braking; do for algo in $ALGOS; do
     echo "$seed $sc $algo"
   done; done; done
 }

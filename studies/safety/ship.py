@@ -1,0 +1,156 @@
+"""The safety study's shipped policies (studies/safety/plan.md, "Shipped policies"): per learning arm, the seed whose
+three runs' last periodic validation has no collision and the highest mean speed, pooled over the three scenarios,
+chosen on validation traffic only (``validation.csv``, seed + 500,000 traffic); that seed's three final policies
+ship with the package (:mod:`kddrl_trl.policies`, as ``<algo>_safe_<scenario>``).
+
+    python -m studies.safety.ship                    # the choice, from the landed records (studies/safety/runs)
+    python -m studies.safety.ship --from SWEEP       # ... then ship the chosen runs from SWEEP (their checkpoints)
+
+A checkpoint does not outlive the machine that wrote it, so the chosen runs are shipped from a sweep folder that
+holds them: the study's own (its last seeds), or a rerun of the chosen seed at the pinned commit
+(``SEEDS=<seed> ALGOS=<algo> bash studies/safety/study.sh <SWEEP>``). A run of SWEEP ships only if it is the study's
+run: its training, validation and test records are byte-identical to the landed ones (a rerun on another CPU kind,
+whose float arithmetic differs, is refused, naming the first record that differs). Where no seed of an arm has a
+validation without collision, the plan's rule chooses none; this script then takes the fewest pooled validation
+collisions, then the highest speed, and says so on the policies' cards and in its output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from kddrl_trl.devtools.ab_records import RECORDS
+from kddrl_trl.devtools.ship_policy import ship
+from kddrl_trl.policies import SHIPPED_DIR
+from kddrl_trl.reporting.records import RunRecord, record_bytes
+from studies.safety.report import ARMS, HERE, SCENARIOS, pinned_commit, read
+
+
+def last_validation(run: RunRecord) -> dict:
+    """The last periodic validation of ``run`` (the row with the most episodes trained); a run without one raises,
+    naming its folder."""
+    frame = run.validation
+    if frame is None or frame.empty:
+        raise SystemExit(f"{run.path}: no validation.csv (the choice reads each run's last periodic validation)")
+    missing = [c for c in ("episodes_trained", "episodes", "mean_speed_kmh", "collision_rate") if c not in frame]
+    if missing:
+        raise SystemExit(f"{run.path}: validation.csv lacks column(s) {', '.join(missing)}")
+    row = frame.loc[frame["episodes_trained"].idxmax()]
+    episodes = int(row["episodes"])
+    return {
+        "scenario": run.scenario,
+        "episodes_trained": int(row["episodes_trained"]),
+        "episodes": episodes,
+        "collisions": round(float(row["collision_rate"]) * episodes),
+        "mean_speed_kmh": float(row["mean_speed_kmh"]),
+    }
+
+
+def candidates(runs: list[RunRecord], algo: str) -> list[dict]:
+    """Each seed of ``algo`` with a run in every scenario: its last validations pooled (collisions summed, speed
+    the episode-weighted mean), best first (no collision, then the fastest; ties to the lower seed)."""
+    by_seed: dict[int, dict[str, RunRecord]] = {}
+    for run in runs:
+        if run.algo == algo:
+            by_seed.setdefault(run.seed, {})[run.scenario] = run
+    rows = []
+    for seed, scenarios in sorted(by_seed.items()):
+        if set(scenarios) != set(SCENARIOS):
+            continue
+        last = [last_validation(scenarios[sc]) for sc in SCENARIOS]
+        episodes = sum(v["episodes"] for v in last)
+        rows.append(
+            {
+                "seed": seed,
+                "collisions": sum(v["collisions"] for v in last),
+                "episodes": episodes,
+                "mean_speed_kmh": sum(v["mean_speed_kmh"] * v["episodes"] for v in last) / episodes,
+                "runs": {sc: str(scenarios[sc].path) for sc in SCENARIOS},
+                "validations": last,
+            }
+        )
+    return sorted(rows, key=lambda r: (r["collisions"], -r["mean_speed_kmh"], r["seed"]))
+
+
+def choose(root: Path = HERE, commit: str | None = None) -> dict[str, dict]:
+    """Per learning arm (its algo), the chosen seed's row of :func:`candidates`, with ``by_plan`` false where no seed
+    had a validation without collision (the fallback of the module docstring) and ``ranking`` the other seeds."""
+    runs = read(root / "runs", commit or pinned_commit(root))
+    chosen = {}
+    for algo in ARMS:
+        rows = candidates(runs, algo)
+        if not rows:
+            raise SystemExit(f"{root / 'runs'}: no seed of {algo} has a run in each of {', '.join(SCENARIOS)}")
+        chosen[algo] = {
+            **rows[0],
+            "by_plan": rows[0]["collisions"] == 0,
+            "ranking": [(r["seed"], r["collisions"], round(r["mean_speed_kmh"], 2)) for r in rows],
+        }
+    return chosen
+
+
+def same_run(landed: Path, rerun: Path) -> str | None:
+    """None where ``rerun`` holds the records of ``landed`` byte for byte (a record absent from both is no
+    difference); else the first record that differs."""
+
+    def content(folder: Path, name: str) -> bytes | None:
+        try:
+            return record_bytes(folder, name)
+        except FileNotFoundError:
+            return None
+
+    return next((name for name in RECORDS if content(landed, name) != content(rerun, name)), None)
+
+
+def ship_chosen(chosen: dict[str, dict], sweep: Path, dest: Path = SHIPPED_DIR) -> list[Path]:
+    """Ships each chosen seed's three runs from ``sweep`` (module docstring); refuses a run that is missing there or
+    whose records are not the landed run's, naming it."""
+    plans = []
+    for algo, row in chosen.items():
+        for sc in SCENARIOS:
+            name = f"{sc}__{algo}__{row['seed']}"
+            run = sweep / name
+            if not (run / "summary.json").is_file():
+                raise SystemExit(f"{run}: not a finished run; rerun it with SEEDS={row['seed']} ALGOS={algo} study.sh")
+            differs = same_run(Path(row["runs"][sc]), run)
+            if differs:
+                raise SystemExit(f"{run}: {differs} differs from the landed {row['runs'][sc]}: not the study's run")
+            plans.append((algo, sc, row, run))
+    shipped = []
+    for algo, sc, row, run in plans:
+        rule = "the plan's rule" if row["by_plan"] else "no seed without a validation collision: the fewest, then"
+        why = (
+            f"studies/safety (plan.md, 'Shipped policies'): seed {row['seed']} of {ARMS[algo]}, {rule} the highest "
+            f"mean speed of its last validations pooled over {', '.join(SCENARIOS)} ({row['mean_speed_kmh']:.2f} "
+            f"km/h, {row['collisions']} collisions in {row['episodes']} validation episodes); chosen on validation "
+            f"traffic only"
+        )
+        shipped.append(ship(run, f"{algo}_safe_{sc}", why=why, dest=dest))
+    return shipped
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--root", type=Path, default=HERE, help="the study folder (its runs/)")
+    parser.add_argument("--commit", default=None, help="the pinned commit (default: the last that changed plan.md)")
+    parser.add_argument("--from", dest="sweep", type=Path, default=None, help="a sweep folder holding the chosen runs")
+    parser.add_argument("--dest", type=Path, default=SHIPPED_DIR, help="where the shipped policies go")
+    args = parser.parse_args(argv)
+    chosen = choose(args.root, args.commit)
+    for algo, row in chosen.items():
+        note = "" if row["by_plan"] else " (no seed without a validation collision: the fewest taken)"
+        print(
+            f"{ARMS[algo]}: seed {row['seed']}, {row['mean_speed_kmh']:.2f} km/h, {row['collisions']} collisions in "
+            f"{row['episodes']} validation episodes{note}; ranking (seed, collisions, km/h): {row['ranking']}"
+        )
+    if args.sweep is not None:
+        for out in ship_chosen(chosen, args.sweep, args.dest):
+            print(f"shipped {out}: python -m kddrl_trl.evaluate run=shipped:{out.name}")
+    print(json.dumps({algo: row["seed"] for algo, row in chosen.items()}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
