@@ -23,8 +23,9 @@ def run(folder: Path, algo: str, scenario: str, seed: int, speed: float, faults:
     n = 20
     collisions = [True] * len(faults) + [False] * (n - len(faults))
     fake_run(
-        folder, algo=algo, seed=seed, scenario=scenario, speeds=[speed] * n, collisions=collisions, commit="abc1234"
-    )
+        folder, algo=algo, seed=seed, scenario=scenario, speeds=[speed] * n, collisions=collisions, commit="abc1234",
+        wall_s=360.0, machine="Linux-6.18-x86_64, AMD EPYC, Python 3.11.7, 2 CPUs",
+    )  # fmt: skip
     ep = pd.read_csv(folder / "eval_episodes.csv")
     ep["collision_fault"] = faults + [""] * (n - len(faults))
     ep["shield_interventions"] = shield
@@ -75,6 +76,9 @@ def test_the_goals_the_cost_and_the_sanity_check(tmp_path):
     (paper,) = result["against_paper"]
     assert paper["scenario"] == "braking" and paper["speed"]["mean"] == pytest.approx(131.0 - 120.0)
     assert paper["collision_rate"]["mean"] == pytest.approx(-0.2)
+    compute = {c["algo"]: c for c in result["compute"]}  # the study's runs only, not those without the layer
+    assert compute["kddrl"]["runs"] == 6 and compute["kddrl"]["wall_h"] == pytest.approx(0.6)
+    assert compute["kddrl"]["cpus"] == ["AMD EPYC"] and "| idm_mobil | 6 | 0.6 | AMD EPYC |" in report.markdown(result)
     (sane,) = result["sanity"]
     assert sane["reward"] == "paper" and sane["test_collision_rate"] == pytest.approx(0.5)
     # crashes in episodes 1-60: the last 50-episode window with 3 of them (>= 5 %) ends at episode 107

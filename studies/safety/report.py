@@ -84,6 +84,20 @@ def per_seed(run: RunRecord) -> dict:
     return out
 
 
+def compute(runs: list[RunRecord]) -> list[dict]:
+    """Per algo, the runs and the hours of wall clock they recorded (``wall_s``: training, validations and the final
+    evaluation, each job on one torch thread beside one other), and the CPUs that ran them (``machine``). The
+    evaluations without the layer record no wall clock and are not in it."""
+    out = defaultdict(lambda: {"runs": 0, "wall_h": 0.0, "cpus": set()})
+    for r in runs:
+        row = out[str(r.summary["algo"])]
+        row["runs"] += 1
+        row["wall_h"] += float(r.summary.get("wall_s", 0.0)) / 3600
+        machine = str(r.summary.get("machine", "not recorded")).split(", ")
+        row["cpus"].add(machine[1] if len(machine) > 1 else machine[0])
+    return [{"algo": a, **v, "cpus": sorted(v["cpus"])} for a, v in sorted(out.items())]
+
+
 def cells(runs: list[RunRecord]) -> dict[tuple[str, str], list[dict]]:
     """(algo, scenario) -> the per-seed figures, by seed."""
     out = defaultdict(list)
@@ -308,6 +322,10 @@ def markdown(result: dict) -> str:
             f"{row['test_mean_speed_kmh']:.1f} | {'never' if first is None else first} of "
             f"{row['training_episodes']} |"
         )
+    lines += ["", "## Compute (wall clock the runs recorded; two jobs at a time on a 2-core machine)", ""]
+    lines += ["| algo | runs | wall clock (h) | CPU |", "|---|---|---|---|"]
+    for row in result.get("compute", []):
+        lines.append(f"| {row['algo']} | {row['runs']} | {row['wall_h']:.1f} | {', '.join(row['cpus'])} |")
     return "\n".join(lines) + "\n"
 
 
@@ -366,6 +384,7 @@ def build(root: Path = HERE, commit: str | None = None) -> dict:
             d = difference_ci(_values(a, "mean_speed_kmh"), _values(b, "mean_speed_kmh"))
             result["predictions"].append({"scenario": sc, "n": f"{len(a)} / {len(b)}", "difference": d})
     result["sanity"] = sanity(read(root / "sanity", None))  # before the study, at the plan's first commit
+    result["compute"] = compute(read(root / "runs", commit))
     result["seeds"] = {f"{algo} {sc}": [s["seed"] for s in v] for (algo, sc), v in sorted(study.items())}
     result["per_seed"] = {f"{algo} {sc}": v for (algo, sc), v in sorted(study.items())}
     return result
