@@ -53,7 +53,7 @@ def candidates(runs: list[RunRecord], algo: str) -> list[dict]:
     the episode-weighted mean), best first (no collision, then the fastest; ties to the lower seed)."""
     by_seed: dict[int, dict[str, RunRecord]] = {}
     for run in runs:
-        if run.algo == algo:
+        if str(run.summary["algo"]) == algo:  # its label (run.algo) names the options too
             by_seed.setdefault(run.seed, {})[run.scenario] = run
     rows = []
     for seed, scenarios in sorted(by_seed.items()):
