@@ -70,14 +70,16 @@ def test_a_run_ships_only_if_its_records_are_the_studys(tmp_path, monkeypatch):
             shutil.copytree(row["runs"][sc], sweep / f"{sc}__{algo}__{row['seed']}")
     calls = []
     monkeypatch.setattr(ship, "ship", lambda run, name, why, dest: calls.append((run.name, name, why)) or dest / name)
-    shipped = ship.ship_chosen(chosen, sweep, dest=tmp_path / "policies")
+    shipped = ship.ship_chosen(chosen, [tmp_path / "elsewhere", sweep], dest=tmp_path / "policies")
     assert [p.name for p in shipped] == [f"{a}_safe_{sc}" for a in ("kddrl", "d3qn_td3") for sc in SCENARIOS]
     assert calls[0][0] == "baseline__kddrl__100" and "seed 100" in calls[0][2] and "validation traffic" in calls[0][2]
     # a rerun whose test records differ (another CPU kind's arithmetic) is refused, naming the record
     episodes = sweep / "braking__kddrl__100" / "eval_episodes.csv"
     episodes.write_text(episodes.read_text().replace("100.0", "100.5", 1))
     with pytest.raises(SystemExit, match=r"braking__kddrl__100: eval_episodes.csv differs from the landed"):
-        ship.ship_chosen(chosen, sweep, dest=tmp_path / "policies")
+        ship.ship_chosen(chosen, [tmp_path / "elsewhere", sweep], dest=tmp_path / "policies")
     shutil.rmtree(sweep / "braking__kddrl__100")
-    with pytest.raises(SystemExit, match=r"braking__kddrl__100: not a finished run; rerun it with SEEDS=100"):
-        ship.ship_chosen(chosen, sweep, dest=tmp_path / "policies")
+    with pytest.raises(
+        SystemExit, match=r"braking__kddrl__100: not a finished run in .*elsewhere, .*sweep; rerun it with SEEDS=100"
+    ):
+        ship.ship_chosen(chosen, [tmp_path / "elsewhere", sweep], dest=tmp_path / "policies")

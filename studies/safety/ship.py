@@ -4,7 +4,7 @@ chosen on validation traffic only (``validation.csv``, seed + 500,000 traffic); 
 ship with the package (:mod:`kddrl_trl.policies`, as ``<algo>_safe_<scenario>``).
 
     python -m studies.safety.ship                    # the choice, from the landed records (studies/safety/runs)
-    python -m studies.safety.ship --from SWEEP       # ... then ship the chosen runs from SWEEP (their checkpoints)
+    python -m studies.safety.ship --from SWEEP [--from SWEEP2]   # ... then ship the chosen runs (their checkpoints)
 
 A checkpoint does not outlive the machine that wrote it, so the chosen runs are shipped from a sweep folder that
 holds them: the study's own (its last seeds), or a rerun of the chosen seed at the pinned commit
@@ -104,20 +104,25 @@ def same_run(landed: Path, rerun: Path) -> str | None:
     return next((name for name in RECORDS if content(landed, name) != content(rerun, name)), None)
 
 
-def ship_chosen(chosen: dict[str, dict], sweep: Path, dest: Path = SHIPPED_DIR) -> list[Path]:
-    """Ships each chosen seed's three runs from ``sweep`` (module docstring); refuses a run that is missing there or
-    whose records are not the landed run's, naming it."""
+def ship_chosen(chosen: dict[str, dict], sweeps: list[Path], dest: Path = SHIPPED_DIR) -> list[Path]:
+    """Ships each chosen seed's three runs, each from the first of ``sweeps`` that holds it finished with the landed
+    run's records (module docstring); refuses a run that no sweep holds so, naming it."""
     plans = []
     for algo, row in chosen.items():
         for sc in SCENARIOS:
             name = f"{sc}__{algo}__{row['seed']}"
-            run = sweep / name
-            if not (run / "summary.json").is_file():
-                raise SystemExit(f"{run}: not a finished run; rerun it with SEEDS={row['seed']} ALGOS={algo} study.sh")
-            differs = same_run(Path(row["runs"][sc]), run)
-            if differs:
-                raise SystemExit(f"{run}: {differs} differs from the landed {row['runs'][sc]}: not the study's run")
-            plans.append((algo, sc, row, run))
+            held = [s / name for s in sweeps if (s / name / "summary.json").is_file()]
+            if not held:
+                raise SystemExit(
+                    f"{name}: not a finished run in {', '.join(map(str, sweeps))}; rerun it with "
+                    f"SEEDS={row['seed']} ALGOS={algo} study.sh"
+                )
+            differs = [(run, same_run(Path(row["runs"][sc]), run)) for run in held]
+            same = [run for run, d in differs if d is None]
+            if not same:
+                run, d = differs[0]
+                raise SystemExit(f"{run}: {d} differs from the landed {row['runs'][sc]}: not the study's run")
+            plans.append((algo, sc, row, same[0]))
     shipped = []
     for algo, sc, row, run in plans:
         rule = "the plan's rule" if row["by_plan"] else "no seed without a validation collision: the fewest, then"
@@ -135,7 +140,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=HERE, help="the study folder (its runs/)")
     parser.add_argument("--commit", default=None, help="the pinned commit (default: the last that changed plan.md)")
-    parser.add_argument("--from", dest="sweep", type=Path, default=None, help="a sweep folder holding the chosen runs")
+    parser.add_argument(
+        "--from", dest="sweeps", type=Path, action="append", default=[], help="a sweep folder holding chosen runs"
+    )
     parser.add_argument("--dest", type=Path, default=SHIPPED_DIR, help="where the shipped policies go")
     args = parser.parse_args(argv)
     chosen = choose(args.root, args.commit)
@@ -145,8 +152,8 @@ def main(argv=None) -> int:
             f"{ARMS[algo]}: seed {row['seed']}, {row['mean_speed_kmh']:.2f} km/h, {row['collisions']} collisions in "
             f"{row['episodes']} validation episodes{note}; ranking (seed, collisions, km/h): {row['ranking']}"
         )
-    if args.sweep is not None:
-        for out in ship_chosen(chosen, args.sweep, args.dest):
+    if args.sweeps:
+        for out in ship_chosen(chosen, args.sweeps, args.dest):
             print(f"shipped {out}: python -m kddrl_trl.evaluate run=shipped:{out.name}")
     print(json.dumps({algo: row["seed"] for algo, row in chosen.items()}))
     return 0
