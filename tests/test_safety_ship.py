@@ -76,8 +76,16 @@ def test_a_run_ships_only_if_its_records_are_the_studys(tmp_path, monkeypatch):
     # a rerun whose test records differ (another CPU kind's arithmetic) is refused, naming the record
     episodes = sweep / "braking__kddrl__100" / "eval_episodes.csv"
     episodes.write_text(episodes.read_text().replace("100.0", "100.5", 1))
-    with pytest.raises(SystemExit, match=r"braking__kddrl__100: eval_episodes.csv differs from the landed"):
+    with pytest.raises(
+        SystemExit,
+        match=r"braking__kddrl__100: eval_episodes.csv differs from the landed .*--rerun ships it as a rerun",
+    ):
         ship.ship_chosen(chosen, [tmp_path / "elsewhere", sweep], dest=tmp_path / "policies")
+    calls.clear()  # --rerun: it ships, its card saying it is a rerun and from which record on it differs
+    ship.ship_chosen(chosen, [sweep], dest=tmp_path / "policies", rerun=True)
+    (why,) = [w for run, _, w in calls if run == "braking__kddrl__100"]
+    assert "a rerun of that seed" in why and "from eval_episodes.csv on" in why
+    assert not any("rerun" in w for run, _, w in calls if run != "braking__kddrl__100")
     shutil.rmtree(sweep / "braking__kddrl__100")
     with pytest.raises(
         SystemExit, match=r"braking__kddrl__100: not a finished run in .*elsewhere, .*sweep; rerun it with SEEDS=100"

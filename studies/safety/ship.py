@@ -9,8 +9,9 @@ ship with the package (:mod:`kddrl_trl.policies`, as ``<algo>_safe_<scenario>``)
 A checkpoint does not outlive the machine that wrote it, so the chosen runs are shipped from a sweep folder that
 holds them: the study's own (its last seeds), or a rerun of the chosen seed at the pinned commit
 (``SEEDS=<seed> ALGOS=<algo> bash studies/safety/study.sh <SWEEP>``). A run of SWEEP ships only if it is the study's
-run: its training, validation and test records are byte-identical to the landed ones (a rerun on another CPU kind,
-whose float arithmetic differs, is refused, naming the first record that differs). Where no seed of an arm has a
+run: its training, validation and test records are byte-identical to the landed ones (the training record on the
+columns a study keeps). A rerun on another CPU, whose float arithmetic differs, is refused, naming the first record
+that differs; ``--rerun`` ships it all the same, its card saying that it is a rerun and not the study's run. Where no seed of an arm has a
 validation without collision, the plan's rule chooses none; this script then takes the fewest pooled validation
 collisions, then the highest speed, and says so on the policies' cards and in its output.
 """
@@ -22,9 +23,11 @@ import json
 from pathlib import Path
 
 from kddrl_trl.devtools.ab_records import RECORDS
+from kddrl_trl.devtools.records import compact_record
 from kddrl_trl.devtools.ship_policy import ship
 from kddrl_trl.policies import SHIPPED_DIR
 from kddrl_trl.reporting.records import RunRecord, record_bytes
+from kddrl_trl.run_folder import RunFolder
 from studies.safety.report import ARMS, HERE, SCENARIOS, pinned_commit, read
 
 
@@ -92,21 +95,27 @@ def choose(root: Path = HERE, commit: str | None = None) -> dict[str, dict]:
 
 
 def same_run(landed: Path, rerun: Path) -> str | None:
-    """None where ``rerun`` holds the records of ``landed`` byte for byte (a record absent from both is no
-    difference); else the first record that differs."""
+    """None where ``rerun`` holds the records of ``landed`` byte for byte (its training record on the columns a
+    study keeps, :func:`~kddrl_trl.devtools.records.compact_record`; a record absent from both is no difference);
+    else the first record that differs."""
 
     def content(folder: Path, name: str) -> bytes | None:
         try:
-            return record_bytes(folder, name)
+            raw = record_bytes(folder, name)
         except FileNotFoundError:
             return None
+        return compact_record(raw, folder / name)[0] if name == RunFolder.TRAIN_EPISODES else raw
 
     return next((name for name in RECORDS if content(landed, name) != content(rerun, name)), None)
 
 
-def ship_chosen(chosen: dict[str, dict], sweeps: list[Path], dest: Path = SHIPPED_DIR) -> list[Path]:
+def ship_chosen(
+    chosen: dict[str, dict], sweeps: list[Path], dest: Path = SHIPPED_DIR, rerun: bool = False
+) -> list[Path]:
     """Ships each chosen seed's three runs, each from the first of ``sweeps`` that holds it finished with the landed
-    run's records (module docstring); refuses a run that no sweep holds so, naming it."""
+    run's records (module docstring); refuses a run that no sweep holds so, naming it. With ``rerun``, a run whose
+    records differ ships too, its card saying that it is a rerun of the chosen seed, not the study's run, and from
+    which record on they differ (its final evaluation on the card is its own)."""
     plans = []
     for algo, row in chosen.items():
         for sc in SCENARIOS:
@@ -117,14 +126,18 @@ def ship_chosen(chosen: dict[str, dict], sweeps: list[Path], dest: Path = SHIPPE
                     f"{name}: not a finished run in {', '.join(map(str, sweeps))}; rerun it with "
                     f"SEEDS={row['seed']} ALGOS={algo} study.sh"
                 )
-            differs = [(run, same_run(Path(row["runs"][sc]), run)) for run in held]
-            same = [run for run, d in differs if d is None]
-            if not same:
-                run, d = differs[0]
-                raise SystemExit(f"{run}: {d} differs from the landed {row['runs'][sc]}: not the study's run")
-            plans.append((algo, sc, row, same[0]))
+            differs = sorted(
+                ((same_run(Path(row["runs"][sc]), run) is not None, run) for run in held), key=lambda x: x[0]
+            )
+            other, run = differs[0]
+            if other and not rerun:
+                raise SystemExit(
+                    f"{run}: {same_run(Path(row['runs'][sc]), run)} differs from the landed {row['runs'][sc]}: not the "
+                    f"study's run (--rerun ships it as a rerun)"
+                )
+            plans.append((algo, sc, row, run, same_run(Path(row["runs"][sc]), run) if other else None))
     shipped = []
-    for algo, sc, row, run in plans:
+    for algo, sc, row, run, differs in plans:
         rule = "the plan's rule" if row["by_plan"] else "no seed without a validation collision: the fewest, then"
         why = (
             f"studies/safety (plan.md, 'Shipped policies'): seed {row['seed']} of {ARMS[algo]}, {rule} the highest "
@@ -132,6 +145,12 @@ def ship_chosen(chosen: dict[str, dict], sweeps: list[Path], dest: Path = SHIPPE
             f"km/h, {row['collisions']} collisions in {row['episodes']} validation episodes); chosen on validation "
             f"traffic only"
         )
+        if differs:
+            why += (
+                f". This policy is a rerun of that seed at the study's pinned commit on another machine, not the "
+                f"study's run: its records differ from {row['runs'][sc]} from {differs} on (the float arithmetic of "
+                f"the two CPUs differs, and a run amplifies it); its final evaluation here is its own"
+            )
         shipped.append(ship(run, f"{algo}_safe_{sc}", why=why, dest=dest))
     return shipped
 
@@ -144,6 +163,7 @@ def main(argv=None) -> int:
         "--from", dest="sweeps", type=Path, action="append", default=[], help="a sweep folder holding chosen runs"
     )
     parser.add_argument("--dest", type=Path, default=SHIPPED_DIR, help="where the shipped policies go")
+    parser.add_argument("--rerun", action="store_true", help="ship a rerun whose records differ, its card saying so")
     args = parser.parse_args(argv)
     chosen = choose(args.root, args.commit)
     for algo, row in chosen.items():
@@ -153,7 +173,7 @@ def main(argv=None) -> int:
             f"{row['episodes']} validation episodes{note}; ranking (seed, collisions, km/h): {row['ranking']}"
         )
     if args.sweeps:
-        for out in ship_chosen(chosen, args.sweeps, args.dest):
+        for out in ship_chosen(chosen, args.sweeps, args.dest, args.rerun):
             print(f"shipped {out}: python -m kddrl_trl.evaluate run=shipped:{out.name}")
     print(json.dumps({algo: row["seed"] for algo, row in chosen.items()}))
     return 0

@@ -62,24 +62,33 @@ def kept_columns(header: list[str]) -> list[str]:
 NOT_COLLECTED = ("checkpoints", "logs")
 
 
-def compact(path: Path) -> int:
-    """Rewrites one training record as ``train_episodes.csv.xz`` with the :func:`kept_columns`, every kept value's
-    text as it was; returns the bytes saved (0 for a record compact already)."""
-    raw = lzma.decompress(path.read_bytes()) if path.suffix == ".xz" else path.read_bytes()
+def compact_record(raw: bytes, source: Path) -> tuple[bytes, bool]:
+    """A training record's content cut to the :func:`kept_columns`, every kept value's text as it was, and whether
+    it was compact already; ``source`` names the record in an error."""
     rows = list(csv.reader(io.StringIO(raw.decode())))
     header = rows[0]
     missing = [k for k in KEPT_TRAINING if k not in header]
     if missing:
-        raise ValueError(f"{path}: no column(s) {', '.join(missing)}")
+        raise ValueError(f"{source}: no column(s) {', '.join(missing)}")
     kept = kept_columns(header)
-    if header == kept and path.suffix == ".xz":
-        return 0
+    if header == kept:
+        return raw, True
     at = [header.index(k) for k in kept]
     out = io.StringIO()
     csv.writer(out, lineterminator="\n").writerows([[row[i] for i in at] for row in rows])
+    return out.getvalue().encode(), False
+
+
+def compact(path: Path) -> int:
+    """Rewrites one training record as ``train_episodes.csv.xz`` (:func:`compact_record`); returns the bytes saved
+    (0 for a record compact already)."""
+    raw = lzma.decompress(path.read_bytes()) if path.suffix == ".xz" else path.read_bytes()
+    kept, already = compact_record(raw, path)
+    if already and path.suffix == ".xz":
+        return 0
     target = path.with_name(RunFolder.TRAIN_EPISODES + ".xz")
     before = path.stat().st_size
-    data = lzma.compress(out.getvalue().encode(), preset=9)
+    data = lzma.compress(kept, preset=9)
     write_atomic(target, lambda fh: fh.write(data), binary=True)  # a killed rewrite leaves the record as it was
     if target != path:
         path.unlink()
