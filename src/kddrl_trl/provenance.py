@@ -66,16 +66,25 @@ def code_commit() -> str:
     return _LOADED["commit"]
 
 
-def cpu_model() -> str:
-    """The processor's model name (``/proc/cpuinfo`` on Linux, else :func:`platform.processor`): the same code,
-    seed and packages give other float arithmetic on another CPU model, so a run records which one it ran on."""
+def cpu_model(cpuinfo: str | None = None) -> str:
+    """The processor's model name, with its x86 family, model and stepping and whether it has AVX-512, from
+    ``/proc/cpuinfo`` on Linux (``cpuinfo``: its text), else :func:`platform.processor`: the same code, seed and
+    packages give other float arithmetic on another CPU, and one model name ("AMD EPYC") covers generations whose
+    vector units differ, so a run records which one it ran on. No comma: :func:`machine` joins its parts with one."""
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+        text = Path("/proc/cpuinfo").read_text() if cpuinfo is None else cpuinfo
     except OSError:
-        pass
-    return platform.processor() or "CPU model unknown"
+        text = ""
+    first = {}
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        first.setdefault(key.strip(), value.strip())
+    name = first.get("model name") or platform.processor() or "CPU model unknown"
+    ids = [f"{k} {first[k]}" for k in ("cpu family", "model", "stepping") if first.get(k)]
+    if not ids:
+        return name
+    vector = "AVX-512" if "avx512f" in first.get("flags", "").split() else "no AVX-512"
+    return f"{name} [{' '.join(ids)}; {vector}]"
 
 
 def machine() -> str:

@@ -273,6 +273,22 @@ def test_provenance_names_the_commit_and_a_changed_tree(tmp_path):
     assert cpu_model() in p["machine"] and cpu_model()  # the CPU model: other models give other float arithmetic
 
 
+def test_the_cpu_is_named_down_to_its_generation():
+    """One model name covers CPU generations whose float arithmetic differs: a run records family, model and
+    stepping and whether the CPU has AVX-512, from the first processor's entry, with no comma."""
+    from kddrl_trl.provenance import cpu_model
+
+    entry = (
+        "processor\t: {n}\ncpu family\t: {f}\nmodel\t\t: {m}\nmodel name\t: AMD EPYC\nstepping\t: 1\nflags\t\t: {x}\n\n"
+    )
+    zen4 = entry.format(n=0, f=25, m=17, x="fpu sse2 avx2 avx512f avx512bw") + entry.format(n=1, f=23, m=1, x="avx2")
+    assert cpu_model(zen4) == "AMD EPYC [cpu family 25 model 17 stepping 1; AVX-512]"
+    assert cpu_model(entry.format(n=0, f=23, m=1, x="fpu avx2 avx512_bf16x")) == (
+        "AMD EPYC [cpu family 23 model 1 stepping 1; no AVX-512]"
+    )
+    assert "," not in cpu_model(zen4) and cpu_model("") != ""
+
+
 def test_a_run_records_the_commit_its_code_was_loaded_from(monkeypatch):
     from kddrl_trl import provenance as prov
 
