@@ -30,6 +30,9 @@ from kddrl_trl.reporting.records import RunRecord, record_bytes
 from kddrl_trl.run_folder import RunFolder
 from studies.safety.report import ARMS, HERE, SCENARIOS, pinned_commit, read
 
+#: the repository root, where the landed runs' paths on a card start
+ROOT = HERE.parent.parent
+
 
 def last_validation(run: RunRecord) -> dict:
     """The last periodic validation of ``run`` (the row with the most episodes trained); a run without one raises,
@@ -138,7 +141,13 @@ def ship_chosen(
             plans.append((algo, sc, row, run, same_run(Path(row["runs"][sc]), run) if other else None))
     shipped = []
     for algo, sc, row, run, differs in plans:
-        rule = "the plan's rule" if row["by_plan"] else "no seed without a validation collision: the fewest, then"
+        landed = Path(row["runs"][sc]).resolve()
+        landed = landed.relative_to(ROOT) if landed.is_relative_to(ROOT) else landed
+        rule = (
+            "by the plan's rule: no collision and"
+            if row["by_plan"]
+            else "the plan's rule choosing none (every seed collided in validation): the fewest collisions, then"
+        )
         why = (
             f"studies/safety (plan.md, 'Shipped policies'): seed {row['seed']} of {ARMS[algo]}, {rule} the highest "
             f"mean speed of its last validations pooled over {', '.join(SCENARIOS)} ({row['mean_speed_kmh']:.2f} "
@@ -148,7 +157,7 @@ def ship_chosen(
         if differs:
             why += (
                 f". This policy is a rerun of that seed at the study's pinned commit on another machine, not the "
-                f"study's run: its records differ from {row['runs'][sc]} from {differs} on (the float arithmetic of "
+                f"study's run: its records differ from {landed} from {differs} on (the float arithmetic of "
                 f"the two CPUs differs, and a run amplifies it); its final evaluation here is its own"
             )
         shipped.append(ship(run, f"{algo}_safe_{sc}", why=why, dest=dest))
