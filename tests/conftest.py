@@ -13,6 +13,15 @@ os.environ.setdefault("KDDRL_TRL_CACHE", os.path.join(tempfile.gettempdir(), "kd
 torch.set_num_threads(1)
 
 
+@pytest.fixture(autouse=True)
+def no_flush_to_zero_left_behind():
+    """A job run in the test process sets the CPU's flush-to-zero mode (``flush_denormal=true``, the default) for the
+    whole process; each test leaves it off, as a process starts, so that a later test on the same worker (the
+    property tests' float strategies, which refuse to run without subnormal floats) does not depend on the order."""
+    yield
+    torch.set_flush_denormal(False)
+
+
 @pytest.fixture
 def no_sumo_open():
     """Every test that opens a SUMO env must leave none open behind it."""
