@@ -46,7 +46,10 @@ def test_an_unknown_shipped_name_is_refused_in_one_line(tmp_path, name):
     import sys
 
     done = subprocess.run(
-        [sys.executable, "-m", "kddrl_trl.evaluate", f"run=shipped:{name}"], cwd=tmp_path, capture_output=True, text=True
+        [sys.executable, "-m", "kddrl_trl.evaluate", f"run=shipped:{name}"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
     )
     assert done.returncode != 0 and f"run=shipped:{name}: no such shipped policy" in done.stderr + done.stdout
     assert "kddrl_safe_braking" in done.stderr + done.stdout  # it lists the shipped ones
