@@ -331,7 +331,8 @@ def markdown(result: dict) -> str:
 
 def build(root: Path = HERE, commit: str | None = None) -> dict:
     commit = commit or pinned_commit(root)
-    study = cells(read(root / "runs", commit))
+    runs = read(root / "runs", commit)
+    study = cells(runs)
     bare = cells(read(root / "runs_unshielded", commit))
     result = {"commit": commit, "goals": [], "pooled_G1": {}, "faults": [], "layer_cost": [], "predictions": []}
     for algo, arm in ARMS.items():
@@ -384,7 +385,7 @@ def build(root: Path = HERE, commit: str | None = None) -> dict:
             d = difference_ci(_values(a, "mean_speed_kmh"), _values(b, "mean_speed_kmh"))
             result["predictions"].append({"scenario": sc, "n": f"{len(a)} / {len(b)}", "difference": d})
     result["sanity"] = sanity(read(root / "sanity", None))  # before the study, at the plan's first commit
-    result["compute"] = compute(read(root / "runs", commit))
+    result["compute"] = compute(runs)
     result["seeds"] = {f"{algo} {sc}": [s["seed"] for s in v] for (algo, sc), v in sorted(study.items())}
     result["per_seed"] = {f"{algo} {sc}": v for (algo, sc), v in sorted(study.items())}
     return result

@@ -11,9 +11,9 @@ holds them: the study's own (its last seeds), or a rerun of the chosen seed at t
 (``SEEDS=<seed> ALGOS=<algo> bash studies/safety/study.sh <SWEEP>``). A run of SWEEP ships only if it is the study's
 run: its training, validation and test records are byte-identical to the landed ones (the training record on the
 columns a study keeps). A rerun on another CPU, whose float arithmetic differs, is refused, naming the first record
-that differs; ``--rerun`` ships it all the same, its card saying that it is a rerun and not the study's run. Where no seed of an arm has a
-validation without collision, the plan's rule chooses none; this script then takes the fewest pooled validation
-collisions, then the highest speed, and says so on the policies' cards and in its output.
+that differs; ``--rerun`` ships it all the same, its card saying that it is a rerun and not the study's run. Where no
+seed of an arm has a validation without collision, the plan's rule chooses none; this script then takes the fewest
+pooled validation collisions, then the highest speed, and says so on the policies' cards and in its output.
 """
 
 from __future__ import annotations
@@ -129,16 +129,14 @@ def ship_chosen(
                     f"{name}: not a finished run in {', '.join(map(str, sweeps))}; rerun it with "
                     f"SEEDS={row['seed']} ALGOS={algo} study.sh"
                 )
-            differs = sorted(
-                ((same_run(Path(row["runs"][sc]), run) is not None, run) for run in held), key=lambda x: x[0]
-            )
-            other, run = differs[0]
-            if other and not rerun:
+            compared = [(same_run(Path(row["runs"][sc]), run), run) for run in held]
+            differs, run = next((c for c in compared if c[0] is None), compared[0])
+            if differs and not rerun:
                 raise SystemExit(
-                    f"{run}: {same_run(Path(row['runs'][sc]), run)} differs from the landed {row['runs'][sc]}: not the "
-                    f"study's run (--rerun ships it as a rerun)"
+                    f"{run}: {differs} differs from the landed {row['runs'][sc]}: not the study's run (--rerun ships "
+                    f"it as a rerun)"
                 )
-            plans.append((algo, sc, row, run, same_run(Path(row["runs"][sc]), run) if other else None))
+            plans.append((algo, sc, row, run, differs))
     shipped = []
     for algo, sc, row, run, differs in plans:
         landed = Path(row["runs"][sc]).resolve()
