@@ -4,14 +4,15 @@
 # active (this script may be main's: the code it runs is the checkout's):
 #   bash studies/performance/seed_batch_equivalence.sh [OUT]   # default runs/seed_batch
 # Two jobs at a time (JOBS), one torch thread each; it resumes job by job (resume=true: finished runs are skipped,
-# killed ones continue from their checkpoint). The batched arm runs one job per scenario.
+# killed ones continue from their checkpoint). The batched arm runs one job per scenario. SCENARIOS (default
+# "baseline braking") picks the scenarios, so that a scenario's two arms run in one session on one machine.
 set -euo pipefail
 OUT=${1:-runs/seed_batch}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 SEEDS=200,201,202,203,204,205,206,207,208,209
 jobs() {
   local sc
-  for sc in baseline braking; do
+  for sc in ${SCENARIOS:-baseline braking}; do
     echo "batched $sc"
     for seed in ${SEEDS//,/ }; do echo "alone $sc $seed"; done
   done
