@@ -67,6 +67,32 @@ def test_equivalence_pairs_runs_and_measures_the_difference(bench, runs, tmp_pat
     assert moved["difference"] == pytest.approx(2.0) and moved["ci"][0] < 2.0 < moved["ci"][1]
     collisions = json.loads(out.read_text())["by_group"]["pooled"]["collision rate"]
     assert collisions["difference"] == 0
+    welch = moved["welch"]["ci"]  # the same difference as two independent samples: the seeds' spread widens it
+    assert welch[0] < 2.0 < welch[1] and welch[1] - welch[0] > moved["ci"][1] - moved["ci"][0]
+
+
+def test_equivalence_decides_against_margins_stated_before(bench, runs, tmp_path):
+    """``--margins``: a measure is equivalent when both intervals contain 0 and lie inside ±margin. Unchanged runs
+    are at a margin wider than Welch's interval of three seeds, not at one narrower (the paired interval is 0
+    there); a constant shift (a paired interval that excludes 0) is not; a margin that is not positive is refused."""
+    before, after = copy_runs(runs, tmp_path / "before"), copy_runs(runs, tmp_path / "after")
+    out = tmp_path / "eq.json"
+    assert bench.main([str(before), str(after), "--out", str(out), "--margins", "50", "50"]) == 0
+    same = json.loads(out.read_text())["by_group"]["kddrl on baseline"]
+    assert same["mean speed"]["equivalent"] and same["collision rate"]["equivalent"]
+    assert (same["mean speed"]["margin"], same["collision rate"]["margin"]) == (50.0, 50.0)
+    assert bench.main([str(before), str(after), "--out", str(out), "--margins", "0.01", "50"]) == 0
+    narrow = json.loads(out.read_text())["by_group"]["kddrl on baseline"]["mean speed"]
+    assert narrow["ci"] == [0, 0] and narrow["welch"]["ci"][1] > 0.01 and not narrow["equivalent"]
+    for run in after.iterdir():
+        shift_speed(run, 1.0)
+    assert bench.main([str(before), str(after), "--out", str(out), "--margins", "50", "50"]) == 0
+    shifted = json.loads(out.read_text())["by_group"]["kddrl on baseline"]
+    assert not shifted["mean speed"]["equivalent"] and shifted["collision rate"]["equivalent"]
+    assert bench.main([str(before), str(after), "--out", str(out)]) == 0  # no margins: no decision
+    assert "equivalent" not in json.loads(out.read_text())["by_group"]["pooled"]["mean speed"]
+    with pytest.raises(SystemExit):
+        bench.main([str(before), str(after), "--out", str(out), "--margins", "4", "0"])
 
 
 def set_training(run: Path, **delta: int) -> None:

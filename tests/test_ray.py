@@ -72,6 +72,36 @@ def test_a_sweep_on_local_ray_writes_its_runs_the_report_reads_and_resumes(tmp_p
 
 
 @pytest.mark.ray
+def test_a_sweep_over_seed_batches_on_local_ray(tmp_path):
+    """``-m 'seeds=[0,1],[2,3]'`` on Ray: a job per batch, each writing its batch folder and its seeds' run folders
+    as a batch run alone does, and the report reads the four seeds as one system's."""
+    pytest.importorskip("ray")
+    sweep = tmp_path / "sweep"
+    cmd = [
+        "kddrl_trl.train",
+        "-m",
+        "seeds=[0,1],[2,3]",
+        "+scenario=braking",
+        "hydra/launcher=ray",
+        "+hydra.launcher.init.num_cpus=1",
+        f"hydra.sweep.dir={sweep}",
+        *TINY,
+    ]
+    done = run_module(cmd, tmp_path)
+    assert "is launching 2 jobs" in done.stdout + done.stderr
+    batches = sorted(p.name for p in sweep.iterdir() if p.is_dir())
+    assert batches == ["braking__kddrl__seeds0-1", "braking__kddrl__seeds2-3"]
+    for batch, seeds in zip(batches, ([0, 1], [2, 3])):
+        assert json.loads((sweep / batch / "seed_batch.json").read_text())["seeds"] == seeds
+        for seed in seeds:
+            summary = json.loads((sweep / batch / f"braking__kddrl__{seed}" / "summary.json").read_text())
+            assert summary["seed"] == seed and summary["training"]["episodes"] == 3 and summary["episodes"] == 2
+    run_module(["kddrl_trl.report", str(sweep), f"out={tmp_path / 'rep'}"], tmp_path)
+    rows = json.loads((tmp_path / "rep" / "report.json").read_text())["rows"]
+    assert [(r["algo"], r["seeds"]) for r in rows] == [("kddrl", [0, 1, 2, 3])]
+
+
+@pytest.mark.ray
 def test_training_collects_on_two_ray_actors(tmp_path):
     """``collector.backend=ray collector.workers=2``: TorchRL's Ray collector, one SUMO per actor, both buffers and
     the macro-transition writer in the learner process; the run trains, checkpoints and evaluates as any other."""

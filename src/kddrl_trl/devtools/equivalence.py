@@ -20,6 +20,12 @@ Running the two sides (each from a worktree pinned at its commit, with Hydra's m
 
 Every run must have its partner, with the same ``config.yaml`` (else the error names the run and the keys that
 differ). Prints a table and writes ``benchmarks/results/equivalence.json`` (or ``--out``).
+
+Beside the paired interval, each measure has Welch's (the two sides as independent samples: the pairs share a seed,
+not a trajectory, where the arithmetic changed, so pairing may gain nothing). ``--margins SPEED COLLISION`` (km/h
+and percentage points, stated before the runs) adds the decision of an equivalence study: a measure is equivalent
+when both intervals contain 0 and lie inside ±its margin. A seed batch against the same seeds alone is such a
+change (``studies/performance/seed_batch_plan.md``).
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from omegaconf import OmegaConf
 
 from kddrl_trl.atomic_files import write_json_atomic
 from kddrl_trl.reporting.records import find_runs, record_bytes
-from kddrl_trl.reporting.stats import mean_test
+from kddrl_trl.reporting.stats import difference_test, mean_test
 from kddrl_trl.run_folder import config_differences
 
 #: the measures compared, from each run's final evaluation: (name, summary key, scale to the unit, unit)
@@ -100,19 +106,29 @@ def pairs(before, after) -> list[dict]:
     return out
 
 
-def differences(rows: list[dict]) -> dict:
-    """Per measure: the paired difference after − before, its 95 % interval and two-sided p (n >= 2)."""
+def differences(rows: list[dict], margins: tuple[float, float] | None = None) -> dict:
+    """Per measure: the paired difference after − before, its 95 % interval and two-sided p (n >= 2), Welch's
+    interval and p of the same difference (``welch``), and, given ``margins`` (one per measure, in its unit), the
+    margin and whether the measure is equivalent: both intervals known, containing 0 and inside ±margin."""
     out = {}
-    for name, key, scale, unit in MEASURES:
-        d = np.array([scale * (r["after"][key] - r["before"][key]) for r in rows])
-        t = mean_test(d)
+    for i, (name, key, scale, unit) in enumerate(MEASURES):
+        before = np.array([scale * r["before"][key] for r in rows])
+        after = np.array([scale * r["after"][key] for r in rows])
+        t = mean_test(after - before)
+        w = difference_test(after, before)
         out[name] = {
             "unit": unit,
-            "pairs": int(d.size),
+            "pairs": int(before.size),
             "difference": t["mean"],
             "ci": [t["ci_low"], t["ci_high"]],
             "p": t["p"],
+            "welch": {"ci": [w["ci_low"], w["ci_high"]], "p": w["p"]},
         }
+        if margins is not None:
+            m = float(margins[i])
+            cis = (out[name]["ci"], out[name]["welch"]["ci"])
+            out[name]["margin"] = m
+            out[name]["equivalent"] = all(lo is not None and -m <= lo <= 0 <= hi <= m for lo, hi in cis)
     return out
 
 
@@ -122,7 +138,17 @@ def main(argv=None) -> int:
     p.add_argument("after", type=Path, help="the same runs of the code after it")
     p.add_argument("--out", type=Path, default=Path("benchmarks") / "results" / "equivalence.json")
     p.add_argument("--note", default=None, help="free text stored in the JSON (where and how the runs ran)")
+    p.add_argument(
+        "--margins",
+        type=float,
+        nargs=2,
+        metavar=("SPEED", "COLLISION"),
+        default=None,
+        help="equivalence margins stated before the runs, km/h and percentage points (module docstring)",
+    )
     args = p.parse_args(argv)
+    if args.margins is not None and not all(m > 0 for m in args.margins):
+        p.error(f"--margins: each margin must be > 0, got {args.margins}")
     rows = pairs(args.before, args.after)
     groups = {"pooled": rows}
     for r in rows:
@@ -131,19 +157,29 @@ def main(argv=None) -> int:
         "before": sorted({r["before"]["commit"] for r in rows}),
         "after": sorted({r["after"]["commit"] for r in rows}),
         "pairs": rows,
-        "by_group": {g: differences(rs) for g, rs in groups.items()},
+        "by_group": {g: differences(rs, args.margins) for g, rs in groups.items()},
         "counts_equal": all(r["counts_equal"] for r in rows),
         "update_rule_equal": all(r["update_rule_equal"] for r in rows),
         "training_identical": sum(r["training_identical"] is True for r in rows),
         "training_time_ratio": [r["training_time_ratio"] for r in rows],
         **({"note": args.note} if args.note else {}),
     }
-    print(f"{'group':32s} {'measure':16s} {'pairs':>5s}  after − before [95 % CI]        p")
+    print(
+        f"{'group':32s} {'measure':16s} {'pairs':>5s}  after − before  paired [95 % CI]      p"
+        f"     Welch [95 % CI]       p  margin  equivalent"
+    )
     for g, ms in result["by_group"].items():
         for name, m in ms.items():
-            ci = "" if m["ci"][0] is None else f"[{m['ci'][0]:+.2f}, {m['ci'][1]:+.2f}]"
-            pv = "" if m["p"] is None else f"{m['p']:.2f}"
-            print(f"{g:32s} {name:16s} {m['pairs']:5d}  {m['difference']:+.2f} {m['unit']} {ci:18s} {pv}")
+            cells = [f"{m['difference']:+7.2f} {m['unit']:6s}"]
+            for ci, pv in ((m["ci"], m["p"]), (m["welch"]["ci"], m["welch"]["p"])):
+                cells.append("" if ci[0] is None else f"[{ci[0]:+.2f}, {ci[1]:+.2f}]")
+                cells.append("" if pv is None else f"{pv:.2f}")
+            if "margin" in m:
+                cells += [f"±{m['margin']:g}", "yes" if m["equivalent"] else "NO"]
+            print(
+                f"{g:32s} {name:16s} {m['pairs']:5d}  {cells[0]:15s} {cells[1]:18s} {cells[2]:5s} "
+                f"{cells[3]:18s} {cells[4]:5s} {' '.join(cells[5:])}"
+            )
     print(
         f"update counts equal in every pair: {result['counts_equal']}; update rule (frames and decisions less "
         f"updates) equal in every pair: {result['update_rule_equal']}; training records byte-identical in "
