@@ -133,6 +133,25 @@ def test_equivalence_refuses_a_run_without_partner_and_other_configs(bench, runs
         bench.pairs(before, after)
 
 
+def test_equivalence_compares_one_scenario_where_asked(bench, runs, tmp_path):
+    """``--scenario``: only that scenario's runs are paired, so a run of another scenario without its partner
+    (a study whose second scenario is still running) is left out there and refused without it; a scenario with no
+    run is refused, naming it."""
+    before, after = copy_runs(runs, tmp_path / "before"), copy_runs(runs, tmp_path / "after")
+    other = before / "braking__kddrl__0"
+    shutil.copytree(runs[0], other)
+    summary = json.loads((other / "summary.json").read_text())
+    (other / "summary.json").write_text(json.dumps({**summary, "scenario": "braking"}))
+    with pytest.raises(ValueError, match="without a partner.*braking"):
+        bench.pairs(before, after)
+    assert [r["seed"] for r in bench.pairs(before, after, "baseline")] == [0, 1, 2]
+    out = tmp_path / "eq.json"
+    assert bench.main([str(before), str(after), "--out", str(out), "--scenario", "baseline"]) == 0
+    assert set(json.loads(out.read_text())["by_group"]) == {"pooled", "kddrl on baseline"}
+    with pytest.raises(ValueError, match="no run of scenario 'highway'"):
+        bench.pairs(before, after, "highway")
+
+
 @pytest.mark.slow
 def test_gpu_update_gap_script_runs_its_arms_and_writes_the_ratios(tmp_path):
     """``benchmarks/gpu_update_gap.py`` on the CPU (its ``--device cpu`` trial mode): every arm gives a rate and

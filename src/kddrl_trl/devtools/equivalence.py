@@ -24,7 +24,8 @@ differ). Prints a table and writes ``benchmarks/results/equivalence.json`` (or `
 Beside the paired interval, each measure has Welch's (the two sides as independent samples: the pairs share a seed,
 not a trajectory, where the arithmetic changed, so pairing may gain nothing). ``--margins SPEED COLLISION`` (km/h
 and percentage points, stated before the runs) adds the decision of an equivalence study: a measure is equivalent
-when both intervals contain 0 and lie inside ±its margin. A seed batch against the same seeds alone is such a
+when both intervals contain 0 and lie inside ±its margin; ``--scenario`` keeps one scenario's runs, for margins
+that differ by scenario. A seed batch against the same seeds alone is such a
 change (``studies/performance/seed_batch_plan.md``).
 """
 
@@ -68,11 +69,15 @@ def _same_training(a: Path, b: Path) -> bool | None:
         return None
 
 
-def pairs(before, after) -> list[dict]:
-    """The runs of ``before`` and ``after`` matched by (algo, scenario, seed); raises on a run without a partner
-    or a pair whose configs differ."""
-    a = {(r.algo, r.scenario, r.seed): r for r in find_runs([before])}
-    b = {(r.algo, r.scenario, r.seed): r for r in find_runs([after])}
+def pairs(before, after, scenario: str | None = None) -> list[dict]:
+    """The runs of ``before`` and ``after`` matched by (algo, scenario, seed), only those of ``scenario`` where it
+    is given; raises on a run without a partner, a pair whose configs differ, or a ``scenario`` with no run."""
+    a, b = (
+        {(r.algo, r.scenario, r.seed): r for r in find_runs([side]) if scenario in (None, r.scenario)}
+        for side in (before, after)
+    )
+    if not a and not b:
+        raise ValueError(f"no run of scenario {scenario!r} in {before} or {after}")
     lone = sorted(set(a) ^ set(b))
     if lone:
         where = ", ".join(f"{k} only in {before if k in a else after}" for k in lone[:6])
@@ -146,10 +151,13 @@ def main(argv=None) -> int:
         default=None,
         help="equivalence margins stated before the runs, km/h and percentage points (module docstring)",
     )
+    p.add_argument(
+        "--scenario", default=None, help="compare only this scenario's runs (each scenario has margins of its own)"
+    )
     args = p.parse_args(argv)
     if args.margins is not None and not all(m > 0 for m in args.margins):
         p.error(f"--margins: each margin must be > 0, got {args.margins}")
-    rows = pairs(args.before, args.after)
+    rows = pairs(args.before, args.after, args.scenario)
     groups = {"pooled": rows}
     for r in rows:
         groups.setdefault(f"{r['algo']} on {r['scenario']}", []).append(r)
