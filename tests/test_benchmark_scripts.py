@@ -152,6 +152,22 @@ def test_equivalence_compares_one_scenario_where_asked(bench, runs, tmp_path):
         bench.pairs(before, after, "highway")
 
 
+def test_equivalence_divides_a_batch_time_among_its_seeds(bench, runs, tmp_path):
+    """A run trained in a seed batch (``seed_batch`` in its summary) shares the batch's clock: its training time is
+    the batch's divided among the batch's seeds, so three batched seeds that took the time of one each alone read
+    as a third of it."""
+    before, after = copy_runs(runs, tmp_path / "before"), copy_runs(runs, tmp_path / "after")
+    out = tmp_path / "eq.json"
+    assert bench.main([str(before), str(after), "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["training_time_ratio"] == [1.0, 1.0, 1.0]
+    for run in after.iterdir():
+        path = run / "summary.json"
+        summary = json.loads(path.read_text())
+        path.write_text(json.dumps({**summary, "seed_batch": {"index": 0, "seeds": [0, 1, 2]}}))
+    assert bench.main([str(before), str(after), "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["training_time_ratio"] == pytest.approx([1 / 3] * 3)
+
+
 @pytest.mark.slow
 def test_gpu_update_gap_script_runs_its_arms_and_writes_the_ratios(tmp_path):
     """``benchmarks/gpu_update_gap.py`` on the CPU (its ``--device cpu`` trial mode): every arm gives a rate and

@@ -8,7 +8,7 @@ rate with their Student-t 95 % intervals over the pairs (:func:`kddrl_trl.report
 many pairs kept byte-identical training records, the update counts of each pair (equal where the records are;
 where the arithmetic changed, episodes end at other frames, so the counts part, but the update rule must hold in
 both: frames and decisions less updates, the warm-up's, equal pair by pair) and the ratio of their training
-times.
+times per seed (a seed batch's time divided among its seeds).
 
 Running the two sides (each from a worktree pinned at its commit, with Hydra's multirun; the issue's check is
 3 seeds on baseline and braking):
@@ -60,6 +60,12 @@ def _rule_offsets(training: dict) -> tuple:
     )
 
 
+def _seed_seconds(summary: dict) -> float:
+    """A run's training time per seed: its ``training.elapsed_s``, divided among the seeds of its batch where it
+    was trained in one (``seed_batch`` in ``summary.json``: the batch's seeds share one clock)."""
+    return summary["training"]["elapsed_s"] / len(summary.get("seed_batch", {}).get("seeds", [None]))
+
+
 def _same_training(a: Path, b: Path) -> bool | None:
     """Whether two runs' ``train_episodes.csv`` are byte for byte the same, each decompressed where it is kept
     compressed; None where either has none (a rule-based algo trains nothing)."""
@@ -103,7 +109,7 @@ def pairs(before, after, scenario: str | None = None) -> list[dict]:
                 "warmup_offsets": [oa, ob],
                 "update_rule_equal": None not in oa and oa == ob,
                 "training_identical": _same_training(ra.trained, rb.trained),
-                "training_time_ratio": (tb["elapsed_s"] / ta["elapsed_s"])
+                "training_time_ratio": (_seed_seconds(rb.trained_summary) / _seed_seconds(ra.trained_summary))
                 if ta.get("elapsed_s") and tb.get("elapsed_s")
                 else None,
             }
@@ -193,6 +199,12 @@ def main(argv=None) -> int:
         f"updates) equal in every pair: {result['update_rule_equal']}; training records byte-identical in "
         f"{result['training_identical']} of {len(rows)} pairs"
     )
+    ratios = [r for r in result["training_time_ratio"] if r is not None]
+    if ratios:
+        print(
+            f"training time per seed, after / before: mean {np.mean(ratios):.3f} "
+            f"(pairs {min(ratios):.3f}-{max(ratios):.3f})"
+        )
     write_json_atomic(args.out, result)
     return 0
 
