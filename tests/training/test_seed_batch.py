@@ -277,3 +277,17 @@ def test_a_seed_leaves_the_batch_as_a_single_learner_and_comes_back(samples):
         for k, v in one.state_dict().items():
             if k != "counters":
                 torch.testing.assert_close(mine[k], v, rtol=1e-5, atol=1e-6, msg=k)
+
+
+def test_seed_adam_s_step_sets_no_attribute():
+    """SeedAdam takes its per-seed views when it is built, so a step only writes tensors: TorchDynamo (torch 2.11
+    on a GPU) refuses to compile a step that sets an optimiser attribute."""
+    from kddrl_trl.training.seed_adam import SeedAdam
+
+    w = torch.nn.Parameter(torch.randn(3, 4, 2))
+    opt = SeedAdam([w], seed_dims=[0], lr=1e-3)
+    before = dict(vars(opt))
+    w.grad = torch.randn_like(w)
+    opt.step()
+    assert set(vars(opt)) == set(before) and all(vars(opt)[k] is v for k, v in before.items())
+    assert opt.state[w]["step"].tolist() == [1.0, 1.0, 1.0]

@@ -39,6 +39,7 @@ class SeedAdam(torch.optim.Optimizer):
                 "exp_avg_sq": torch.zeros_like(p, memory_format=torch.preserve_format),
             }
         self._views = None
+        self._seed_shaped()  # here, not in the first step: a compiled step must not set attributes
 
     def _seed_shaped(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Per parameter, views of two ``[N]`` tensors (the step size and the bias correction of the second moment,
