@@ -96,3 +96,19 @@ def test_a_run_of_another_commit_is_refused(tmp_path):
     summary.write_text(json.dumps({**json.loads(summary.read_text()), "commit": "fffffff"}))
     with pytest.raises(SystemExit, match="baseline__kddrl__100: commit fffffff, not the plan's pinned abc1234"):
         report.build(root, commit="abc1234")
+
+
+def test_the_compute_counts_a_seed_batch_s_clock_once():
+    """Seeds trained as one batch each record the batch's wall time; the study's compute counts it once."""
+    from kddrl_trl.reporting.records import RunRecord
+
+    def run(seed, batch=None):
+        summary = {"algo": "kddrl", "wall_s": 3600.0, "machine": "x, AMD EPYC"}
+        if batch:
+            summary["seed_batch"] = {"index": batch.index(seed), "seeds": batch}
+        return RunRecord(Path(f"r{seed}"), "kddrl", "braking", seed, summary, pd.DataFrame())
+
+    (row,) = _report().compute(
+        [run(0, [0, 1, 2, 3]), run(1, [0, 1, 2, 3]), run(2, [0, 1, 2, 3]), run(3, [0, 1, 2, 3]), run(9)]
+    )
+    assert row["runs"] == 5 and row["wall_h"] == pytest.approx(2.0)

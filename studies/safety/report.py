@@ -86,13 +86,14 @@ def per_seed(run: RunRecord) -> dict:
 
 def compute(runs: list[RunRecord]) -> list[dict]:
     """Per algo, the runs and the hours of wall clock they recorded (``wall_s``: training, validations and the final
-    evaluation, each job on one torch thread beside one other), and the CPUs that ran them (``machine``). The
-    evaluations without the layer record no wall clock and are not in it."""
+    evaluation, each job on one torch thread beside one other; a seed of a batch its share of the batch's:
+    :attr:`RunRecord.seed_share`), and the CPUs that ran them (``machine``). The evaluations without the layer
+    record no wall clock and are not in it."""
     out = defaultdict(lambda: {"runs": 0, "wall_h": 0.0, "cpus": set()})
     for r in runs:
         row = out[str(r.summary["algo"])]
         row["runs"] += 1
-        row["wall_h"] += float(r.summary.get("wall_s", 0.0)) / 3600
+        row["wall_h"] += float(r.summary.get("wall_s", 0.0)) * r.seed_share / 3600
         machine = str(r.summary.get("machine", "not recorded")).split(", ")
         row["cpus"].add(machine[1] if len(machine) > 1 else machine[0])
     return [{"algo": a, **v, "cpus": sorted(v["cpus"])} for a, v in sorted(out.items())]

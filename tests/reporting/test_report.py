@@ -539,3 +539,25 @@ def test_the_lcgan_figures_are_drawn_from_its_metrics_and_left_out_when_not_aske
         md = (tmp_path / out / "report.md").read_text()
         assert f"### {title}\n\nNot drawn: " in md and reason in md.split(title)[1].split("\n###")[0]
         assert not (tmp_path / out / "fig16_lcgan_shares.png").exists()
+
+
+def _timed_run(seed: int, elapsed: float, wall: float, batch: list[int] | None = None):
+    from kddrl_trl.reporting.records import RunRecord
+
+    summary = {"algo": "kddrl", "training": {"elapsed_s": elapsed}, "wall_s": wall}
+    if batch is not None:
+        summary["seed_batch"] = {"index": batch.index(seed), "seeds": batch}
+    return RunRecord(Path(f"run{seed}"), "kddrl", "baseline", seed, summary, pd.DataFrame())
+
+
+def test_a_seed_batch_s_shared_clock_is_counted_once_in_the_report_s_times():
+    """The seeds of a batch each record the batch's wall time: the report's times give each its share
+    (``RunRecord.seed_share``), so a batch of three counts once, beside a run alone counted whole."""
+    from kddrl_trl.reporting.sections import _run_times
+
+    batch = [_timed_run(s, 300.0, 360.0, [0, 1, 2]) for s in (0, 1, 2)]
+    alone = _timed_run(7, 120.0, 150.0)
+    assert [r.seed_share for r in batch] == pytest.approx([1 / 3] * 3) and alone.seed_share == 1.0
+    times = _run_times([*batch, alone])
+    assert sum(t for t, _ in times) == pytest.approx(300.0 + 120.0)
+    assert sum(w for _, w in times) == pytest.approx(360.0 + 150.0)

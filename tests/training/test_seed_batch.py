@@ -291,3 +291,9 @@ def test_seed_adam_s_step_sets_no_attribute():
     opt.step()
     assert set(vars(opt)) == set(before) and all(vars(opt)[k] is v for k, v in before.items())
     assert opt.state[w]["step"].tolist() == [1.0, 1.0, 1.0]
+    opt.load_state_dict(opt.state_dict())  # a resumed batch: a loaded state keeps the views, and steps the same
+    loaded = dict(vars(opt))
+    assert loaded["_views"] is before["_views"]
+    opt.step()
+    assert set(vars(opt)) == set(loaded) and all(vars(opt)[k] is v for k, v in loaded.items())
+    assert opt.state[w]["step"].tolist() == [2.0, 2.0, 2.0]

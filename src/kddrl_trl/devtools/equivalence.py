@@ -60,12 +60,6 @@ def _rule_offsets(training: dict) -> tuple:
     )
 
 
-def _seed_seconds(summary: dict) -> float:
-    """A run's training time per seed: its ``training.elapsed_s``, divided among the seeds of its batch where it
-    was trained in one (``seed_batch`` in ``summary.json``: the batch's seeds share one clock)."""
-    return summary["training"]["elapsed_s"] / len(summary.get("seed_batch", {}).get("seeds", [None]))
-
-
 def _same_training(a: Path, b: Path) -> bool | None:
     """Whether two runs' ``train_episodes.csv`` are byte for byte the same, each decompressed where it is kept
     compressed; None where either has none (a rule-based algo trains nothing)."""
@@ -109,7 +103,7 @@ def pairs(before, after, scenario: str | None = None) -> list[dict]:
                 "warmup_offsets": [oa, ob],
                 "update_rule_equal": None not in oa and oa == ob,
                 "training_identical": _same_training(ra.trained, rb.trained),
-                "training_time_ratio": (_seed_seconds(rb.trained_summary) / _seed_seconds(ra.trained_summary))
+                "training_time_ratio": (tb["elapsed_s"] * rb.seed_share) / (ta["elapsed_s"] * ra.seed_share)
                 if ta.get("elapsed_s") and tb.get("elapsed_s")
                 else None,
             }

@@ -55,6 +55,13 @@ class RunRecord:
             self.trained, self.trained_summary = self.path, self.summary
 
     @property
+    def seed_share(self) -> float:
+        """This run's share of its training run's clock: 1 for a run alone, 1/N for a seed of a batch of N
+        (``seed_batch`` in the training run's summary), whose ``training.elapsed_s`` and ``wall_s`` are the
+        batch's shared wall time, so a sum of times over runs counts each batch once."""
+        return 1.0 / len((self.trained_summary or {}).get("seed_batch", {}).get("seeds", [None]))
+
+    @property
     def commit(self) -> str:
         """The commit of the code that made the run (its ``summary.json``), or ``"not recorded"``."""
         return str(self.summary.get("commit", "not recorded"))

@@ -300,9 +300,17 @@ def _protocol(r: RunRecord) -> str:
 
 def _run_times(runs: list[RunRecord]) -> list[tuple[float | None, float | None]]:
     """``(training.elapsed_s, wall_s)`` of each training run behind ``runs``, once per run (a run's final
-    evaluations, ``eval_scenarios=``, share their run's times: :attr:`RunRecord.trained_summary`)."""
+    evaluations, ``eval_scenarios=``, share their run's times: :attr:`RunRecord.trained_summary`), a seed of a
+    batch with its share of the batch's (:attr:`RunRecord.seed_share`)."""
+
+    def share(t: float | None, r: RunRecord) -> float | None:
+        return None if t is None else t * r.seed_share
+
     times = {
-        r.trained: ((r.trained_summary.get("training") or {}).get("elapsed_s"), r.trained_summary.get("wall_s"))
+        r.trained: (
+            share((r.trained_summary.get("training") or {}).get("elapsed_s"), r),
+            share(r.trained_summary.get("wall_s"), r),
+        )
         for r in runs
     }
     return list(times.values())

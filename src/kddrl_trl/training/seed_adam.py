@@ -38,23 +38,19 @@ class SeedAdam(torch.optim.Optimizer):
                 "exp_avg": torch.zeros_like(p, memory_format=torch.preserve_format),
                 "exp_avg_sq": torch.zeros_like(p, memory_format=torch.preserve_format),
             }
-        self._views = None
-        self._seed_shaped()  # here, not in the first step: a compiled step must not set attributes
+        self._views = self._seed_shaped()  # here, not in a step: a compiled step must not set attributes
 
     def _seed_shaped(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Per parameter, views of two ``[N]`` tensors (the step size and the bias correction of the second moment,
-        per seed) shaped to broadcast along its seed dimension; taken once, the ``[N]`` tensors written each step."""
-        if self._views is None:
-            device = self.param_groups[0]["params"][0].device
-            self._step_size, self._bc2_sqrt = (
-                torch.zeros(self.seeds, device=device),
-                torch.ones(self.seeds, device=device),
-            )
-            self._views = []
-            for p, d in zip(self.param_groups[0]["params"], self.seed_dims):
-                shape = [self.seeds if i == d else 1 for i in range(p.dim())]
-                self._views.append((self._step_size.view(shape), self._bc2_sqrt.view(shape)))
-        return self._views
+        per seed) shaped to broadcast along its seed dimension; taken once, the ``[N]`` tensors written each step from
+        the step counts (so a loaded state needs no new views)."""
+        device = self.param_groups[0]["params"][0].device
+        self._step_size, self._bc2_sqrt = torch.zeros(self.seeds, device=device), torch.ones(self.seeds, device=device)
+        views = []
+        for p, d in zip(self.param_groups[0]["params"], self.seed_dims):
+            shape = [self.seeds if i == d else 1 for i in range(p.dim())]
+            views.append((self._step_size.view(shape), self._bc2_sqrt.view(shape)))
+        return views
 
     @torch.no_grad()
     def step(self, closure=None):
@@ -64,9 +60,8 @@ class SeedAdam(torch.optim.Optimizer):
         loss = closure() if closure is not None else None
         group = self.param_groups[0]
         beta1, beta2 = group["betas"]
-        shaped = self._seed_shaped()
         params, grads, m, v, sizes, bc2 = [], [], [], [], [], []
-        for p, views in zip(group["params"], shaped):
+        for p, views in zip(group["params"], self._views):
             if p.grad is None:
                 continue
             s = self.state[p]
@@ -92,10 +87,6 @@ class SeedAdam(torch.optim.Optimizer):
         torch._foreach_mul_(update, sizes)
         torch._foreach_sub_(params, update)
         return loss
-
-    def load_state_dict(self, state_dict) -> None:
-        super().load_state_dict(state_dict)
-        self._views = None  # new state tensors
 
     def seed_tensors(self) -> list[tuple[torch.Tensor, int]]:
         """Every tensor whose slices are a seed's own (the parameters, both moments, the step counts), each with its
