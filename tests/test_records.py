@@ -57,6 +57,32 @@ def test_archived_records_leave_the_tree_and_come_back(repo):
     assert records.restore(repo, ["other"]) == 0
 
 
+def test_a_seed_batch_s_record_of_its_seeds_stays_in_the_tree(repo):
+    batch = repo / "studies" / "x" / "runs" / "baseline__kddrl__seeds0-1"
+    batch.mkdir()
+    (batch / "seed_batch.json").write_text('{"seeds": [0, 1]}\n')
+    _git(repo, "add", "-f", "studies")
+    _git(repo, "commit", "-qm", "a batch")
+    records.archive(repo, ["studies/x/runs"])
+    tracked = _git(repo, "ls-files").split()
+    assert "studies/x/runs/baseline__kddrl__seeds0-1/seed_batch.json" in tracked
+    assert not any(f.endswith(".xz") for f in tracked)
+
+
+@pytest.mark.parametrize(
+    "folder", ["studies/paper/runs/baseline__kddrl__0", "studies/performance/seed_batch/batched/baseline__kddrl__0"]
+)
+def test_the_repository_ignores_a_run_s_records_but_what_main_keeps(folder):
+    """Main's ``.gitignore`` agrees with :func:`records.kept_in_tree` for every kind of study folder, so that an
+    archived record, still on disk, is never added back by ``git add``."""
+    names = ["summary.json", "config.yaml", ".hydra/config.yaml", "seed_batch.json", "train_episodes.csv.xz"]
+    names += ["eval_episodes.csv.xz", "train.log.xz", "validation.csv.xz", "checkpoints/latest.pt"]
+    for name in names:
+        path = f"{folder}/{name}"
+        ignored = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "--no-index", "-q", path]).returncode == 0
+        assert ignored != records.kept_in_tree(path), path
+
+
 def test_a_run_landed_after_its_studys_archive_is_extracted_from_its_own(repo, tmp_path):
     """Records asked for by a run's folder: the study's archive, taken before that run landed, does not hold it, and
     the run's own later archive does."""

@@ -126,10 +126,15 @@ def collect(sweep: Path, dest: Path) -> list[str]:
 
 
 def kept_in_tree(path: str) -> bool:
-    """Whether a record file stays in main's tree: a run's summary and configs, and the small per-seed results of a
-    plain script (``studies/reuse/runs/example/*.json``)."""
+    """Whether a record file stays in main's tree: a run's summary and configs, a seed batch's record of its seeds
+    (``seed_batch.json``), and the small per-seed results of a plain script (``studies/reuse/runs/example/*.json``).
+    The repository's ``.gitignore`` ignores the rest, so that no ``git add`` takes an archived record back in."""
     p = PurePosixPath(path)
-    return p.name == RunFolder.SUMMARY or p.suffix == ".yaml" or (p.suffix == ".json" and "example" in p.parts)
+    return (
+        p.name in (RunFolder.SUMMARY, RunFolder.SEED_BATCH)
+        or p.suffix == ".yaml"
+        or (p.suffix == ".json" and "example" in p.parts)
+    )
 
 
 def repo_root(start: Path | None = None) -> Path:
